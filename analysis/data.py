@@ -1,0 +1,194 @@
+"""Measurements in, whatever their source: a CSV ``t,u,y[,r]`` (s, %, kgf), a recorded run
+directory, or a bus capture (decoded with the stand's DBC).
+
+Everything downstream works on :class:`Record`: uniformly sampled arrays plus where they came
+from. Several files given together form one data set (a list of records, never concatenated
+across gaps: each keeps its own time base).
+"""
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+from gateway.errors import DataError
+from gateway.runs import is_run_dir, load_run
+
+#: relative spread of sample intervals above which a record is resampled to a uniform grid
+JITTER_TOLERANCE = 0.05
+
+
+@dataclass
+class Record:
+    """One uniformly sampled record: time (s), command (%), force (kgf), reference (kgf or NaN)."""
+
+    t: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    r: np.ndarray
+    source: str
+    experiment: str | None = None          #: "meander" | "pfeedback" | "relay" | None (unknown)
+    meta: dict[str, Any] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def dt(self) -> float:
+        return float((self.t[-1] - self.t[0]) / (len(self.t) - 1))
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t[-1] - self.t[0])
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def has_reference(self) -> bool:
+        return bool(np.isfinite(self.r).any())
+
+    def slice(self, start: int, stop: int) -> "Record":
+        return Record(self.t[start:stop], self.u[start:stop], self.y[start:stop],
+                      self.r[start:stop], self.source, self.experiment, self.meta, list(self.notes))
+
+
+def make_record(t, u, y, r=None, source: str = "<arrays>", experiment: str | None = None,
+                meta: dict | None = None, min_samples: int = 20) -> Record:
+    """Validate and tidy arrays into a :class:`Record`.
+
+    Rejects (with :class:`DataError`) too few samples, non-finite time, time that does not
+    increase; drops rows with non-finite u or y (counted in ``notes``); resamples to a uniform
+    grid if the sampling jitters by more than 5 %."""
+    t = np.asarray(t, float)
+    u = np.asarray(u, float)
+    y = np.asarray(y, float)
+    r = np.full_like(t, np.nan) if r is None else np.asarray(r, float)
+    notes: list[str] = []
+    if not (len(t) == len(u) == len(y) == len(r)):
+        raise DataError(f"{source}: columns have different lengths")
+    good = np.isfinite(t) & np.isfinite(u) & np.isfinite(y)
+    if not good.all():
+        notes.append(f"dropped {int((~good).sum())} rows with missing or non-finite t, u or y")
+        t, u, y, r = t[good], u[good], y[good], r[good]
+    if len(t) < min_samples:
+        raise DataError(f"{source}: only {len(t)} usable samples; need at least {min_samples}")
+    dts = np.diff(t)
+    if (dts <= 0).any():
+        order = np.argsort(t, kind="stable")
+        t, u, y, r = t[order], u[order], y[order], r[order]
+        keep = np.concatenate([[True], np.diff(t) > 0])
+        notes.append(f"time was not increasing: sorted, dropped {int((~keep).sum())} duplicate times")
+        t, u, y, r = t[keep], u[keep], y[keep], r[keep]
+        dts = np.diff(t)
+        if len(t) < min_samples:
+            raise DataError(f"{source}: only {len(t)} samples with distinct times")
+    med = float(np.median(dts))
+    if np.max(np.abs(dts - med)) > JITTER_TOLERANCE * med:
+        gaps = int((dts > 5 * med).sum())
+        if gaps:
+            notes.append(f"{gaps} gap(s) longer than 5 sample intervals were bridged by resampling")
+        n = int(round((t[-1] - t[0]) / med)) + 1
+        grid = t[0] + med * np.arange(n)
+        # the command is held (zero-order hold), the force interpolated
+        idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 1)
+        u = u[idx]
+        r = r[idx]
+        y = np.interp(grid, t, y)
+        t = grid
+        notes.append(f"sampling was irregular: resampled to a uniform {med * 1e3:.3g} ms grid")
+    return Record(t, u, y, r, source, experiment, dict(meta or {}), notes)
+
+
+def read_csv(path: str | Path) -> Record:
+    """CSV with a header naming at least ``t``, ``u``, ``y`` (optionally ``r``); s, %, kgf."""
+    path = Path(path)
+    try:
+        with path.open(newline="") as fh:
+            reader = csv.reader(fh)
+            header = next(reader, None)
+            if header is None:
+                raise DataError(f"{path}: empty file")
+            names = [h.strip().lower() for h in header]
+            missing = [c for c in ("t", "u", "y") if c not in names]
+            if missing:
+                raise DataError(f"{path}: the header must name columns t,u,y[,r] (s, %, kgf); "
+                                f"missing {', '.join(missing)} (header: {','.join(header)})")
+            cols = {c: names.index(c) for c in ("t", "u", "y", "r") if c in names}
+            rows = []
+            for lineno, row in enumerate(reader, start=2):
+                if not row or all(not c.strip() for c in row):
+                    continue
+                try:
+                    rows.append([_num(row[cols[c]]) if cols[c] < len(row) else math.nan
+                                 for c in ("t", "u", "y")] +
+                                [(_num(row[cols["r"]]) if cols["r"] < len(row) else math.nan)
+                                 if "r" in cols else math.nan])
+                except ValueError as exc:
+                    raise DataError(f"{path}:{lineno}: {exc}") from None
+    except OSError as exc:
+        raise DataError(f"cannot read {path}: {exc}") from None
+    if not rows:
+        raise DataError(f"{path}: no data rows after the header")
+    a = np.array(rows, float)
+    return make_record(a[:, 0], a[:, 1], a[:, 2], a[:, 3], source=str(path))
+
+
+def _num(text: str) -> float:
+    text = text.strip()
+    if text == "" or text.lower() in ("nan", "na", "null"):
+        return math.nan
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f"{text!r} is not a number") from None
+
+
+def write_csv(record: Record, path: str | Path) -> None:
+    with Path(path).open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["t", "u", "y", "r"])
+        for row in zip(record.t, record.u, record.y, record.r):
+            w.writerow([repr(float(v)) for v in row])
+
+
+def read_run(path: str | Path) -> Record:
+    run = load_run(path)
+    if len(run) == 0:
+        raise DataError(f"{path}: the run has no samples")
+    rec = make_record(run.t, run.u, run.y, run.r, source=str(path), experiment=run.experiment,
+                      meta=run.meta)
+    rec.notes = run.notes + rec.notes
+    return rec
+
+
+CAPTURE_SUFFIXES = (".log", ".asc", ".blf", ".trc", ".mf4", ".csv.gz", ".db")
+
+
+def load(path: str | Path) -> Record:
+    """Load one input: run directory, CSV, or (once available) a bus capture."""
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"{path} does not exist")
+    if path.is_dir():
+        if is_run_dir(path):
+            return read_run(path)
+        raise DataError(f"{path} is a directory but not a run (no run.json)")
+    if path.suffix.lower() == ".csv":
+        return read_csv(path)
+    if path.suffix.lower() in CAPTURE_SUFFIXES:
+        try:
+            from .captures import load_capture
+        except ImportError:
+            raise DataError(f"{path}: decoding bus captures is not available in this version") from None
+        return load_capture(path)
+    raise DataError(f"{path}: unknown input type; give a CSV (t,u,y[,r]), a run directory or a "
+                    "bus capture (.log, .asc, .blf, .trc, .mf4)")
+
+
+def load_all(paths: Iterable[str | Path]) -> list[Record]:
+    records = [load(p) for p in paths]
+    if not records:
+        raise DataError("no input given")
+    return records

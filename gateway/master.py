@@ -1,0 +1,210 @@
+"""The gateway as CANopen master of the stand: NMT, identity check, PDO set-up (CiA 301).
+
+Start-up, in the order a careful master does it:
+
+1. reset both nodes (NMT reset node) and wait for their boot-up messages;
+2. read the identity object 0x1018 over SDO and compare it with the EDS (wrong node id, wrong
+   device or wrong EDS are refused with a message naming the node);
+3. write the communication cycle period 0x1006, the heartbeat producer time 0x1017 and the RPDO
+   timeout, and read back the PDO mappings (canopen's ``tpdo.read()``/``rpdo.read()``), checking
+   that they carry the objects the control loop needs;
+4. read the dynamometer's unit and decimals (0x6131/0x6132) to scale its process value to kgf;
+5. NMT start, and confirm OPERATIONAL from the heartbeats.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+
+import canopen
+
+from dbc import DYNAMOMETER_EDS, VALVE_EDS
+from dbc import profile as P
+from dbc.pdo_codec import PdoLayout, PdoLayoutError
+
+from .capture import TappedNetwork
+from .errors import NodeError
+
+log = logging.getLogger(__name__)
+
+NMT_START, NMT_PREOP, NMT_RESET_NODE = 0x01, 0x80, 0x81
+_NMT_NAMES = {0: "BOOT-UP", 4: "STOPPED", 5: "OPERATIONAL", 127: "PRE-OPERATIONAL"}
+
+
+@dataclass
+class NodeLink:
+    """What the master knows about one node."""
+
+    role: str                     #: "valve" or "dynamometer"
+    node: canopen.RemoteNode
+    identity: dict = field(default_factory=dict)
+    last_heartbeat: float | None = None   #: monotonic time of the last heartbeat
+    nmt_state: int | None = None
+    booted: threading.Event = field(default_factory=threading.Event)
+
+    @property
+    def id(self) -> int:
+        return self.node.id
+
+
+class StandMaster:
+    """Master of the valve and dynamometer nodes on one :class:`TappedNetwork`."""
+
+    def __init__(self, network: TappedNetwork, valve_id: int, dynamometer_id: int) -> None:
+        if valve_id == dynamometer_id:
+            raise NodeError(valve_id, "the valve and the dynamometer cannot have the same node id")
+        for nid in (valve_id, dynamometer_id):
+            if not 1 <= nid <= 127:
+                raise NodeError(nid, f"node id {nid} is outside 1..127")
+        self.network = network
+        self.valve = NodeLink("valve", canopen.RemoteNode(valve_id, str(VALVE_EDS)))
+        self.dynamometer = NodeLink("dynamometer", canopen.RemoteNode(dynamometer_id, str(DYNAMOMETER_EDS)))
+        self.links = (self.valve, self.dynamometer)
+        for link in self.links:
+            network.add_node(link.node)
+            network.subscribe(0x700 + link.id, self._heartbeat_callback(link))
+        self.force_scale_kgf: float | None = None
+        self.valve_tpdo: PdoLayout | None = None
+        self.valve_rpdo: PdoLayout | None = None
+        self.force_tpdo: PdoLayout | None = None
+        self.lockstep_capable: bool | None = None
+
+    def _heartbeat_callback(self, link: NodeLink):
+        def on_heartbeat(can_id: int, data: bytes, timestamp: float) -> None:
+            if not data:
+                return
+            state = data[0] & 0x7F
+            link.last_heartbeat = time.monotonic()
+            link.nmt_state = state
+            if state == 0:
+                link.booted.set()
+        return on_heartbeat
+
+    # -- 1. boot ----------------------------------------------------------------------------------
+    def boot(self, timeout_s: float = 5.0) -> None:
+        """Reset both nodes and wait for their boot-up messages."""
+        for link in self.links:
+            link.booted.clear()
+        for link in self.links:
+            link.node.nmt.send_command(NMT_RESET_NODE)
+        deadline = time.monotonic() + timeout_s
+        resend = time.monotonic() + 1.0
+        while time.monotonic() < deadline:
+            missing = [l for l in self.links if not l.booted.is_set()]
+            if not missing:
+                return
+            if time.monotonic() >= resend:  # a node that came up after our reset
+                for link in missing:
+                    link.node.nmt.send_command(NMT_RESET_NODE)
+                resend = time.monotonic() + 1.0
+            missing[0].booted.wait(0.05)
+        missing = [l for l in self.links if not l.booted.is_set()]
+        if missing:
+            link = missing[0]
+            heard = link.nmt_state is not None
+            raise NodeError(
+                link.id,
+                f"{link.role} node {link.id} did not boot within {timeout_s:g} s"
+                + (" (it sends heartbeats but ignored NMT reset)" if heard else
+                   " (nothing heard from it: is it powered, on this bus, with this node id? "
+                   "For the emulator run `stand emulate` with the same --bus)"))
+
+    # -- 2. identity --------------------------------------------------------------------------------
+    def check_identity(self) -> None:
+        for link in self.links:
+            info = link.node.object_dictionary.device_information
+            try:
+                vendor = link.node.sdo[P.IDENTITY][1].raw
+                product = link.node.sdo[P.IDENTITY][2].raw
+                revision = link.node.sdo[P.IDENTITY][3].raw
+                serial = link.node.sdo[P.IDENTITY][4].raw
+            except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
+                raise NodeError(link.id, f"{link.role} node {link.id}: cannot read its identity "
+                                         f"(0x1018) over SDO: {exc}") from None
+            link.identity = dict(vendor=vendor, product=product, revision=revision, serial=serial)
+            if (vendor, product) != (info.vendor_number, info.product_number):
+                raise NodeError(
+                    link.id,
+                    f"node {link.id} is not the expected {link.role}: identity vendor 0x{vendor:08X} "
+                    f"product 0x{product:08X}, but {link.node.object_dictionary.device_information.product_name!r} "
+                    f"has vendor 0x{info.vendor_number:08X} product 0x{info.product_number:08X}. "
+                    "Check --valve-id/--dynamometer-id (swapped node ids?) and the EDS files.")
+
+    # -- 3./4. configuration ------------------------------------------------------------------------
+    def configure(self, period_s: float, heartbeat_ms: int, rpdo_timeout_ms: int) -> None:
+        period_us = int(round(period_s * 1e6))
+        for link in self.links:
+            sdo = link.node.sdo
+            try:
+                sdo[P.COMM_CYCLE_PERIOD].raw = period_us
+                sdo[P.PRODUCER_HEARTBEAT].raw = heartbeat_ms
+                link.node.tpdo.read()
+                if link is self.valve:
+                    sdo[0x1400][5].raw = rpdo_timeout_ms
+                    link.node.rpdo.read()
+            except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
+                raise NodeError(link.id, f"{link.role} node {link.id}: configuration over SDO "
+                                         f"failed: {exc}") from None
+        self.valve_tpdo = self._layout(self.valve, self.valve.node.tpdo[1],
+                                       [(P.STATUS_WORD, 0), P.ACTUAL_VALUE], synchronous=True)
+        self.valve_rpdo = self._layout(self.valve, self.valve.node.rpdo[1],
+                                       [(P.CONTROL_WORD, 0), P.SETPOINT], synchronous=False)
+        self.force_tpdo = self._layout(self.dynamometer, self.dynamometer.node.tpdo[1], [P.PV_INT32],
+                                       synchronous=True)
+        dyn = self.dynamometer.node.sdo
+        try:
+            unit = dyn[P.PV_UNIT[0]][P.PV_UNIT[1]].raw
+            decimals = dyn[P.PV_DECIMALS[0]][P.PV_DECIMALS[1]].raw
+            self.force_scale_kgf = P.force_scale_kgf(unit, decimals)
+        except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
+            raise NodeError(self.dynamometer.id, f"dynamometer node {self.dynamometer.id}: cannot read "
+                                                 f"its unit/decimals (0x6131/0x6132): {exc}") from None
+        except ValueError as exc:
+            raise NodeError(self.dynamometer.id, f"dynamometer node {self.dynamometer.id}: {exc}") from None
+        try:
+            self.lockstep_capable = bool(self.valve.node.sdo[P.EMULATOR_CLOCK].raw)
+        except (canopen.SdoCommunicationError, canopen.SdoAbortedError, KeyError):
+            self.lockstep_capable = False
+
+    def _layout(self, link: NodeLink, pdo_map, needed, synchronous: bool) -> PdoLayout:
+        if not pdo_map.enabled:
+            raise NodeError(link.id, f"{link.role} node {link.id}: {pdo_map.name} is disabled; "
+                                     "enable it (see its EDS)")
+        try:
+            layout = PdoLayout.from_map(pdo_map)
+        except PdoLayoutError as exc:
+            raise NodeError(link.id, f"{link.role} node {link.id}: {pdo_map.name}: {exc}") from None
+        for key in needed:
+            if tuple(key) not in layout.keys:
+                raise NodeError(link.id, f"{link.role} node {link.id}: {pdo_map.name} does not map "
+                                         f"0x{key[0]:04X}:{key[1]:02X}, which the control loop needs")
+        tt = pdo_map.trans_type
+        if synchronous and not (tt == 0 or 1 <= tt <= 240):
+            raise NodeError(link.id, f"{link.role} node {link.id}: {pdo_map.name} has transmission "
+                                     f"type {tt}; the loop needs a synchronous TPDO (type 1)")
+        return layout
+
+    # -- 5. start / stop ------------------------------------------------------------------------
+    def start(self, timeout_s: float = 2.0) -> None:
+        for link in self.links:
+            link.node.nmt.send_command(NMT_START)
+        self.wait_state(5, timeout_s)
+
+    def enter_preoperational(self, timeout_s: float = 1.0) -> None:
+        for link in self.links:
+            link.node.nmt.send_command(NMT_PREOP)
+
+    def wait_state(self, state: int, timeout_s: float) -> None:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if all(l.nmt_state == state for l in self.links):
+                return
+            time.sleep(0.005)
+        for link in self.links:
+            if link.nmt_state != state:
+                raise NodeError(link.id, f"{link.role} node {link.id} did not report "
+                                         f"{_NMT_NAMES.get(state, state)} within {timeout_s:g} s "
+                                         f"(last heartbeat state: {_NMT_NAMES.get(link.nmt_state, link.nmt_state)})")
+

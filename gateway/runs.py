@@ -1,0 +1,141 @@
+"""The run directory: what every recorded run looks like on disk, and how to read it back.
+
+::
+
+    RUN/
+      run.json          metadata: experiment and parameters, bus, node ids and identities,
+                        period, clock, versions, start/end, why it ended, counters
+      signals.parquet   one row per control cycle (columns below)
+      signals.arrows    the same while the run is going (Arrow IPC stream, flushed at least
+                        every 0.5 s); a run cut short by a crash keeps only this file, and
+                        :func:`load_run` recovers every complete chunk from it
+      capture.log       raw bus capture (candump -L format, python-can logger)
+      truth.json        only for emulated runs: the emulator's true parameters. Written by the
+                        tool that started the emulator; the analysis never reads it.
+
+Signals (one row per cycle; SI-ish units in the names' docs):
+
+=============  ========  =====================================================================
+t              float64   s since the run's first SYNC (lockstep: cycle × period exactly)
+u              float64   valve command sent after this cycle's force reading, %
+y              float64   force read at this cycle's SYNC, kgf
+r              float64   reference force, kgf (NaN for open-loop experiments)
+cycle          int64     cycle number from 0
+y_counts       int32     the dynamometer's raw process value (counts of 0x9130:01)
+spool          float64   the valve's reported actual value at this SYNC, %
+valve_status   uint16    the valve's status word at this SYNC
+stale          bool      no fresh force PDO this cycle (y repeats the last reading)
+sync_time      float64   wall-clock time the SYNC was sent (s since the epoch)
+=============  ========  =====================================================================
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.ipc
+import pyarrow.parquet as pq
+
+from .errors import DataError
+
+FORMAT = "hydrostand-run/1"
+META_FILE = "run.json"
+SIGNALS_FILE = "signals.parquet"
+STREAM_FILE = "signals.arrows"
+CAPTURE_FILE = "capture.log"
+TRUTH_FILE = "truth.json"
+
+SCHEMA = pa.schema([
+    ("t", pa.float64()), ("u", pa.float64()), ("y", pa.float64()), ("r", pa.float64()),
+    ("cycle", pa.int64()), ("y_counts", pa.int32()), ("spool", pa.float64()),
+    ("valve_status", pa.uint16()), ("stale", pa.bool_()), ("sync_time", pa.float64()),
+])
+COLUMNS = tuple(SCHEMA.names)
+
+
+@dataclass
+class Run:
+    """A recorded run: signals as numpy arrays plus its metadata."""
+
+    path: Path
+    meta: dict[str, Any]
+    signals: dict[str, np.ndarray]
+    recovered: bool = False          #: True if read from the crash-safe stream (no clean close)
+    notes: list[str] = field(default_factory=list)
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        signals = self.__dict__.get("signals")
+        if signals is not None and name in signals:
+            return signals[name]
+        raise AttributeError(name)
+
+    def __len__(self) -> int:
+        return len(self.signals["t"])
+
+    @property
+    def experiment(self) -> str | None:
+        return (self.meta.get("experiment") or {}).get("name")
+
+
+def is_run_dir(path: str | Path) -> bool:
+    path = Path(path)
+    return path.is_dir() and (path / META_FILE).exists()
+
+
+def read_stream(path: Path) -> tuple[pa.Table, str | None]:
+    """All complete record batches of a (possibly truncated) Arrow IPC stream."""
+    batches = []
+    problem = None
+    try:
+        with pa.OSFile(str(path), "rb") as fh:
+            reader = pa.ipc.open_stream(fh)
+            while True:
+                try:
+                    batches.append(reader.read_next_batch())
+                except StopIteration:
+                    break
+    except (pa.ArrowInvalid, OSError) as exc:
+        problem = f"stream ends in an incomplete chunk after {sum(len(b) for b in batches)} rows ({exc})"
+    return pa.Table.from_batches(batches, schema=SCHEMA), problem
+
+
+def load_run(path: str | Path) -> Run:
+    """Read a run directory (also one whose recorder was killed: see :data:`STREAM_FILE`)."""
+    path = Path(path)
+    meta_path = path / META_FILE
+    if not meta_path.exists():
+        raise DataError(f"{path} is not a run directory (no {META_FILE})")
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DataError(f"{meta_path}: unreadable metadata: {exc}") from None
+    notes: list[str] = []
+    recovered = False
+    if (path / SIGNALS_FILE).exists():
+        try:
+            table = pq.read_table(path / SIGNALS_FILE)
+        except (pa.ArrowInvalid, OSError) as exc:
+            raise DataError(f"{path / SIGNALS_FILE}: unreadable: {exc}") from None
+    elif (path / STREAM_FILE).exists():
+        table, problem = read_stream(path / STREAM_FILE)
+        recovered = True
+        notes.append(f"recovered {table.num_rows} rows from {STREAM_FILE}: the recorder did not "
+                     "close the run cleanly")
+        if problem:
+            notes.append(problem)
+    else:
+        raise DataError(f"{path} has no signals ({SIGNALS_FILE} or {STREAM_FILE})")
+    signals = {name: table.column(name).to_numpy(zero_copy_only=False) for name in table.column_names}
+    return Run(path=path, meta=meta, signals=signals, recovered=recovered, notes=notes)
+
+
+def read_truth(path: str | Path) -> dict[str, Any] | None:
+    """The emulator's truth for a run (for reports that show it beside the estimates)."""
+    truth = Path(path) / TRUTH_FILE
+    if not truth.exists():
+        return None
+    return json.loads(truth.read_text())

@@ -1,0 +1,203 @@
+"""The gateway as a library: connect to a stand on any bus, run experiments, record them.
+
+::
+
+    from gateway import Gateway, GatewayConfig
+    from gateway.experiments import Meander
+
+    with Gateway(GatewayConfig(bus="udp_loopback:stand0", lockstep=True)) as gw:
+        result = gw.run(Meander(amplitude_pct=5, period_s=4, cycles=5), "runs/m5")
+    print(result.path, result.status)
+
+``stand run`` is a thin layer over this.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from tqdm import tqdm
+
+from dbc import profile as P
+from standbus import DEFAULT_BUS, BusSpec, BusSpecError, open_bus
+
+from .capture import BusCapture, TappedNetwork
+from .errors import ParameterError, StandError
+from .experiments import Experiment, check_range
+from .loop import ControlLoop, LoopOutcome
+from .master import StandMaster
+from .recorder import RunRecorder
+from .supervisor import SafetyLimits, Supervisor
+
+
+@dataclass
+class GatewayConfig:
+    """How to reach and drive the stand. Nothing here describes the plant."""
+
+    bus: str = DEFAULT_BUS
+    valve_id: int = P.VALVE_NODE_ID
+    dynamometer_id: int = P.DYNAMOMETER_NODE_ID
+    period_s: float = 0.002
+    lockstep: bool = False
+    boot_timeout_s: float = 5.0
+    heartbeat_ms: int = 100
+    rpdo_timeout_ms: int = 100
+    limits: SafetyLimits = field(default_factory=SafetyLimits)
+
+    def validate(self) -> None:
+        check_range("period_s", self.period_s, 0.0005, 0.1, "s")
+        check_range("valve_id", self.valve_id, 1, 127, integer=True)
+        check_range("dynamometer_id", self.dynamometer_id, 1, 127, integer=True)
+        if self.valve_id == self.dynamometer_id:
+            raise ParameterError("valve_id and dynamometer_id must differ")
+        check_range("boot_timeout_s", self.boot_timeout_s, 0.1, 600, "s")
+        check_range("heartbeat_ms", self.heartbeat_ms, 10, 10000, "ms", integer=True)
+        check_range("rpdo_timeout_ms", self.rpdo_timeout_ms, 0, 60000, "ms", integer=True)
+        check_range("force_limit_kgf", self.limits.force_limit_kgf, 1, 1e6, "kgf")
+        check_range("command_limit_pct", self.limits.command_limit_pct, 0, 100, "%")
+        try:
+            BusSpec.parse(self.bus)
+        except BusSpecError as exc:
+            raise ParameterError(str(exc)) from None
+
+
+@dataclass
+class RunResult:
+    path: Path
+    outcome: LoopOutcome
+
+    @property
+    def status(self) -> str:
+        return self.outcome.status
+
+    @property
+    def reason(self) -> str | None:
+        return self.outcome.reason
+
+
+class Gateway:
+    """Connects (open bus, boot, identify, configure the nodes) on enter; runs experiments."""
+
+    def __init__(self, config: GatewayConfig | None = None) -> None:
+        self.config = config or GatewayConfig()
+        self.config.validate()
+        self.network: TappedNetwork | None = None
+        self.master: StandMaster | None = None
+        self.loop: ControlLoop | None = None
+
+    def __enter__(self) -> "Gateway":
+        self.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def open(self) -> None:
+        cfg = self.config
+        try:
+            bus = open_bus(cfg.bus)
+        except BusSpecError as exc:
+            raise StandError(str(exc)) from None
+        self.network = TappedNetwork(bus)
+        self.network.connect()
+        try:
+            self.master = StandMaster(self.network, cfg.valve_id, cfg.dynamometer_id)
+            self.master.boot(cfg.boot_timeout_s)
+            self.master.check_identity()
+            self.master.configure(cfg.period_s, cfg.heartbeat_ms, cfg.rpdo_timeout_ms)
+            if cfg.lockstep and not self.master.lockstep_capable:
+                raise StandError(
+                    "--lockstep needs a stand that advances one period per SYNC (the emulator "
+                    "started with --lockstep); this stand runs in real time. Drop --lockstep.")
+            supervisor = Supervisor(self.master, cfg.limits, cfg.period_s)
+            self.loop = ControlLoop(self.network, self.master, supervisor, cfg.period_s, cfg.lockstep)
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        if self.loop is not None:
+            self.loop.close()
+            self.loop = None
+        if self.network is not None:
+            try:
+                if self.master is not None:
+                    self.master.enter_preoperational()
+            except Exception:
+                pass
+            self.network.disconnect()
+            self.network = None
+
+    def metadata(self, experiment: Experiment) -> dict[str, Any]:
+        cfg = self.config
+        m = self.master
+        return {
+            "experiment": {"name": experiment.name, "params": experiment.params()},
+            "bus": cfg.bus,
+            "clock": "lockstep" if cfg.lockstep else "realtime",
+            "period_s": cfg.period_s,
+            "nodes": {link.role: {"id": link.id, "identity": link.identity} for link in m.links},
+            "force_scale_kgf_per_count": m.force_scale_kgf,
+            "limits": asdict(cfg.limits),
+        }
+
+    def run(self, experiment: Experiment, out: str | Path, progress: bool | None = None,
+            on_progress: Callable[[float], None] | None = None) -> RunResult:
+        """Run one experiment and record it in the run directory ``out``.
+
+        ``progress``: True/False forces the progress bar on/off; None shows it for runs of more
+        than a few seconds of stand time when stderr is a terminal."""
+        if self.loop is None:
+            raise StandError("the gateway is not connected; use it as a context manager")
+        recorder = RunRecorder(out, self.metadata(experiment))
+        capture = BusCapture(recorder.capture_path)
+        self.network.notifier.add_listener(capture)
+        self.network.capture = capture
+        bar = None
+        if progress or (progress is None and experiment.duration_s > 3.0):
+            bar = tqdm(total=round(experiment.duration_s, 1), unit="s", unit_scale=False,
+                       desc=f"{experiment.name}", leave=False, disable=None if progress is None else not progress,
+                       bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total} s stand time [{elapsed}<{remaining}]")
+        shown = [0.0]
+
+        def tick(t: float) -> None:
+            if bar is not None and t - shown[0] >= 0.1:
+                bar.update(t - shown[0])
+                shown[0] = t
+            if on_progress is not None:
+                on_progress(t)
+
+        outcome = None
+        try:
+            self.master.start()
+            outcome = self.loop.run(experiment, recorder, tick)
+        finally:
+            if bar is not None:
+                bar.close()
+            try:
+                self.master.enter_preoperational()
+            finally:
+                self.network.capture = None
+                self.network.notifier.remove_listener(capture)
+                capture.stop()
+                stats = self.loop.stats
+                status = outcome.status if outcome else "aborted"
+                reason = outcome.reason if outcome else "gateway_error"
+                recorder.close(status=status, end_reason=reason,
+                               end_message=outcome.message if outcome else "the gateway raised an error",
+                               stats=_stats_dict(stats), capture_frames=capture.frames,
+                               emcy=list(self.loop.supervisor.emcy_log))
+        return RunResult(recorder.dir, outcome)
+
+
+def _stats_dict(stats) -> dict[str, Any]:
+    out = {k: v for k, v in asdict(stats).items() if k != "sync_jitter_s"}
+    jitter = stats.sync_jitter_s
+    if jitter:
+        import numpy as np
+        j = np.abs(np.asarray(jitter))
+        out["sync_jitter_ms"] = {"p50": float(np.percentile(j, 50) * 1e3),
+                                 "p99": float(np.percentile(j, 99) * 1e3), "max": float(j.max() * 1e3)}
+    return out

@@ -1,0 +1,181 @@
+"""Model files and emulator configuration (TOML).
+
+A model file (also the ``[base]``/``[effects.*]`` part of an emulator config)::
+
+    [base]
+    g = 120.0        # kgf/(%·s)
+    tau = 0.05       # s
+    delta = 8.0      # kgf/s
+
+    [effects.reversal]   # one table per effect, keys are its parameters
+    boost = 2.0
+    decay = 0.15
+
+    [effects.lag]
+    enabled = false      # keep the numbers, switch the effect off
+
+An emulator config adds the measuring device and the start::
+
+    [sensor]
+    noise_kgf = 2.0
+    resolution_kgf = 0.5
+    range_kgf = 10000
+
+    [initial]
+    force_kgf = 0.0
+"""
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from .effects import effect_class
+from .model import BASE_PARAMS, PlantModel
+from .params import ModelError
+from .sensor import Dynamometer
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+#: The emulator's default plant: the paper's model with its reversal effect and a small trend.
+DEFAULT_MODEL = "base+reversal"
+DEFAULT_VALUES = {"g": 120.0, "tau": 0.05, "delta": 8.0}
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ModelError(f"file {path} does not exist") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ModelError(f"{path} is not valid TOML: {exc}") from None
+    except OSError as exc:
+        raise ModelError(f"cannot read {path}: {exc}") from None
+
+
+def model_from_mapping(data: Mapping[str, Any], where: str = "model") -> PlantModel:
+    """Build a model from the ``[base]`` and ``[effects.NAME]`` tables of a parsed TOML file."""
+    base = dict(data.get("base", {}) or {})
+    known_base = {p.name for p in BASE_PARAMS}
+    unknown = set(base) - known_base
+    if unknown:
+        raise ModelError(f"{where}: [base] has no key(s) {', '.join(sorted(unknown))}; "
+                         f"known: g, tau, delta")
+    values: dict[str, float] = dict(base)
+    names: list[str] = []
+    effects = data.get("effects", {}) or {}
+    if not isinstance(effects, Mapping):
+        raise ModelError(f"{where}: 'effects' must be tables like [effects.reversal]")
+    for name, table in effects.items():
+        effect_class(name)  # validates the name
+        table = dict(table or {})
+        enabled = table.pop("enabled", True)
+        if not isinstance(enabled, bool):
+            raise ModelError(f"{where}: effects.{name}.enabled must be true or false")
+        if enabled:
+            names.append(name)
+            values.update({f"{name}.{k}": v for k, v in table.items()})
+    if "model" in data:  # effects named only in `model = "..."` take their defaults
+        listed = [p.strip() for p in str(data["model"]).split("+") if p.strip()]
+        if listed[:1] != ["base"]:
+            raise ModelError(f"{where}: model = {data['model']!r} must start with 'base'")
+        disabled = [n for n in listed[1:] if n in effects and n not in names]
+        if disabled:
+            raise ModelError(f"{where}: {', '.join(disabled)} is listed in `model` but its "
+                             "table says enabled = false")
+        names += [n for n in listed[1:] if n not in names]
+    spec = "+".join(["base"] + names)
+    return PlantModel.from_spec(spec, values)
+
+
+def load_model_file(path: str | Path) -> PlantModel:
+    return model_from_mapping(read_toml(path), where=str(path))
+
+
+def model_to_toml(model: PlantModel, header: str = "") -> str:
+    """Write a model back as a model file (round-trips through :func:`model_from_mapping`)."""
+    lines = [f"# {line}" for line in header.splitlines()]
+    lines.append(f'model = "{model.spec}"')
+    lines.append("")
+    lines.append("[base]")
+    for p in BASE_PARAMS:
+        lines.append(f"{p.name} = {_num(getattr(model, p.name))}    # {p.unit}, {p.doc}")
+    for eff in model.effects:
+        lines.append("")
+        lines.append(f"[effects.{eff.name}]")
+        for p in eff.params:
+            lines.append(f"{p.name} = {_num(eff.values[p.name])}    # {p.unit}, {p.doc}")
+    return "\n".join(lines) + "\n"
+
+
+def _num(v: float) -> str:
+    return repr(float(v)) if math.isfinite(v) else "nan"
+
+
+@dataclass
+class PlantConfig:
+    """What the emulator needs: the true model, the dynamometer and the initial force."""
+
+    model: PlantModel = field(default_factory=lambda: PlantModel.from_spec(DEFAULT_MODEL, DEFAULT_VALUES))
+    sensor: dict[str, float] = field(default_factory=dict)
+    initial_force_kgf: float = 0.0
+
+    def dynamometer(self, seed: int | None) -> Dynamometer:
+        return Dynamometer.from_mapping(self.sensor, seed=seed)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The truth, as written into a run's ``truth.json`` (never read by the analysis)."""
+        return {
+            "model": self.model.spec,
+            "params": self.model.params(),
+            "sensor": {**{k: v for k, v in vars(Dynamometer()).items() if not k.startswith("_")
+                          and k != "seed"}, **self.sensor},
+            "initial_force_kgf": self.initial_force_kgf,
+        }
+
+
+def load_plant_config(path: str | Path | None = None, model_spec: str | None = None,
+                      overrides: Mapping[str, Any] | None = None) -> PlantConfig:
+    """Emulator configuration from an optional TOML file, an optional model spec (which effects)
+    and ``--set NAME=VALUE`` overrides (``g``, ``reversal.boost``, ``sensor.noise_kgf``,
+    ``initial.force_kgf``)."""
+    data: dict[str, Any] = read_toml(path) if path else {}
+    where = str(path) if path else "defaults"
+    unknown_tables = set(data) - {"base", "effects", "sensor", "initial", "model"}
+    if unknown_tables:
+        raise ModelError(f"{where}: unknown table(s) {', '.join(sorted(unknown_tables))}; "
+                         "expected [base], [effects.NAME], [sensor], [initial]")
+    if path:
+        model = model_from_mapping(data, where)
+    else:
+        model = PlantModel.from_spec(DEFAULT_MODEL, DEFAULT_VALUES)
+    sensor = dict(data.get("sensor", {}) or {})
+    initial = dict(data.get("initial", {}) or {})
+    bad = set(initial) - {"force_kgf"}
+    if bad:
+        raise ModelError(f"{where}: [initial] has no key(s) {', '.join(sorted(bad))}; known: force_kgf")
+    params = model.params()
+    spec = model.spec
+    if model_spec:
+        spec = model_spec
+        keep = PlantModel.from_spec(model_spec).params()
+        params = {k: params.get(k, v) for k, v in keep.items()}
+    for key, value in (overrides or {}).items():
+        if key.startswith("sensor."):
+            sensor[key.split(".", 1)[1]] = value
+        elif key.startswith("initial."):
+            initial[key.split(".", 1)[1]] = value
+        else:
+            params[key] = value
+    model = PlantModel.from_spec(spec, params)
+    cfg = PlantConfig(model=model, sensor=sensor,
+                      initial_force_kgf=float(initial.get("force_kgf", 0.0)))
+    cfg.dynamometer(seed=0)  # validate the sensor table now, with a clear message
+    return cfg

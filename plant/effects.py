@@ -1,0 +1,375 @@
+r"""The catalogue of physical effects that can be added to the paper's base model.
+
+The base model (paper, eq. 1, with the constant trend of eq. 2) is
+
+.. math::  \dot y(t) = g\,u(t-\tau) + \Delta
+
+with the force ``y`` in kgf, the valve command ``u`` in % (±100 % = ±10 V), the gain ``g`` in
+kgf/(%·s), the transport delay ``τ`` in s and the trend ``Δ`` in kgf/s. Effects refine it at one of
+four places of the signal path, applied in this order::
+
+    u(t-τ) ─▶ VALVE (spool/flow command q) ─▶ FLOW (gain factors on g·q) ─▶ Σ ─▶ ∫ ─▶ y
+                                                   DISTURBANCE, FORCE (rate terms) ─┘
+
+so the complete rate law is
+
+.. math::  \dot y = g\,q\,\prod_i G_i(q, y, t) + \Delta + \sum_j D_j(y, t).
+
+Adding an effect = one class here (subclass :class:`Effect`, declare ``name``, ``stage``,
+``params`` and implement the stage's hook) decorated with :func:`register`. Parameters are
+declared with :class:`~plant.params.Param`, so the fit, the TOML loader and the CLI pick them up.
+Every hook works on arrays of shape ``(n, K)``: ``n`` independent trajectories (simulation
+windows) by ``K`` time steps, carrying its state between blocks, so the emulator (``K`` small, one
+block per control period) and the analysis (whole records, windows side by side) run the same code.
+"""
+from __future__ import annotations
+
+import enum
+from typing import Any, ClassVar
+
+import numpy as np
+from scipy.signal import lfilter
+
+from .params import ModelError, Param
+
+
+class Stage(enum.IntEnum):
+    """Where in the signal path an effect acts (also the order of application)."""
+
+    VALVE = 1        #: transforms the delayed command into the flow command q (%)
+    FLOW = 2         #: multiplies the flow-driven force rate g·q by a factor
+    DISTURBANCE = 3  #: adds a force rate that depends on time only
+    FORCE = 4        #: adds a force rate that depends on the force itself
+
+
+CATALOGUE: dict[str, type["Effect"]] = {}
+
+
+def register(cls: type["Effect"]) -> type["Effect"]:
+    """Class decorator: add an effect to the catalogue under ``cls.name``."""
+    if cls.name in CATALOGUE or cls.name == "base":
+        raise ModelError(f"effect name {cls.name!r} is already taken")
+    CATALOGUE[cls.name] = cls
+    return cls
+
+
+class Effect:
+    """Base class of every effect. Subclasses document physics and equation in their docstring."""
+
+    name: ClassVar[str]
+    stage: ClassVar[Stage]
+    params: ClassVar[tuple[Param, ...]]
+    #: one line for listings (``stand effects``)
+    summary: ClassVar[str] = ""
+    #: True if the rate term needs the current force (forces step-by-step integration)
+    depends_on_force: ClassVar[bool] = False
+    #: False for effects that are not plant physics (disturbances): ``stand diagnose`` does not
+    #: offer them as explanations, so structure they would absorb is reported as unexplained.
+    diagnosable: ClassVar[bool] = True
+
+    def __init__(self, **values: float) -> None:
+        known = {p.name: p for p in self.params}
+        unknown = set(values) - set(known)
+        if unknown:
+            raise ModelError(
+                f"effect {self.name!r} has no parameter(s) {', '.join(sorted(unknown))}; "
+                f"it has: {', '.join(known) or 'none'}")
+        self.values: dict[str, float] = {
+            p.name: p.validate(values.get(p.name, p.default), self.name) for p in self.params}
+
+    def __getattr__(self, item: str) -> float:
+        values = self.__dict__.get("values")
+        if values is not None and item in values:
+            return values[item]
+        raise AttributeError(item)
+
+    def __repr__(self) -> str:
+        inner = ", ".join(f"{k}={v:g}" for k, v in self.values.items())
+        return f"{type(self).__name__}({inner})"
+
+    # -- state carried between blocks -------------------------------------------------------
+    def init_state(self, n: int) -> dict[str, np.ndarray]:
+        return {}
+
+    # -- stage hooks (override the one for your stage) ----------------------------------------
+    def shape(self, q: np.ndarray, dt: float, state: dict) -> np.ndarray:
+        """VALVE stage: map the command block ``q`` (n, K) to the new flow command."""
+        raise NotImplementedError
+
+    def prepare(self, q: np.ndarray, dt: float, state: dict) -> Any:
+        """FLOW stage, input side: anything that depends only on the flow-command history
+        (returned as ``aux`` of shape (n, K) and handed to :meth:`gain`)."""
+        return None
+
+    def gain(self, q: np.ndarray, aux: Any, y: np.ndarray) -> np.ndarray:
+        """FLOW stage: multiplicative factor on g·q, same shape as ``q``."""
+        raise NotImplementedError
+
+    def disturbance(self, t: np.ndarray) -> np.ndarray:
+        """DISTURBANCE stage: additive force rate (kgf/s) at times ``t`` (s)."""
+        raise NotImplementedError
+
+    def force_rate(self, y: np.ndarray) -> np.ndarray:
+        """FORCE stage: additive force rate (kgf/s) as a function of the force ``y`` (kgf)."""
+        raise NotImplementedError
+
+    def decay_rate(self) -> float | None:
+        """FORCE stage: if :meth:`force_rate` is ``-λ·y``, return λ (enables exact fast
+        integration); otherwise None."""
+        return None
+
+
+# ------------------------------------------------------------------------------------------
+# VALVE stage
+# ------------------------------------------------------------------------------------------
+@register
+class Lag(Effect):
+    r"""First-order lag of the spool/actuator, in series with the transport delay.
+
+    Physics: the spool of a servo-valve (and the oil column) does not follow the command
+    instantly; a first-order approximation of the spool position loop gives
+
+    .. math::  T_v\,\dot q = u(t-\tau) - q .
+
+    Discretized exactly for a command held over each step; the flow command used over the step
+    is the step average of ``q`` (exact for the integrator that follows). Seen in data as a
+    rounded corner after each command step that a pure delay cannot produce; from one excitation
+    frequency, lag and delay are hard to tell apart (both are a phase lag).
+    """
+
+    name = "lag"
+    stage = Stage.VALVE
+    summary = "first-order valve/actuator lag T_v (besides the delay)"
+    params = (Param("time_constant", 0.03, 1e-4, 2.0, "s", "spool/actuator time constant T_v",
+                    log=True),)
+
+    def init_state(self, n):
+        return {"x": None}
+
+    def shape(self, q, dt, state):
+        T = self.time_constant
+        a = float(np.exp(-dt / T))
+        c = T / dt * (1.0 - a)  # step-average weight of the initial deviation
+        x0 = state["x"]
+        if x0 is None:
+            x0 = q[:, 0].copy()  # at rest: the spool starts where the command is
+        # x_{k+1} = a x_k + (1-a) u_k  (x_k is the spool position at the step start)
+        x_next, _ = lfilter([1.0 - a], [1.0, -a], q, axis=1, zi=(a * x0)[:, None])
+        x_start = np.concatenate([x0[:, None], x_next[:, :-1]], axis=1)
+        state["x"] = x_next[:, -1].copy()
+        return q + (x_start - q) * c
+
+
+@register
+class DeadZone(Effect):
+    r"""Valve overlap (dead zone) around the null position.
+
+    Physics: an overlapped spool covers its ports for small openings, so no flow passes until
+    the command exceeds the overlap ``d``:
+
+    .. math::  q' = \operatorname{sign}(q)\,\max(|q| - d,\ 0).
+
+    From one command amplitude it looks exactly like a lower gain (the slope is g·(|u| − d));
+    two or more amplitudes (the meander at 5, 10, 15, 20 %) separate them.
+    """
+
+    name = "deadzone"
+    stage = Stage.VALVE
+    summary = "valve overlap: no flow for |u| below d"
+    params = (Param("width", 1.0, 0.0, 30.0, "%", "overlap d (command below which no flow)"),)
+
+    def shape(self, q, dt, state):
+        return np.sign(q) * np.maximum(np.abs(q) - self.width, 0.0)
+
+
+@register
+class Saturation(Effect):
+    r"""Flow limit: the valve (or pump) cannot deliver more than a maximum flow.
+
+    .. math::  q' = \operatorname{clip}(q,\ -q_{max},\ q_{max})
+
+    Seen as ramps whose slope stops growing with the command beyond ``q_max``; invisible if the
+    data never exceed it.
+    """
+
+    name = "saturation"
+    stage = Stage.VALVE
+    summary = "flow limit: |q| capped at q_max"
+    params = (Param("limit", 50.0, 0.5, 100.0, "%", "largest effective flow command q_max"),)
+
+    def shape(self, q, dt, state):
+        return np.clip(q, -self.limit, self.limit)
+
+
+# ------------------------------------------------------------------------------------------
+# FLOW stage
+# ------------------------------------------------------------------------------------------
+@register
+class Asymmetry(Effect):
+    r"""Different gain when extending and retracting.
+
+    Physics: a single-rod cylinder has different piston areas on its two sides (and valves have
+    unequal port gains), so the same command moves the load faster one way:
+
+    .. math::  G = 1 + a\,\operatorname{sign}(q)
+
+    i.e. ``g·(1+a)`` for q > 0 (extend, force rising) and ``g·(1−a)`` for q < 0 (retract).
+    """
+
+    name = "asymmetry"
+    stage = Stage.FLOW
+    summary = "different gain for extend (1+a) and retract (1-a)"
+    params = (Param("ratio", 0.1, -0.8, 0.8, "1", "relative gain difference a"),)
+
+    def gain(self, q, aux, y):
+        return 1.0 + self.ratio * np.sign(q)
+
+
+@register
+class Reversal(Effect):
+    r"""Gain boost decaying after each reversal of the rod's direction (the paper's
+    "transitional portion", Figs. 4, 11, 12).
+
+    Physics: when the rod reverses, the compressed oil volume and the elastic loading chain
+    release stored energy and take up play, so for a short time the force changes much faster
+    than the steady gain predicts. The direction is the sign of the flow command; ``s`` is the
+    time since it last changed sign:
+
+    .. math::  G = 1 + b\,\left(\frac{u_{ref}}{\max(|q|,\ 0.5\,\%)}\right)^{p} e^{-s/T_r},
+               \qquad u_{ref} = 10\ \%.
+
+    With ``p = 0`` the boost is a pure gain factor; with ``p = 1`` it is a fixed extra force
+    rate ``g·b·u_ref·e^{-s/T_r}`` (a fixed extra force ``g·b·u_ref·T_r`` per reversal), whose
+    relative size shrinks as the command amplitude grows, which is what the paper found
+    (Fig. 12: the transitional gain falls as u0 rises). ``p`` is identifiable only from data
+    with several amplitudes.
+    """
+
+    name = "reversal"
+    stage = Stage.FLOW
+    summary = "gain boost decaying after each change of the rod's direction"
+    U_REF = 10.0
+    params = (
+        Param("boost", 2.0, 0.0, 50.0, "1", "boost b right at the reversal (at |q| = u_ref)"),
+        Param("decay", 0.15, 0.005, 3.0, "s", "decay time T_r of the boost", log=True),
+        Param("exponent", 0.7, 0.0, 1.0, "1", "amplitude exponent p (0: gain factor, 1: fixed extra force)"),
+    )
+
+    def init_state(self, n):
+        # direction of the last motion (0: none yet) and time since the last reversal
+        return {"direction": np.zeros(n), "since": np.full(n, np.inf)}
+
+    def prepare(self, q, dt, state):
+        n, K = q.shape
+        sgn = np.sign(q)
+        idx = np.where(sgn != 0, np.arange(K)[None, :], -1)
+        idx = np.maximum.accumulate(idx, axis=1)
+        held = np.where(idx >= 0, np.take_along_axis(sgn, np.maximum(idx, 0), axis=1),
+                        state["direction"][:, None])
+        prev = np.concatenate([state["direction"][:, None], held[:, :-1]], axis=1)
+        reversal = (held != prev) & (prev != 0)
+        # index of the last reversal at or before each step (-1: none in this block)
+        last = np.maximum.accumulate(np.where(reversal, np.arange(K)[None, :], -1), axis=1)
+        steps = np.arange(K)[None, :]
+        since = np.where(last >= 0, (steps - last) * dt, state["since"][:, None] + steps * dt)
+        state["direction"] = held[:, -1].copy()
+        state["since"] = since[:, -1] + dt
+        return np.exp(-since / self.decay)
+
+    def gain(self, q, aux, y):
+        scale = (self.U_REF / np.maximum(np.abs(q), 0.5)) ** self.exponent
+        return 1.0 + self.boost * scale * aux
+
+
+@register
+class LoadPressure(Effect):
+    r"""Load pressure reduces the flow the valve can push against the load (orifice law).
+
+    Physics: flow through a valve orifice goes as the square root of the pressure drop across
+    it. Pushing in the direction of the load pressure leaves ``P_s − P_L`` across the valve;
+    with the load force proportional to the load pressure, ``F_s = P_s·A`` being the stall force:
+
+    .. math::  G = \sqrt{\max\!\left(1 - \operatorname{sign}(q)\,\frac{y}{F_s},\ 0\right)}
+
+    Seen as ramps that slow down as the force grows in the direction of motion and speed up on
+    the way back.
+    """
+
+    name = "load_pressure"
+    stage = Stage.FLOW
+    summary = "orifice law: gain scales with sqrt(1 - sign(u)·y/F_s)"
+    depends_on_force = True
+    params = (Param("stall_force", 30000.0, 2000.0, 1e7, "kgf",
+                    "stall force F_s = supply pressure × piston area", log=True),)
+
+    def gain(self, q, aux, y):
+        return np.sqrt(np.maximum(1.0 - np.sign(q) * y / self.stall_force, 0.0))
+
+
+# ------------------------------------------------------------------------------------------
+# DISTURBANCE stage (not plant physics: never offered as a diagnosis)
+# ------------------------------------------------------------------------------------------
+@register
+class Oscillation(Effect):
+    r"""A periodic force disturbance from outside the loading channel (a neighbouring actuator,
+    a structural resonance, pump ripple):
+
+    .. math::  y_{dist}(t) = A \sin(2\pi f t),\qquad \dot y \mathrel{+}= 2\pi f A \cos(2\pi f t).
+
+    It is not an effect of the valve/cylinder physics, so ``stand diagnose`` does not offer it;
+    its trace in the residual is reported as *unexplained*, with its frequency. Use it in the
+    emulator to test that, or add it to a model when the disturbance is known.
+    """
+
+    name = "oscillation"
+    stage = Stage.DISTURBANCE
+    summary = "external periodic force disturbance A·sin(2πft) (not diagnosable)"
+    diagnosable = False
+    params = (
+        Param("amplitude", 50.0, 0.0, 5000.0, "kgf", "disturbance amplitude A"),
+        Param("frequency", 3.0, 0.01, 100.0, "Hz", "disturbance frequency f", log=True),
+    )
+
+    def disturbance(self, t):
+        w = 2 * np.pi * self.frequency
+        return w * self.amplitude * np.cos(w * t)
+
+
+# ------------------------------------------------------------------------------------------
+# FORCE stage
+# ------------------------------------------------------------------------------------------
+@register
+class Leakage(Effect):
+    r"""Leakage across the piston (and the valve's internal leakage).
+
+    Physics: oil leaks from the loaded chamber to the other through the piston seal at a rate
+    proportional to the pressure difference, i.e. to the load force, so the force drifts toward
+    zero even at a zero command:
+
+    .. math::  \dot y \mathrel{+}= -\lambda\, y .
+
+    Seen as a drift that grows with |y|, toward zero, and a relay/feedback offset that depends on
+    the force level.
+    """
+
+    name = "leakage"
+    stage = Stage.FORCE
+    summary = "drift toward zero force proportional to the load (-λ·y)"
+    depends_on_force = True
+    params = (Param("rate", 0.05, 0.0, 20.0, "1/s", "leak coefficient λ"),)
+
+    def force_rate(self, y):
+        return -self.rate * y
+
+    def decay_rate(self):
+        return self.rate
+
+
+def effect_class(name: str) -> type[Effect]:
+    """Look up an effect by name, with a helpful error."""
+    try:
+        return CATALOGUE[name]
+    except KeyError:
+        raise ModelError(
+            f"unknown effect {name!r}; the catalogue has: {', '.join(CATALOGUE)} "
+            "(see `stand effects`)") from None

@@ -1,0 +1,259 @@
+r"""The plant model: the paper's base model plus effects from the catalogue.
+
+One implementation serves both the emulator (a few steps per control period, ``n = 1``) and the
+analysis (whole records cut into windows that are simulated side by side, ``n`` = number of
+windows). Time is discrete with step ``dt``; the command is held over each step (zero-order hold,
+as a CAN command is), and the delay is realised exactly for that: with ``τ = (m + f)·dt`` the
+average of ``u(t − τ)`` over step ``k`` is ``(1 − f)·u[k−m] + f·u[k−m−1]``, so τ is continuous
+(fit by least squares, not only whole samples). The force after step k is
+
+.. math::  y[k+1] = y[k] + dt\cdot\big(g\,q[k]\prod_i G_i + \Delta + \sum_j D_j\big).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Iterable, Mapping
+
+import numpy as np
+from scipy.signal import lfilter
+
+from .effects import CATALOGUE, Effect, Stage, effect_class
+from .params import ModelError, Param
+
+#: The paper's model (eq. 1) with the constant trend Δ of eq. 2.
+BASE_PARAMS: tuple[Param, ...] = (
+    Param("g", 120.0, 0.01, 1e5, "kgf/(%·s)", "integrator gain g", log=True),
+    Param("tau", 0.05, 0.0, 2.0, "s", "transport delay τ"),
+    Param("delta", 0.0, -1e4, 1e4, "kgf/s", "constant force trend Δ (valve null offset and the like)"),
+)
+
+
+@dataclass
+class PlantState:
+    """Everything a simulation carries from one block to the next (``n`` trajectories)."""
+
+    y: np.ndarray                 #: force, kgf, shape (n,)
+    t: np.ndarray                 #: time, s, shape (n,)
+    history: np.ndarray           #: past commands for the delay line, shape (n, H)
+    effects: list[dict] = field(default_factory=list)
+
+
+@dataclass
+class Drive:
+    """The input side of a block: flow command after the valve stage and auxiliary signals."""
+
+    q: np.ndarray                 #: flow command, %, (n, K)
+    aux: list                     #: per FLOW effect, its prepared signal (or None)
+    dist: np.ndarray | None       #: summed DISTURBANCE force rate, kgf/s, (n, K) or None
+
+
+class PlantModel:
+    """``dy/dt = g·u(t−τ) + Δ`` refined by catalogue effects (see :mod:`plant.effects`)."""
+
+    def __init__(self, g: float = 120.0, tau: float = 0.05, delta: float = 0.0,
+                 effects: Iterable[Effect] = ()) -> None:
+        base = dict(g=g, tau=tau, delta=delta)
+        self.g, self.tau, self.delta = (p.validate(base[p.name], "base") for p in BASE_PARAMS)
+        effects = list(effects)
+        names = [e.name for e in effects]
+        dupes = {n for n in names if names.count(n) > 1}
+        if dupes:
+            raise ModelError(f"effect(s) listed twice: {', '.join(sorted(dupes))}")
+        order = list(CATALOGUE)
+        self.effects: list[Effect] = sorted(effects, key=lambda e: (e.stage, order.index(e.name)))
+
+    # -- description --------------------------------------------------------------------------
+    @property
+    def spec(self) -> str:
+        """The model as written on the command line, e.g. ``base+reversal+deadzone``."""
+        return "+".join(["base"] + [e.name for e in self.effects])
+
+    def __repr__(self) -> str:
+        return f"PlantModel({self.spec}, {self.params()})"
+
+    @classmethod
+    def from_spec(cls, spec: str, values: Mapping[str, float] | None = None) -> "PlantModel":
+        """Build from ``"base+reversal+deadzone"`` and optional ``{"g": .., "reversal.boost": ..}``."""
+        parts = [p.strip() for p in (spec or "").split("+") if p.strip()]
+        if not parts or parts[0] != "base":
+            raise ModelError(
+                f"model {spec!r} must start with 'base', e.g. 'base' or 'base+reversal+lag'")
+        values = dict(values or {})
+        base = {p.name: values.pop(p.name, p.default) for p in BASE_PARAMS}
+        effects = []
+        for name in parts[1:]:
+            klass = effect_class(name)
+            own = {k.split(".", 1)[1]: values.pop(k) for k in list(values)
+                   if k.startswith(name + ".")}
+            effects.append(klass(**own))
+        if values:
+            raise ModelError(
+                f"parameter(s) {', '.join(sorted(values))} do not belong to model {spec!r}")
+        return cls(effects=effects, **base)
+
+    def effect(self, name: str) -> Effect | None:
+        return next((e for e in self.effects if e.name == name), None)
+
+    # -- parameters as a flat vector (for fitting) ---------------------------------------------
+    def param_specs(self) -> list[tuple[str, Param]]:
+        out = [(p.name, p) for p in BASE_PARAMS]
+        for e in self.effects:
+            out += [(f"{e.name}.{p.name}", p) for p in e.params]
+        return out
+
+    def params(self) -> dict[str, float]:
+        out = {"g": self.g, "tau": self.tau, "delta": self.delta}
+        for e in self.effects:
+            out.update({f"{e.name}.{k}": v for k, v in e.values.items()})
+        return out
+
+    def with_params(self, values: Mapping[str, float]) -> "PlantModel":
+        """A copy with some parameters replaced (names as in :meth:`params`)."""
+        merged = self.params()
+        unknown = set(values) - set(merged)
+        if unknown:
+            raise ModelError(f"model {self.spec} has no parameter(s) {', '.join(sorted(unknown))}")
+        merged.update(values)
+        return PlantModel.from_spec(self.spec, merged)
+
+    # -- simulation ----------------------------------------------------------------------------
+    def _delay_split(self, dt: float) -> tuple[int, float]:
+        steps = self.tau / dt
+        m = int(math.floor(steps + 1e-12))
+        return m, steps - m
+
+    def new_state(self, n: int, dt: float, y0: float | np.ndarray = 0.0,
+                  u0: float | np.ndarray = 0.0, t0: float | np.ndarray = 0.0) -> PlantState:
+        """Initial state of ``n`` trajectories at force ``y0``, with the command ``u0`` held
+        before time ``t0`` (the delay line is filled with it)."""
+        m, _ = self._delay_split(dt)
+        hist = np.empty((n, m + 1))
+        hist[:] = np.asarray(u0, float).reshape(-1, 1) if np.ndim(u0) else u0
+        return PlantState(
+            y=np.broadcast_to(np.asarray(y0, float), (n,)).copy(),
+            t=np.broadcast_to(np.asarray(t0, float), (n,)).copy(),
+            history=hist,
+            effects=[e.init_state(n) for e in self.effects],
+        )
+
+    def drive(self, u: np.ndarray, dt: float, state: PlantState) -> Drive:
+        """Input side for a block of commands ``u`` (n, K): delay, VALVE, FLOW preparation and
+        DISTURBANCE terms. Advances the input-side state and the time."""
+        u = np.asarray(u, float)
+        n, K = u.shape
+        m, f = self._delay_split(dt)
+        H = state.history.shape[1]
+        if H < m + 1:  # parameters changed since the state was made: extend with the oldest
+            pad = np.repeat(state.history[:, :1], m + 1 - H, axis=1)
+            state.history = np.concatenate([pad, state.history], axis=1)
+            H = m + 1
+        ext = np.concatenate([state.history, u], axis=1)
+        k = np.arange(K) + H
+        q = (1.0 - f) * ext[:, k - m] + f * ext[:, k - m - 1] if f else ext[:, k - m]
+        state.history = ext[:, -H:]
+        aux: list = []
+        dist = None
+        t = state.t[:, None] + dt * np.arange(K)[None, :]
+        for eff, est in zip(self.effects, state.effects):
+            if eff.stage is Stage.VALVE:
+                q = eff.shape(q, dt, est)
+            elif eff.stage is Stage.FLOW:
+                aux.append(eff.prepare(q, dt, est))
+            elif eff.stage is Stage.DISTURBANCE:
+                d = eff.disturbance(t)
+                dist = d if dist is None else dist + d
+        state.t = state.t + K * dt
+        return Drive(q=q, aux=aux, dist=dist)
+
+    def _flow_effects(self) -> list[Effect]:
+        return [e for e in self.effects if e.stage is Stage.FLOW]
+
+    def _force_effects(self) -> list[Effect]:
+        return [e for e in self.effects if e.stage is Stage.FORCE]
+
+    def integrate(self, drv: Drive, y0: np.ndarray, dt: float) -> np.ndarray:
+        """Force trajectory (n, K+1) from ``y0`` (n,) under the block's drive."""
+        flow = self._flow_effects()
+        force = self._force_effects()
+        y0 = np.asarray(y0, float)
+        n, K = drv.q.shape
+        needs_y = any(e.depends_on_force for e in flow) or any(
+            e.decay_rate() is None for e in force)
+        if not needs_y:
+            rate = self.g * drv.q
+            for eff, aux in zip(flow, drv.aux):
+                rate = rate * eff.gain(drv.q, aux, None)
+            rate = rate + self.delta
+            if drv.dist is not None:
+                rate = rate + drv.dist
+            lam = sum(e.decay_rate() for e in force)
+            out = np.empty((n, K + 1))
+            out[:, 0] = y0
+            if lam == 0.0:
+                np.cumsum(rate * dt, axis=1, out=out[:, 1:])
+                out[:, 1:] += y0[:, None]
+            else:  # y[k+1] = (1 - λ dt) y[k] + dt·rate[k]  (linear: one filter pass)
+                a = 1.0 - lam * dt
+                out[:, 1:], _ = lfilter([dt], [1.0, -a], rate, axis=1, zi=(a * y0)[:, None])
+            return out
+        # general case: step by step, all trajectories at once
+        out = np.empty((n, K + 1))
+        out[:, 0] = y = y0.copy()
+        base = self.g * drv.q
+        for k in range(K):
+            r = base[:, k]
+            qk = drv.q[:, k]
+            for eff, aux in zip(flow, drv.aux):
+                r = r * eff.gain(qk, None if aux is None else aux[:, k], y)
+            r = r + self.delta
+            if drv.dist is not None:
+                r = r + drv.dist[:, k]
+            for eff in force:
+                r = r + eff.force_rate(y)
+            y = y + dt * r
+            out[:, k + 1] = y
+        return out
+
+    def advance(self, state: PlantState, u: np.ndarray, dt: float) -> np.ndarray:
+        """Advance ``state`` by the command block ``u`` (n, K); returns the force after each
+        step, shape (n, K). This is what the emulator calls every control period."""
+        y = self.integrate(self.drive(u, dt, state), state.y, dt)
+        state.y = y[:, -1].copy()
+        return y[:, 1:]
+
+    def simulate(self, u: np.ndarray, dt: float, y0: float = 0.0, u_before: float | None = None,
+                 t0: float = 0.0) -> np.ndarray:
+        """Free-run simulation of one record: ``y[k]`` (N,) for commands ``u[k]`` (N,), starting
+        at ``y[0] = y0``; the command before the record is taken as ``u_before`` (default u[0])."""
+        u = np.asarray(u, float)
+        state = self.new_state(1, dt, y0, u[0] if u_before is None else u_before, t0)
+        y = self.integrate(self.drive(u[None, :], dt, state), state.y, dt)
+        return y[0, :-1]
+
+    def simulate_windows(self, u: np.ndarray, y: np.ndarray, dt: float, window: int,
+                         t0: float = 0.0, u_before: float | None = None) -> np.ndarray:
+        """Windowed free-run simulation: the record is cut into windows of ``window`` samples,
+        each simulated from the measured force at its first sample, the input history (delay,
+        valve states) running continuously over the whole record. Returns ŷ (N,)."""
+        u = np.asarray(u, float)
+        y = np.asarray(y, float)
+        N = len(u)
+        window = max(2, min(int(window), N))
+        state = self.new_state(1, dt, 0.0, u[0] if u_before is None else u_before, t0)
+        drv = self.drive(u[None, :], dt, state)
+        nw = -(-N // window)
+        pad = nw * window - N
+
+        def cut(a: np.ndarray | None) -> np.ndarray | None:
+            if a is None:
+                return None
+            a = a[0]
+            if pad:
+                a = np.concatenate([a, np.repeat(a[-1:], pad)])
+            return a.reshape(nw, window)
+
+        wdrv = Drive(q=cut(drv.q), aux=[cut(a) for a in drv.aux], dist=cut(drv.dist))
+        starts = y[np.arange(nw) * window]
+        yy = self.integrate(wdrv, starts, dt)[:, :-1]
+        return yy.reshape(-1)[:N]

@@ -1,0 +1,61 @@
+"""The emulated dynamometer (CiA 404 analog input, force in newtons).
+
+Every SYNC it samples the plant's force through :class:`plant.sensor.Dynamometer` (noise,
+resolution, range) and publishes the process value 0x9130:01 (INT32) in the unit 0x6131 with
+0x6132 decimal digits (default N with one decimal: 0.1 N per count), plus the AI status 0x6150:01.
+Leaving the measuring range sets the overload bits and sends EMCY 0xFF10 once; coming back sends
+the recovery EMCY 0x0000.
+"""
+from __future__ import annotations
+
+import math
+
+from dbc import profile as P
+
+from .node import EmulatedNode
+
+_INT32 = 2**31 - 1
+
+
+class DynamometerNode(EmulatedNode):
+    def __init__(self, network, node_id: int, eds) -> None:
+        super().__init__(network, node_id, eds)
+        self.over_range = False
+        self.over_range_events = 0
+        self._scale_kgf = None
+        self.publish(0.0, False)
+
+    def on_boot(self) -> None:
+        self._scale_kgf = None
+
+    def _scale(self) -> float:
+        if self._scale_kgf is None:
+            unit = int(self.value(*P.PV_UNIT))
+            decimals = int(self.value(*P.PV_DECIMALS))
+            try:
+                self._scale_kgf = P.force_scale_kgf(unit, decimals)
+            except ValueError:  # a unit we cannot express: stay in 0.1 N
+                self._scale_kgf = P.force_scale_kgf(P.UNIT_N_DEFAULT, 1)
+        return self._scale_kgf
+
+    def on_object_written(self, index, sub, value) -> None:
+        if (index, sub) in (P.PV_UNIT, P.PV_DECIMALS):
+            self._scale_kgf = None
+
+    def publish(self, reading_kgf: float, over_range: bool) -> None:
+        """Set the process value and status from one reading; EMCY on range transitions."""
+        counts = int(round(reading_kgf / self._scale())) if math.isfinite(reading_kgf) else 0
+        counts = max(-_INT32, min(_INT32, counts))
+        status = 0
+        if over_range:
+            status = P.AI_STATUS_POSITIVE_OVERLOAD if reading_kgf > 0 else P.AI_STATUS_NEGATIVE_OVERLOAD
+        self.live[P.PV_INT32] = counts
+        self.live[P.PV_REAL32] = float(counts * self._scale() * P.N_PER_KGF)
+        self.live[P.AI_STATUS] = status
+        if over_range != self.over_range and self.operational:
+            if over_range:
+                self.over_range_events += 1
+                self.local.emcy.send(P.EMCY_FORCE_OVER_RANGE, 0x01)
+            else:
+                self.local.emcy.reset()
+        self.over_range = over_range

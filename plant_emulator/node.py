@@ -1,0 +1,249 @@
+"""An emulated CANopen slave: what ``canopen.LocalNode`` does not do by itself.
+
+``LocalNode`` gives us the object dictionary (from the EDS), the SDO server, heartbeat and EMCY
+producers. This class adds, per CiA 301:
+
+* the NMT state machine with boot-up (and boot-up again after reset node / reset communication);
+* PDOs configured from the object dictionary *as the master wrote it over SDO* when the node
+  enters OPERATIONAL, and only active while OPERATIONAL;
+* synchronous TPDOs on SYNC (transmission types 1..240: every n-th SYNC);
+* received RPDOs written into the object dictionary and handed to the device;
+* RPDO length errors counted (and reported by EMCY 0x8210), never decoded as garbage;
+* the RPDO timeout (event timer 0x1400+n sub 5) checked by :meth:`check_rpdo_timeout`.
+
+Device behaviour (valve, dynamometer) lives in subclasses.
+"""
+from __future__ import annotations
+
+import logging
+import struct
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import canopen
+
+from dbc.pdo_codec import PdoLayout, PdoLayoutError
+
+log = logging.getLogger(__name__)
+
+NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
+EMCY_PDO_LENGTH = 0x8210
+PDO_DISABLED = 1 << 31
+
+
+@dataclass
+class PdoConfig:
+    """One PDO as configured in the object dictionary."""
+
+    layout: PdoLayout
+    trans_type: int
+    event_timer_ms: int
+
+
+def read_pdo_config(node: canopen.LocalNode, com_index: int, map_index: int) -> PdoConfig | None:
+    """The PDO at ``com_index``/``map_index`` as currently stored in the node (None if disabled)."""
+    sdo = node.sdo
+    cob = sdo[com_index][1].raw
+    if cob & PDO_DISABLED:
+        return None
+    trans = sdo[com_index][2].raw
+    try:
+        timer = sdo[com_index][5].raw
+    except (KeyError, canopen.SdoAbortedError):
+        timer = 0
+    entries = []
+    for sub in range(1, sdo[map_index][0].raw + 1):
+        value = sdo[map_index][sub].raw
+        index, subindex, bits = value >> 16, (value >> 8) & 0xFF, value & 0xFF
+        obj = node.object_dictionary[index]
+        if not isinstance(obj, canopen.objectdictionary.ODVariable):
+            obj = obj[subindex]
+        entries.append((index, subindex, bits, obj.data_type))
+    return PdoConfig(PdoLayout.from_entries(cob & 0x7FF, entries), trans, timer)
+
+
+class EmulatedNode:
+    """A CANopen slave on ``network`` with the object dictionary from ``eds``."""
+
+    def __init__(self, network: canopen.Network, node_id: int, eds: str | Path) -> None:
+        self.id = node_id
+        self.network = network
+        self.local = canopen.LocalNode(node_id, str(eds))
+        network.add_node(self.local)
+        # We run the NMT state machine ourselves (LocalNode does not reboot on reset).
+        network.unsubscribe(0, self.local.nmt.on_command)
+        network.subscribe(0, self._on_nmt)
+        #: live values of objects the device computes (status word, process value, ...)
+        self.live: dict[tuple[int, int], Any] = {}
+        self.local.add_read_callback(self._read_live)
+        self.local.add_write_callback(self._on_sdo_write)
+        self.tpdos: list[PdoConfig] = []
+        self.rpdos: dict[int, PdoConfig] = {}
+        self._sync_count = 0
+        self.rpdo_length_errors = 0
+        self.last_rpdo_time: float | None = None
+        self.lock = threading.RLock()
+
+    # -- NMT ----------------------------------------------------------------------------------
+    @property
+    def nmt_state(self) -> str:
+        return self.local.nmt.state
+
+    @property
+    def operational(self) -> bool:
+        return self.local.nmt.state == "OPERATIONAL"
+
+    def boot(self) -> None:
+        """Power-on / reset: send the boot-up message and enter PRE-OPERATIONAL."""
+        with self.lock:
+            self._stop_pdos()
+            self.local.nmt.send_command(NMT_RESET_NODE)   # INITIALISING, sends boot-up
+            self.local.nmt.send_command(NMT_PREOP)        # PRE-OPERATIONAL, starts heartbeat
+            self.on_boot()
+
+    def _on_nmt(self, can_id: int, data: bytes, timestamp: float) -> None:
+        if len(data) < 2:
+            return
+        command, node_id = data[0], data[1]
+        if node_id not in (0, self.id):
+            return
+        with self.lock:
+            if command in (NMT_RESET_NODE, NMT_RESET_COMM):
+                if command == NMT_RESET_NODE:
+                    self.local.data_store.clear()    # application parameters back to EDS values
+                else:
+                    for index in [i for i in self.local.data_store if 0x1000 <= i < 0x2000]:
+                        del self.local.data_store[index]
+                self.boot()
+                return
+            was_operational = self.operational
+            self.local.nmt.on_command(can_id, data, timestamp)
+            if self.operational and not was_operational:
+                self._start_pdos()
+            elif was_operational and not self.operational:
+                self._stop_pdos()
+                self.on_leave_operational()
+
+    def _start_pdos(self) -> None:
+        od = self.local.object_dictionary
+        self.tpdos = []
+        for n in range(512):
+            if 0x1800 + n not in od:
+                break
+            cfg = self._pdo(0x1800 + n, 0x1A00 + n)
+            if cfg is not None:
+                self.tpdos.append(cfg)
+        self.rpdos = {}
+        for n in range(512):
+            if 0x1400 + n not in od:
+                break
+            cfg = self._pdo(0x1400 + n, 0x1600 + n)
+            if cfg is not None:
+                self.rpdos[cfg.layout.cob_id] = cfg
+                self.network.subscribe(cfg.layout.cob_id, self._on_rpdo)
+        self._sync_count = 0
+        # The RPDO timeout runs from the start: a master that dies before its first command
+        # is caught too.
+        self.last_rpdo_time = time.monotonic()
+        self.on_operational()
+
+    def _pdo(self, com: int, mapping: int) -> PdoConfig | None:
+        try:
+            return read_pdo_config(self.local, com, mapping)
+        except (PdoLayoutError, KeyError, canopen.SdoAbortedError) as exc:
+            log.error("node %d: PDO 0x%04X not usable: %s", self.id, com, exc)
+            self.local.emcy.send(0x8200, 0x10)  # protocol error
+            return None
+
+    def _stop_pdos(self) -> None:
+        for cob in list(self.rpdos):
+            try:
+                self.network.unsubscribe(cob, self._on_rpdo)
+            except (KeyError, ValueError):
+                pass
+        self.rpdos = {}
+        self.tpdos = []
+        self.last_rpdo_time = None
+
+    # -- PDO traffic --------------------------------------------------------------------------
+    def on_sync(self, counter: int | None) -> None:
+        """Send the synchronous TPDOs due at this SYNC (the device refreshed ``live`` before)."""
+        if not self.operational:
+            return
+        self._sync_count += 1
+        for cfg in self.tpdos:
+            tt = cfg.trans_type
+            if tt == 0 or (1 <= tt <= 240 and self._sync_count % tt == 0):
+                self.transmit(cfg)
+
+    def transmit(self, cfg: PdoConfig) -> None:
+        values = [self.value(index, sub) for index, sub in cfg.layout.keys]
+        self.network.send_message(cfg.layout.cob_id, cfg.layout.encode(*values))
+
+    def _on_rpdo(self, can_id: int, data: bytes, timestamp: float) -> None:
+        with self.lock:
+            cfg = self.rpdos.get(can_id)
+            if cfg is None or not self.operational:
+                return
+            if len(data) != cfg.layout.size:
+                self.rpdo_length_errors += 1
+                self.local.emcy.send(EMCY_PDO_LENGTH, 0x10, struct.pack("<H", len(data)))
+                return
+            self.last_rpdo_time = time.monotonic()
+            values = cfg.layout.decode(data)
+            for (index, sub), value in zip(cfg.layout.keys, values):
+                self.write_object(index, sub, value)
+
+    def check_rpdo_timeout(self, now: float) -> bool:
+        """True once if an RPDO with an event timer has not arrived within it."""
+        with self.lock:
+            if not self.operational or self.last_rpdo_time is None:
+                return False
+            timers = [c.event_timer_ms for c in self.rpdos.values() if c.event_timer_ms]
+            if timers and now - self.last_rpdo_time > min(timers) / 1000.0:
+                self.last_rpdo_time = None  # report once until the next RPDO
+                return True
+            return False
+
+    # -- object access ------------------------------------------------------------------------
+    def value(self, index: int, sub: int = 0) -> Any:
+        """Current value of an object: live value if the device computes it, else the stored one."""
+        key = (index, sub)
+        if key in self.live:
+            return self.live[key]
+        var = self.local.sdo[index]
+        if sub or not isinstance(var, canopen.sdo.SdoVariable):
+            var = var[sub]
+        return var.raw
+
+    def write_object(self, index: int, sub: int, value: Any) -> None:
+        """Store a value received by PDO and let the device react."""
+        obj = self.local.object_dictionary[index]
+        if not isinstance(obj, canopen.objectdictionary.ODVariable):
+            obj = obj[sub]
+        self.local.data_store.setdefault(index, {})[sub] = obj.encode_raw(value)
+        self.on_object_written(index, sub, value)
+
+    def _read_live(self, index: int, subindex: int, od: Any) -> Any:
+        return self.live.get((index, subindex))
+
+    def _on_sdo_write(self, index: int, subindex: int, od: Any, data: bytes) -> None:
+        if index >= 0x2000:
+            with self.lock:
+                self.on_object_written(index, subindex, od.decode_raw(data))
+
+    # -- device hooks -------------------------------------------------------------------------
+    def on_boot(self) -> None:
+        """After boot-up (power-on or reset)."""
+
+    def on_operational(self) -> None:
+        """After entering OPERATIONAL (PDOs are configured)."""
+
+    def on_leave_operational(self) -> None:
+        """After leaving OPERATIONAL (STOPPED or PRE-OPERATIONAL)."""
+
+    def on_object_written(self, index: int, sub: int, value: Any) -> None:
+        """A device object was written by RPDO or SDO."""

@@ -1,0 +1,107 @@
+"""Start ``stand emulate`` as a separate process and wait until it is on the bus.
+
+Used by ``stand demo``, ``stand campaign``, the end-to-end tests and the benchmarks::
+
+    with EmulatorProcess("udp_loopback:demo-1", config, lockstep=True, seed=1) as emu:
+        ...   # the gateway talks to it over the bus
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+from pathlib import Path
+
+from plant.config import PlantConfig, model_to_toml
+
+READY = "emulator ready"
+
+
+def config_to_toml(config: PlantConfig) -> str:
+    """An emulator config file for ``config`` (model, sensor, initial force)."""
+    text = model_to_toml(config.model, header="emulator configuration written by hydrostand")
+    if config.sensor:
+        text += "\n[sensor]\n" + "".join(f"{k} = {float(v)!r}\n" for k, v in config.sensor.items())
+    text += f"\n[initial]\nforce_kgf = {float(config.initial_force_kgf)!r}\n"
+    return text
+
+
+class EmulatorProcess:
+    """A ``stand emulate`` child process; terminated (SIGTERM, then SIGKILL) on exit."""
+
+    def __init__(self, bus: str, config: PlantConfig | None = None, lockstep: bool = True,
+                 seed: int | None = 1, extra_args: list[str] | None = None,
+                 ready_timeout_s: float = 20.0) -> None:
+        self.bus = bus
+        self.config = config
+        self.lockstep = lockstep
+        self.seed = seed
+        self.extra_args = list(extra_args or [])
+        self.ready_timeout_s = ready_timeout_s
+        self.proc: subprocess.Popen | None = None
+        self.output: list[str] = []
+        self._tmp: tempfile.TemporaryDirectory | None = None
+
+    def command(self) -> list[str]:
+        cmd = [sys.executable, "-m", "stand", "emulate", "--bus", self.bus]
+        if self.lockstep:
+            cmd.append("--lockstep")
+        if self.seed is not None:
+            cmd += ["--seed", str(self.seed)]
+        if self.config is not None:
+            self._tmp = tempfile.TemporaryDirectory(prefix="stand-emulator-")
+            path = Path(self._tmp.name) / "plant.toml"
+            path.write_text(config_to_toml(self.config))
+            cmd += ["--config", str(path)]
+        return cmd + self.extra_args
+
+    def start(self) -> "EmulatorProcess":
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        self.proc = subprocess.Popen(self.command(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                     text=True, env=env)
+        ready = threading.Event()
+
+        def pump() -> None:
+            for line in self.proc.stdout:
+                self.output.append(line.rstrip("\n"))
+                if READY in line:
+                    ready.set()
+            ready.set()
+
+        threading.Thread(target=pump, name="emulator-output", daemon=True).start()
+        if not ready.wait(self.ready_timeout_s) or self.proc.poll() is not None:
+            out = "\n".join(self.output[-20:])
+            self.stop()
+            raise RuntimeError(f"the emulator did not start (exit code {self.proc.returncode}):\n{out}")
+        return self
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
+
+    def signal(self, sig: int) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            os.kill(self.proc.pid, sig)
+
+    def stop(self, timeout_s: float = 5.0) -> int | None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGCONT)  # in case a test froze it
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+        return self.proc.returncode if self.proc is not None else None
+
+    def __enter__(self) -> "EmulatorProcess":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()

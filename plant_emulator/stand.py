@@ -1,0 +1,166 @@
+"""The emulated stand: both CANopen nodes wired to one plant model, on any python-can bus.
+
+Time:
+
+* **lockstep** — the plant advances exactly one communication cycle period (0x1006, written by
+  the master) per SYNC, in sub-steps of at most ``step_s``; the command received after SYNC k
+  acts over [t_k, t_k+1]. A run is as fast as the bus and reproducible bit for bit with a seed.
+* **real time** — the plant integrates on the wall clock in steps of ``step_s``; a command acts
+  from the moment it is received; each SYNC samples the force at that instant.
+
+Every SYNC: advance the plant, sample the dynamometer, refresh the valve's outputs, send the
+synchronous TPDOs of both nodes (only while OPERATIONAL).
+"""
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+import can
+import canopen
+import numpy as np
+
+from dbc import DYNAMOMETER_EDS, VALVE_EDS
+from dbc import profile as P
+from plant.config import PlantConfig
+
+from .dynamometer import DynamometerNode
+from .valve import ServoValveNode
+
+log = logging.getLogger(__name__)
+
+_MAX_BLOCK = 200_000  # steps per numpy block when catching up a long gap in real time
+
+
+@dataclass
+class EmulatorOptions:
+    lockstep: bool = False
+    seed: int | None = None
+    valve_id: int = P.VALVE_NODE_ID
+    dynamometer_id: int = P.DYNAMOMETER_NODE_ID
+    step_s: float = 0.0005
+    watchdog_poll_s: float = 0.005
+
+
+class EmulatedStand:
+    """Owns the network, the two emulated nodes and the plant. Call :meth:`start`, then
+    :meth:`stop` (or use as a context manager)."""
+
+    def __init__(self, bus: can.BusABC, config: PlantConfig, options: EmulatorOptions) -> None:
+        if options.valve_id == options.dynamometer_id:
+            raise ValueError("the valve and the dynamometer need different node ids")
+        self.bus = bus
+        self.config = config
+        self.options = options
+        self.model = config.model
+        self.sensor = config.dynamometer(options.seed)
+        self.network = canopen.Network(bus)
+        self.valve = ServoValveNode(self.network, options.valve_id, VALVE_EDS, options.lockstep)
+        self.dynamometer = DynamometerNode(self.network, options.dynamometer_id, DYNAMOMETER_EDS)
+        self.lock = threading.RLock()
+        self.valve.lock = self.lock          # one lock for the whole stand
+        self.dynamometer.lock = self.lock
+        self.valve.before_change = self._catch_up
+        self.valve.after_change = self.command_changed
+        self.network.subscribe(0x80, self._on_sync)
+        self._plant_dt = options.step_s
+        self._plant = self.model.new_state(1, self._plant_dt, y0=config.initial_force_kgf)
+        self._command = 0.0
+        self._t_plant = time.monotonic()
+        self._syncs = 0
+        self._stop = threading.Event()
+        self._watchdog: threading.Thread | None = None
+        self.errors: list[str] = []
+
+    # -- lifecycle -------------------------------------------------------------------------------
+    def start(self) -> None:
+        self.network.notifier = can.Notifier(self.bus, self.network.listeners, 0.5)
+        self._t_plant = time.monotonic()
+        self.valve.boot()
+        self.dynamometer.boot()
+        self._watchdog = threading.Thread(target=self._watch, name="emulator-watchdog", daemon=True)
+        self._watchdog.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._watchdog is not None:
+            self._watchdog.join(1.0)
+        for node in (self.valve, self.dynamometer):
+            node.local.nmt.stop_heartbeat()
+        if self.network.notifier is not None:
+            self.network.notifier.stop(1.0)
+
+    def __enter__(self) -> "EmulatedStand":
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    @property
+    def force_kgf(self) -> float:
+        return float(self._plant.y[0])
+
+    # -- plant time ------------------------------------------------------------------------------
+    def _advance(self, steps: int, dt: float) -> None:
+        if dt != self._plant_dt:  # the period changed: keep the state, re-grid the delay line
+            self._plant = self.model.new_state(1, dt, y0=self._plant.y, u0=self._command,
+                                               t0=self._plant.t)
+            self._plant_dt = dt
+        while steps > 0:
+            k = min(steps, _MAX_BLOCK)
+            self.model.advance(self._plant, np.full((1, k), self._command), dt)
+            steps -= k
+
+    def _catch_up(self) -> None:
+        """Real time: integrate up to now with the command held so far."""
+        if self.options.lockstep:
+            return
+        now = time.monotonic()
+        steps = int((now - self._t_plant) / self._plant_dt)
+        if steps > 0:
+            self._advance(steps, self._plant_dt)
+            self._t_plant += steps * self._plant_dt
+
+    def _lockstep_cycle(self) -> None:
+        """Lockstep: one communication cycle period per SYNC (none before the first)."""
+        self._syncs += 1
+        if self._syncs == 1:
+            return
+        period = int(self.valve.value(P.COMM_CYCLE_PERIOD)) * 1e-6
+        if not (period > 0 and math.isfinite(period)):
+            return
+        sub = max(1, math.ceil(period / self.options.step_s - 1e-9))
+        self._advance(sub, period / sub)
+
+    # -- bus events ------------------------------------------------------------------------------
+    def _on_sync(self, can_id: int, data: bytes, timestamp: float) -> None:
+        try:
+            with self.lock:
+                if self.options.lockstep:
+                    self._lockstep_cycle()
+                else:
+                    self._catch_up()
+                reading, over = self.sensor.measure(self._plant.y[0])
+                self.dynamometer.publish(float(reading), bool(over))
+                self.valve.update_outputs(self._command)
+                counter = data[0] if len(data) >= 1 else None
+                self.valve.on_sync(counter)
+                self.dynamometer.on_sync(counter)
+        except Exception as exc:  # never let the notifier swallow it silently
+            log.exception("SYNC handling failed")
+            self.errors.append(repr(exc))
+
+    def command_changed(self) -> None:
+        """Called by the valve after its effective command may have changed."""
+        self._command = self.valve.spool_command_percent()
+
+    def _watch(self) -> None:
+        while not self._stop.wait(self.options.watchdog_poll_s):
+            now = time.monotonic()
+            with self.lock:
+                if self.valve.check_rpdo_timeout(now):
+                    self.valve.fault(P.EMCY_RPDO_TIMEOUT)

@@ -1,0 +1,124 @@
+"""The emulated servo-valve drive (CiA 408 device behaviour).
+
+Device state machine (status word 0x6041 bits 0-3, see :class:`dbc.profile.ValveState`)::
+
+    boot ─▶ INIT ─(control word D)─▶ DISABLED ◀─▶ HOLD ◀─▶ ACTIVE
+                                          ▲
+    any fault ─▶ FAULT_REACTION ─▶ FAULT_HOLD ─(reset-fault edge)─┘
+
+The spool command that reaches the hydraulics:
+
+* ACTIVE with device mode 1: the bus setpoint 0x6300:01, clipped to the limits 0x6320/0x6321
+  (status bit 10 "limit reached" while clipping);
+* HOLD and FAULT_HOLD: the hold setpoint 0x6314 (default 0: no flow);
+* INIT, DISABLED, FAULT_*: the fail-safe position, zero flow.
+
+Faults: RPDO timeout (EMCY 0x8250), NMT leaving OPERATIONAL while ACTIVE (goes to HOLD).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from dbc import profile as P
+
+from .node import EmulatedNode
+
+
+class ServoValveNode(EmulatedNode):
+    def __init__(self, network, node_id: int, eds, lockstep: bool) -> None:
+        super().__init__(network, node_id, eds)
+        self.lockstep = lockstep
+        self.state = P.ValveState.INIT
+        self.setpoint_counts = 0
+        self._control_word = 0
+        self.limit_reached = False
+        self.faults = 0
+        #: hooks for the stand: integrate up to now before, re-read the command after a change
+        self.before_change = lambda: None
+        self.after_change = lambda: None
+        self._refresh()
+
+    # -- what the hydraulics see ----------------------------------------------------------------
+    def spool_command_percent(self) -> float:
+        """The command the valve applies now, in % (positive: force rising)."""
+        S = P.ValveState
+        if self.state is S.ACTIVE and int(self.value(P.DEVICE_MODE)) == 1:
+            upper = int(self.value(P.UPPER_LIMIT))
+            lower = int(self.value(P.LOWER_LIMIT))
+            counts = min(max(self.setpoint_counts, lower), upper)
+            self.limit_reached = counts != self.setpoint_counts
+            return P.counts_to_percent(counts)
+        self.limit_reached = False
+        if self.state in (S.HOLD, S.FAULT_HOLD):
+            return P.counts_to_percent(int(self.value(P.HOLD_SETPOINT)))
+        return 0.0
+
+    # -- state machine ------------------------------------------------------------------------
+    def on_boot(self) -> None:
+        self.before_change()
+        self.state = P.ValveState.INIT
+        self.setpoint_counts = 0
+        self._control_word = 0
+        self.live[P.EMULATOR_CLOCK, 0] = 1 if self.lockstep else 0
+        self._refresh()
+        self.after_change()
+
+    def on_leave_operational(self) -> None:
+        self.before_change()
+        if self.state is P.ValveState.ACTIVE:
+            self.state = P.ValveState.HOLD
+        self._refresh()
+        self.after_change()
+
+    def on_object_written(self, index: int, sub: int, value: Any) -> None:
+        self.before_change()
+        if index == P.CONTROL_WORD:
+            self._apply_control_word(int(value))
+        elif (index, sub) == P.SETPOINT:
+            self.setpoint_counts = int(value)
+        self._refresh()
+        self.after_change()
+
+    def _apply_control_word(self, word: int) -> None:
+        S, C = P.ValveState, P.ControlBit
+        rising_reset = bool(word & C.RESET_FAULT) and not (self._control_word & C.RESET_FAULT)
+        self._control_word = word
+        if self.state.is_fault:
+            if rising_reset:
+                self.state = S.DISABLED
+                self.local.emcy.reset()
+            return
+        if not word & C.DISABLE:
+            if self.state is not S.INIT:
+                self.state = S.DISABLED
+            return
+        if word & C.ACTIVE and word & C.HOLD:
+            self.state = S.ACTIVE
+        elif word & C.HOLD:
+            self.state = S.HOLD
+        else:
+            self.state = S.DISABLED
+
+    def fault(self, emcy_code: int) -> None:
+        """Fault reaction: spool to the hold setpoint, EMCY with the cause."""
+        with self.lock:
+            if self.state.is_fault:
+                return
+            self.before_change()
+            self.faults += 1
+            self.state = P.ValveState.FAULT_HOLD
+            self._refresh()
+            self.after_change()
+            self.local.emcy.send(emcy_code, 0x01)
+
+    def _refresh(self) -> None:
+        status = self.state.value
+        if self.limit_reached:
+            status |= P.STATUS_LIMIT_REACHED
+        self.live[P.STATUS_WORD, 0] = status
+        self.live[P.ERROR_REGISTER, 0] = 0x01 if self.state.is_fault else 0
+
+    def update_outputs(self, spool_percent: float) -> None:
+        """Refresh the values the TPDO carries (status word, actual spool position)."""
+        self._refresh()
+        self.live[P.ACTUAL_VALUE] = P.percent_to_counts(spool_percent)

@@ -1,0 +1,45 @@
+"""``stand``: the test-stand gateway's command line.
+
+Each sub-command lives in :mod:`stand.commands` as a module with ``register(subparsers)``; user
+mistakes (bad parameters, missing nodes, unreadable files) are printed as one clear message and
+exit code 2, never as a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from gateway.errors import StandError
+from plant.params import ModelError
+from standbus import BusSpecError
+
+COMMANDS = ["demo", "emulate", "run"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="stand",
+        description="Scriptable CANopen gateway, plant emulator and model diagnosis for "
+                    "servo-hydraulic force-loading stands.")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMANDS:
+        importlib.import_module(f"stand.commands.{name}").register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except (StandError, ModelError, BusSpecError) as exc:
+        print(f"stand {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"stand {args.command}: interrupted", file=sys.stderr)
+        return 130

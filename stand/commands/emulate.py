@@ -1,0 +1,54 @@
+"""``stand emulate``: impersonate the stand's valve and dynamometer nodes and the plant."""
+from __future__ import annotations
+
+import argparse
+import signal
+import threading
+
+from plant.config import load_plant_config
+from plant_emulator import EmulatedStand, EmulatorOptions
+from plant_emulator.process import READY
+from standbus import open_bus
+
+from .common import add_bus, add_node_ids, parse_assignments
+
+
+def register(sub) -> None:
+    p = sub.add_parser("emulate", help="run the plant emulator (both CANopen nodes) on a bus",
+                       description="Impersonate the servo-valve drive (CiA 408) and the dynamometer "
+                                   "(CiA 404) with a plant model behind them, until interrupted.")
+    add_bus(p)
+    add_node_ids(p)
+    p.add_argument("--lockstep", action="store_true",
+                   help="advance the plant one communication period (0x1006) per SYNC instead of "
+                        "on the wall clock")
+    p.add_argument("--config", metavar="PLANT.toml", help="plant configuration (model, sensor, initial force)")
+    p.add_argument("--model", metavar="SPEC", help="which effects, e.g. base+reversal+lag (default: base+reversal)")
+    p.add_argument("--set", action="append", metavar="NAME=VALUE",
+                   help="override a parameter: g=130, tau=0.04, reversal.boost=0, sensor.noise_kgf=1, "
+                        "initial.force_kgf=500 (repeatable)")
+    p.add_argument("--seed", type=int, default=None, help="seed of the measurement noise (reproducible runs)")
+    p.add_argument("--step-ms", type=float, default=0.5, help="plant integration step, ms (default %(default)s)")
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    config = load_plant_config(args.config, args.model, parse_assignments(args.set))
+    options = EmulatorOptions(lockstep=args.lockstep, seed=args.seed, valve_id=args.valve_id,
+                              dynamometer_id=args.dynamometer_id, step_s=args.step_ms / 1000.0)
+    bus = open_bus(args.bus)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    stand = EmulatedStand(bus, config, options)
+    try:
+        stand.start()
+        print(f"{READY}: valve node {args.valve_id}, dynamometer node {args.dynamometer_id} on "
+              f"{args.bus} ({'lockstep' if args.lockstep else 'real time'}); model {config.model.spec}",
+              flush=True)
+        while not stop.wait(0.5):
+            pass
+    finally:
+        stand.stop()
+        bus.shutdown()
+    return 0

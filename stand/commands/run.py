@@ -1,0 +1,42 @@
+"""``stand run EXPERIMENT``: run one experiment against whatever stand is on the bus, record it."""
+from __future__ import annotations
+
+import argparse
+import inspect
+
+from gateway import Gateway
+from gateway.experiments import EXPERIMENTS, make_experiment
+
+from .common import add_gateway, gateway_config
+
+
+def register(sub) -> None:
+    p = sub.add_parser("run", help="run one experiment on the stand and record it",
+                       description="Connect to the stand (boot, identify, configure the nodes), run "
+                                   "one experiment and write a run directory.")
+    exps = p.add_subparsers(dest="experiment", metavar="EXPERIMENT", required=True)
+    for name, klass in EXPERIMENTS.items():
+        doc = inspect.getdoc(klass) or ""
+        e = exps.add_parser(name, help=doc.splitlines()[0] if doc else name, description=doc,
+                            formatter_class=argparse.RawDescriptionHelpFormatter)
+        for pname, param in inspect.signature(klass).parameters.items():
+            e.add_argument("--" + pname.replace("_", "-"), dest=f"x_{pname}", type=float,
+                           default=param.default, help=f"(default {param.default})")
+        add_gateway(e)
+        e.add_argument("--out", required=True, metavar="DIR", help="run directory to create")
+        e.add_argument("--no-progress", action="store_true", help="no progress bar")
+        e.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    params = {k[2:]: v for k, v in vars(args).items() if k.startswith("x_")}
+    experiment = make_experiment(args.experiment, params)
+    with Gateway(gateway_config(args)) as gw:
+        result = gw.run(experiment, args.out, progress=False if args.no_progress else None)
+    stats = result.outcome.stats
+    print(f"run {result.status}: {stats.cycles} cycles, {stats.stale_cycles} stale, "
+          f"{stats.overruns} overruns -> {result.path}")
+    if result.reason:
+        print(f"stopped early ({result.reason}): {result.outcome.message}")
+        return 1
+    return 0

@@ -1,0 +1,207 @@
+"""A multi-process CAN bus pinned to the loopback interface (python-can interface ``udp_loopback``).
+
+Every bus instance opens one UDP socket that joins an IPv4 multicast group **on 127.0.0.1
+only** and sends with ``IP_MULTICAST_IF = 127.0.0.1`` and TTL 0, so no datagram ever leaves the
+host and nobody on the LAN can join the bus. Any number of processes on the same host that open
+the same *channel* share one bus; different channels are independent buses (several benches side
+by side).
+
+It behaves like SocketCAN where it matters to CANopen stacks:
+
+* a sender does not receive its own frames unless ``receive_own_messages=True``;
+* frame flags (extended id, remote, error, FD, BRS, ESI), the DLC and the data are carried intact;
+* the timestamp is the sender's wall-clock time at transmission (the same clock for every
+  process on the host), so captures taken by different processes agree.
+
+Like any datagram transport it does not arbitrate by id. Frames from one sender arrive in order.
+
+Usage from any python-can tool::
+
+    python -m can.logger -i udp_loopback -c stand0
+    python -m can.viewer -i udp_loopback -c stand0
+
+The channel is a name (``stand0``, ``bench-B``), which is hashed to a group and a port, or an
+explicit ``239.x.y.z:port``.
+"""
+from __future__ import annotations
+
+import errno
+import logging
+import os
+import select
+import socket
+import struct
+import time
+import zlib
+from typing import Any
+
+import can
+from can import BusABC, CanProtocol, Message
+
+from . import wire
+
+log = logging.getLogger(__name__)
+
+LOOPBACK = "127.0.0.1"
+DEFAULT_CHANNEL = "stand0"
+#: Organization-local multicast scope (RFC 2365); combined with the loopback pinning
+#: this never reaches a network.
+_GROUP_PREFIX = "239.255"
+_PORT_BASE = 47000
+_PORT_SPAN = 2000
+
+
+def resolve_channel(channel: str) -> tuple[str, int]:
+    """Map a channel name to its ``(multicast group, UDP port)``.
+
+    ``"239.255.1.2:47001"`` is taken literally; any other name is hashed (CRC-32) so the same
+    name gives the same bus in every process.
+    """
+    if ":" in channel:
+        group, _, port_text = channel.rpartition(":")
+        try:
+            port = int(port_text)
+            packed = socket.inet_aton(group)
+        except (ValueError, OSError):
+            raise can.CanInitializationError(
+                f"channel {channel!r} looks like GROUP:PORT but is not a valid IPv4 "
+                "multicast address and port (e.g. 239.255.0.1:47001)") from None
+        if not (224 <= packed[0] <= 239) or not (1 <= port <= 65535):
+            raise can.CanInitializationError(
+                f"channel {channel!r}: the group must be an IPv4 multicast address "
+                "(224.0.0.0-239.255.255.255) and the port 1-65535")
+        return group, port
+    if not channel or not channel.isprintable():
+        raise can.CanInitializationError(
+            f"channel {channel!r} is not a usable bus name; use e.g. 'stand0'")
+    h = zlib.crc32(channel.encode("utf-8"))
+    return f"{_GROUP_PREFIX}.{(h >> 8) & 0xFF}.{h & 0xFF or 1}", _PORT_BASE + (h >> 16) % _PORT_SPAN
+
+
+def _open_socket(group: str, port: int) -> socket.socket:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        if hasattr(socket, "SO_REUSEPORT"):
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+        # Bigger buffers: a burst (can.player at full speed) must not be dropped.
+        for opt in (socket.SO_RCVBUF, socket.SO_SNDBUF):
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, opt, 4 * 1024 * 1024)
+            except OSError:
+                pass
+        # Receive only datagrams addressed to our group (binding to the group address
+        # filters by destination on Linux; elsewhere fall back to the wildcard).
+        try:
+            sock.bind((group, port))
+        except OSError:
+            sock.bind(("", port))
+        loopback = socket.inet_aton(LOOPBACK)
+        # Join the group on the loopback interface only.
+        sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP,
+                        socket.inet_aton(group) + loopback)
+        # Send through loopback only, with TTL 0 (never forwarded), and loop back to us.
+        sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, loopback)
+        sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, struct.pack("B", 0))
+        sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, struct.pack("B", 1))
+        sock.setblocking(False)
+        return sock
+    except OSError as exc:
+        sock.close()
+        raise can.CanInitializationError(
+            f"could not open the loopback bus on {group}:{port}: {exc}") from exc
+
+
+class LoopbackBus(BusABC):
+    """python-can bus over UDP multicast pinned to 127.0.0.1 (see the module docstring).
+
+    :param channel: bus name (``"stand0"`` by default) or ``"GROUP:PORT"``.
+    :param receive_own_messages: also deliver the frames this instance sends.
+    :param fd: accept CAN FD frames (default True); if False, FD frames are refused on send
+        and ignored on receive.
+    """
+
+    def __init__(
+        self,
+        channel: Any = DEFAULT_CHANNEL,
+        receive_own_messages: bool = False,
+        fd: bool = True,
+        **kwargs: Any,
+    ) -> None:
+        channel = str(channel if channel is not None else DEFAULT_CHANNEL)
+        self.group, self.port = resolve_channel(channel)
+        self._socket = _open_socket(self.group, self.port)
+        self._destination = (self.group, self.port)
+        self._sender_id = int.from_bytes(os.urandom(8), "big")
+        self._receive_own = bool(receive_own_messages)
+        self._can_protocol = CanProtocol.CAN_FD if fd else CanProtocol.CAN_20
+        self.channel_info = f"udp_loopback {channel} ({self.group}:{self.port} on {LOOPBACK})"
+        self.channel = channel
+        #: Datagrams on the group that were not frames of this bus (counted, then dropped).
+        self.malformed_datagrams = 0
+        super().__init__(channel=channel, **kwargs)
+
+    # -- python-can API -------------------------------------------------------------------
+    def send(self, msg: Message, timeout: float | None = None) -> None:
+        if msg.is_fd and self._can_protocol is not CanProtocol.CAN_FD:
+            raise can.CanOperationError("this bus was opened with fd=False; cannot send a CAN FD frame")
+        datagram = wire.pack(msg, self._sender_id, time.time())
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            try:
+                self._socket.sendto(datagram, self._destination)
+                return
+            except BlockingIOError:
+                remaining = None if deadline is None else deadline - time.monotonic()
+                if remaining is not None and remaining <= 0:
+                    raise can.CanOperationError("send buffer full: frame not sent") from None
+                select.select([], [self._socket], [], remaining)
+            except OSError as exc:
+                raise can.CanOperationError(f"loopback bus send failed: {exc}") from exc
+
+    def _recv_internal(self, timeout: float | None) -> tuple[Message | None, bool]:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            try:
+                datagram = self._socket.recv(wire.MAX_DATAGRAM + 1)
+            except BlockingIOError:
+                remaining = None if deadline is None else deadline - time.monotonic()
+                if remaining is not None and remaining <= 0:
+                    return None, False
+                try:
+                    ready, _, _ = select.select([self._socket], [], [], remaining)
+                except (OSError, ValueError) as exc:  # closed under us
+                    raise can.CanOperationError(f"loopback bus receive failed: {exc}") from exc
+                if not ready:
+                    return None, False
+                continue
+            except OSError as exc:
+                if exc.errno == errno.EBADF:
+                    raise can.CanOperationError("loopback bus is shut down") from exc
+                raise can.CanOperationError(f"loopback bus receive failed: {exc}") from exc
+            try:
+                msg, sender = wire.unpack(datagram, self.channel)
+            except wire.WireFormatError:
+                self.malformed_datagrams += 1
+                continue
+            if sender == self._sender_id:
+                if not self._receive_own:
+                    continue
+                msg.is_rx = False
+            if msg.is_fd and self._can_protocol is not CanProtocol.CAN_FD:
+                continue
+            return msg, False
+
+    def fileno(self) -> int:
+        return self._socket.fileno()
+
+    def shutdown(self) -> None:
+        super().shutdown()
+        try:
+            self._socket.close()
+        except OSError:  # pragma: no cover - nothing useful to do
+            pass
+
+    @staticmethod
+    def _detect_available_configs() -> list[dict[str, Any]]:
+        return [{"interface": "udp_loopback", "channel": DEFAULT_CHANNEL}]
