@@ -179,7 +179,7 @@ def load(path: str | Path) -> Record:
         return read_csv(path)
     if path.suffix.lower() in CAPTURE_SUFFIXES:
         try:
-            from .captures import load_capture
+            from captures import load_capture
         except ImportError:
             raise DataError(f"{path}: decoding bus captures is not available in this version") from None
         return load_capture(path)

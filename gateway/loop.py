@@ -131,6 +131,8 @@ class ControlLoop:
         in HOLD with zero command either way."""
         self._subscribe()
         self.supervisor.reset()
+        experiment.abort = None
+        experiment.configure(self.period_s, self.supervisor.limits.force_limit_kgf)
         stats = self.stats = LoopStats()
         T = self.period_s
         force_cob = self._force_layout.cob_id
@@ -204,6 +206,10 @@ class ControlLoop:
                 if experiment.finished(t, y):
                     break
                 u_req, r = experiment.step(t, y)
+                if experiment.abort is not None:
+                    reason, message = experiment.abort
+                    self.safe_state()
+                    break
                 u = self.supervisor.shape_command(u_req)
                 self.send_command(P.CW_ACTIVE, u)
                 if recorder is not None:

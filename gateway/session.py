@@ -175,6 +175,8 @@ class Gateway:
             outcome = self.loop.run(experiment, recorder, tick)
         finally:
             if bar is not None:
+                if outcome is not None and outcome.status == "complete":
+                    bar.update(bar.total - bar.n)
                 bar.close()
             try:
                 self.master.enter_preoperational()

@@ -88,7 +88,9 @@ class Effect:
         return f"{type(self).__name__}({inner})"
 
     # -- state carried between blocks -------------------------------------------------------
-    def init_state(self, n: int) -> dict[str, np.ndarray]:
+    def init_state(self, n: int, u0: np.ndarray) -> dict[str, np.ndarray]:
+        """State at the start; ``u0`` (n,) is the command held before (the system is at rest
+        with respect to it: a lagged spool sits at it, a moving rod moves its way)."""
         return {}
 
     # -- stage hooks (override the one for your stage) ----------------------------------------
@@ -105,8 +107,9 @@ class Effect:
         """FLOW stage: multiplicative factor on g·q, same shape as ``q``."""
         raise NotImplementedError
 
-    def disturbance(self, t: np.ndarray) -> np.ndarray:
-        """DISTURBANCE stage: additive force rate (kgf/s) at times ``t`` (s)."""
+    def disturbance(self, t: np.ndarray, dt: float) -> np.ndarray:
+        """DISTURBANCE stage: additive force rate (kgf/s), averaged over the steps that start
+        at times ``t`` (s) and last ``dt``."""
         raise NotImplementedError
 
     def force_rate(self, y: np.ndarray) -> np.ndarray:
@@ -143,16 +146,14 @@ class Lag(Effect):
     params = (Param("time_constant", 0.03, 1e-4, 2.0, "s", "spool/actuator time constant T_v",
                     log=True),)
 
-    def init_state(self, n):
-        return {"x": None}
+    def init_state(self, n, u0):
+        return {"x": np.array(u0, float)}
 
     def shape(self, q, dt, state):
         T = self.time_constant
         a = float(np.exp(-dt / T))
         c = T / dt * (1.0 - a)  # step-average weight of the initial deviation
         x0 = state["x"]
-        if x0 is None:
-            x0 = q[:, 0].copy()  # at rest: the spool starts where the command is
         # x_{k+1} = a x_k + (1-a) u_k  (x_k is the spool position at the step start)
         x_next, _ = lfilter([1.0 - a], [1.0, -a], q, axis=1, zi=(a * x0)[:, None])
         x_start = np.concatenate([x0[:, None], x_next[:, :-1]], axis=1)
@@ -255,9 +256,9 @@ class Reversal(Effect):
         Param("exponent", 0.7, 0.0, 1.0, "1", "amplitude exponent p (0: gain factor, 1: fixed extra force)"),
     )
 
-    def init_state(self, n):
-        # direction of the last motion (0: none yet) and time since the last reversal
-        return {"direction": np.zeros(n), "since": np.full(n, np.inf)}
+    def init_state(self, n, u0):
+        # direction of the last motion (0: at rest) and time since the last reversal
+        return {"direction": np.sign(u0).astype(float), "since": np.full(n, np.inf)}
 
     def prepare(self, q, dt, state):
         n, K = q.shape
@@ -330,9 +331,9 @@ class Oscillation(Effect):
         Param("frequency", 3.0, 0.01, 100.0, "Hz", "disturbance frequency f", log=True),
     )
 
-    def disturbance(self, t):
-        w = 2 * np.pi * self.frequency
-        return w * self.amplitude * np.cos(w * t)
+    def disturbance(self, t, dt):
+        w = 2 * np.pi * self.frequency  # exact step average of 2πfA·cos(2πft)
+        return self.amplitude * (np.sin(w * (t + dt)) - np.sin(w * t)) / dt
 
 
 # ------------------------------------------------------------------------------------------

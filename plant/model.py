@@ -128,13 +128,13 @@ class PlantModel:
         """Initial state of ``n`` trajectories at force ``y0``, with the command ``u0`` held
         before time ``t0`` (the delay line is filled with it)."""
         m, _ = self._delay_split(dt)
-        hist = np.empty((n, m + 1))
-        hist[:] = np.asarray(u0, float).reshape(-1, 1) if np.ndim(u0) else u0
+        u_init = np.broadcast_to(np.asarray(u0, float), (n,)).copy()
+        hist = np.repeat(u_init[:, None], m + 1, axis=1)
         return PlantState(
             y=np.broadcast_to(np.asarray(y0, float), (n,)).copy(),
             t=np.broadcast_to(np.asarray(t0, float), (n,)).copy(),
             history=hist,
-            effects=[e.init_state(n) for e in self.effects],
+            effects=[e.init_state(n, u_init) for e in self.effects],
         )
 
     def drive(self, u: np.ndarray, dt: float, state: PlantState) -> Drive:
@@ -161,7 +161,7 @@ class PlantModel:
             elif eff.stage is Stage.FLOW:
                 aux.append(eff.prepare(q, dt, est))
             elif eff.stage is Stage.DISTURBANCE:
-                d = eff.disturbance(t)
+                d = eff.disturbance(t, dt)
                 dist = d if dist is None else dist + d
         state.t = state.t + K * dt
         return Drive(q=q, aux=aux, dist=dist)

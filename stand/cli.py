@@ -9,13 +9,20 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import pkgutil
 import sys
+
+from stand import commands
 
 from gateway.errors import StandError
 from plant.params import ModelError
 from standbus import BusSpecError
 
-COMMANDS = ["demo", "emulate", "run"]
+
+
+def command_modules() -> list[str]:
+    """Every module in :mod:`stand.commands` that defines ``register`` is a sub-command."""
+    return sorted(m.name for m in pkgutil.iter_modules(commands.__path__) if m.name != "common")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -25,8 +32,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "servo-hydraulic force-loading stands.")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMANDS:
-        importlib.import_module(f"stand.commands.{name}").register(sub)
+    for name in command_modules():
+        module = importlib.import_module(f"stand.commands.{name}")
+        if hasattr(module, "register"):
+            module.register(sub)
     return parser
 
 

@@ -1,13 +1,34 @@
-"""The experiments the gateway can run (``stand run NAME``)."""
+"""The experiments the gateway can run (``stand run NAME``).
+
+Every module here that defines an :class:`Experiment` subclass with a ``name`` is registered
+automatically; adding an experiment is adding one module.
+"""
 from __future__ import annotations
 
+import importlib
+import inspect
+import pkgutil
 from typing import Any
 
 from ..errors import ParameterError
 from .base import Experiment, check_range
 from .meander import Meander
 
-EXPERIMENTS: dict[str, type[Experiment]] = {"meander": Meander}
+
+def _discover() -> dict[str, type[Experiment]]:
+    found: dict[str, type[Experiment]] = {}
+    for m in pkgutil.iter_modules(__path__):
+        if m.name == "base":
+            continue
+        module = importlib.import_module(f"{__name__}.{m.name}")
+        for obj in vars(module).values():
+            if (inspect.isclass(obj) and issubclass(obj, Experiment) and obj is not Experiment
+                    and getattr(obj, "name", None) and obj.__module__ == module.__name__):
+                found[obj.name] = obj
+    return dict(sorted(found.items(), key=lambda kv: (kv[0] != "meander", kv[0])))
+
+
+EXPERIMENTS: dict[str, type[Experiment]] = _discover()
 
 
 def make_experiment(name: str, params: dict[str, Any]) -> Experiment:
@@ -19,8 +40,7 @@ def make_experiment(name: str, params: dict[str, Any]) -> Experiment:
     try:
         return klass(**params)
     except TypeError as exc:
-        import inspect
-        accepted = [p for p in inspect.signature(klass).parameters]
+        accepted = list(inspect.signature(klass).parameters)
         raise ParameterError(f"{name}: {exc}; it accepts: {', '.join(accepted)}") from None
 
 

@@ -18,8 +18,9 @@ def check_range(name: str, value: Any, lower: float, upper: float, unit: str = "
     if not math.isfinite(number) or not (lower <= number <= upper) or (
             integer and number != int(number)):
         kind = "an integer" if integer else "a number"
+        u = f" {unit}" if unit else ""
         raise ParameterError(
-            f"{name} = {value} {unit} is out of range: it must be {kind} from {lower:g} to {upper:g} {unit}".rstrip())
+            f"{name} = {value}{u} is out of range: it must be {kind} from {lower:g} to {upper:g}{u}")
     return int(number) if integer else number
 
 
@@ -35,6 +36,9 @@ class Experiment(ABC):
     name: ClassVar[str]
     #: |u| never exceeds this (%); the supervisor clamps to its own limit as well
     max_command_pct: float = 100.0
+    #: set by :meth:`step` to stop the run safely: ``(reason, message)``, e.g.
+    #: ``("force_near_limit", "force 9200 kgf within 10 % of the limit")``
+    abort: tuple[str, str] | None = None
 
     @property
     @abstractmethod
@@ -46,6 +50,10 @@ class Experiment(ABC):
 
     def begin(self, y0: float) -> None:
         """Called once before the first step with the first force reading."""
+
+    def configure(self, period_s: float, force_limit_kgf: float) -> None:
+        """Called before :meth:`begin` with the loop's period and the supervisor's force limit
+        (experiments that must stay clear of the limit use it)."""
 
     @abstractmethod
     def step(self, t: float, y: float) -> tuple[float, float]: ...

@@ -1,0 +1,45 @@
+"""Shared fixtures: private bus channels and emulator processes."""
+from __future__ import annotations
+
+import itertools
+import os
+import uuid
+
+import pytest
+
+from plant.config import PlantConfig, load_plant_config
+from plant_emulator.process import EmulatorProcess
+
+_counter = itertools.count()
+
+
+@pytest.fixture
+def channel() -> str:
+    """A loopback-bus channel no other test (or developer) uses."""
+    return f"t{os.getpid()}-{next(_counter)}-{uuid.uuid4().hex[:6]}"
+
+
+@pytest.fixture
+def bus_spec(channel: str) -> str:
+    return f"udp_loopback:{channel}"
+
+
+def plant(overrides: dict | None = None, model: str | None = None) -> PlantConfig:
+    return load_plant_config(None, model, overrides or {})
+
+
+@pytest.fixture
+def start_emulator(bus_spec):
+    """Factory: start ``stand emulate`` as a real separate process on this test's bus."""
+    started: list[EmulatorProcess] = []
+
+    def start(config: PlantConfig | None = None, lockstep: bool = True, seed: int | None = 1,
+              extra_args: list[str] | None = None, bus: str | None = None) -> EmulatorProcess:
+        proc = EmulatorProcess(bus or bus_spec, config, lockstep=lockstep, seed=seed, extra_args=extra_args)
+        proc.start()
+        started.append(proc)
+        return proc
+
+    yield start
+    for proc in started:
+        proc.stop()

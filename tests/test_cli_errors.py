@@ -1,0 +1,63 @@
+"""User mistakes give one clear message and exit code 2, never a traceback."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+
+def stand(*args, timeout=60):
+    res = subprocess.run([sys.executable, "-m", "stand", *args], capture_output=True, text=True, timeout=timeout)
+    assert "Traceback" not in res.stderr + res.stdout, res.stderr
+    return res
+
+
+def test_unknown_interface(tmp_path):
+    res = stand("run", "meander", "--bus", "nosuch:x", "--out", str(tmp_path / "r"))
+    assert res.returncode == 2
+    assert "unknown CAN interface 'nosuch'" in res.stderr and "socketcan" in res.stderr
+
+
+def test_socketcan_device_that_does_not_exist(tmp_path):
+    res = stand("run", "meander", "--bus", "socketcan:nosuchcan0", "--out", str(tmp_path / "r"))
+    assert res.returncode == 2 and "cannot open CAN bus 'socketcan:nosuchcan0'" in res.stderr
+
+
+def test_node_that_never_boots_is_named(bus_spec, tmp_path):
+    res = stand("run", "meander", "--bus", bus_spec, "--boot-timeout", "0.5", "--out", str(tmp_path / "r"))
+    assert res.returncode == 2
+    assert "node 1 did not boot" in res.stderr and "nothing heard from it" in res.stderr
+
+
+@pytest.mark.e2e
+def test_wrong_identity_is_refused(bus_spec, start_emulator, tmp_path):
+    # swapped node ids: node 1 answers as the dynamometer
+    start_emulator(None, lockstep=True, extra_args=["--valve-id", "2", "--dynamometer-id", "1"])
+    res = stand("run", "meander", "--bus", bus_spec, "--lockstep", "--out", str(tmp_path / "r"))
+    assert res.returncode == 2
+    assert "node 1 is not the expected valve" in res.stderr and "swapped node ids" in res.stderr
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--amplitude-pct", "150"], "amplitude_pct = 150.0 % is out of range"),
+    (["--period-s", "-1"], "period_s = -1.0 s is out of range"),
+    (["--cycles", "2.5"], "cycles = 2.5 is out of range: it must be an integer"),
+])
+def test_experiment_parameter_out_of_range(args, message, tmp_path):
+    res = stand("run", "meander", *args, "--out", str(tmp_path / "r"))
+    assert res.returncode == 2 and message in res.stderr
+
+
+def test_lockstep_against_a_realtime_stand_is_refused(bus_spec, start_emulator, tmp_path):
+    start_emulator(None, lockstep=False)
+    res = stand("run", "meander", "--bus", bus_spec, "--lockstep", "--out", str(tmp_path / "r"))
+    assert res.returncode == 2 and "this stand runs in real time" in res.stderr
+
+
+def test_existing_run_is_never_overwritten(bus_spec, start_emulator, tmp_path):
+    (tmp_path / "r").mkdir()
+    (tmp_path / "r" / "run.json").write_text("{}")
+    start_emulator(None, lockstep=True)
+    res = stand("run", "meander", "--bus", bus_spec, "--lockstep", "--out", str(tmp_path / "r"))
+    assert res.returncode == 2 and "already holds a run" in res.stderr

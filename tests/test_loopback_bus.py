@@ -1,0 +1,222 @@
+"""The loopback-pinned multi-process bus (python-can interface ``udp_loopback``)."""
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import struct
+import subprocess
+import sys
+import threading
+import time
+
+import can
+import pytest
+
+from standbus import BusSpec, BusSpecError, open_bus
+from standbus import wire
+from standbus.loopback import LoopbackBus, resolve_channel
+
+
+def _recv_all(bus, n, timeout=2.0):
+    out = []
+    deadline = time.monotonic() + timeout
+    while len(out) < n and time.monotonic() < deadline:
+        m = bus.recv(0.1)
+        if m is not None:
+            out.append(m)
+    return out
+
+
+def test_wire_format_keeps_every_flag_dlc_and_timestamp():
+    msgs = [
+        can.Message(arbitration_id=0x123, data=b"\x01\x02", is_extended_id=False),
+        can.Message(arbitration_id=0x1ABCDEF0, data=bytes(8), is_extended_id=True),
+        can.Message(arbitration_id=0x7FF, is_remote_frame=True, dlc=5, is_extended_id=False),
+        can.Message(arbitration_id=0x20, is_error_frame=True, data=b"\x04", is_extended_id=False),
+        can.Message(arbitration_id=0x10, data=bytes(range(64)), is_fd=True, bitrate_switch=True,
+                    error_state_indicator=True, is_extended_id=False),
+    ]
+    for m in msgs:
+        back, sender = wire.unpack(wire.pack(m, 42, 1234.5678), "x")
+        assert sender == 42 and back.timestamp == 1234.5678
+        for attr in ("arbitration_id", "is_extended_id", "is_remote_frame", "is_error_frame",
+                     "is_fd", "bitrate_switch", "error_state_indicator", "dlc"):
+            assert getattr(back, attr) == getattr(m, attr), attr
+        assert bytes(back.data) == bytes(m.data)
+
+
+@pytest.mark.parametrize("bad", [b"", b"XX" + bytes(30), wire.pack(can.Message(data=b"12"), 1, 0.0)[:-1]])
+def test_wire_rejects_malformed_datagrams(bad):
+    with pytest.raises(wire.WireFormatError):
+        wire.unpack(bad)
+
+
+def test_frames_go_to_other_instances_not_back_to_the_sender(channel):
+    a = LoopbackBus(channel)
+    b = LoopbackBus(channel)
+    try:
+        a.send(can.Message(arbitration_id=0x181, data=b"\x01\x02\x03", is_extended_id=False))
+        got = _recv_all(b, 1)
+        assert len(got) == 1 and got[0].arbitration_id == 0x181 and bytes(got[0].data) == b"\x01\x02\x03"
+        assert abs(got[0].timestamp - time.time()) < 5
+        assert a.recv(0.2) is None, "a SocketCAN-like bus does not echo a sender's own frames"
+    finally:
+        a.shutdown(); b.shutdown()
+
+
+def test_receive_own_messages_on_request(channel):
+    a = LoopbackBus(channel, receive_own_messages=True)
+    try:
+        a.send(can.Message(arbitration_id=0x55, data=b"\xAA", is_extended_id=False))
+        got = _recv_all(a, 1)
+        assert got and got[0].arbitration_id == 0x55 and got[0].is_rx is False
+    finally:
+        a.shutdown()
+
+
+def test_channels_are_independent_buses(channel):
+    a = LoopbackBus(channel)
+    other = LoopbackBus(channel + "-other")
+    try:
+        a.send(can.Message(arbitration_id=0x1, data=b"", is_extended_id=False))
+        assert other.recv(0.3) is None
+    finally:
+        a.shutdown(); other.shutdown()
+
+
+def test_frames_from_one_sender_arrive_in_order(channel):
+    a, b = LoopbackBus(channel), LoopbackBus(channel)
+    try:
+        for i in range(2000):
+            a.send(can.Message(arbitration_id=0x200, data=struct.pack("<I", i), is_extended_id=False))
+        got = _recv_all(b, 2000, timeout=10)
+        assert [struct.unpack("<I", m.data)[0] for m in got] == list(range(2000))
+    finally:
+        a.shutdown(); b.shutdown()
+
+
+def test_socket_is_pinned_to_loopback_with_ttl_zero(channel):
+    bus = LoopbackBus(channel)
+    try:
+        sock = bus._socket
+        iface = sock.getsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, 4)
+        assert socket.inet_ntoa(iface) == "127.0.0.1"
+        assert sock.getsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL) == 0
+        assert sock.getsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP) == 1
+        group, port = resolve_channel(channel)
+        assert sock.getsockname()[1] == port and group.startswith("239.255.")
+    finally:
+        bus.shutdown()
+
+
+def _non_loopback_interfaces() -> list[str]:
+    return [name for _, name in socket.if_nameindex() if name != "lo"]
+
+
+@pytest.mark.skipif(not hasattr(socket, "AF_PACKET") or os.geteuid() != 0,
+                    reason="sniffing interfaces needs Linux AF_PACKET and root")
+def test_no_datagram_leaves_loopback(channel):
+    """Sniff every non-loopback interface while 1,000 frames cross the bus: none may appear."""
+    group, port = resolve_channel(channel)
+    sniffers = []
+    for name in _non_loopback_interfaces():
+        s = socket.socket(socket.AF_PACKET, socket.SOCK_RAW, socket.htons(0x0003))
+        try:
+            s.bind((name, 0))
+        except OSError:
+            s.close()
+            continue
+        s.settimeout(0.05)
+        sniffers.append((name, s))
+    if not sniffers:
+        pytest.skip("no non-loopback interface to watch")
+    leaked: list[str] = []
+    stop = threading.Event()
+
+    def watch(name, s):
+        while not stop.is_set():
+            try:
+                frame = s.recv(65535)
+            except (socket.timeout, OSError):
+                continue
+            # Ethernet + IPv4 + UDP: destination port at 14+20+2
+            if len(frame) > 38 and frame[12:14] == b"\x08\x00" and frame[23] == 17:
+                ihl = (frame[14] & 0x0F) * 4
+                dport = struct.unpack("!H", frame[14 + ihl + 2:14 + ihl + 4])[0]
+                if dport == port:
+                    leaked.append(name)
+
+    threads = [threading.Thread(target=watch, args=ns, daemon=True) for ns in sniffers]
+    for th in threads:
+        th.start()
+    a, b = LoopbackBus(channel), LoopbackBus(channel)
+    try:
+        for i in range(1000):
+            a.send(can.Message(arbitration_id=0x80, data=bytes([i % 256]), is_extended_id=False))
+        assert len(_recv_all(b, 1000, timeout=10)) == 1000, "the bus itself must work meanwhile"
+        time.sleep(0.3)
+    finally:
+        stop.set()
+        for th in threads:
+            th.join()
+        for _, s in sniffers:
+            s.close()
+        a.shutdown(); b.shutdown()
+    assert leaked == [], f"datagrams of the bus seen on {sorted(set(leaked))}"
+
+
+@pytest.mark.skipif(shutil.which("ip") is None or os.geteuid() != 0, reason="needs iproute2 and root")
+def test_bus_works_in_a_namespace_with_only_loopback(tmp_path):
+    """In a network namespace whose only interface is lo, two processes still share the bus:
+    it needs nothing but loopback."""
+    ns = f"standtest{os.getpid()}"
+    if subprocess.run(["ip", "netns", "add", ns], capture_output=True).returncode != 0:
+        pytest.skip("cannot create a network namespace here")
+    try:
+        subprocess.run(["ip", "-n", ns, "link", "set", "lo", "up"], check=True)
+        links = subprocess.run(["ip", "-n", ns, "-o", "link"], capture_output=True, text=True).stdout
+        assert [l.split(":")[1].strip() for l in links.splitlines()] == ["lo"]
+        code = (
+            "import can, sys, time\n"
+            "a = can.Bus(interface='udp_loopback', channel='ns'); b = can.Bus(interface='udp_loopback', channel='ns')\n"
+            "a.send(can.Message(arbitration_id=0x701, data=b'\\x05', is_extended_id=False))\n"
+            "m = b.recv(2.0); a.shutdown(); b.shutdown()\n"
+            "sys.exit(0 if m is not None and m.arbitration_id == 0x701 else 1)\n")
+        res = subprocess.run(["ip", "netns", "exec", ns, sys.executable, "-c", code],
+                             capture_output=True, text=True, timeout=60)
+        assert res.returncode == 0, res.stderr
+    finally:
+        subprocess.run(["ip", "netns", "del", ns], capture_output=True)
+
+
+def test_python_can_tools_attach_by_name(channel, tmp_path):
+    """``python -m can.logger -i udp_loopback`` joins the emulated bus like any interface."""
+    log = tmp_path / "cap.log"
+    logger = subprocess.Popen([sys.executable, "-m", "can.logger", "-i", "udp_loopback", "-c", channel,
+                               "-f", str(log)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        time.sleep(1.5)   # let the logger start listening
+        bus = can.Bus(interface="udp_loopback", channel=channel)
+        for i in range(5):
+            bus.send(can.Message(arbitration_id=0x182, data=bytes([i, 1, 2]), is_extended_id=False))
+            time.sleep(0.01)
+        bus.shutdown()
+        time.sleep(0.5)
+    finally:
+        logger.send_signal(2)
+        logger.wait(10)
+    frames = list(can.LogReader(str(log)))
+    assert [bytes(f.data)[0] for f in frames if f.arbitration_id == 0x182] == [0, 1, 2, 3, 4]
+
+
+def test_bus_spec_parsing_and_clear_errors():
+    spec = BusSpec.parse("pcan:PCAN_USBBUS1,bitrate=500000,fd=false")
+    assert (spec.interface, spec.channel, spec.options) == ("pcan", "PCAN_USBBUS1", {"bitrate": 500000, "fd": False})
+    assert BusSpec.parse("udp_loopback:239.255.0.1:47001").channel == "239.255.0.1:47001"
+    with pytest.raises(BusSpecError, match="unknown CAN interface 'nosuch'.*udp_loopback"):
+        open_bus("nosuch:x")
+    with pytest.raises(BusSpecError, match="key=value"):
+        BusSpec.parse("socketcan:vcan0,bitrate")
+    with pytest.raises(BusSpecError, match="cannot open CAN bus"):
+        open_bus("udp_loopback:300.1.2.3:99")

@@ -1,0 +1,185 @@
+"""The plant model and its effect catalogue (shared by the emulator and the analysis)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from plant import CATALOGUE, Dynamometer, ModelError, PlantModel, load_model_file, load_plant_config, model_to_toml
+
+DT = 0.002
+
+
+def square(amp=10.0, period=2.0, duration=8.0, dt=DT):
+    t = np.arange(0, duration, dt)
+    return t, np.where(np.floor(t / (period / 2)) % 2 == 0, amp, -amp).astype(float)
+
+
+def slope(t, y, a, b):
+    m = (t >= a) & (t < b)
+    return np.polyfit(t[m], y[m], 1)[0]
+
+
+def test_base_model_ramp_slope_is_g_u_plus_delta():
+    m = PlantModel(g=120, tau=0.05, delta=8)
+    t = np.arange(0, 2, DT)
+    y = m.simulate(np.full_like(t, 5.0), DT, u_before=0.0)
+    assert slope(t, y, 0.5, 2.0) == pytest.approx(120 * 5 + 8, rel=1e-9)
+
+
+@pytest.mark.parametrize("tau", [0.0, 0.002, 0.013, 0.05, 0.0771])
+def test_delay_is_exact_even_between_samples(tau):
+    """A step at t=0 from rest: the ramp starts exactly τ later (continuous time, ZOH input)."""
+    m = PlantModel(g=100, tau=tau)
+    t = np.arange(0, 0.5, DT)
+    y = m.simulate(np.full_like(t, 1.0), DT, u_before=0.0)
+    expected = 100 * np.maximum(t - tau, 0.0)
+    assert np.max(np.abs(y - expected)) < 1e-9
+
+
+@pytest.mark.parametrize("spec", ["base", "base+reversal", "base+lag+deadzone", "base+saturation+asymmetry",
+                                  "base+leakage", "base+load_pressure+reversal+lag+oscillation"])
+def test_emulator_blocks_and_analysis_windows_run_the_same_model(spec):
+    """Stepping in small blocks (the emulator), whole records and windows (the analysis) agree."""
+    m = PlantModel.from_spec(spec, {"g": 110, "tau": 0.031})
+    t, u = square(12.0, 1.0, 6.0)
+    whole = m.simulate(u, DT, y0=100.0)
+    state = m.new_state(1, DT, y0=100.0, u0=u[0])
+    blocks = np.concatenate([m.advance(state, u[None, k:k + 5], DT)[0] for k in range(0, len(u), 5)])
+    assert np.max(np.abs(blocks[:-1] - whole[1:])) < 1e-8
+    assert np.max(np.abs(m.simulate_windows(u, whole, DT, 500) - whole)) < 1e-8
+
+
+def test_deadzone_reduces_the_slope_by_the_overlap():
+    m = PlantModel.from_spec("base+deadzone", {"g": 100, "tau": 0, "deadzone.width": 2.0})
+    t = np.arange(0, 1, DT)
+    for u0 in (5.0, 10.0):
+        y = m.simulate(np.full_like(t, u0), DT, u_before=u0)
+        assert slope(t, y, 0.1, 1.0) == pytest.approx(100 * (u0 - 2.0))
+
+
+def test_saturation_caps_the_flow():
+    m = PlantModel.from_spec("base+saturation", {"g": 100, "tau": 0, "saturation.limit": 8.0})
+    t = np.arange(0, 1, DT)
+    assert slope(t, m.simulate(np.full_like(t, 20.0), DT, u_before=20.0), 0.1, 1) == pytest.approx(800)
+    assert slope(t, m.simulate(np.full_like(t, -5.0), DT, u_before=-5.0), 0.1, 1) == pytest.approx(-500)
+
+
+def test_asymmetry_gives_different_extend_and_retract_gains():
+    m = PlantModel.from_spec("base+asymmetry", {"g": 100, "tau": 0, "asymmetry.ratio": 0.2})
+    t = np.arange(0, 1, DT)
+    up = slope(t, m.simulate(np.full_like(t, 10.0), DT, u_before=10.0), 0.1, 1)
+    down = slope(t, m.simulate(np.full_like(t, -10.0), DT, u_before=-10.0), 0.1, 1)
+    assert up == pytest.approx(1200) and down == pytest.approx(-800)
+
+
+def test_lag_reaches_63_percent_of_the_rate_after_one_time_constant():
+    T = 0.1
+    m = PlantModel.from_spec("base+lag", {"g": 100, "tau": 0, "lag.time_constant": T})
+    t = np.arange(0, 1, DT)
+    y = m.simulate(np.full_like(t, 10.0), DT, u_before=0.0)
+    rate = np.gradient(y, DT)
+    assert rate[int(round(T / DT))] / 1000 == pytest.approx(1 - math.exp(-1), abs=0.02)
+    # the area lost to the lag is g·u·T
+    assert (1000 * t[-1] - y[-1]) == pytest.approx(1000 * T, rel=0.02)
+
+
+def test_leakage_decays_toward_zero_force():
+    m = PlantModel.from_spec("base+leakage", {"g": 100, "tau": 0, "leakage.rate": 0.5})
+    t = np.arange(0, 4, DT)
+    y = m.simulate(np.zeros_like(t), DT, y0=1000.0)
+    assert y[int(2.0 / DT)] == pytest.approx(1000 * math.exp(-1.0), rel=0.01)
+
+
+def test_load_pressure_slows_pushing_against_the_load():
+    m = PlantModel.from_spec("base+load_pressure", {"g": 100, "tau": 0, "load_pressure.stall_force": 20000})
+    t = np.arange(0, 0.2, DT)
+    push = slope(t, m.simulate(np.full_like(t, 10.0), DT, y0=5000, u_before=10.0), 0, 0.2)
+    pull = slope(t, m.simulate(np.full_like(t, -10.0), DT, y0=5000, u_before=-10.0), 0, 0.2)
+    assert push == pytest.approx(1000 * math.sqrt(1 - 0.25), rel=0.01)
+    assert pull == pytest.approx(-1000 * math.sqrt(1 + 0.25), rel=0.01)
+
+
+def test_reversal_boost_starts_at_each_direction_change_and_decays():
+    m = PlantModel.from_spec("base+reversal", {"g": 100, "tau": 0, "reversal.boost": 2.0,
+                                               "reversal.decay": 0.1, "reversal.exponent": 0.0})
+    t, u = square(10.0, 2.0, 4.0)
+    y = m.simulate(u, DT)
+    rate = np.diff(y) / DT
+    k = int(round(1.0 / DT))            # first reversal at t = 1 s
+    assert rate[k] == pytest.approx(-1000 * 3, rel=0.01)          # 1 + b right after it
+    assert rate[k + int(0.1 / DT)] == pytest.approx(-1000 * (1 + 2 * math.exp(-1)), rel=0.02)
+    assert rate[k - 5] == pytest.approx(1000, rel=1e-6)           # no boost at the start from rest
+    # exponent 1: the extra force per reversal does not depend on the amplitude
+    m1 = m.with_params({"reversal.exponent": 1.0})
+    extra = []
+    for amp in (5.0, 20.0):
+        _, ua = square(amp, 2.0, 4.0)
+        ya = m1.simulate(ua, DT)
+        base = PlantModel(g=100, tau=0).simulate(ua, DT)
+        extra.append((ya - base)[int(1.9 / DT)] - (ya - base)[int(0.99 / DT)])
+    assert extra[0] == pytest.approx(extra[1], rel=0.01)
+
+
+def test_oscillation_adds_a_sinusoid():
+    m = PlantModel.from_spec("base+oscillation", {"tau": 0, "oscillation.amplitude": 30, "oscillation.frequency": 5})
+    t = np.arange(0, 1, DT)
+    y = m.simulate(np.zeros_like(t), DT)
+    assert np.max(np.abs(y - 30 * np.sin(2 * np.pi * 5 * t))) < 1.0
+
+
+def test_every_catalogue_effect_documents_physics_and_equation():
+    for name, cls in CATALOGUE.items():
+        doc = cls.__doc__ or ""
+        assert "math::" in doc and len(doc) > 200, name
+        assert cls.summary and cls.params, name
+        for p in cls.params:
+            assert p.lower <= p.default <= p.upper and p.doc and p.unit, (name, p.name)
+
+
+def test_model_spec_and_parameter_errors_are_clear():
+    with pytest.raises(ModelError, match="unknown effect 'friction'.*reversal"):
+        PlantModel.from_spec("base+friction")
+    with pytest.raises(ModelError, match="must start with 'base'"):
+        PlantModel.from_spec("reversal")
+    with pytest.raises(ModelError, match="tau = -1.*outside its physical range"):
+        PlantModel.from_spec("base", {"tau": -1})
+    with pytest.raises(ModelError, match="no parameter"):
+        PlantModel.from_spec("base+lag", {"lag.gain": 2})
+    with pytest.raises(ModelError, match="must be finite"):
+        PlantModel(g=float("nan"))
+
+
+def test_model_file_round_trip(tmp_path):
+    m = PlantModel.from_spec("base+reversal+deadzone", {"g": 99.5, "deadzone.width": 1.25})
+    path = tmp_path / "model.toml"
+    path.write_text(model_to_toml(m))
+    back = load_model_file(path)
+    assert back.spec == m.spec and back.params() == m.params()
+
+
+def test_plant_config_from_toml_with_disabled_effect_and_overrides(tmp_path):
+    path = tmp_path / "plant.toml"
+    path.write_text("[base]\ng = 130\n[effects.reversal]\nenabled = false\nboost = 3\n"
+                    "[effects.lag]\ntime_constant = 0.02\n[sensor]\nnoise_kgf = 0.5\n[initial]\nforce_kgf = 200\n")
+    cfg = load_plant_config(path, None, {"tau": 0.04, "sensor.resolution_kgf": 0.0})
+    assert cfg.model.spec == "base+lag" and cfg.model.g == 130 and cfg.model.tau == 0.04
+    assert cfg.sensor == {"noise_kgf": 0.5, "resolution_kgf": 0.0} and cfg.initial_force_kgf == 200
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[sensor]\nnoise = 1\n")
+    with pytest.raises(ModelError, match=r"\[sensor\] has no key"):
+        load_plant_config(bad)
+    bad.write_text("[base\n")
+    with pytest.raises(ModelError, match="not valid TOML"):
+        load_plant_config(bad)
+
+
+def test_dynamometer_quantizes_clips_and_flags_over_range():
+    d = Dynamometer(noise_kgf=0.0, resolution_kgf=0.5, range_kgf=1000.0, seed=1)
+    reading, over = d.measure(np.array([0.26, 999.9, 1500.0, -2000.0]))
+    assert list(reading) == [0.5, 1000.0, 1000.0, -1000.0]
+    assert list(over) == [False, False, True, True]
+    a = Dynamometer(noise_kgf=2.0, seed=7).measure(np.zeros(1000))[0]
+    b = Dynamometer(noise_kgf=2.0, seed=7).measure(np.zeros(1000))[0]
+    assert np.array_equal(a, b) and 1.8 < a.std() < 2.2
