@@ -103,11 +103,13 @@ class ControlLoop:
             self._subscribed = False
 
     # -- helpers ---------------------------------------------------------------------------------
-    def send_command(self, control_word: int, u_pct: float) -> None:
+    def send_command(self, control_word: int, u_pct: float) -> float:
+        """Send the valve RPDO; returns the command as it went on the wire (quantized, %)."""
         values = [0] * len(self._rpdo.keys)
         values[self._rpdo_cw] = int(control_word)
-        values[self._rpdo_sp] = P.percent_to_counts(u_pct)
+        values[self._rpdo_sp] = counts = P.percent_to_counts(u_pct)
         self.network.send_message(self._rpdo.cob_id, self._rpdo.encode(*values))
+        return P.counts_to_percent(counts)
 
     def safe_state(self) -> None:
         """Zero flow, valve to HOLD (hold setpoint), sent twice in case one frame is lost."""
@@ -210,8 +212,7 @@ class ControlLoop:
                     reason, message = experiment.abort
                     self.safe_state()
                     break
-                u = self.supervisor.shape_command(u_req)
-                self.send_command(P.CW_ACTIVE, u)
+                u = self.send_command(P.CW_ACTIVE, self.supervisor.shape_command(u_req))
                 if recorder is not None:
                     recorder.append(t, u, y, r, cycle, y_counts, spool, status, stale, sync_wall)
                 cycle += 1

@@ -186,6 +186,12 @@ class StandMaster:
                                      f"type {tt}; the loop needs a synchronous TPDO (type 1)")
         return layout
 
+    def assert_period(self, period_s: float) -> None:
+        """Write the communication cycle period 0x1006 again (at each run start, so the run's
+        capture says which period its SYNCs stand for, also in lockstep)."""
+        for link in self.links:
+            link.node.sdo[P.COMM_CYCLE_PERIOD].raw = int(round(period_s * 1e6))
+
     # -- 5. start / stop ------------------------------------------------------------------------
     def start(self, timeout_s: float = 2.0) -> None:
         for link in self.links:

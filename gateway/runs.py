@@ -17,7 +17,8 @@ Signals (one row per cycle; SI-ish units in the names' docs):
 
 =============  ========  =====================================================================
 t              float64   s since the run's first SYNC (lockstep: cycle × period exactly)
-u              float64   valve command sent after this cycle's force reading, %
+u              float64   valve command sent after this cycle's force reading, % (as on the
+                         wire: 0x6300:01 counts / 163.84)
 y              float64   force read at this cycle's SYNC, kgf
 r              float64   reference force, kgf (NaN for open-loop experiments)
 cycle          int64     cycle number from 0

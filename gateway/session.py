@@ -171,6 +171,7 @@ class Gateway:
 
         outcome = None
         try:
+            self.master.assert_period(self.config.period_s)
             self.master.start()
             outcome = self.loop.run(experiment, recorder, tick)
         finally:
