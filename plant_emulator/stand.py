@@ -140,12 +140,9 @@ class EmulatedStand:
     def _on_sync(self, can_id: int, data: bytes, timestamp: float) -> None:
         try:
             with self.lock:
-                if self.options.lockstep:
-                    self._lockstep_cycle()
-                else:
-                    self._catch_up()
-                reading, over = self.sensor.measure(self._plant.y[0])
-                self.dynamometer.publish(float(reading), bool(over))
+                self.advance_plant()
+                reading, over = self.measure_force()
+                self.dynamometer.publish(reading, over)
                 self.valve.update_outputs(self._command)
                 counter = data[0] if len(data) >= 1 else None
                 self.valve.on_sync(counter)
@@ -153,6 +150,20 @@ class EmulatedStand:
         except Exception as exc:  # never let the notifier swallow it silently
             log.exception("SYNC handling failed")
             self.errors.append(repr(exc))
+
+    # -- the two steps of a SYNC that a different force source (e.g. a replayed capture)
+    # -- overrides -------------------------------------------------------------------------------
+    def advance_plant(self) -> None:
+        """Bring the plant to the time of this SYNC (lockstep: one period; real time: now)."""
+        if self.options.lockstep:
+            self._lockstep_cycle()
+        else:
+            self._catch_up()
+
+    def measure_force(self) -> tuple[float, bool]:
+        """The dynamometer's reading (kgf) at this SYNC and whether it is over range."""
+        reading, over = self.sensor.measure(self._plant.y[0])
+        return float(reading), bool(over)
 
     def command_changed(self) -> None:
         """Called by the valve after its effective command may have changed."""
