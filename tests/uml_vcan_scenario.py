@@ -1,0 +1,62 @@
+"""Runs INSIDE user-mode Linux (see tests/test_vcan_uml.py): the emulator and the gateway over
+real SocketCAN ``vcan0`` in lockstep, while can-utils' ``candump -L vcan0`` — a peer we did not
+write — captures each run. Writes everything under the output directory given as argv[1]; the
+host-side test does the checking.
+"""
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from gateway import Gateway, GatewayConfig, SafetyLimits
+from gateway.experiments import EXPERIMENTS
+from gateway.recorder import write_json
+from gateway.runs import TRUTH_FILE
+from plant.config import load_plant_config
+from plant_emulator.process import EmulatorProcess
+
+BUS = "socketcan:vcan0"
+TRUTH = {"g": 120.0, "tau": 0.05, "delta": 8.0}
+
+
+def experiments():
+    runs = {"meander": EXPERIMENTS["meander"](amplitude_pct=5.0, period_s=2.0, cycles=2)}
+    if "relay" in EXPERIMENTS:
+        runs["relay"] = EXPERIMENTS["relay"](**relay_params())
+    return runs
+
+
+def relay_params() -> dict:
+    return {"amplitude_pct": 10.0, "reference_kgf": 0.0, "duration_s": 3.0}
+
+
+def main(out: Path) -> int:
+    out.mkdir(parents=True, exist_ok=True)
+    config = load_plant_config(None, "base", TRUTH)
+    done = {}
+    # heartbeats are wall-clock; inside UML (one slow CPU) allow them more slack
+    gw_config = GatewayConfig(bus=BUS, lockstep=True, limits=SafetyLimits(heartbeat_timeout_s=3.0))
+    with EmulatorProcess(BUS, config, lockstep=True, seed=4, ready_timeout_s=120):
+        with Gateway(gw_config) as gw:
+            for name, experiment in experiments().items():
+                capture = out / f"candump-{name}.log"
+                with capture.open("w") as fh:
+                    dump = subprocess.Popen(["candump", "-L", "vcan0"], stdout=fh)
+                    time.sleep(0.5)  # candump is listening
+                    result = gw.run(experiment, out / name, progress=False)
+                    time.sleep(0.5)
+                    dump.send_signal(signal.SIGINT)
+                    dump.wait(10)
+                write_json(result.path / TRUTH_FILE, config.to_dict())
+                done[name] = {"run": str(result.path), "candump": str(capture), "status": result.status,
+                              "reason": result.reason, "cycles": result.outcome.stats.cycles}
+    (out / "result.json").write_text(json.dumps(done, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(Path(sys.argv[1])))
