@@ -9,7 +9,9 @@ and finds four portions in every period: the *main* rise and fall (steady ramps)
 *transitional* rise and fall (a short stretch right after each reversal of the rod, where the
 gain is much larger). This module finds them automatically:
 
-1. the command's segments of constant sign and level, and the reversals between them;
+1. the command's segments of constant sign and level, and the reversals between them
+   (only where the record is open loop: samples with a reference r belong to a set-point
+   approach and are left out);
 2. the delay τ̂ from the extrema of the force after each reversal (the rod turns at t_s + τ);
 3. the main slope of each response segment by least squares on its steady part, and the trend Δ
    jointly with one gain per amplitude from ``slope = g(u0)·u + Δ`` (both signs needed);
@@ -101,6 +103,20 @@ def command_segments(u: np.ndarray, tolerance_pct: float = 1e-6) -> list[tuple[i
     return [(int(a), int(b), float(u[a])) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
+def open_loop_stretches(rec: Record) -> list[tuple[int, int]]:
+    """``(start, stop)`` of the open-loop parts of a record: where the reference r is NaN.
+
+    The gateway's meander records its set-point approach (a closed loop) with r = the set point
+    and the square wave with r = NaN; the approach is no part of the estimate. A record with a
+    reference everywhere (or none at all) is taken as open loop throughout."""
+    open_ = ~np.isfinite(rec.r)
+    if open_.all() or not open_.any():
+        return [(0, len(rec))]
+    edges = np.flatnonzero(np.diff(open_.astype(np.int8))) + 1
+    bounds = np.concatenate([[0], edges, [len(rec)]])
+    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if open_[a]]
+
+
 def _smooth(y: np.ndarray, n: int) -> np.ndarray:
     if n <= 1:
         return y
@@ -129,15 +145,16 @@ def estimate_meander(rec: Record, transitional_s: float | None = None) -> Meande
     t, u, y = rec.t, rec.u, rec.y
     dt = rec.dt
     warnings: list[str] = []
-    runs = command_segments(u)
-    moving = [(a, b, v) for a, b, v in runs if v != 0 and b - a >= 4]
     segs: list[Segment] = []
-    prev_sign = 0
-    for a, b, v in moving:
-        sign = 1 if v > 0 else -1
-        if prev_sign and sign != prev_sign:
-            segs.append(Segment(a, b, v))
-        prev_sign = sign
+    for lo, hi in open_loop_stretches(rec):
+        prev_sign = 0
+        for a, b, v in command_segments(u[lo:hi]):
+            if v == 0 or b - a < 4:
+                continue
+            sign = 1 if v > 0 else -1
+            if prev_sign and sign != prev_sign:
+                segs.append(Segment(lo + a, lo + b, v))
+            prev_sign = sign
     if len(segs) < 2:
         raise DataError(
             f"{rec.source}: a meander estimate needs at least two reversals of a square-wave "
