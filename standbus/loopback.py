@@ -22,6 +22,13 @@ Usage from any python-can tool::
 
 The channel is a name (``stand0``, ``bench-B``), which is hashed to a group and a port, or an
 explicit ``239.x.y.z:port``.
+
+Fault injection (tests, drills; see :mod:`standbus.faults`): the options ``drop`` (probability
+that a received frame is lost), ``delay_ms`` (every received frame arrives that much later),
+``fault_ids`` (id range they apply to, e.g. ``0x080-0x4FF``; default all) and ``seed`` make
+this endpoint a lossy or slow receiver::
+
+    stand run meander --bus udp_loopback:stand0,drop=0.1,fault_ids=0x080-0x4FF,seed=1 ...
 """
 from __future__ import annotations
 
@@ -39,6 +46,7 @@ import can
 from can import BusABC, CanProtocol, Message
 
 from . import wire
+from .faults import FaultInjector, FaultSpec
 
 log = logging.getLogger(__name__)
 
@@ -119,6 +127,7 @@ class LoopbackBus(BusABC):
     :param receive_own_messages: also deliver the frames this instance sends.
     :param fd: accept CAN FD frames (default True); if False, FD frames are refused on send
         and ignored on receive.
+    :param drop, delay_ms, fault_ids, seed: fault injection on reception (see the module doc).
     """
 
     def __init__(
@@ -126,9 +135,19 @@ class LoopbackBus(BusABC):
         channel: Any = DEFAULT_CHANNEL,
         receive_own_messages: bool = False,
         fd: bool = True,
+        drop: float = 0.0,
+        delay_ms: float = 0.0,
+        fault_ids: str | int | None = None,
+        seed: int | None = None,
         **kwargs: Any,
     ) -> None:
         channel = str(channel if channel is not None else DEFAULT_CHANNEL)
+        try:
+            spec = FaultSpec.from_options(drop=drop, delay_ms=delay_ms, fault_ids=fault_ids, seed=seed)
+        except ValueError as exc:
+            raise can.CanInitializationError(f"udp_loopback fault injection: {exc}") from None
+        #: fault injection on reception (None: a perfect bus)
+        self.faults: FaultInjector | None = FaultInjector(spec) if spec is not None else None
         self.group, self.port = resolve_channel(channel)
         self._socket = _open_socket(self.group, self.port)
         self._destination = (self.group, self.port)
@@ -160,6 +179,39 @@ class LoopbackBus(BusABC):
                 raise can.CanOperationError(f"loopback bus send failed: {exc}") from exc
 
     def _recv_internal(self, timeout: float | None) -> tuple[Message | None, bool]:
+        if self.faults is not None:
+            return self._recv_with_faults(timeout)
+        return self._recv_frame(timeout)
+
+    def _recv_with_faults(self, timeout: float | None) -> tuple[Message | None, bool]:
+        """Reception through the fault injector: lost frames never appear, delayed ones appear
+        when due (frames of the affected ids keep their order)."""
+        faults = self.faults
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            now = time.monotonic()
+            held = faults.pop_due(now)
+            if held is not None:
+                return held, False
+            wait = None if deadline is None else max(0.0, deadline - now)
+            due = faults.next_due()
+            if due is not None:
+                wait = max(0.0, due - now) if wait is None else min(wait, max(0.0, due - now))
+            msg, _ = self._recv_frame(wait)
+            if msg is None:
+                if deadline is not None and time.monotonic() >= deadline:
+                    return faults.pop_due(time.monotonic()), False
+                continue
+            if not faults.affects(msg.arbitration_id):
+                return msg, False
+            if faults.lose(msg.arbitration_id):
+                continue
+            if faults.spec.delay_s:
+                faults.hold(msg, time.monotonic())
+                continue
+            return msg, False
+
+    def _recv_frame(self, timeout: float | None) -> tuple[Message | None, bool]:
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
             try:
@@ -189,6 +241,9 @@ class LoopbackBus(BusABC):
                     continue
                 msg.is_rx = False
             if msg.is_fd and self._can_protocol is not CanProtocol.CAN_FD:
+                continue
+            if len(msg.data) > 8 and not msg.is_fd:   # no classic frame carries more than 8 bytes
+                self.malformed_datagrams += 1
                 continue
             return msg, False
 
