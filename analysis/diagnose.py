@@ -1,0 +1,626 @@
+r"""Find what the model is missing: fit it, add each catalogue effect in turn, rank them.
+
+``diagnose(records, model="base")``:
+
+1. fits the starting model (default: the paper's base model) — on a screening subset of windows
+   when the data are long (see :func:`analysis.fit.screening_pieces`), then polished on all data;
+2. for every *diagnosable* effect of the catalogue not yet in the model, fits ``model + effect``
+   (start grids for the new effect, warm start for the rest) on the screening windows, evaluates
+   it on all windows, and refits the best :data:`REFIT_TOP` on all data;
+3. judges each candidate against the noise, on the objective of the fit (windowed error, window
+   starts re-estimated; its noise floor is ``σ²·(1 − 1/W)``, σ from the force's second
+   differences):
+
+   * it *earns its parameters* if it removes at least half of the error above the noise floor,
+     lowers the RMSE by at least :data:`MIN_IMPROVEMENT`, and does so consistently over the
+     windows (paired z over the windows ≥ :data:`MIN_Z`);
+   * verdict ``missing_effect`` (the best earning candidate), ``unexplained`` (the error stays
+     clearly above the noise, :data:`UNEXPLAINED_RATIO`, and no effect removes it: the residual is
+     described — dominant frequency, amplitude, regimes), or ``adequate``;
+
+4. describes the residual pattern of the starting model in plain words (reversal transients,
+   extend/retract slopes, gain per command level, force dependence, periodic content) and warns
+   when the data cannot separate two explanations, naming the experiment that would.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+from scipy import stats
+
+from plant import CATALOGUE, PlantModel
+from plant.effects import effect_class
+
+from . import fit as F
+from .data import Record
+from .metrics import (AFTER_REVERSAL_S, Evaluation, RecordSimulation, command_levels, demeaned_residual,
+                      evaluate, pooled_noise_sigma, reversal_mask)
+
+#: candidates refitted on all the data after screening
+REFIT_TOP = 2
+#: a candidate must lower the (objective) RMSE by at least this fraction
+MIN_IMPROVEMENT = 0.05
+#: ... and remove at least this share of the error above the noise floor
+MIN_EXCESS_SHARE = 0.5
+#: ... beyond what fitting noise can do: likelihood-ratio statistic N·ΔMSE/floor² above the
+#: χ²(k) quantile of this tail probability (k = the effect's parameters)
+LR_ALPHA = 1e-6
+#: ... and consistently over windows: paired z of the per-window squared-error reduction
+MIN_Z = 2.0
+#: base RMSE this far above the noise floor, unexplained by any effect -> "unexplained"
+UNEXPLAINED_RATIO = 1.12
+#: below this ratio the model is within the noise: nothing to explain
+ADEQUATE_RATIO = 1.03
+#: two candidates whose error reductions are within this fraction are "not separable"
+AMBIGUITY_SHARE = 0.85
+
+#: what separates two explanations (unordered pair -> experiment)
+SEPARATING_EXPERIMENT = {
+    frozenset({"lag", "delay"}): "a meander (step commands) or P-feedback at several reference "
+                                 "frequencies: a lag rounds the corners and its phase grows less "
+                                 "than linearly with frequency; a delay only shifts",
+    frozenset({"deadzone", "gain"}): "the meander at several amplitudes (e.g. 5, 10, 15, 20 %): "
+                                     "a dead zone lowers the slope by g·d at every amplitude, "
+                                     "a lower gain in proportion to |u|",
+    frozenset({"saturation", "gain"}): "the meander at several amplitudes, some beyond the "
+                                       "suspected flow limit: the slope stops growing with |u|",
+    frozenset({"asymmetry", "trend"}): "the meander at two amplitudes, or a hold at zero "
+                                       "command: the trend Δ is the same at every |u|, an "
+                                       "extend/retract asymmetry grows with |u|",
+    frozenset({"leakage", "load_pressure"}): "meanders at two amplitudes, or a hold at zero "
+                                             "command away from zero force: leakage drifts "
+                                             "toward zero at any command, the load-pressure "
+                                             "effect scales with |u|",
+    frozenset({"leakage", "trend"}): "runs around two different force levels (e.g. meanders "
+                                     "centred at +2000 and −2000 kgf): leakage drifts toward "
+                                     "zero, the trend Δ does not depend on the force",
+    frozenset({"load_pressure", "asymmetry"}): "runs at both positive and negative force "
+                                               "levels: the load-pressure effect swaps "
+                                               "extend/retract with the sign of the force",
+    frozenset({"reversal", "lag"}): "the meander at several amplitudes and periods",
+}
+
+
+def separating_experiment(a: str, b: str) -> str:
+    return SEPARATING_EXPERIMENT.get(frozenset({a, b}),
+                                     "the meander at several amplitudes and periods, plus relay "
+                                     "and P-feedback runs (richer excitation)")
+
+
+# ------------------------------------------------------------------------------------------
+# results
+# ------------------------------------------------------------------------------------------
+@dataclass
+class Candidate:
+    """``model + effect`` fitted and judged."""
+
+    effect: str
+    spec: str
+    params: dict[str, float]
+    rmse: float                   #: windowed RMSE from the measured start (as reported), kgf
+    objective_rmse: float         #: windowed RMSE, window starts re-estimated (decisions), kgf
+    improvement: float            #: 1 − objective_rmse/base objective_rmse (fraction)
+    rmse_reduction: float         #: 1 − rmse/base rmse (fraction, the reported metric)
+    excess_share: float           #: share of the base's error above the noise floor removed
+    z: float                      #: paired z over windows of the squared-error reduction
+    lr: float                     #: likelihood-ratio statistic N·ΔMSE/floor² (χ²(k) under "noise only")
+    earns: bool                   #: earns its extra parameters (see module docstring)
+    refit_on: str                 #: "all" windows or "subset" (screening fit only)
+    warnings: list[str] = field(default_factory=list)
+    fit: F.FitResult | None = field(default=None, repr=False)
+
+    def to_dict(self) -> dict:
+        d = {k: v for k, v in asdict(self).items() if k != "fit"}
+        d["improvement_percent"] = 100.0 * self.improvement
+        if self.fit is not None:
+            d["intervals"] = {k: e.to_dict() for k, e in self.fit.estimates.items()}
+        return d
+
+
+@dataclass
+class Ambiguity:
+    effects: list[str]            #: what cannot be told apart ("deadzone", "gain", ...)
+    reason: str
+    experiment: str               #: the experiment that would separate them
+
+    def text(self) -> str:
+        return f"{' vs '.join(self.effects)}: {self.reason} To separate them: {self.experiment}."
+
+
+@dataclass
+class Unexplained:
+    dominant_frequency_hz: float | None
+    amplitude_kgf: float | None
+    periodic_share: float         #: share of the excess error a sinusoid at that frequency explains
+    rmse_over_floor: float
+    correlated_with_command: bool
+    description: str
+
+
+@dataclass
+class Diagnosis:
+    verdict: str                  #: "adequate" | "missing_effect" | "unexplained"
+    model: str                    #: the starting model
+    best: str | None
+    base_fit: F.FitResult = field(repr=False)
+    base_eval: Evaluation = field(repr=False)
+    candidates: list[Candidate]
+    noise_sigma: float
+    objective_floor: float        #: noise floor of the objective RMSE, kgf
+    observations: list[str]
+    ambiguities: list[Ambiguity]
+    unexplained: Unexplained | None
+    summary: str
+    screening: dict
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def best_candidate(self) -> Candidate | None:
+        return next((c for c in self.candidates if c.effect == self.best), None)
+
+    def to_dict(self) -> dict:
+        ev = self.base_eval
+        base = {**ev.summary(), "model": self.base_fit.model.spec,
+                "params": self.base_fit.model.params(),
+                "objective_rmse": self.base_fit.objective_rmse,
+                "objective_noise_floor": self.objective_floor,
+                "intervals": {k: e.to_dict() for k, e in self.base_fit.estimates.items()},
+                "regimes": [asdict(r) for r in ev.regimes],
+                "worst_windows": [asdict(w) for w in ev.worst_windows()]}
+        return {"verdict": self.verdict, "model": self.model, "best": self.best,
+                "summary": self.summary, "base": base,
+                "candidates": [c.to_dict() for c in self.candidates],
+                "unexplained": asdict(self.unexplained) if self.unexplained else None,
+                "observations": self.observations,
+                "ambiguities": [{**asdict(a), "text": a.text()} for a in self.ambiguities],
+                "noise_sigma": self.noise_sigma, "screening": self.screening,
+                "warnings": self.warnings}
+
+
+# ------------------------------------------------------------------------------------------
+# the diagnosis
+# ------------------------------------------------------------------------------------------
+def diagnosable_effects(model: PlantModel) -> list[str]:
+    have = {e.name for e in model.effects}
+    return [n for n, c in CATALOGUE.items() if c.diagnosable and n not in have]
+
+
+def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
+             window_s: float = F.WINDOW_S, effects: Sequence[str] | None = None,
+             max_screen_windows: int = 150, refit_top: int = REFIT_TOP,
+             progress: Callable[[str], None] | None = None) -> Diagnosis:
+    """Diagnose what ``model`` misses in ``records`` (one data set). See the module docstring."""
+    say = progress or (lambda msg: None)
+    start = PlantModel.from_spec(model) if isinstance(model, str) else model
+    effects = list(effects) if effects is not None else diagnosable_effects(start)
+    for name in effects:
+        effect_class(name)
+    full = F.pieces_from_records(records, window_s)
+    screen, subset = F.screening_pieces(records, window_s, max_windows=max_screen_windows)
+    sigma = pooled_noise_sigma(records)
+    n_full_w = sum(p.n_windows for p in full)
+    n_screen_w = sum(p.n_windows for p in screen)
+    screening = {"subset": subset, "windows_total": n_full_w, "windows_screened": n_screen_w,
+                 "refit_on_all": [] if not subset else ["base"]}
+    say(f"fitting {start.spec}" + (f" on {n_screen_w} of {n_full_w} windows" if subset else ""))
+    base_fit = F.fit_model(screen, start, covariance=not subset)
+    if subset:
+        base_fit = F.fit_model(full, base_fit.model, starts="given", delay_search=False)
+    base_model = base_fit.model
+    base_w = _window_sse(base_model, full)
+    floor = objective_floor(full, sigma)
+    base_obj = math.sqrt(base_w.sum() / _n_eval(full))
+    base_eval = evaluate(base_model, records, window_s)
+    cands: list[Candidate] = []
+    fits: dict[str, F.FitResult] = {}
+    for name in effects:
+        say(f"trying +{name}")
+        spec = f"{base_model.spec}+{name}"
+        try:
+            m0 = PlantModel.from_spec(spec, base_model.params())
+        except Exception:  # noqa: BLE001 - an effect that cannot start from here is skipped
+            continue
+        fits[name] = F.fit_model(screen, m0, grid_effects=[name], delay_search=False,
+                                 covariance=not subset)
+    # rank on all windows with the screening parameters, refit the best on all data
+    scored = []
+    for name, f in fits.items():
+        w = _window_sse(f.model, full) if subset else f.window_sse
+        scored.append((float(w.sum()), name, w))
+    scored.sort()
+    for rank, (_, name, w) in enumerate(scored):
+        f = fits[name]
+        refit = "subset" if subset else "all"
+        if subset and rank < refit_top:
+            say(f"refitting +{name} on all windows")
+            f = F.fit_model(full, f.model, starts="given", delay_search=False)
+            w = f.window_sse
+            refit = "all"
+            screening["refit_on_all"].append(name)
+        fits[name] = f
+        cands.append(_judge(name, f, w, base_w, base_obj, floor, base_eval, full, refit))
+    cands.sort(key=lambda c: c.objective_rmse)
+    earning = [c for c in cands if c.earns]
+    best = earning[0] if earning else None
+    ratio = base_obj / floor if floor > 0 else math.inf
+    observations = describe_residual(base_eval)
+    ambiguities = _ambiguities(records, base_fit, cands, best)
+    unexplained = None
+    warnings = list(base_fit.warnings)
+    if best is not None:
+        verdict = "missing_effect"
+        after = best.objective_rmse / floor if floor > 0 else math.inf
+        summary = (f"missing effect: {best.effect} — adding it lowers the windowed RMSE from "
+                   f"{base_eval.rmse:.3g} to {best.rmse:.3g} kgf ({100 * best.rmse_reduction:.0f} %)")
+        if after > UNEXPLAINED_RATIO:
+            warnings.append(f"with {best.effect} the error is still {after:.2f}× the noise floor: "
+                            f"diagnose again with --model {best.spec}")
+    elif ratio > UNEXPLAINED_RATIO:
+        verdict = "unexplained"
+        unexplained = describe_unexplained(base_eval, floor, ratio, base_fit)
+        summary = (f"unexplained: the error is {ratio:.2f}× the noise floor and no catalogue "
+                   f"effect removes it; {unexplained.description}")
+    else:
+        verdict = "adequate"
+        summary = (f"adequate: {base_model.spec} explains the data to "
+                   f"{ratio:.2f}× the noise floor; no effect earns its parameters")
+    for c in cands:
+        if not c.earns and c.improvement >= 0.01 and c.z >= MIN_Z and verdict != "missing_effect":
+            observations.append(f"+{c.effect} would lower the error by {100 * c.improvement:.1f} % "
+                                f"(consistent over windows, but below the "
+                                f"{100 * MIN_IMPROVEMENT:.0f} % worth reporting)")
+    return Diagnosis(verdict=verdict, model=start.spec, best=best.effect if best else None,
+                     base_fit=base_fit, base_eval=base_eval, candidates=cands, noise_sigma=sigma,
+                     objective_floor=floor, observations=observations, ambiguities=ambiguities,
+                     unexplained=unexplained, summary=summary, screening=screening,
+                     warnings=warnings)
+
+
+def _n_eval(pieces: Sequence[F.Piece]) -> int:
+    return sum(p.n_eval for p in pieces)
+
+
+def _window_sse(model: PlantModel, pieces: Sequence[F.Piece]) -> np.ndarray:
+    r = F.residual(model, pieces)
+    return np.bincount(F.window_labels(pieces), weights=r * r)
+
+
+def objective_floor(pieces: Sequence[F.Piece], sigma: float) -> float:
+    """RMSE of the objective for a perfect model: white noise minus its window mean,
+    ``σ·sqrt(1 − 1/W)`` averaged over the windows."""
+    n = _n_eval(pieces)
+    dof = sum(p.n_eval - p.n_windows for p in pieces)
+    return sigma * math.sqrt(dof / n) if n else math.nan
+
+
+def _judge(name: str, f: F.FitResult, w: np.ndarray, base_w: np.ndarray, base_obj: float,
+           floor: float, base_eval: Evaluation, full: Sequence[F.Piece], refit: str) -> Candidate:
+    n = _n_eval(full)
+    obj = math.sqrt(w.sum() / n)
+    improvement = 1.0 - obj / base_obj if base_obj > 0 else 0.0
+    excess = base_obj ** 2 - floor ** 2
+    gain = base_obj ** 2 - obj ** 2
+    share = gain / excess if excess > 0 else 0.0
+    d = base_w - w
+    z = float(d.mean() / (d.std(ddof=1) / math.sqrt(len(d)))) if len(d) > 1 and d.std() > 0 else (
+        math.inf if d.mean() > 0 else 0.0)
+    r = F.residual(f.model, full, adjust_start=False)
+    rmse = math.sqrt(float(r @ r) / len(r))
+    warnings = list(f.warnings)
+    k = max(1, len(f.free) - 3)
+    lr = n * gain / floor ** 2 if floor > 0 else math.inf
+    significant = lr >= stats.chi2.isf(LR_ALPHA, k)
+    earns = bool(improvement >= MIN_IMPROVEMENT and share >= MIN_EXCESS_SHARE and z >= MIN_Z
+                 and significant)
+    return Candidate(effect=name, spec=f.model.spec, params=f.model.params(), rmse=rmse,
+                     objective_rmse=obj, improvement=improvement,
+                     rmse_reduction=1.0 - rmse / base_eval.rmse if base_eval.rmse > 0 else 0.0,
+                     excess_share=share, z=z, lr=lr, earns=earns, refit_on=refit, warnings=warnings, fit=f)
+
+
+# ------------------------------------------------------------------------------------------
+# plain words
+# ------------------------------------------------------------------------------------------
+def _pct(x: float) -> str:
+    return f"{100 * x:.0f} %"
+
+
+def describe_residual(ev: Evaluation) -> list[str]:
+    """Plain-words description of where and how the model ``ev.model`` misses the data."""
+    out: list[str] = []
+    floor = ev.noise_floor
+    out.append(f"windowed RMSE {ev.rmse:.3g} kgf = {ev.excess_ratio:.2f}× the noise floor "
+               f"({floor:.3g} kgf from σ = {ev.noise_sigma:.3g} kgf), fit {ev.fit_percent:.2f} %")
+    rev = reversal_transient(ev.sims, ev.model.tau)
+    if rev is not None:
+        out.append(rev)
+    out += slope_observations(ev.sims)
+    conc = [r for r in ev.regimes if r.group == "reversal" and r.name.startswith("first")]
+    if conc and ev.excess_ratio > 1.1:
+        r = conc[0]
+        if r.sse_share > 1.5 * r.time_share and r.sse_share > 0.3:
+            out.append(f"error concentrates in the {AFTER_REVERSAL_S:g} s after each reversal: "
+                       f"{_pct(r.sse_share)} of the squared error in {_pct(r.time_share)} of the time")
+    if ev.excess_ratio > 1.1:
+        worst = ev.worst_windows(3)
+        out.append("worst windows: " + ", ".join(
+            f"{w.t_start:.1f}–{w.t_end:.1f} s ({w.rmse:.3g} kgf, {w.regime})" for w in worst))
+    if not ev.whiteness.white and ev.excess_ratio > 1.1:
+        out.append("the residual is not white (autocorrelation beyond the ±1.96/√N band): "
+                   "structure is left in it")
+    if not ev.input_correlation.white and ev.excess_ratio > 1.1:
+        out.append("the residual is correlated with the command: the model misses part of the "
+                   "command's effect")
+    return out
+
+
+def reversal_transient(sims: Sequence[RecordSimulation], tau: float,
+                       horizon_s: float = 0.6) -> str | None:
+    """Ensemble of the residual after each rod reversal: the extra force the model misses in the
+    new direction, and how fast it builds up ("error concentrates in the 0.2 s after ...")."""
+    curves, dts = [], []
+    for s in sims:
+        dt = s.record.dt
+        rev, _ = reversal_mask(s.q, dt)
+        L = int(round(horizon_s / dt))
+        for i in rev:
+            w = s.win[i]
+            if i + L >= len(s.r) or s.win[i + L] != w or i == 0:
+                continue
+            sgn = np.sign(s.q[i])
+            # measured minus model, in the new direction of motion, from the reversal on
+            curves.append(-(s.r[i:i + L] - s.r[i]) * sgn)
+            dts.append(dt)
+    if len(curves) < 3 or len(set(dts)) != 1:
+        return None
+    c = np.vstack(curves)
+    dt = dts[0]
+    med = c.mean(axis=0)
+    se = c[:, -1].std(ddof=1) / math.sqrt(len(c))
+    final = float(med[-10:].mean())
+    if abs(final) < max(4 * se, 1e-9):
+        return None
+    reach = np.flatnonzero(np.abs(med) >= 0.9 * abs(final))
+    t90 = float(reach[0] * dt) if len(reach) else horizon_s
+    if final > 0:
+        return (f"after each reversal the force moves {final:.3g} kgf further in the new direction "
+                f"than the model predicts, 90 % of it within {t90:.2f} s (a transient the model "
+                f"lacks: faster take-off after a change of direction)")
+    return (f"after each reversal the force lags {-final:.3g} kgf behind the model in the new "
+            f"direction, 90 % of it within {t90:.2f} s (a slower take-off than the model: "
+            f"lag or extra delay)")
+
+
+def slope_observations(sims: Sequence[RecordSimulation]) -> list[str]:
+    """Measured slope per % command on steady stretches: extend vs retract, and per |u| level."""
+    num_e = num_r = den_e = den_r = 0.0
+    lv_num: dict[int, float] = {}
+    lv_den: dict[int, float] = {}
+    q_all = np.concatenate([s.q for s in sims])
+    groups, names = command_levels(np.abs(q_all))
+    k0 = 0
+    for s in sims:
+        dt = s.record.dt
+        _, after = reversal_mask(s.q, dt)
+        dy = np.diff(s.y, append=s.y[-1])
+        steady = ~after & (s.q != 0)
+        steady[-1] = False
+        g = groups[k0:k0 + len(s.q)]
+        k0 += len(s.q)
+        ext, ret = steady & (s.q > 0), steady & (s.q < 0)
+        num_e += float(dy[ext].sum())
+        den_e += float(s.q[ext].sum() * dt)
+        num_r += float(dy[ret].sum())
+        den_r += float(s.q[ret].sum() * dt)
+        for lv in np.unique(g[steady]):
+            sel = steady & (g == lv)
+            lv_num[lv] = lv_num.get(lv, 0.0) + float((dy[sel] * np.sign(s.q[sel])).sum())
+            lv_den[lv] = lv_den.get(lv, 0.0) + float(np.abs(s.q[sel]).sum() * dt)
+    out = []
+    if den_e > 0 and den_r < 0:
+        ge, gr = num_e / den_e, num_r / den_r
+        if ge > 0 and gr > 0 and abs(gr / ge - 1) >= 0.03:
+            word = "lower" if gr < ge else "higher"
+            out.append(f"retract slope is {abs(gr / ge - 1) * 100:.0f} % {word} than extend "
+                       f"({gr:.4g} vs {ge:.4g} kgf/s per % command): an extend/retract asymmetry"
+                       f" (or, at a single amplitude, the trend Δ)")
+    gains = {lv: lv_num[lv] / lv_den[lv] for lv in lv_num if lv_den[lv] > 0 and lv >= 0}
+    if len(gains) >= 2 and len(names) <= 6:
+        lo_lv, hi_lv = min(gains), max(gains)
+        glo, ghi = gains[lo_lv], gains[hi_lv]
+        if ghi > 0 and abs(glo / ghi - 1) >= 0.03:
+            word = "lower" if glo < ghi else "higher"
+            hint = ("a dead zone (or a transient after reversals)" if glo < ghi
+                    else "a flow limit (saturation) or a reversal boost that weighs more at small |u|")
+            out.append(f"slope per % command is {abs(glo / ghi - 1) * 100:.0f} % {word} at "
+                       f"{names[lo_lv]} than at {names[hi_lv]} ({glo:.4g} vs {ghi:.4g}): {hint}")
+    return out
+
+
+def describe_unexplained(ev: Evaluation, floor: float, ratio: float,
+                         fit: F.FitResult) -> Unexplained:
+    """What the residual left by every candidate looks like: periodic or broadband, where."""
+    f, amp, share = periodic_component(ev.sims, floor)
+    corr = not ev.input_correlation.white
+    if f is not None and share >= 0.5:
+        desc = (f"the residual is periodic at {f:.3g} Hz (amplitude ≈ {amp:.3g} kgf, "
+                f"{_pct(share)} of the error above the noise)"
+                + (", correlated with the command" if corr else
+                   ", unrelated to the command — like an external disturbance (a neighbouring "
+                   "actuator, a structural resonance, pump ripple)"))
+    else:
+        where = max((r for r in ev.regimes if r.group in ("reversal", "direction")),
+                    key=lambda r: r.sse_share / max(r.time_share, 1e-9), default=None)
+        desc = "the residual is broadband (no dominant frequency)"
+        if f is not None:
+            desc += f"; its strongest periodic part is at {f:.3g} Hz ({_pct(share)} of the excess)"
+        if where is not None:
+            desc += (f"; it is largest in '{where.name}' ({_pct(where.sse_share)} of the squared "
+                     f"error in {_pct(where.time_share)} of the time)")
+    return Unexplained(dominant_frequency_hz=f, amplitude_kgf=amp, periodic_share=share,
+                       rmse_over_floor=ratio, correlated_with_command=corr, description=desc)
+
+
+def periodic_component(sims: Sequence[RecordSimulation], floor: float,
+                       max_samples: int = 400_000) -> tuple[float | None, float | None, float]:
+    """Dominant frequency of the residual (window means removed): Welch spectrum peak, refined
+    by fitting ``a·sin 2πft + b·cos 2πft`` (with the window means) on a fine frequency grid.
+    Returns (frequency Hz, amplitude kgf, share of the excess squared error it explains)."""
+    from scipy.signal import welch
+    e = demeaned_residual(sims)
+    dt = sims[0].record.dt
+    psd_sum, freqs = None, None
+    seg = 1 << int(math.ceil(math.log2(max(16, round(8.0 / dt)))))
+    for s, x in zip(sims, e):
+        if s.record.dt != dt or len(x) < 16:
+            continue
+        fr, p = welch(x, fs=1 / dt, nperseg=min(seg, len(x)), detrend=False)
+        if freqs is None:
+            freqs, psd_sum = fr, np.zeros_like(p)
+        if len(fr) == len(freqs):
+            psd_sum += p
+    if freqs is None:
+        return None, None, 0.0
+    wmin = 1.0 / (sims[0].window * dt)  # below the window rate the demeaning removes power
+    band = (freqs >= wmin) & (freqs < 0.45 / dt)
+    if not band.any():
+        return None, None, 0.0
+    k = int(np.flatnonzero(band)[np.argmax(psd_sum[band])])
+    df = freqs[1] - freqs[0]
+    grid = np.linspace(max(wmin, freqs[k] - 1.5 * df), freqs[k] + 1.5 * df, 61)
+    # fit on a bounded number of samples
+    t_all, e_all, w_all = [], [], []
+    budget, base = max_samples, 0
+    for s, x in zip(sims, e):
+        m = min(len(x), budget)
+        if m <= 0:
+            break
+        t_all.append(s.t[:m])
+        e_all.append(x[:m])
+        w_all.append(s.win[:m] + base)
+        base += int(s.win[-1]) + 1
+        budget -= m
+    t, x, wl = np.concatenate(t_all), np.concatenate(e_all), np.concatenate(w_all)
+    cnt = np.bincount(wl)
+
+    def demean(v):
+        return v - (np.bincount(wl, weights=v) / cnt)[wl]
+
+    best = (0.0, None, None)
+    for f in grid:
+        S, C = demean(np.sin(2 * np.pi * f * t)), demean(np.cos(2 * np.pi * f * t))
+        A = np.column_stack([S, C])
+        coef, *_ = np.linalg.lstsq(A, x, rcond=None)
+        expl = float(np.sum((A @ coef) ** 2))
+        if expl > best[0]:
+            best = (expl, float(f), float(math.hypot(*coef)))
+    expl, f, amp = best
+    excess = float(x @ x) - floor ** 2 * len(x)
+    share = min(1.0, expl / excess) if excess > 0 else 0.0
+    return f, amp, share
+
+
+# ------------------------------------------------------------------------------------------
+# what the data cannot tell apart
+# ------------------------------------------------------------------------------------------
+@dataclass
+class Excitation:
+    """What the data contain, as far as separating effects is concerned."""
+
+    levels: list[float]           #: distinct nonzero |u| levels (empty if continuous)
+    continuous: bool              #: the command varies continuously (feedback with smooth r)
+    has_steps: bool               #: the command jumps (meander, relay)
+    has_zero_hold: bool           #: the command rests at 0 for ≥ 0.5 s somewhere
+    single_frequency: bool        #: smooth command dominated by one frequency
+    force_span_kgf: float
+    both_force_signs: bool
+
+    @classmethod
+    def of(cls, records: Sequence[Record]) -> "Excitation":
+        u = np.concatenate([r.u for r in records])
+        y = np.concatenate([r.y for r in records])
+        nz = np.abs(u[u != 0])
+        levels = np.unique(np.round(nz, 2)) if len(nz) else np.array([])
+        continuous = len(levels) > 6
+        span = float(np.ptp(u)) or 1.0
+        steps = any(np.any(np.abs(np.diff(r.u)) > 0.25 * span) for r in records)
+        zero = False
+        for r in records:
+            z = np.concatenate([[0], (r.u == 0).astype(int), [0]])
+            edges = np.flatnonzero(np.diff(z))
+            runs = edges[1::2] - edges[::2]
+            if len(runs) and runs.max() * r.dt >= 0.5:
+                zero = True
+        single = False
+        if continuous and not steps:
+            spec = np.abs(np.fft.rfft(u - u.mean())) ** 2
+            k = int(np.argmax(spec[1:])) + 1
+            single = spec[max(1, k - 3):k + 4].sum() > 0.8 * spec[1:].sum()
+        return cls([float(v) for v in levels] if not continuous else [], continuous, steps, zero,
+                   single, float(np.ptp(y)), bool(y.min() < -0.1 * np.ptp(y) and y.max() > 0.1 * np.ptp(y)))
+
+
+def _ambiguities(records: Sequence[Record], base_fit: F.FitResult, cands: Sequence[Candidate],
+                 best: Candidate | None) -> list[Ambiguity]:
+    ex = Excitation.of(records)
+    out: list[Ambiguity] = []
+    names = {c.effect for c in cands}
+    single = len(ex.levels) == 1 and not ex.continuous
+    if single:
+        lv = f"{ex.levels[0]:g} %"
+        if "deadzone" in names:
+            out.append(Ambiguity(["deadzone", "gain"],
+                                 f"at a single command amplitude (|u| = {lv}) a dead zone d only "
+                                 f"lowers the slope to g·(|u| − d): it looks exactly like a lower gain g.",
+                                 separating_experiment("deadzone", "gain")))
+        if "saturation" in names:
+            out.append(Ambiguity(["saturation", "gain"],
+                                 f"at a single command amplitude (|u| = {lv}) a flow limit below it "
+                                 f"looks exactly like a lower gain g.",
+                                 separating_experiment("saturation", "gain")))
+        if "asymmetry" in names and not ex.has_zero_hold:
+            d = base_fit.model.delta
+            ramp = base_fit.model.g * ex.levels[0]
+            hint = (f" The fitted trend Δ = {d:.3g} kgf/s is {abs(d) / ramp * 100:.1f} % of the "
+                    f"ramp rate g·|u|; if the valve's null offset is known to be small, read it as "
+                    f"an asymmetry a ≈ {d / ramp:+.3f} (retract {'slower' if d > 0 else 'faster'}).") \
+                if ramp > 0 else ""
+            out.append(Ambiguity(["asymmetry", "trend"],
+                                 f"with the command always ±{lv}, a gain that differs between extend "
+                                 f"and retract adds the same force rate as the trend Δ.{hint}",
+                                 separating_experiment("asymmetry", "trend")))
+        if {"leakage", "load_pressure"} <= names or (best and best.effect in ("leakage", "load_pressure")):
+            out.append(Ambiguity(["leakage", "load_pressure"],
+                                 f"at a single command amplitude the orifice law's slow-down "
+                                 f"(∝ sign(u)·y) acts like a leak toward zero force.",
+                                 separating_experiment("leakage", "load_pressure")))
+    if ex.continuous and not ex.has_steps and ex.single_frequency and "lag" in names:
+        out.append(Ambiguity(["lag", "delay"],
+                             "the command is a smooth single-frequency signal: a valve lag T adds "
+                             "phase like extra delay at that frequency, so only τ + T is determined.",
+                             separating_experiment("lag", "delay")))
+    # candidates the data do not separate (comparable error reductions)
+    if best is not None:
+        gain_best = 1 - (1 - best.improvement) ** 2
+        for c in cands:
+            if c is best or not c.earns:
+                continue
+            g = 1 - (1 - c.improvement) ** 2
+            if gain_best > 0 and g >= AMBIGUITY_SHARE * gain_best:
+                pair = [best.effect, c.effect]
+                if any(set(a.effects) == set(pair) for a in out):
+                    continue
+                out.append(Ambiguity(pair, f"+{c.effect} removes nearly as much error as "
+                                           f"+{best.effect} ({100 * c.improvement:.0f} % vs "
+                                           f"{100 * best.improvement:.0f} %).",
+                                     separating_experiment(*pair)))
+        # parameters of the best candidate the data do not determine
+        if best.fit is not None:
+            for name in best.fit.non_identifiable():
+                out.append(Ambiguity([name], "this parameter is not determined by these data "
+                                             "(it trades off against another one).",
+                                     "the meander at several amplitudes and periods"))
+    return out
