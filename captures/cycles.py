@@ -1,0 +1,487 @@
+"""From decoded frames to the gateway's rows: one row per control cycle, streamed.
+
+The protocol (see :mod:`gateway.loop`)::
+
+    SDO 0x1006 download (period, µs) to both nodes   ← marks the start of a run
+    enabling RPDO (ControlWord 7, command 0)           ← before the first SYNC: not a row
+    cycle k:  SYNC → valve TPDO (StatusWord, ValvePosition) + dynamometer TPDO (Force, ForceStatus)
+              → RPDO (ControlWord, Command)            ← a row iff its ControlWord is 7 (ACTIVE)
+    last SYNC: TPDOs, then safe-state RPDOs (ControlWord 3) ← not a row
+
+Row k of a run (the columns of :mod:`gateway.runs`):
+
+* ``y`` = Force of the dynamometer TPDO answering SYNC k (kgf = counts × the DBC factor, the same
+  double the gateway uses), ``y_counts`` its raw counts;
+* ``u`` = Command of the first RPDO after SYNC k (% = counts × 100/16384, as on the wire);
+* ``t`` = k × period in lockstep; in real time the SYNC's slot on the period grid,
+  n_k = ⌊(ts_k − ts_0)/period + ¼⌋ (made strictly increasing), t = n_k × period, so cycles the
+  gateway skipped after an overrun leave the same gap as in its own record;
+* ``r`` = NaN (the reference never goes on the bus); ``sync_time`` = the SYNC's timestamp.
+
+Which TPDO answers which SYNC: each node answers every SYNC once, so the j-th TPDO of a run
+answers its j-th SYNC. The file order alone is not enough: a capture written by a multi-threaded
+logger (the gateway's own) may store a received TPDO after the next frame the gateway sent. So
+TPDOs are paired by count, and the count is re-synchronised from the file order when the two
+disagree for at least :data:`RESYNC_AFTER` TPDOs in a row (a TPDO really lost or duplicated on
+the bus), effective from where the disagreement began.
+
+Stale cycles (real time only: the gateway gave up waiting and reused the last reading): the
+answering TPDO is stored after the cycle's RPDO *and* stamped later than it. In lockstep the
+gateway always waits, so only a missing TPDO makes a cycle stale.
+
+The period: an explicit value, else the 0x1006 download of the run, else the median SYNC
+interval. The clock: lockstep if the SYNCs are less than half a period apart (the wall clock
+of a lockstep run says nothing about stand time), else real time.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dbc import profile as P
+
+from .dbcdecode import DecodedMessage, FrameDecoder
+from .frames import FrameChunk
+
+RESYNC_AFTER = 8          #: TPDOs in a row that must disagree with the count before it is re-synced
+MARGIN_SYNCS = 32         #: SYNCs kept back at the end of a chunk until later frames arrive
+GRID_BIAS = 0.25          #: real time: a SYNC up to 3/4 period late still counts for its slot
+
+COLUMNS = ("t", "u", "y", "r", "cycle", "y_counts", "spool", "valve_status", "stale", "sync_time")
+_DTYPES = {"t": np.float64, "u": np.float64, "y": np.float64, "r": np.float64, "cycle": np.int64,
+           "y_counts": np.int32, "spool": np.float64, "valve_status": np.uint16, "stale": np.bool_,
+           "sync_time": np.float64}
+
+
+@dataclass(frozen=True)
+class StandSignals:
+    """Names of the DBC signals that carry the loop (override for another DBC)."""
+
+    force: str = "Force"
+    command: str = "Command"
+    control_word: str = "ControlWord"
+    status_word: str = "StatusWord"
+    spool: str = "ValvePosition"
+    sync_message: str = "SYNC"
+    active_control_word: int = int(P.CW_ACTIVE)
+
+
+@dataclass
+class RunInfo:
+    """What the assembler learned about one run in the capture."""
+
+    index: int
+    period_s: float | None = None
+    period_source: str | None = None      #: "argument" | "SDO 0x1006" | "median SYNC interval"
+    period_us_written: list = field(default_factory=list)
+    clock: str | None = None              #: "lockstep" | "realtime"
+    first_sync_ts: float | None = None
+    last_sync_ts: float | None = None
+    syncs: int = 0
+    rows: int = 0
+    stale: int = 0
+    syncs_without_force: int = 0
+    syncs_without_row: int = 0
+    tpdo_resyncs: int = 0                 #: count re-synchronisations (lost/duplicated TPDOs)
+    tpdos_unpaired: int = 0               #: TPDOs that answer no SYNC of the run
+    grid_skips: int = 0                   #: real time: period slots without a SYNC (overruns)
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def empty_rows() -> dict[str, np.ndarray]:
+    return {c: np.empty(0, _DTYPES[c]) for c in COLUMNS}
+
+
+class _Events:
+    """Frames of one kind in file order: ``order`` (global frame number), ``ts``, values."""
+
+    def __init__(self, names: tuple[str, ...]) -> None:
+        self.names = names
+        self.order = np.empty(0, np.int64)
+        self.ts = np.empty(0, np.float64)
+        self.v = {n: np.empty(0, np.float64 if n.startswith("f_") else np.int64) for n in names}
+
+    def add(self, order: np.ndarray, ts: np.ndarray, **values) -> None:
+        self.order = np.concatenate([self.order, order])
+        self.ts = np.concatenate([self.ts, ts])
+        for n in self.names:
+            self.v[n] = np.concatenate([self.v[n], values[n].astype(self.v[n].dtype)])
+
+    def drop_before(self, count: int) -> None:
+        self.order = self.order[count:]
+        self.ts = self.ts[count:]
+        for n in self.names:
+            self.v[n] = self.v[n][count:]
+
+    def __len__(self) -> int:
+        return len(self.order)
+
+
+def resolve_offsets(e: np.ndarray, off0: int, final: bool, k: int = RESYNC_AFTER) -> tuple[np.ndarray, int, int]:
+    """Per-TPDO offset between its count and the SYNC it answers.
+
+    ``e[j]`` = (index of the SYNC the j-th TPDO follows in the file) − j. With no loss the
+    offset stays ``off0``; a run of at least ``k`` TPDOs all above (below) the current offset is
+    a lost (duplicated) TPDO: from the run's start the offset becomes the run's minimum
+    (maximum). Shorter excursions are storage-order noise and keep the count.
+
+    Returns (offsets, offset after the last TPDO, index of the first TPDO whose offset may still
+    change when more TPDOs arrive — ``len(e)`` if none or ``final``)."""
+    n = len(e)
+    off = np.full(n, off0, np.int64)
+    cur = off0
+    start = 0
+    changes = 0
+    while start < n:
+        dev = np.flatnonzero(e[start:] != cur) + start
+        if not len(dev):
+            break
+        sign = np.sign(e[dev] - cur)
+        breaks = np.flatnonzero((np.diff(dev) != 1) | (np.diff(sign) != 0)) + 1
+        run_starts = np.concatenate([[0], breaks])
+        run_ends = np.concatenate([breaks, [len(dev)]])
+        lengths = run_ends - run_starts
+        long = np.flatnonzero(lengths >= k)
+        if not len(long):
+            last = len(run_starts) - 1
+            if not final and dev[run_ends[last] - 1] == n - 1:
+                return off, cur, int(dev[run_starts[last]])
+            break
+        r = long[0]
+        a, b = dev[run_starts[r]], dev[run_ends[r] - 1] + 1
+        if not final and b == n and lengths[r] < k:
+            return off, cur, int(a)
+        cur = int(e[a:b].min() if sign[run_starts[r]] > 0 else e[a:b].max())
+        off[a:] = cur
+        start = a
+        changes += 1
+    return off, cur, n
+
+
+class CycleAssembler:
+    """Feed decoded chunks in order; collect rows with :meth:`take_rows` and, at the end,
+    :meth:`finish`. Rows come out as ``(run_index, {column: array})``."""
+
+    def __init__(self, decoder: FrameDecoder, signals: StandSignals | None = None,
+                 period_s: float | None = None, clock: str | None = None) -> None:
+        if clock not in (None, "lockstep", "realtime"):
+            raise ValueError(f"clock must be 'lockstep', 'realtime' or None (auto), not {clock!r}")
+        self.sig = signals or StandSignals()
+        self.decoder = decoder
+        self.force_msg = decoder.find_signal(self.sig.force)
+        self.valve_msg = decoder.find_signal(self.sig.status_word)
+        self.command_msg = decoder.find_signal(self.sig.command)
+        self.sync_msg = decoder.message(self.sig.sync_message)
+        self.wanted = {
+            self.force_msg.name: [self.sig.force],
+            self.valve_msg.name: [self.sig.status_word, self.sig.spool],
+            self.command_msg.name: [self.sig.control_word, self.sig.command],
+            self.sync_msg.name: [],
+        }
+        if len({self.force_msg.name, self.valve_msg.name, self.command_msg.name, self.sync_msg.name}) < 4:
+            raise ValueError("force, valve status, command and SYNC must be four different messages")
+        self.force_scale = self.force_msg.signal(self.sig.force)
+        self.period_arg = period_s
+        self.clock_arg = clock
+        self.frames_seen = 0
+        self.S = _Events(())
+        self.F = _Events(("counts", "f_y"))
+        self.V = _Events(("status", "f_spool"))
+        self.R = _Events(("cw", "f_u"))
+        self.P = _Events(("us",))
+        self.sync_g0 = 0                # global index of self.S's first SYNC
+        self.runs: list[RunInfo] = []
+        self._out: list[tuple[int, dict]] = []
+        self._new_run(0)
+
+    # -- input -----------------------------------------------------------------------------
+    def feed(self, chunk: FrameChunk, decoded: dict[str, DecodedMessage]) -> None:
+        base = self.frames_seen
+        self.frames_seen += len(chunk)
+        if self.sync_msg.name in decoded:
+            d = decoded[self.sync_msg.name]
+            self.S.add(base + d.index, d.ts)
+        if self.force_msg.name in decoded:
+            d = decoded[self.force_msg.name]
+            self.F.add(base + d.index, d.ts, counts=d.raw[self.sig.force], f_y=d.phys[self.sig.force])
+        if self.valve_msg.name in decoded:
+            d = decoded[self.valve_msg.name]
+            self.V.add(base + d.index, d.ts, status=d.raw[self.sig.status_word].astype(np.int64),
+                       f_spool=d.phys[self.sig.spool])
+        if self.command_msg.name in decoded:
+            d = decoded[self.command_msg.name]
+            self.R.add(base + d.index, d.ts, cw=d.raw[self.sig.control_word].astype(np.int64),
+                       f_u=d.phys[self.sig.command])
+        self._find_period_writes(chunk, base)
+        self._process(final=False)
+
+    def _find_period_writes(self, chunk: FrameChunk, base: int) -> None:
+        """SDO expedited downloads of 0x1006:00 to any node (0x601..0x67F)."""
+        sel = ((chunk.can_id >= 0x601) & (chunk.can_id <= 0x67F) & (chunk.dlc == 8)
+               & ((chunk.flags & 0x07) == 0))
+        if not sel.any():
+            return
+        rows = np.flatnonzero(sel)
+        d = chunk.data[rows]
+        hit = (((d[:, 0] & 0xE3) == 0x23) & (d[:, 1] == 0x06) & (d[:, 2] == 0x10) & (d[:, 3] == 0))
+        if not hit.any():
+            return
+        rows, d = rows[hit], d[hit]
+        unused = ((d[:, 0] >> 2) & 0x3).astype(np.int64)
+        raw = d[:, 4:8].astype(np.int64)
+        value = raw[:, 0] | raw[:, 1] << 8 | raw[:, 2] << 16 | raw[:, 3] << 24
+        value &= (1 << (8 * (4 - unused))) - 1
+        self.P.add(base + rows, chunk.ts[rows], us=value)
+
+    # -- output ----------------------------------------------------------------------------
+    def take_rows(self) -> list[tuple[int, dict]]:
+        out, self._out = self._out, []
+        return out
+
+    def finish(self) -> list[tuple[int, dict]]:
+        self._process(final=True)
+        run = self.runs[-1]
+        if run.syncs == 0 and len(self.runs) > 1:
+            self.runs.pop()
+        return self.take_rows()
+
+    # -- the work --------------------------------------------------------------------------
+    def _new_run(self, first_sync_g: int) -> None:
+        self.runs.append(RunInfo(len(self.runs)))
+        self.run_first_g = first_sync_g    # global index of the run's first SYNC
+        self.next_g = first_sync_g         # first SYNC of the run not yet turned into output
+        self.force_j = 0                   # TPDOs of the run consumed so far
+        self.force_off = 0
+        self.valve_j = 0
+        self.valve_off = 0
+        self.cycle = 0
+        self.last = {"y": math.nan, "y_counts": 0, "spool": math.nan, "valve_status": 0}
+        self.last_n = -1
+        self.t_origin: float | None = None
+
+    def _seg(self, order: np.ndarray) -> np.ndarray:
+        """Global index of the last SYNC before each frame (-1 before any)."""
+        return self.sync_g0 + np.searchsorted(self.S.order, order, side="right") - 1
+
+    def _process(self, final: bool) -> None:
+        while True:
+            boundary = self._next_boundary()
+            n_syncs_end = self.sync_g0 + len(self.S)
+            if boundary is not None:
+                self._emit(boundary, closing=True)
+                self._start_next_run(boundary)
+                continue
+            if final:
+                self._emit(n_syncs_end, closing=True)
+            else:
+                self._emit(n_syncs_end - MARGIN_SYNCS, closing=False)
+            return
+
+    def _next_boundary(self) -> int | None:
+        """The first SYNC of the next run, if a 0x1006 download after this run's first SYNC
+        (and a SYNC after the download) is in the buffer."""
+        if not len(self.P):
+            return None
+        seg = self._seg(self.P.order)
+        after = np.flatnonzero(seg >= self.run_first_g)
+        run = self.runs[-1]
+        # downloads before the run's first SYNC set its period
+        before = np.flatnonzero(seg < self.run_first_g)
+        if len(before):
+            run.period_us_written.extend(int(v) for v in self.P.v["us"][before])
+        if not len(after):
+            self.P.drop_before(len(self.P))
+            return None
+        if len(before):
+            self.P.drop_before(int(before[-1]) + 1)
+            seg = seg[int(before[-1]) + 1:]
+        b = int(seg[0]) + 1
+        if b >= self.sync_g0 + len(self.S):
+            return None                    # no SYNC after the download yet
+        return b
+
+    def _start_next_run(self, boundary: int) -> None:
+        self._new_run(boundary)
+
+    def _run_clock(self, run: RunInfo, sync_ts: np.ndarray) -> None:
+        """Decide period and clock once, from the first SYNCs of the run."""
+        if run.period_s is not None:
+            return
+        if len(sync_ts) < 3 and not self._closing:
+            return
+        steps = np.diff(sync_ts[:2001])
+        steps = steps[steps > 0]
+        median = float(np.median(steps)) if len(steps) else None
+        if self.period_arg is not None:
+            run.period_s, run.period_source = float(self.period_arg), "argument"
+        elif run.period_us_written:
+            run.period_s, run.period_source = run.period_us_written[-1] / 1e6, "SDO 0x1006"
+        elif median:
+            run.period_s, run.period_source = median, "median SYNC interval"
+        else:
+            run.period_s, run.period_source = math.nan, "unknown (one SYNC)"
+        if self.clock_arg is not None:
+            run.clock = self.clock_arg
+        elif median is None or not math.isfinite(run.period_s):
+            run.clock = "lockstep"
+        else:
+            run.clock = "lockstep" if median < 0.5 * run.period_s else "realtime"
+
+    def _pair(self, ev: _Events, j0: int, off0: int, end_g: int, final: bool):
+        """Pair this run's TPDOs (kind ``ev``) with SYNCs: assigned global SYNC per TPDO."""
+        seg = self._seg(ev.order)
+        keep = seg >= self.run_first_g
+        drop = int(np.argmax(keep)) if keep.any() else len(seg)
+        # TPDOs before the run's first SYNC answer no SYNC of it
+        if drop:
+            self.runs[-1].tpdos_unpaired += drop
+            ev.drop_before(drop)
+            seg = seg[drop:]
+        inrun = np.flatnonzero(seg < end_g)
+        seg = seg[inrun]
+        j = j0 + np.arange(len(seg))
+        e = seg - self.run_first_g - j
+        off, off_last, unstable = resolve_offsets(e, off0, final)
+        assigned = np.maximum.accumulate(self.run_first_g + j + off) if len(j) else j
+        return assigned, off, unstable
+
+    def _emit(self, upto_g: int, closing: bool) -> None:
+        """Turn the run's SYNCs below ``upto_g`` into rows (all of them when ``closing``)."""
+        self._closing = closing
+        run = self.runs[-1]
+        lo = self.next_g
+        run_syncs_ts = self.S.ts[self.run_first_g - self.sync_g0:] if self.run_first_g >= self.sync_g0 else self.S.ts
+        self._run_clock(run, run_syncs_ts)
+        if run.period_s is None:
+            return                          # not enough SYNCs yet to know the clock
+        end_g = upto_g if closing else self.sync_g0 + len(self.S)
+        fa, foff, f_unstable = self._pair(self.F, self.force_j, self.force_off, end_g, closing)
+        va, voff, v_unstable = self._pair(self.V, self.valve_j, self.valve_off, end_g, closing)
+        hi = upto_g
+        if not closing:
+            if f_unstable < len(fa):
+                hi = min(hi, int(fa[f_unstable]))
+            if v_unstable < len(va):
+                hi = min(hi, int(va[v_unstable]))
+        hi = max(hi, lo)
+        if hi <= lo and not closing:
+            return
+        g = np.arange(lo, hi)
+        s = g - self.sync_g0
+        sync_order = self.S.order[s]
+        sync_ts = self.S.ts[s]
+        # the command: first RPDO after each SYNC
+        r_seg = self._seg(self.R.order)
+        r_first = np.flatnonzero(np.r_[True, r_seg[1:] != r_seg[:-1]]) if len(r_seg) else np.empty(0, np.int64)
+        r_map = np.full(len(g), -1, np.int64)
+        sel = r_first[(r_seg[r_first] >= lo) & (r_seg[r_first] < hi)]
+        r_map[r_seg[sel] - lo] = sel
+        has_r = r_map >= 0
+        cw = np.where(has_r, self.R.v["cw"][np.maximum(r_map, 0)], -1)
+        is_row = has_r & (cw == self.sig.active_control_word)
+        r_order = np.where(has_r, self.R.order[np.maximum(r_map, 0)], np.iinfo(np.int64).max)
+        r_ts = np.where(has_r, self.R.ts[np.maximum(r_map, 0)], np.inf)
+        realtime = run.clock == "realtime"
+
+        def fresh_values(ev: _Events, assigned: np.ndarray):
+            idx = np.searchsorted(assigned, g, side="left")
+            ok = idx < len(assigned)
+            ok[ok] = assigned[idx[ok]] == g[ok]
+            idx = np.where(ok, idx, 0)
+            fresh = ok.copy()
+            if realtime and len(ev):
+                fresh &= (ev.order[idx] < r_order) | (ev.ts[idx] <= r_ts)
+            return fresh, idx
+
+        f_fresh, f_idx = fresh_values(self.F, fa)
+        v_fresh, v_idx = fresh_values(self.V, va)
+        run.syncs_without_force += int((~np.isin(g, fa)).sum()) if len(g) else 0
+
+        y = _ffill(np.where(f_fresh, self.F.v["f_y"][f_idx] if len(self.F) else np.nan, np.nan),
+                   f_fresh, self.last["y"])
+        y_counts = _ffill(np.where(f_fresh, self.F.v["counts"][f_idx] if len(self.F) else 0, 0),
+                          f_fresh, self.last["y_counts"])
+        spool = _ffill(np.where(v_fresh, self.V.v["f_spool"][v_idx] if len(self.V) else np.nan, np.nan),
+                       v_fresh, self.last["spool"])
+        status = _ffill(np.where(v_fresh, self.V.v["status"][v_idx] if len(self.V) else 0, 0),
+                        v_fresh, self.last["valve_status"])
+        if len(g):
+            self.last = {"y": y[-1], "y_counts": y_counts[-1], "spool": spool[-1],
+                         "valve_status": status[-1]}
+        # time
+        T = run.period_s
+        if len(g) and self.t_origin is None:
+            self.t_origin = float(sync_ts[0])
+            run.first_sync_ts = self.t_origin
+        if len(g):
+            run.last_sync_ts = float(sync_ts[-1])
+        rows_n = int(is_row.sum())
+        cycles = self.cycle + np.arange(rows_n)
+        if realtime and len(g):
+            n = np.floor((sync_ts - self.t_origin) / T + GRID_BIAS).astype(np.int64)
+            k = np.arange(len(g))
+            n = k + np.maximum(np.maximum.accumulate(n - k), self.last_n + 1)
+            prev = self.last_n if self.last_n >= 0 else int(n[0]) - 1
+            run.grid_skips += int(n[-1] - prev - len(n))
+            self.last_n = int(n[-1])
+            t = n[is_row] * T
+        else:
+            t = cycles * T
+        rows = {
+            "t": np.asarray(t, np.float64),
+            "u": self.R.v["f_u"][r_map[is_row]] if rows_n else np.empty(0),
+            "y": y[is_row], "r": np.full(rows_n, np.nan), "cycle": cycles,
+            "y_counts": y_counts[is_row].astype(np.int32), "spool": spool[is_row],
+            "valve_status": status[is_row].astype(np.uint16), "stale": ~f_fresh[is_row],
+            "sync_time": sync_ts[is_row],
+        }
+        self.cycle += rows_n
+        run.syncs += len(g)
+        run.rows += rows_n
+        run.stale += int((~f_fresh[is_row]).sum())
+        run.syncs_without_row += int(len(g) - rows_n)
+        if rows_n:
+            self._out.append((run.index, rows))
+        # consume what was used
+        self.next_g = hi
+        self.force_j, self.force_off = self._consume(self.F, fa, foff, hi, self.force_j, self.force_off)
+        self.valve_j, self.valve_off = self._consume(self.V, va, voff, hi, self.valve_j, self.valve_off)
+        r_used = int(np.searchsorted(r_seg, hi, side="left")) if len(r_seg) else 0
+        self.R.drop_before(r_used)
+        if closing:
+            # TPDOs left over from a closed run answer no SYNC of it
+            for ev in (self.F, self.V):
+                seg = self._seg(ev.order)
+                extra = int((seg < hi).sum())
+                run.tpdos_unpaired += extra
+                ev.drop_before(extra)
+        s_used = hi - self.sync_g0
+        self.S.drop_before(s_used)
+        self.sync_g0 = hi
+
+    def _consume(self, ev: _Events, assigned: np.ndarray, off: np.ndarray, hi: int, j: int, off0: int):
+        used = int(np.searchsorted(assigned, hi, side="left"))
+        if used:
+            changes = int((np.diff(np.r_[off0, off[:used]]) != 0).sum())
+            self.runs[-1].tpdo_resyncs += changes
+            # several TPDOs assigned to one SYNC: only the first answers it
+            dup = int(used - len(np.unique(assigned[:used])))
+            self.runs[-1].tpdos_unpaired += dup
+            off0 = int(off[used - 1])
+        ev.drop_before(used)
+        return j + used, off0
+
+
+def _ffill(values: np.ndarray, fresh: np.ndarray, before) -> np.ndarray:
+    """Hold the last fresh value over stale entries (``before`` = value before the first)."""
+    if not len(values):
+        return values
+    idx = np.where(fresh, np.arange(len(values)), -1)
+    idx = np.maximum.accumulate(idx)
+    out = values[np.maximum(idx, 0)].astype(np.result_type(values, type(before)))
+    out[idx < 0] = before
+    return out

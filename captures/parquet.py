@@ -1,0 +1,102 @@
+"""Streamed Parquet output with bounded memory: one file of row groups, or a partitioned
+directory of part files that pyarrow.dataset, DuckDB, Polars and Spark read as one table::
+
+    signals.parquet                      # single file (row groups of ``group_rows``)
+    signals.parquet/part-00000.parquet   # partitioned: a new part every ``partition_rows`` rows
+    signals.parquet/part-00001.parquet
+
+``pq.read_table`` (and so :func:`gateway.load_run`) reads either form.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+GROUP_ROWS = 1 << 18
+
+
+class PartWriter:
+    """Append column batches; rows are written in groups of ``group_rows``."""
+
+    def __init__(self, path: Path, schema: pa.Schema, partition_rows: int | None = None,
+                 group_rows: int = GROUP_ROWS) -> None:
+        self.path = Path(path)
+        self.schema = schema
+        self.partition_rows = partition_rows
+        self.group_rows = min(group_rows, partition_rows) if partition_rows else group_rows
+        self._buf: list[dict] = []
+        self._buffered = 0
+        self._writer: pq.ParquetWriter | None = None
+        self._in_part = 0
+        self.parts = 0
+        self.rows = 0
+        if partition_rows:
+            self.path.mkdir(parents=True, exist_ok=True)
+
+    def write(self, columns: dict[str, np.ndarray]) -> None:
+        n = len(next(iter(columns.values())))
+        if not n:
+            return
+        self._buf.append(columns)
+        self._buffered += n
+        if self._buffered >= self.group_rows:
+            self._flush(final=False)
+
+    def _flush(self, final: bool) -> None:
+        if not self._buffered:
+            return
+        names = self.schema.names
+        cols = {k: np.concatenate([b[k] for b in self._buf]) for k in names}
+        total = self._buffered
+        self._buf, self._buffered = [], 0
+        start = 0
+        while start < total:
+            room = self.group_rows
+            if self.partition_rows:
+                room = min(room, self.partition_rows - self._in_part)
+            stop = min(total, start + room)
+            if stop - start < room and not final:
+                # keep a partial group for later (bounded: < group_rows rows)
+                self._buf.append({k: v[start:] for k, v in cols.items()})
+                self._buffered = total - start
+                return
+            table = pa.table({k: pa.array(cols[k][start:stop], type=self.schema.field(k).type)
+                              for k in names}, schema=self.schema)
+            self._writer_for_part().write_table(table)
+            self.rows += stop - start
+            self._in_part += stop - start
+            if self.partition_rows and self._in_part >= self.partition_rows:
+                self._writer.close()
+                self._writer = None
+            start = stop
+
+    def _writer_for_part(self) -> pq.ParquetWriter:
+        if self._writer is None:
+            if self.partition_rows:
+                target = self.path / f"part-{self.parts:05d}.parquet"
+            else:
+                target = self.path
+            self._writer = pq.ParquetWriter(str(target), self.schema)
+            self.parts += 1
+            self._in_part = 0
+        return self._writer
+
+    def close(self) -> int:
+        self._flush(final=True)
+        if self._writer is None and self.parts == 0:
+            self._writer_for_part()       # an empty table still gets its schema on disk
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+        return self.rows
+
+
+def frames_schema(names: list[str], phys: dict[str, np.ndarray]) -> pa.Schema:
+    fields = [("ts", pa.float64())]
+    for n in names:
+        v = phys[n]
+        fields.append((n, pa.int64() if v.dtype.kind in "iu" else pa.float64()))
+    return pa.schema(fields)
