@@ -1,0 +1,273 @@
+"""The paper's whole experimental program as one campaign, run in ONE gateway session.
+
+::
+
+    from gateway import Gateway, GatewayConfig
+    from gateway.campaign import CampaignPlan, run_campaign
+
+    with Gateway(GatewayConfig(bus="udp_loopback:stand0", lockstep=True)) as gw:
+        result = run_campaign(gw, CampaignPlan.default(), "campaigns/c1")
+    print(result.stand_s, result.wall_s)
+
+The plan (dataclasses, defaults from the paper):
+
+* **meander** (Figs. 3-12): u0 = 5, 10, 15, 20 %, period 4 s, 4 periods each;
+* **pfeedback** (Figs. 13-18): k = 0.005 %/kgf, ω = 0.3142, 0.6283, 1.2566, 2.5133 rad/s ×
+  A_r = 1000, 2000, 3000 kgf, 10 s for the loop's transient plus 2 periods each;
+* **relay** (Figs. 19-23): u0 = 5, 10, 15, 20 % × r = −2500 … 2500 kgf in steps of 500, 3 s of
+  limit cycle each; r runs up for one amplitude and down for the next, so the force never has
+  to travel far between runs.
+
+Every experiment starts with the set-point approach (:class:`~gateway.experiments.meander.SetPointApproach`)
+and guards the force limit. Each writes its own run directory ``OUT/runs/NN-label``; the campaign
+writes ``OUT/campaign.json`` (plan, every run's outcome, stand and wall time). An experiment that
+stopped itself (force near the limit, set point not reached) is recorded and the campaign goes
+on; any other stop (supervisor: force limit, lost heartbeat, EMCY, ...) ends the campaign.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from tqdm import tqdm
+
+from .errors import ParameterError, StandError
+from .experiments import make_experiment
+from .experiments.meander import FORCE_NEAR_LIMIT, SET_POINT_NOT_REACHED
+from .recorder import write_json
+from .runs import TRUTH_FILE
+from .session import Gateway
+
+CAMPAIGN_FILE = "campaign.json"
+RUNS_DIR = "runs"
+FORMAT = "hydrostand-campaign/1"
+#: experiment-level stops after which the campaign goes on with the next experiment
+CONTINUE_AFTER = (FORCE_NEAR_LIMIT, SET_POINT_NOT_REACHED)
+#: stand time assumed for a set-point approach when planning (s)
+APPROACH_GUESS_S = 1.0
+
+
+@dataclass
+class MeanderPlan:
+    """Open-loop square waves, one run per amplitude (paper Figs. 3-12)."""
+
+    amplitudes_pct: tuple[float, ...] = (5.0, 10.0, 15.0, 20.0)
+    period_s: float = 4.0
+    cycles: int = 4
+    set_point_kgf: float = 0.0
+
+
+@dataclass
+class PFeedbackPlan:
+    """P feedback with a harmonic reference, one run per (ω, A_r) (paper Figs. 13-18)."""
+
+    gain: float = 0.005
+    omegas_rad_s: tuple[float, ...] = (0.3142, 0.6283, 1.2566, 2.5133)
+    amplitudes_kgf: tuple[float, ...] = (1000.0, 2000.0, 3000.0)
+    periods: float = 2.0
+    transient_s: float = 10.0
+    offset_kgf: float = 0.0
+
+
+@dataclass
+class RelayPlan:
+    """Relay feedback, one run per (u0, r) (paper Figs. 19-23)."""
+
+    amplitudes_pct: tuple[float, ...] = (5.0, 10.0, 15.0, 20.0)
+    references_kgf: tuple[float, ...] = tuple(float(r) for r in range(-2500, 2501, 500))
+    relay_s: float = 3.0
+    hysteresis_kgf: float = 0.0
+
+
+@dataclass
+class PlannedRun:
+    index: int
+    experiment: str
+    params: dict[str, Any]
+    label: str                      #: run directory name, e.g. ``07-relay-u10-r-500``
+    nominal_s: float                #: expected stand time (main phase + an approach guess), s
+
+
+@dataclass
+class CampaignPlan:
+    """Which experiments, with which grids. None leaves an experiment out."""
+
+    meander: MeanderPlan | None = field(default_factory=MeanderPlan)
+    pfeedback: PFeedbackPlan | None = field(default_factory=PFeedbackPlan)
+    relay: RelayPlan | None = field(default_factory=RelayPlan)
+    settle_max_s: float = 10.0
+
+    @classmethod
+    def default(cls) -> "CampaignPlan":
+        return cls()
+
+    @classmethod
+    def quick(cls) -> "CampaignPlan":
+        """A short campaign (about a minute of stand time): two points of every grid."""
+        return cls(meander=MeanderPlan(amplitudes_pct=(5.0, 20.0), period_s=4.0, cycles=2),
+                   pfeedback=PFeedbackPlan(omegas_rad_s=(1.2566, 2.5133), amplitudes_kgf=(2000.0,),
+                                           periods=1.5, transient_s=9.0),
+                   relay=RelayPlan(amplitudes_pct=(5.0, 20.0), references_kgf=(-500.0, 500.0),
+                                   relay_s=2.0))
+
+    def only(self, names: list[str]) -> "CampaignPlan":
+        """The plan restricted to some experiments."""
+        known = ("meander", "pfeedback", "relay")
+        bad = [n for n in names if n not in known]
+        if bad:
+            raise ParameterError(f"unknown experiment(s) {', '.join(bad)}; choose from {', '.join(known)}")
+        return CampaignPlan(**{n: (getattr(self, n) if n in names else None) for n in known},
+                            settle_max_s=self.settle_max_s)
+
+    def runs(self) -> list[PlannedRun]:
+        out: list[PlannedRun] = []
+        settle = {"settle_max_s": self.settle_max_s}
+
+        def add(name: str, params: dict, label: str) -> None:
+            exp = make_experiment(name, {**params, **settle})   # validates now, not mid-campaign
+            out.append(PlannedRun(len(out) + 1, name, {**params, **settle},
+                                  f"{len(out) + 1:02d}-{label}", exp.duration_s + APPROACH_GUESS_S))
+
+        if self.meander:
+            m = self.meander
+            for u0 in m.amplitudes_pct:
+                add("meander", {"amplitude_pct": u0, "period_s": m.period_s, "cycles": m.cycles,
+                                "set_point_kgf": m.set_point_kgf}, f"meander-u{u0:g}")
+        if self.pfeedback:
+            p = self.pfeedback
+            for w in p.omegas_rad_s:
+                for a in p.amplitudes_kgf:
+                    add("pfeedback", {"gain": p.gain, "amplitude_kgf": a, "omega_rad_s": w,
+                                      "periods": p.periods, "transient_s": p.transient_s,
+                                      "offset_kgf": p.offset_kgf}, f"pfeedback-w{w:g}-a{a:g}")
+        if self.relay:
+            rp = self.relay
+            for i, u0 in enumerate(rp.amplitudes_pct):
+                refs = list(rp.references_kgf) if i % 2 == 0 else list(reversed(rp.references_kgf))
+                for r in refs:
+                    add("relay", {"amplitude_pct": u0, "reference_kgf": r, "relay_s": rp.relay_s,
+                                  "hysteresis_kgf": rp.hysteresis_kgf}, f"relay-u{u0:g}-r{r:g}")
+        if not out:
+            raise ParameterError("the campaign plan has no experiment")
+        return out
+
+    def nominal_stand_s(self) -> float:
+        return sum(r.nominal_s for r in self.runs())
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class CampaignRun:
+    """One experiment of the campaign as it went."""
+
+    label: str
+    experiment: str
+    params: dict[str, Any]
+    path: str
+    status: str                     #: "complete" | "stopped"
+    reason: str | None
+    message: str | None
+    cycles: int
+    stand_s: float
+    wall_s: float
+
+
+@dataclass
+class CampaignResult:
+    out_dir: Path
+    runs: list[CampaignRun]
+    stand_s: float
+    wall_s: float
+    status: str                     #: "complete" | "partial" (some runs stopped) | "stopped" | "interrupted"
+    stopped_by: str | None = None   #: message when the campaign ended early
+
+    @property
+    def speedup(self) -> float:
+        return self.stand_s / self.wall_s if self.wall_s > 0 else float("nan")
+
+    @property
+    def run_dirs(self) -> list[Path]:
+        return [Path(r.path) for r in self.runs]
+
+
+def run_campaign(gw: Gateway, plan: CampaignPlan, out_dir: str | Path, progress: bool | None = None,
+                 truth: dict[str, Any] | None = None,
+                 on_run: Callable[[CampaignRun], None] | None = None) -> CampaignResult:
+    """Run every experiment of ``plan`` through the connected gateway ``gw``.
+
+    ``truth`` (the emulator's :meth:`PlantConfig.to_dict`) is written into every run directory as
+    ``truth.json``; the estimators never read it. ``progress``: a bar over the whole campaign's
+    stand time (None: when stderr is a terminal)."""
+    out = Path(out_dir)
+    if out.exists() and any(out.iterdir()):
+        raise StandError(f"{out} exists and is not empty; choose a new --out directory")
+    planned = plan.runs()
+    (out / RUNS_DIR).mkdir(parents=True, exist_ok=True)
+    period = gw.config.period_s
+    started = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    wall0 = time.monotonic()
+    done: list[CampaignRun] = []
+    state = {"status": "running", "stopped_by": None}
+
+    def save() -> None:
+        stand = sum(r.stand_s for r in done)
+        wall = time.monotonic() - wall0
+        write_json(out / CAMPAIGN_FILE, {
+            "format": FORMAT, "status": state["status"], "stopped_by": state["stopped_by"],
+            "bus": gw.config.bus, "clock": "lockstep" if gw.config.lockstep else "realtime",
+            "period_s": period, "started": started,
+            "ended": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "stand_s": stand, "wall_s": wall, "speedup": stand / wall if wall > 0 else None,
+            "plan": plan.to_dict(), "planned_runs": len(planned),
+            "runs": [asdict(r) for r in done], "emulated": truth is not None})
+
+    total = sum(p.nominal_s for p in planned)
+    bar = tqdm(total=round(total, 1), unit="s", desc="campaign", disable=None if progress is None else not progress,
+               bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s stand time "
+                          "[{elapsed}<{remaining}] {postfix}")
+    save()
+    try:
+        for i, p in enumerate(planned):
+            experiment = make_experiment(p.experiment, p.params)
+            base = sum(r.stand_s for r in done)
+            bar.set_postfix_str(f"{p.index}/{len(planned)} {p.label}")
+
+            def tick(t: float, base: float = base) -> None:
+                if base + t - bar.n >= 0.5:
+                    bar.update(base + t - bar.n)
+
+            t0 = time.monotonic()
+            result = gw.run(experiment, out / RUNS_DIR / p.label, progress=False, on_progress=tick)
+            if truth is not None:
+                write_json(result.path / TRUTH_FILE, truth)
+            stats = result.outcome.stats
+            run = CampaignRun(p.label, p.experiment, p.params, str(result.path), result.status,
+                              result.reason, result.outcome.message, stats.cycles, stats.cycles * period,
+                              time.monotonic() - t0)
+            done.append(run)
+            # re-plan the bar: what is done plus what is still to come
+            bar.total = round(sum(r.stand_s for r in done) + sum(q.nominal_s for q in planned[i + 1:]), 1)
+            bar.update(sum(r.stand_s for r in done) - bar.n)
+            if on_run is not None:
+                on_run(run)
+            save()
+            if result.reason is not None and result.reason not in CONTINUE_AFTER:
+                state["status"] = "stopped"
+                state["stopped_by"] = f"{p.label}: {result.reason}: {result.outcome.message}"
+                break
+        else:
+            state["status"] = "partial" if any(r.status != "complete" for r in done) else "complete"
+    except BaseException:
+        state["status"] = "interrupted"
+        state["stopped_by"] = "the campaign was interrupted"
+        raise
+    finally:
+        bar.close()
+        save()
+    stand = sum(r.stand_s for r in done)
+    return CampaignResult(out, done, stand, time.monotonic() - wall0, state["status"], state["stopped_by"])

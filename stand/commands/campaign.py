@@ -1,0 +1,96 @@
+"""``stand campaign``: the paper's three experiments as one campaign, then the report."""
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import os
+import sys
+import time
+from pathlib import Path
+
+from analysis.campaign_report import report_campaign
+from gateway import Gateway, GatewayConfig, SafetyLimits
+from gateway.campaign import CampaignPlan, run_campaign
+from gateway.errors import ParameterError
+from plant.config import load_plant_config
+from plant_emulator.process import EmulatorProcess
+
+from .common import add_node_ids, parse_assignments
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "campaign", help="run the paper's meander, P-feedback and relay experiments and report g and τ",
+        description="Run the paper's whole experimental program (open-loop meander, proportional "
+                    "feedback with a harmonic reference, relay feedback) in one gateway session, one "
+                    "run directory per experiment, then write the report: tables (CSV), figures (PNG) "
+                    "and a summary of g and τ with 95 %% intervals. By default the campaign starts its "
+                    "own emulator (lockstep, private loopback bus) and puts its truth beside the "
+                    "estimates; with --bus it drives whatever stand is on that bus.")
+    p.add_argument("--out", metavar="DIR", help="report directory (default campaigns/campaign-TIMESTAMP)")
+    p.add_argument("--quick", action="store_true", help="a short campaign (two points per grid, ~1 min of stand time)")
+    p.add_argument("--only", metavar="NAMES", help="comma-separated subset: meander,pfeedback,relay")
+    p.add_argument("--bus", default=None, metavar="SPEC",
+                   help="run against the stand on this bus instead of starting an emulator "
+                        "(e.g. socketcan:can0; add --lockstep for an emulator started with --lockstep)")
+    p.add_argument("--lockstep", action="store_true", help="with --bus: the stand is a lockstep emulator")
+    add_node_ids(p)
+    p.add_argument("--period-ms", type=float, default=2.0, help="control period, ms (default %(default)s)")
+    p.add_argument("--force-limit", type=float, default=9500.0, metavar="KGF",
+                   help="supervisor force limit, kgf; experiments stop themselves at 90 %% of it "
+                        "(default %(default)s)")
+    p.add_argument("--config", metavar="PLANT.toml", help="emulator plant configuration (own emulator only)")
+    p.add_argument("--model", metavar="SPEC", help="emulator model, e.g. base or base+reversal (own emulator only)")
+    p.add_argument("--set", action="append", metavar="NAME=VALUE",
+                   help="override an emulator parameter, e.g. --set g=130 --set reversal.boost=0 (repeatable)")
+    p.add_argument("--seed", type=int, default=1, help="emulator noise seed (default %(default)s)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--no-figures", action="store_true", help="tables and summary only")
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    plan = CampaignPlan.quick() if args.quick else CampaignPlan.default()
+    if args.only:
+        plan = plan.only([n.strip() for n in args.only.split(",") if n.strip()])
+    planned = plan.runs()
+    out = Path(args.out or f"campaigns/campaign-{dt.datetime.now():%Y%m%d-%H%M%S}")
+    progress = False if args.no_progress else None
+    period_s = args.period_ms / 1000.0
+    limits = SafetyLimits(force_limit_kgf=args.force_limit)
+    t0 = time.monotonic()
+    if args.bus is None:
+        config = load_plant_config(args.config, args.model, parse_assignments(args.set))
+        bus = f"udp_loopback:campaign-{os.getpid()}"
+        print(f"emulator: {config.model.spec} on {bus} (lockstep, separate process, seed {args.seed})")
+        print(f"campaign: {len(planned)} runs, about {plan.nominal_stand_s():.0f} s of stand time -> {out}/")
+        with EmulatorProcess(bus, config, lockstep=True, seed=args.seed):
+            with Gateway(GatewayConfig(bus=bus, lockstep=True, period_s=period_s, valve_id=args.valve_id,
+                                       dynamometer_id=args.dynamometer_id, limits=limits)) as gw:
+                result = run_campaign(gw, plan, out, progress=progress, truth=config.to_dict())
+    else:
+        if args.config or args.model or args.set:
+            raise ParameterError("--config, --model and --set describe the emulator the campaign starts "
+                                 "itself; with --bus the stand is whatever is on that bus")
+        print(f"stand on {args.bus} ({'lockstep' if args.lockstep else 'real time'})")
+        print(f"campaign: {len(planned)} runs, about {plan.nominal_stand_s():.0f} s of stand time -> {out}/")
+        with Gateway(GatewayConfig(bus=args.bus, lockstep=args.lockstep, period_s=period_s,
+                                   valve_id=args.valve_id, dynamometer_id=args.dynamometer_id,
+                                   limits=limits)) as gw:
+            result = run_campaign(gw, plan, out, progress=progress)
+    wall = time.monotonic() - t0
+    stopped = [r for r in result.runs if r.status != "complete"]
+    print(f"campaign {result.status}: {len(result.runs)}/{len(planned)} runs, {result.stand_s:.0f} s of "
+          f"stand time in {result.wall_s:.0f} s wall ({result.speedup:.1f}x real time; "
+          f"{wall:.0f} s with start-up)")
+    for r in stopped:
+        print(f"  {r.label} stopped ({r.reason}): {r.message}")
+    if result.stopped_by:
+        print(f"  the campaign ended early: {result.stopped_by}", file=sys.stderr)
+    report = report_campaign(out, figures=not args.no_figures)
+    print()
+    print(report.text)
+    print()
+    print(f"report: {out}/  (summary.txt, summary.csv, estimates.json, {len(report.tables) - 2} tables, "
+          f"{len(report.figures)} figures; runs/ holds {len(result.runs)} run directories)")
+    return 0 if result.status == "complete" and not report.failures else 1
