@@ -60,6 +60,7 @@ class StandSignals:
     """Names of the DBC signals that carry the loop (override for another DBC)."""
 
     force: str = "Force"
+    force_status: str = "ForceStatus"      #: optional: kept in the per-SYNC trace if present
     command: str = "Command"
     control_word: str = "ControlWord"
     status_word: str = "StatusWord"
@@ -167,7 +168,8 @@ class CycleAssembler:
     :meth:`finish`. Rows come out as ``(run_index, {column: array})``."""
 
     def __init__(self, decoder: FrameDecoder, signals: StandSignals | None = None,
-                 period_s: float | None = None, clock: str | None = None) -> None:
+                 period_s: float | None = None, clock: str | None = None,
+                 sync_trace: bool = False) -> None:
         if clock not in (None, "lockstep", "realtime"):
             raise ValueError(f"clock must be 'lockstep', 'realtime' or None (auto), not {clock!r}")
         self.sig = signals or StandSignals()
@@ -176,8 +178,9 @@ class CycleAssembler:
         self.valve_msg = decoder.find_signal(self.sig.status_word)
         self.command_msg = decoder.find_signal(self.sig.command)
         self.sync_msg = decoder.message(self.sig.sync_message)
+        self.has_force_status = any(x.name == self.sig.force_status for x in self.force_msg.signals)
         self.wanted = {
-            self.force_msg.name: [self.sig.force],
+            self.force_msg.name: [self.sig.force] + ([self.sig.force_status] if self.has_force_status else []),
             self.valve_msg.name: [self.sig.status_word, self.sig.spool],
             self.command_msg.name: [self.sig.control_word, self.sig.command],
             self.sync_msg.name: [],
@@ -189,13 +192,16 @@ class CycleAssembler:
         self.clock_arg = clock
         self.frames_seen = 0
         self.S = _Events(())
-        self.F = _Events(("counts", "f_y"))
+        self.F = _Events(("counts", "f_y", "fstatus"))
         self.V = _Events(("status", "f_spool"))
         self.R = _Events(("cw", "f_u"))
         self.P = _Events(("us",))
         self.sync_g0 = 0                # global index of self.S's first SYNC
         self.runs: list[RunInfo] = []
         self._out: list[tuple[int, dict]] = []
+        #: with ``sync_trace``: one entry per SYNC (also those that are not cycles), see :meth:`take_trace`
+        self.sync_trace = sync_trace
+        self._trace: list[tuple[int, dict]] = []
         self._new_run(0)
 
     # -- input -----------------------------------------------------------------------------
@@ -207,7 +213,9 @@ class CycleAssembler:
             self.S.add(base + d.index, d.ts)
         if self.force_msg.name in decoded:
             d = decoded[self.force_msg.name]
-            self.F.add(base + d.index, d.ts, counts=d.raw[self.sig.force], f_y=d.phys[self.sig.force])
+            status = d.raw[self.sig.force_status] if self.has_force_status else np.zeros(len(d.index), np.int64)
+            self.F.add(base + d.index, d.ts, counts=d.raw[self.sig.force], f_y=d.phys[self.sig.force],
+                       fstatus=status.astype(np.int64))
         if self.valve_msg.name in decoded:
             d = decoded[self.valve_msg.name]
             self.V.add(base + d.index, d.ts, status=d.raw[self.sig.status_word].astype(np.int64),
@@ -242,6 +250,13 @@ class CycleAssembler:
         out, self._out = self._out, []
         return out
 
+    def take_trace(self) -> list[tuple[int, dict]]:
+        """Per-SYNC force trace (``sync_trace=True``): (run, {"y_counts", "force_status",
+        "fresh", "is_cycle", "sync_time"}) — every SYNC of the run, including the last one,
+        which answers with a force but ends the run."""
+        out, self._trace = self._trace, []
+        return out
+
     def finish(self) -> list[tuple[int, dict]]:
         self._process(final=True)
         run = self.runs[-1]
@@ -260,6 +275,7 @@ class CycleAssembler:
         self.valve_off = 0
         self.cycle = 0
         self.last = {"y": math.nan, "y_counts": 0, "spool": math.nan, "valve_status": 0}
+        self.last_fstatus = 0
         self.last_n = -1
         self.t_origin: float | None = None
 
@@ -446,6 +462,12 @@ class CycleAssembler:
         run.syncs_without_row += int(len(g) - rows_n)
         if rows_n:
             self._out.append((run.index, rows))
+        if self.sync_trace and len(g):
+            fstatus = _ffill(np.where(f_fresh, self.F.v["fstatus"][f_idx] if len(self.F) else 0, 0),
+                             f_fresh, self.last_fstatus)
+            self.last_fstatus = int(fstatus[-1])
+            self._trace.append((run.index, {"y_counts": y_counts.astype(np.int32), "force_status": fstatus,
+                                            "fresh": f_fresh, "is_cycle": is_row, "sync_time": sync_ts}))
         # consume what was used
         self.next_g = hi
         self.force_j, self.force_off = self._consume(self.F, fa, foff, hi, self.force_j, self.force_off)

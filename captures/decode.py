@@ -83,6 +83,8 @@ class DecodeResult:
     elapsed_s: float
     force_scale: float
     signals: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
+    #: with ``trace=True``: per-SYNC force trace of each run (see CycleAssembler.take_trace)
+    traces: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
     outputs: list[Path] = field(default_factory=list)
     frames_dir: Path | None = None
 
@@ -265,7 +267,7 @@ class _FramesOutput:
 
 def decode_capture(path: str | Path, out: str | Path | None = None, *, collect: bool = True,
                    partition_rows: int | None = None, frames_dir: str | Path | None = None,
-                   progress: bool = False, options: DecodeOptions | None = None,
+                   progress: bool = False, trace: bool = False, options: DecodeOptions | None = None,
                    **option_kwargs) -> DecodeResult:
     """Decode a capture into control-cycle rows (the gateway's run format).
 
@@ -275,6 +277,7 @@ def decode_capture(path: str | Path, out: str | Path | None = None, *, collect: 
     collect : keep the rows in memory (``result.signals[run]``); turn off for huge captures
     partition_rows : split the Parquet output into part files of at most this many rows
     frames_dir : also write every decoded message as a Parquet dataset here
+    trace : also keep the per-SYNC force trace of every run (``result.traces[run]``)
     options / option_kwargs : :class:`DecodeOptions` (dbc, period_s, clock, channel, run, ...)
     """
     opts = options or DecodeOptions(**option_kwargs)
@@ -284,12 +287,13 @@ def decode_capture(path: str | Path, out: str | Path | None = None, *, collect: 
     fmt = capture_format(path)
     decoder = FrameDecoder(opts.dbc, channel=opts.channel)
     try:
-        assembler = CycleAssembler(decoder, opts.signals, opts.period_s, opts.clock)
+        assembler = CycleAssembler(decoder, opts.signals, opts.period_s, opts.clock, sync_trace=trace)
     except (ValueError, DataError) as exc:
         raise CaptureError(f"the DBC does not describe the stand's loop: {exc}") from None
     scale_codec = assembler.force_scale
     force_scale = float(scale_codec.scale)
     collected: dict[int, list[dict]] = {}
+    traced: dict[int, list[dict]] = {}
     outputs = _RunOutputs(prepare_run_dir(out), partition_rows, opts.run) if out is not None else None
     frames_out = _FramesOutput(Path(frames_dir), partition_rows) if frames_dir is not None else None
     wanted = None if frames_out is not None else assembler.wanted
@@ -299,6 +303,9 @@ def decode_capture(path: str | Path, out: str | Path | None = None, *, collect: 
         bar = tqdm(total=_size(path), unit="B", unit_scale=True, desc=f"decode {path.name}", leave=False)
 
     def deliver(pieces):
+        for run, part in assembler.take_trace():
+            if opts.run is None or run == opts.run:
+                traced.setdefault(run, []).append(part)
         for run, rows in pieces:
             if collect and (opts.run is None or run == opts.run):
                 collected.setdefault(run, []).append(rows)
@@ -332,6 +339,8 @@ def decode_capture(path: str | Path, out: str | Path | None = None, *, collect: 
                           force_scale, frames_dir=Path(frames_dir) if frames_dir else None)
     result.signals = {run: {c: np.concatenate([p[c] for p in parts]) for c in COLUMNS}
                       for run, parts in collected.items()}
+    result.traces = {run: {c: np.concatenate([p[c] for p in parts]) for c in parts[0]}
+                     for run, parts in traced.items()}
     if outputs is not None:
         result.outputs = outputs.finish(result)
     return result
