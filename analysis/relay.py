@@ -67,7 +67,7 @@ from .meander import _clipped_mask, mean_ci
 
 #: π²/8: the factor by which eq. (4) with the peak overestimates g for a triangle
 DF_PEAK_BIAS = math.pi ** 2 / 8
-#: relative asymmetry above which it is reported as a warning
+#: relative asymmetry above which it is reported as a warning (if also beyond 3 standard errors)
 ASYMMETRY_WARN = 0.05
 
 
@@ -333,7 +333,10 @@ def estimate_relay(rec: Record, hysteresis_kgf: float | None = None,
         peak_above_kgf=float(peaks.mean() - r), trough_below_kgf=float(r - troughs.mean()),
         plus_s=plus_s, minus_s=minus_s, cycles=len(g_c), start_s=float(t[events[0][3]]),
         apexes=[(float(a), float(b)) for a, b, _ in apexes], warnings=warnings)
-    _asymmetry_warnings(est)
+    _asymmetry_warnings(est, {
+        "slope_rise_vs_fall": _se_rel_diff(a_c, b_c),
+        "time_plus_vs_minus": _se_rel_diff(dur[ev_d[:-1] > 0], dur[ev_d[:-1] < 0]),
+        "peak_above_vs_below": _se_rel_diff(peaks - r, r - troughs)})
     if rec.meta.get("clock") == "realtime":
         warnings.append("real-time run: τ includes the bus latency from each SYNC to the command "
                         "acting (only the sampling's T/2 is corrected)")
@@ -343,8 +346,18 @@ def estimate_relay(rec: Record, hysteresis_kgf: float | None = None,
     return est
 
 
-def _asymmetry_warnings(est: RelayEstimate) -> None:
-    asym = est.asymmetry
+def _se_rel_diff(a, b) -> float:
+    """Standard error of the relative difference (ā − b̄)/((ā + b̄)/2) of two samples."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    if len(a) < 2 or len(b) < 2:
+        return math.inf
+    se = math.sqrt(a.var(ddof=1) / len(a) + b.var(ddof=1) / len(b))
+    return se / abs((a.mean() + b.mean()) / 2)
+
+
+def _asymmetry_warnings(est: RelayEstimate, se: dict[str, float]) -> None:
+    """Warn about an asymmetry larger than 5 % AND than three standard errors (not noise)."""
+    asym = {k: (v if abs(v) > max(ASYMMETRY_WARN, 3 * se[k]) else 0.0) for k, v in est.asymmetry.items()}
     if abs(asym["slope_rise_vs_fall"]) > ASYMMETRY_WARN:
         faster = "rise" if asym["slope_rise_vs_fall"] > 0 else "fall"
         est.warnings.append(

@@ -6,6 +6,7 @@ import datetime as dt
 import os
 import sys
 import time
+import uuid
 from pathlib import Path
 
 from analysis.campaign_report import report_campaign
@@ -61,7 +62,7 @@ def main(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     if args.bus is None:
         config = load_plant_config(args.config, args.model, parse_assignments(args.set))
-        bus = f"udp_loopback:campaign-{os.getpid()}"
+        bus = f"udp_loopback:campaign-{os.getpid()}-{uuid.uuid4().hex[:6]}"   # private channel
         print(f"emulator: {config.model.spec} on {bus} (lockstep, separate process, seed {args.seed})")
         print(f"campaign: {len(planned)} runs, about {plan.nominal_stand_s():.0f} s of stand time -> {out}/")
         with EmulatorProcess(bus, config, lockstep=True, seed=args.seed):
