@@ -337,7 +337,10 @@ class CycleAssembler:
         elif run.period_us_written:
             run.period_s, run.period_source = run.period_us_written[-1] / 1e6, "SDO 0x1006"
         elif median:
-            run.period_s, run.period_source = median, "median SYNC interval"
+            # CANopen periods are whole µs (0x1006); float timestamps near 1.7e9 s are only
+            # good to ~0.2 µs, so the median is rounded to the µs
+            run.period_s = round(median * 1e6) / 1e6 if median >= 1e-4 else median
+            run.period_source = "median SYNC interval"
         else:
             run.period_s, run.period_source = math.nan, "unknown (one SYNC)"
         if self.clock_arg is not None:

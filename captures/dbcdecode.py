@@ -94,9 +94,10 @@ class SignalCodec:
 
     def physical(self, raw: np.ndarray) -> np.ndarray:
         if self.is_float:
-            value = (raw.astype(np.uint32).view(np.float32).astype(np.float64) if self.length == 32
-                     else raw.view(np.float64))
-            return value * self.scale + self.offset
+            with np.errstate(invalid="ignore", over="ignore"):   # NaN/inf payloads stay NaN/inf
+                value = (raw.astype(np.uint32).view(np.float32).astype(np.float64) if self.length == 32
+                         else raw.view(np.float64))
+                return value * self.scale + self.offset
         if self.integer:
             return raw.astype(np.int64)
         return raw.astype(np.float64) * self.scale + self.offset

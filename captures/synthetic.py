@@ -91,7 +91,7 @@ def stand_frames(run: SyntheticRun, start_s: float = 1_700_000_000.0, channel: s
     n_syncs = run.cycles + 1
     for k0 in range(0, n_syncs, block_cycles):
         k = np.arange(k0, min(n_syncs, k0 + block_cycles))
-        yield _cycles_chunk(run, k, base + k * step_us, heartbeat_every, channel)
+        yield _cycles_chunk(run, k, base + k * step_us, heartbeat_every, channel, step_us / 2000)
     end_us = base + n_syncs * step_us
     safe = [(end_us + i, 0x201, True, bytes([int(P.CW_HOLD), 0, 0, 0])) for i in range(2)]
     yield _chunk(safe, channel)
@@ -119,7 +119,7 @@ def _chunk(frames: list[tuple], channel: str) -> FrameChunk:
 
 
 def _cycles_chunk(run: SyntheticRun, k: np.ndarray, sync_us: np.ndarray, heartbeat_every: int,
-                  channel: str) -> FrameChunk:
+                  channel: str, squeeze: float = 1.0) -> FrameChunk:
     n = len(k)
     row = k < run.cycles
     counter = (k % P.SYNC_COUNTER_OVERFLOW + 1).astype(np.uint8)
@@ -131,7 +131,7 @@ def _cycles_chunk(run: SyntheticRun, k: np.ndarray, sync_us: np.ndarray, heartbe
         m = int(sel.sum()) if sel.dtype == bool else len(sel)
         data = np.zeros((m, 8), np.uint8)
         data[:, :payload.shape[1]] = payload
-        parts.append((k[sel] * 8 + slot, sync_us[sel] + offset_us, np.full(m, cob, np.uint32),
+        parts.append((k[sel] * 8 + slot, sync_us[sel] + int(offset_us * min(squeeze, 1.0)), np.full(m, cob, np.uint32),
                       np.full(m, TX if tx else 0, np.uint8), np.full(m, payload.shape[1], np.uint8), data))
 
     every = np.ones(n, bool)
