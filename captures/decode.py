@@ -368,6 +368,11 @@ def load_capture(path: str | Path, strict: bool = False, **options):
                             for r in runs)
         raise DataError(f"{path} holds {len(runs)} runs ({listing}); choose one with run=N "
                         "(stand decode --run N)")
+    if result.options.run is not None:
+        runs = [r for r in runs if r.index == result.options.run]
+        if not runs:
+            raise DataError(f"{path}: there is no run {result.options.run}; the capture holds runs "
+                            f"{', '.join(str(r.index) for r in result.runs_with_rows())}")
     run = runs[0]
     sig = result.signals[run.index]
     rec = make_record(sig["t"], sig["u"], sig["y"], sig["r"], source=str(path), experiment=None,
