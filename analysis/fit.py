@@ -56,6 +56,8 @@ WINDOW_S = 2.0
 LEAD_S = 0.5
 #: relative tolerance on the cost and the step of the polishing least squares
 FTOL = 1e-7
+#: looser tolerance for screening fits (ranking candidates needs the error to ~0.1 %, not more)
+SCREEN_TOL = 1e-4
 #: relative finite-difference step of the Jacobian (in the optimizer's coordinates)
 DIFF_STEP = 1e-6
 
@@ -106,9 +108,36 @@ def lead_samples(n: int, dt: float, window: int, lead_s: float = LEAD_S) -> int:
     return int(min(round(lead_s / dt), window // 4, n // 10))
 
 
+def clipped_mask(y: np.ndarray, run: int = 5) -> np.ndarray:
+    """Samples where the dynamometer sits at the record's extreme value for ``run`` or more
+    samples in a row: a reading clipped at its range (the true force is unknown there)."""
+    y = np.asarray(y, float)
+    mask = np.zeros(len(y), bool)
+    for extreme in (y.max(), y.min()):
+        at = np.concatenate([[0], (y == extreme).astype(int), [0]])
+        edges = np.flatnonzero(np.diff(at))
+        for a, b in zip(edges[::2], edges[1::2]):
+            if b - a >= run:
+                mask[a:b] = True
+    return mask
+
+
+def valid_stretches(rec: Record, min_samples: int) -> list[tuple[int, int]]:
+    """``(start, stop)`` of the stretches of a record whose force reading is not clipped, at
+    least ``min_samples`` long."""
+    bad = clipped_mask(rec.y)
+    if not bad.any():
+        return [(0, len(rec.y))]
+    z = np.concatenate([[1], bad.astype(int), [1]])
+    edges = np.flatnonzero(np.diff(z))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2]) if b - a >= min_samples]
+
+
 def pieces_from_records(records: Sequence[Record], window_s: float = WINDOW_S,
                         lead_s: float = LEAD_S) -> list[Piece]:
-    """One piece per record: all its windows after the lead-in."""
+    """The evaluated pieces of a data set: one per record, after its lead-in, or one per
+    unclipped stretch when the force reading hits the dynamometer's range (the clipped samples
+    only carry the command history into the next stretch)."""
     if not records:
         raise DataError("no data to fit")
     out = []
@@ -116,7 +145,20 @@ def pieces_from_records(records: Sequence[Record], window_s: float = WINDOW_S,
         n = len(rec.u)
         w = window_samples(rec.dt, window_s)
         lead = lead_samples(n, rec.dt, w, lead_s)
-        out.append(Piece(rec.u, rec.y, rec.dt, max(2, min(w, n - lead)), lead, i, 0, float(rec.t[0])))
+        stretches = valid_stretches(rec, max(2, w // 4))
+        if stretches == [(0, n)]:
+            out.append(Piece(rec.u, rec.y, rec.dt, max(2, min(w, n - lead)), lead, i, 0, float(rec.t[0])))
+            continue
+        for a, b in stretches:
+            first = max(a, lead)
+            if b - first < 2:
+                continue
+            s0 = max(0, first - max(lead, int(round(lead_s / rec.dt))))
+            out.append(Piece(rec.u[s0:b], rec.y[s0:b], rec.dt, max(2, min(w, b - first)),
+                             first - s0, i, s0, float(rec.t[s0])))
+    if not out:
+        raise DataError("no usable data: every record is too short or its force reading is "
+                        "clipped at the dynamometer's range throughout")
     return out
 
 
@@ -131,24 +173,26 @@ def screening_pieces(records: Sequence[Record], window_s: float = WINDOW_S,
     if total <= max_windows:
         return full, False
     n_chunks = max(1, max_windows // chunk_windows)
-    # chunks per record in proportion to its windows
+    # chunks per piece in proportion to its windows
     share = np.array([p.n_windows for p in full], float)
-    alloc = np.maximum(1, np.floor(n_chunks * share / share.sum())).astype(int)
+    alloc = np.floor(n_chunks * share / share.sum()).astype(int)
     out: list[Piece] = []
     for p, n in zip(full, alloc):
+        if n <= 0:
+            continue
         W = p.window
         span = chunk_windows * W
         warm = int(round(warmup_s / p.dt))
         N = len(p.u)
-        if N <= span + warm or n * span >= N:
+        if N - p.warmup <= span or n * span >= N - p.warmup:
             out.append(p)
             continue
-        starts = np.linspace(max(warm, p.warmup), N - span, n).astype(int)
+        starts = np.linspace(p.warmup, N - span, n).astype(int)
         for s in starts:
             a = max(0, s - warm)
-            out.append(Piece(p.u[a:s + span], p.y[a:s + span], p.dt, W, s - a, p.record, a,
-                             p.t0 + a * p.dt))
-    return out, True
+            out.append(Piece(p.u[a:s + span], p.y[a:s + span], p.dt, W, s - a, p.record,
+                             p.start + a, p.t0 + a * p.dt))
+    return (out or full), bool(out)
 
 
 def simulate_piece(model: PlantModel, piece: Piece) -> np.ndarray:
@@ -476,7 +520,7 @@ class FitResult:
 
 
 def _polish(par: Parameterization, pieces: Sequence[Piece], values: Mapping[str, float],
-            max_nfev: int | None) -> tuple[np.ndarray, optimize.OptimizeResult]:
+            max_nfev: int | None, tol: float = 1e-7) -> tuple[np.ndarray, optimize.OptimizeResult]:
     lo, hi = par.bounds()
     x0 = par.to_x(values)
     # keep x0 strictly inside the bounds (TRF requirement)
@@ -489,7 +533,7 @@ def _polish(par: Parameterization, pieces: Sequence[Piece], values: Mapping[str,
     if max_nfev is None:
         max_nfev = 40 * (len(x0) + 1)
     res = optimize.least_squares(fun, x0, bounds=(lo, hi), method="trf", x_scale="jac",
-                                 diff_step=DIFF_STEP, max_nfev=max_nfev, ftol=FTOL, xtol=FTOL)
+                                 diff_step=DIFF_STEP, max_nfev=max_nfev, ftol=tol, xtol=tol)
     return res.x, res
 
 
@@ -502,7 +546,7 @@ def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
               max_nfev: int | None = None, n_polish: int = 2,
               extra_starts: Sequence[Mapping[str, float]] = (),
               grid_effects: Sequence[str] | None = None, delay_search: bool = True,
-              covariance: bool = True) -> FitResult:
+              covariance: bool = True, tol: float | None = None) -> FitResult:
     """Fit ``model`` (a spec like ``"base+reversal"`` or a :class:`PlantModel` whose values are
     a start) to records (or prepared pieces) by least squares on the windowed free-run error.
 
@@ -528,7 +572,7 @@ def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
 
     if not free:
         r = residual(model, pieces)
-        return _result(model, Parameterization(spec, given, []), pieces, r, None, 0, True,
+        return _result(model, Parameterization(spec, given, []), pieces, r, 0, True,
                        "all parameters fixed", covariance=False)
     candidates.append(project(given)[::-1])
     for s in extra_starts:
@@ -564,7 +608,7 @@ def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
             break  # further starts are clearly worse: one polish is enough
         budget = max_nfev if not seen else min(max_nfev or 10 ** 9, 15 * (len(free) + 1))
         seen.append(key)
-        x, res = _polish(par, pieces, vals, budget)
+        x, res = _polish(par, pieces, vals, budget, FTOL if tol is None else tol)
         if best is None or res.cost < best[1].cost:
             best = (x, res)
     x, res = best
@@ -573,12 +617,11 @@ def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
     if 2 * res.cost > sse_best * (1 + 1e-9):
         x = par.to_x(vals_best)
         r = residual(par.model(x), pieces)
-        J = _jacobian(par, pieces, x, r) if covariance else None
-        return _result(par.model(x), par, pieces, r, J, res.nfev, False,
+        return _result(par.model(x), par, pieces, r, res.nfev, False,
                        "kept the best start value: the polish did not improve on it",
                        covariance=covariance)
     fitted = par.model(x)
-    return _result(fitted, par, pieces, res.fun, res.jac, res.nfev, bool(res.success),
+    return _result(fitted, par, pieces, res.fun, res.nfev, bool(res.success),
                    str(res.message), covariance=covariance)
 
 
@@ -605,8 +648,9 @@ def _as_pieces(data, window_s: float) -> list[Piece]:
 
 
 def _result(model: PlantModel, par: Parameterization, pieces: Sequence[Piece], r: np.ndarray,
-            jac: np.ndarray | None, nfev: int, success: bool, message: str,
-            covariance: bool = True) -> FitResult:
+            nfev: int, success: bool, message: str, covariance: bool = True) -> FitResult:
+    """Package a solution: per-window errors, intervals from a fresh forward-difference Jacobian
+    at the solution (parameters at a bound are held there and get no interval)."""
     labels = window_labels(pieces)
     nw = int(labels[-1]) + 1 if len(labels) else 0
     wsse = np.bincount(labels, weights=r * r, minlength=nw)
@@ -617,13 +661,24 @@ def _result(model: PlantModel, par: Parameterization, pieces: Sequence[Piece], r
     est: dict[str, ParamEstimate] = {}
     corr = None
     warnings: list[str] = []
-    cov_x = None
-    if covariance and jac is not None and par.free:
-        cov_x, corr, singular = _cluster_covariance(np.asarray(jac), r, labels, nw)
-    else:
-        singular = np.zeros(len(par.free), bool)
     lo_b, hi_b = par.bounds()
     x = par.to_x(values) if par.free else np.array([])
+    span = hi_b - lo_b
+    at_bound = (x - lo_b < 1e-6 * np.maximum(1.0, span)) | (hi_b - x < 1e-6 * np.maximum(1.0, span))
+    inner = [i for i in range(len(par.free)) if not at_bound[i]]
+    cov_x = None
+    singular = np.zeros(len(par.free), bool)
+    if covariance and inner:
+        # the Jacobian of the interior parameters (those at a bound are held there)
+        sub = Parameterization(par.spec, values, [par.free[i] for i in inner])
+        J = _jacobian(sub, pieces, sub.to_x(values), r)
+        cov_i, corr_i, sing_i = _cluster_covariance(J, r, labels, nw)
+        cov_x = np.full((len(par.free), len(par.free)), np.nan)
+        corr = np.full_like(cov_x, np.nan)
+        if cov_i is not None:
+            cov_x[np.ix_(inner, inner)] = cov_i
+            corr[np.ix_(inner, inner)] = corr_i
+        singular[inner] = sing_i
     tq = stats.t.ppf(0.975, max(1, nw - len(par.free))) if nw > len(par.free) else math.inf
     for name, p in specs.items():
         v = values[name]
@@ -631,11 +686,16 @@ def _result(model: PlantModel, par: Parameterization, pieces: Sequence[Piece], r
             est[name] = ParamEstimate(name, v, math.nan, math.nan, math.nan, p.unit, fixed=True)
             continue
         i = par.free.index(name)
-        span = hi_b[i] - lo_b[i]
-        at_bound = bool(x[i] - lo_b[i] < 1e-6 * max(1.0, span) or hi_b[i] - x[i] < 1e-6 * max(1.0, span))
-        sd = math.sqrt(cov_x[i, i]) if cov_x is not None and cov_x[i, i] >= 0 else math.nan
-        ident = not singular[i] and math.isfinite(sd)
-        if not ident:
+        if at_bound[i]:
+            est[name] = ParamEstimate(name, v, math.nan, math.nan, math.nan, p.unit, at_bound=True)
+            warnings.append(f"{name} = {v:g} {p.unit} sits at its bound [{p.lower:g}, {p.upper:g}]")
+            continue
+        sd = math.sqrt(cov_x[i, i]) if cov_x is not None and np.isfinite(cov_x[i, i]) and cov_x[i, i] >= 0 \
+            else math.nan
+        ident = not singular[i] and math.isfinite(sd) if covariance else True
+        if not covariance:
+            low = high = se = math.nan
+        elif not ident:
             low, high, se = -math.inf, math.inf, math.inf
         elif p.log:
             k = min(tq * sd, 700.0)
@@ -643,12 +703,9 @@ def _result(model: PlantModel, par: Parameterization, pieces: Sequence[Piece], r
             se = v * sd
         else:
             low, high, se = v - tq * sd, v + tq * sd, sd
-        if ident:
+        if ident and covariance:
             low, high = max(low, p.lower), min(high, p.upper)
-        est[name] = ParamEstimate(name, v, se, low, high, p.unit, at_bound=at_bound, identifiable=ident)
-        if at_bound:
-            warnings.append(f"{name} = {v:g} {p.unit} sits at its bound "
-                            f"[{p.lower:g}, {p.upper:g}]: the data push it beyond its physical range")
+        est[name] = ParamEstimate(name, v, se, low, high, p.unit, identifiable=ident)
         if not ident:
             warnings.append(f"{name} is not identifiable from these data (the error does not "
                             "change along it, or only together with another parameter)")

@@ -13,11 +13,18 @@ that history (the commands before the record are unknown). With ``ŷ`` the simul
 
 overall, per window and per regime.
 
+**Noise σ.** From second differences (white noise: ``var Δ²e = 6σ²``), taken of the model's
+residual inside its windows, where the force's corners the model reproduces have cancelled
+(:func:`residual_noise_sigma`; of the force itself, :func:`noise_sigma`, when no model is at hand);
+remaining outliers (beyond five robust standard deviations) are dropped.
+
 **Noise floor.** A perfect model still shows the measurement noise twice: in the sample and in
-the window's starting value, ``r_k = e_0 − e_k``, so the floor is ``σ² + mean_w(e_{0,w}²)``
-(≈ ``2σ²``). σ comes from the second differences of the force, ``σ̂ = 1.4826·MAD(Δ²y)/√6``
-(robust to the corners of the command); the window-start errors ``e_0`` are estimated from the
-first samples of each window.
+the window's starting value, ``r_k = e_0 − e_k``, so the floor is ``√2·σ`` (the first sample of a
+window has no error: ``σ·sqrt(2(1 − 1/W))``). σ comes from the second differences of the force
+(:func:`noise_sigma`, robust to the corners of the command). With few windows the actual floor
+scatters around this value (the window starts are few noise draws); the fit and the diagnosis
+therefore judge models on the error with re-estimated window starts, whose floor is
+``σ·sqrt(1 − 1/W)`` and does not scatter.
 
 **Regimes.** The rod's direction is the sign of the delayed command ``u(t − τ)``:
 
@@ -50,8 +57,6 @@ from .fit import LEAD_S, WINDOW_S, Piece, pieces_from_records, simulate_piece
 
 #: length of the "just after a reversal" regime, s
 AFTER_REVERSAL_S = 0.2
-#: horizon used to estimate each window's starting error, s
-START_HORIZON_S = 0.02
 
 
 # ------------------------------------------------------------------------------------------
@@ -77,6 +82,29 @@ def noise_sigma(y: np.ndarray) -> float:
     return float(math.sqrt(np.mean(d2[keep] ** 2) / 6))
 
 
+def residual_noise_sigma(sims: Sequence["RecordSimulation"]) -> float:
+    """σ̂ from the second differences of the model's residual inside its windows: the same
+    estimator as :func:`noise_sigma`, but the corners of the force that the model reproduces
+    (every command switch delayed by τ, frequent in relay data) are gone first."""
+    d2s = []
+    for s in sims:
+        r = s.r
+        if len(r) < 5:
+            continue
+        d2 = r[2:] - 2 * r[1:-1] + r[:-2]
+        h = s.horizon
+        inside = (h[2:] >= 2)  # all three samples in the same window
+        d2s.append(d2[inside])
+    if not d2s:
+        return math.nan
+    d2 = np.concatenate(d2s)
+    spread = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) or float(np.std(d2))
+    if spread == 0.0:
+        return 0.0
+    keep = np.abs(d2) <= 5 * spread
+    return float(math.sqrt(np.mean(d2[keep] ** 2) / 6))
+
+
 def pooled_noise_sigma(records: Sequence[Record]) -> float:
     num = sum(noise_sigma(r.y) ** 2 * len(r) for r in records)
     return math.sqrt(num / sum(len(r) for r in records))
@@ -87,7 +115,8 @@ def pooled_noise_sigma(records: Sequence[Record]) -> float:
 # ------------------------------------------------------------------------------------------
 @dataclass
 class RecordSimulation:
-    """Windowed simulation of one record (evaluated samples only: after the lead-in)."""
+    """Windowed simulation of one record (or one unclipped stretch of it): the evaluated samples
+    only, after the lead-in."""
 
     record: Record
     start: int                  #: index of the first evaluated sample in the record
@@ -97,6 +126,7 @@ class RecordSimulation:
     u: np.ndarray               #: command, %
     q: np.ndarray               #: delayed command u(t − τ) (whole samples), %
     t: np.ndarray               #: time, s
+    index: int = 0              #: index of the record in the data set
 
     @property
     def r(self) -> np.ndarray:
@@ -115,12 +145,15 @@ class RecordSimulation:
 def simulate_records(model: PlantModel, records: Sequence[Record],
                      window_s: float = WINDOW_S) -> list[RecordSimulation]:
     out = []
-    for rec, piece in zip(records, pieces_from_records(records, window_s)):
+    for piece in pieces_from_records(records, window_s):
+        rec = records[piece.record]
         yhat = simulate_piece(model, piece)
-        a = piece.warmup
+        a = piece.start + piece.warmup
+        b = piece.start + len(piece.u)
         m = int(round(model.tau / rec.dt))
         q = np.concatenate([np.full(m, rec.u[0]), rec.u])[:len(rec.u)] if m else rec.u
-        out.append(RecordSimulation(rec, a, piece.window, rec.y[a:], yhat, rec.u[a:], q[a:], rec.t[a:]))
+        out.append(RecordSimulation(rec, a, piece.window, rec.y[a:b], yhat, rec.u[a:b], q[a:b],
+                                    rec.t[a:b], piece.record))
     return out
 
 
@@ -143,7 +176,7 @@ class RegimeStat:
     rmse: float               #: kgf
     sse_share: float          #: share of the squared error
     rate_bias: float          #: mean slope error of the model, kgf/s (model minus measured)
-    rate_bias_rel: float      #: rate_bias / mean model slope (signed), NaN if no slope
+    rate_bias_rel: float      #: slope error along the motion / model speed (+: model too fast)
 
 
 @dataclass
@@ -178,6 +211,8 @@ class Evaluation:
     n: int
     noise_sigma: float        #: σ̂ of the measurement noise, kgf
     noise_floor: float        #: RMSE a perfect model would show, kgf
+    rmse_adjusted: float      #: RMSE with each window's start re-estimated (the fit's objective), kgf
+    adjusted_floor: float     #: its noise floor ``σ·sqrt(1 − 1/W)``, kgf
     windows: list[WindowStat]
     regimes: list[RegimeStat]
     whiteness: CorrelationTest
@@ -199,7 +234,8 @@ class Evaluation:
         return {"rmse": self.rmse, "fit_percent": self.fit_percent, "n_samples": self.n,
                 "n_windows": len(self.windows), "window_s": self.window_s,
                 "noise_sigma": self.noise_sigma, "noise_floor_rmse": self.noise_floor,
-                "rmse_over_floor": self.excess_ratio}
+                "rmse_over_floor": self.excess_ratio, "rmse_start_adjusted": self.rmse_adjusted,
+                "start_adjusted_floor": self.adjusted_floor}
 
     def to_dict(self) -> dict:
         d = self.summary()
@@ -213,24 +249,32 @@ class Evaluation:
 
 
 def evaluate(model: PlantModel, records: Sequence[Record], window_s: float = WINDOW_S,
-             max_lag_s: float = 0.25) -> Evaluation:
+             max_lag_s: float = 0.25, sigma: float | None = None) -> Evaluation:
     """Windowed free-run error of ``model`` on ``records``, per window and regime, with the
-    residual tests. See the module docstring for the definitions."""
+    residual tests. See the module docstring for the definitions. ``sigma``: the noise σ if
+    already known (else estimated from this model's residual, or the force itself)."""
     sims = simulate_records(model, records, window_s)
     y = np.concatenate([s.y for s in sims])
     r = np.concatenate([s.r for s in sims])
     n = len(r)
     rmse = float(math.sqrt(np.mean(r ** 2)))
     fit = _fit_percent(y, r)
-    sigma = pooled_noise_sigma(records)
+    if sigma is None:
+        sigma = residual_noise_sigma(sims)
+        if not math.isfinite(sigma):
+            sigma = pooled_noise_sigma(records)
     floor = noise_floor(sims, sigma)
     windows = window_stats(sims)
+    radj = np.concatenate(demeaned_residual(sims))
+    rmse_adj = float(math.sqrt(np.mean(radj ** 2)))
+    adj_floor = floor / math.sqrt(2.0)
     regimes = regime_stats(sims, model.tau)
     dt = min(s.record.dt for s in sims)
     L = int(max(10, min(250, round(max_lag_s / dt))))
     white = whiteness_test(sims, L)
     cross = input_correlation_test(sims, L)
-    return Evaluation(model, window_s, sims, rmse, fit, n, sigma, floor, windows, regimes, white, cross)
+    return Evaluation(model, window_s, sims, rmse, fit, n, sigma, floor, rmse_adj, adj_floor,
+                      windows, regimes, white, cross)
 
 
 def _fit_percent(y: np.ndarray, r: np.ndarray) -> float:
@@ -239,29 +283,13 @@ def _fit_percent(y: np.ndarray, r: np.ndarray) -> float:
 
 
 def noise_floor(sims: Sequence[RecordSimulation], sigma: float) -> float:
-    """RMSE of a perfect model on these windows: ``sqrt(σ² + mean_w(e_0²)·(1 − 1/W))``.
-
-    The starting errors ``e_0`` of the windows are estimated from the measurement alone (not the
-    model): the measured force at the start minus its local mean over ±:data:`START_HORIZON_S`
-    (corrected for that estimate's own noise). With many windows this is ``≈ √2·σ``; with few,
-    it tracks the actual draws, so the comparison of a model with the floor stays fair."""
+    """RMSE of a perfect model on these windows: every sample but a window's first carries its
+    own noise and the window start's, ``sqrt(2σ²·(1 − 1/W))`` averaged over the windows."""
     if not math.isfinite(sigma):
         return math.nan
-    num, den = 0.0, 0
-    for s in sims:
-        rec = s.record
-        h = int(max(2, round(START_HORIZON_S / rec.dt)))
-        nwin = int(s.win[-1]) + 1
-        starts = s.start + np.arange(nwin) * s.window
-        idx = np.clip(starts[:, None] + np.arange(-h, h + 1)[None, :], 0, len(rec.y) - 1)
-        n = 2 * h + 1
-        e0 = rec.y[starts] - rec.y[idx].mean(axis=1)
-        e0sq = np.maximum(e0 ** 2 - sigma ** 2 * (n - 1) / n ** 2, 0.0) / (1 - 1 / n) ** 2
-        sizes = np.bincount(s.win, minlength=nwin)
-        # per window: (size − 1) samples carry σ² + e0², the first carries nothing
-        num += float(np.sum((sizes - 1) * (sigma ** 2 + e0sq)))
-        den += int(sizes.sum())
-    return math.sqrt(num / den) if den else math.nan
+    n = sum(len(s.y) for s in sims)
+    starts = sum(int(s.win[-1]) + 1 for s in sims if len(s.win))
+    return sigma * math.sqrt(2.0 * (n - starts) / n) if n else math.nan
 
 
 # ------------------------------------------------------------------------------------------
@@ -347,6 +375,7 @@ def _increments(sims: Sequence[RecordSimulation]) -> tuple[np.ndarray, np.ndarra
 def regime_stats(sims: Sequence[RecordSimulation], tau: float) -> list[RegimeStat]:
     r = np.concatenate([s.r for s in sims])
     dr, dyh, dts = _increments(sims)
+    sgn = np.sign(np.concatenate([s.q for s in sims]))
     total = float(np.sum(r ** 2)) or 1.0
     out = []
     for group, (lab, names) in regime_labels(sims, tau).items():
@@ -356,8 +385,10 @@ def regime_stats(sims: Sequence[RecordSimulation], tau: float) -> list[RegimeSta
             if k == 0:
                 continue
             bias = float(np.sum(dr[sel]) / np.sum(dts[sel]))
-            slope = float(np.sum(dyh[sel]) / np.sum(dts[sel]))
-            rel = bias / slope if abs(slope) > 1e-9 else math.nan
+            # relative, along the motion: + means the model moves too fast where it moves
+            along = float(np.sum(dr[sel] * sgn[sel]))
+            speed = float(np.sum(np.abs(dyh[sel])))
+            rel = along / speed if speed > 1e-9 else math.nan
             out.append(RegimeStat(group, name, k, k / len(r), float(math.sqrt(np.mean(r[sel] ** 2))),
                                   float(np.sum(r[sel] ** 2)) / total, bias, rel))
     return out
@@ -391,7 +422,7 @@ def window_stats(sims: Sequence[RecordSimulation]) -> list[WindowStat]:
                 label = "after reversal"
             else:
                 label = "ramp"
-            out.append(WindowStat(i, float(t0[w]), float(t1[w]), float(math.sqrt(sse[w] / cnt[w])),
+            out.append(WindowStat(s.index, float(t0[w]), float(t1[w]), float(math.sqrt(sse[w] / cnt[w])),
                                   float(fit), label))
     return out
 
