@@ -7,6 +7,8 @@ The protocol (see :mod:`gateway.loop`)::
     cycle k:  SYNC → valve TPDO (StatusWord, ValvePosition) + dynamometer TPDO (Force, ForceStatus)
               → RPDO (ControlWord, Command)            ← a row iff its ControlWord is 7 (ACTIVE)
     last SYNC: TPDOs, then safe-state RPDOs (ControlWord 3) ← not a row
+    a supervisor trip: the last SYNC's cycle is recorded with the safe command (u = 0), which is
+              sent twice and once more twice at the end (≥ 3 safe-state RPDOs after that SYNC)
 
 Row k of a run (the columns of :mod:`gateway.runs`):
 
@@ -14,8 +16,10 @@ Row k of a run (the columns of :mod:`gateway.runs`):
   double the gateway uses), ``y_counts`` its raw counts;
 * ``u`` = Command of the first RPDO after SYNC k (% = counts × 100/16384, as on the wire);
 * ``t`` = k × period in lockstep; in real time the SYNC's slot on the period grid,
-  n_k = ⌊(ts_k − ts_0)/period + ¼⌋ (made strictly increasing), t = n_k × period, so cycles the
-  gateway skipped after an overrun leave the same gap as in its own record;
+  n_k = ⌊(ts_k − ts_0)/period + b⌋ (made strictly increasing), t = n_k × period, so cycles the
+  gateway skipped after an overrun leave the same gap as in its own record. The bias b puts the
+  slot boundary into the widest phase range no SYNC fell into (SYNCs go out late, never early:
+  with little jitter b ≈ 0.1; on a loaded host whose SYNCs are up to 0.9 period late b is ≈ 0.05);
 * ``r`` = NaN (the reference never goes on the bus); ``sync_time`` = the SYNC's timestamp.
 
 Which TPDO answers which SYNC: each node answers every SYNC once, so the j-th TPDO of a run
@@ -47,7 +51,10 @@ from .frames import FrameChunk
 
 RESYNC_AFTER = 8          #: TPDOs in a row that must disagree with the count before it is re-synced
 MARGIN_SYNCS = 32         #: SYNCs kept back at the end of a chunk until later frames arrive
-GRID_BIAS = 0.25          #: real time: a SYNC up to 3/4 period late still counts for its slot
+GRID_SYNCS = 200          #: real time: SYNCs looked at to place the slot boundary (see _grid_bias)
+SAFE_REPEATS = 3          #: safe-state RPDOs after a run's last SYNC that mark a recorded trip cycle
+
+SAFE_CONTROL_WORDS = (int(P.CW_HOLD), int(P.CW_DISABLED))
 
 COLUMNS = ("t", "u", "y", "r", "cycle", "y_counts", "spool", "valve_status", "stale", "sync_time")
 _DTYPES = {"t": np.float64, "u": np.float64, "y": np.float64, "r": np.float64, "cycle": np.int64,
@@ -88,6 +95,8 @@ class RunInfo:
     tpdo_resyncs: int = 0                 #: count re-synchronisations (lost/duplicated TPDOs)
     tpdos_unpaired: int = 0               #: TPDOs that answer no SYNC of the run
     grid_skips: int = 0                   #: real time: period slots without a SYNC (overruns)
+    grid_bias: float | None = None        #: real time: b in n_k = floor((ts_k - ts_0)/T + b)
+    trip_cycle: bool = False              #: the run ended with a recorded trip cycle (u = 0)
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -327,7 +336,7 @@ class CycleAssembler:
         """Decide period and clock once, from the first SYNCs of the run."""
         if run.period_s is not None:
             return
-        if len(sync_ts) < 3 and not self._closing:
+        if len(sync_ts) < GRID_SYNCS and not self._closing:
             return
         steps = np.diff(sync_ts[:2001])
         steps = steps[steps > 0]
@@ -349,6 +358,8 @@ class CycleAssembler:
             run.clock = "lockstep"
         else:
             run.clock = "lockstep" if median < 0.5 * run.period_s else "realtime"
+        if run.clock == "realtime":
+            run.grid_bias = _grid_bias((sync_ts[:GRID_SYNCS * 10] - sync_ts[0]) / run.period_s)
 
     def _pair(self, ev: _Events, j0: int, off0: int, end_g: int, final: bool):
         """Pair this run's TPDOs (kind ``ev``) with SYNCs: assigned global SYNC per TPDO."""
@@ -402,6 +413,13 @@ class CycleAssembler:
         has_r = r_map >= 0
         cw = np.where(has_r, self.R.v["cw"][np.maximum(r_map, 0)], -1)
         is_row = has_r & (cw == self.sig.active_control_word)
+        if closing and len(g) and has_r[-1] and not is_row[-1]:
+            # a trip: the gateway recorded its last cycle with the safe command it sent
+            last = r_seg == g[-1]
+            safe = last & np.isin(self.R.v["cw"], SAFE_CONTROL_WORDS) & (self.R.v["f_u"] == 0)
+            if int(safe.sum()) >= SAFE_REPEATS and safe[r_map[-1]]:
+                is_row[-1] = True
+                run.trip_cycle = True
         r_order = np.where(has_r, self.R.order[np.maximum(r_map, 0)], np.iinfo(np.int64).max)
         r_ts = np.where(has_r, self.R.ts[np.maximum(r_map, 0)], np.inf)
         realtime = run.clock == "realtime"
@@ -441,9 +459,15 @@ class CycleAssembler:
         rows_n = int(is_row.sum())
         cycles = self.cycle + np.arange(rows_n)
         if realtime and len(g):
-            n = np.floor((sync_ts - self.t_origin) / T + GRID_BIAS).astype(np.int64)
-            k = np.arange(len(g))
-            n = k + np.maximum(np.maximum.accumulate(n - k), self.last_n + 1)
+            # slots of these SYNCs and of the ones held back after them (look-ahead)
+            ahead = self.S.ts[lo - self.sync_g0:]
+            n = (np.floor((ahead - self.t_origin) / T + run.grid_bias)
+                 - math.floor(run.grid_bias)).astype(np.int64)
+            k = np.arange(len(n))
+            # a SYNC stamped late may look like the next slot's: each SYNC's slot is at most
+            # its successor's minus one (backward pass), then strictly after the last emitted one
+            n = k + np.minimum.accumulate((n - k)[::-1])[::-1]
+            n = (k + np.maximum(np.maximum.accumulate(n - k), self.last_n + 1))[:len(g)]
             prev = self.last_n if self.last_n >= 0 else int(n[0]) - 1
             run.grid_skips += int(n[-1] - prev - len(n))
             self.last_n = int(n[-1])
@@ -499,6 +523,20 @@ class CycleAssembler:
             off0 = int(off[used - 1])
         ev.drop_before(used)
         return j + used, off0
+
+
+def _grid_bias(x: np.ndarray) -> float:
+    """Bias b of the slot rounding n = floor(x + b) for SYNC times ``x`` (in periods since the
+    first SYNC): the slot boundary goes near the end of the widest phase gap, just before the
+    phases where SYNCs start to arrive (a SYNC is never early, it may be late)."""
+    if len(x) < 2:
+        return 0.25
+    phase = np.sort(np.mod(x, 1.0))
+    gaps = np.diff(np.r_[phase, phase[0] + 1.0])
+    i = int(np.argmax(gaps))
+    end = phase[(i + 1) % len(phase)]            # where the SYNCs start again after the gap
+    cut = (end - 0.1 * gaps[i]) % 1.0            # the boundary: a little before them
+    return float(1.0 - cut) if cut > 0 else 1.0
 
 
 def _ffill(values: np.ndarray, fresh: np.ndarray, before) -> np.ndarray:

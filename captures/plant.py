@@ -24,6 +24,7 @@ does not — this is a replay of the plant's output, not a model of it.
 from __future__ import annotations
 
 import logging
+import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -33,6 +34,7 @@ import numpy as np
 from dbc import profile as P
 from plant.config import load_plant_config
 from plant_emulator import EmulatedStand, EmulatorOptions
+from plant_emulator.process import EmulatorProcess
 
 from .decode import decode_capture
 from .frames import CaptureError
@@ -122,3 +124,25 @@ class ReplayedStand(EmulatedStand):
         counts = int(self.trace.counts[k])
         over = bool(int(self.trace.status[k]) & (P.AI_STATUS_POSITIVE_OVERLOAD | P.AI_STATUS_NEGATIVE_OVERLOAD))
         return counts * self.trace.scale_kgf, over
+
+
+class ReplayProcess(EmulatorProcess):
+    """``stand replay CAPTURE --as-plant`` as a separate process (like
+    :class:`plant_emulator.process.EmulatorProcess` for ``stand emulate``)::
+
+        with ReplayProcess("udp_loopback:regress", "bench/capture.log"):
+            ...   # run the gateway under test against the recorded plant
+    """
+
+    def __init__(self, bus: str, capture: str | Path, run: int | None = None,
+                 extra_args: list[str] | None = None, ready_timeout_s: float = 30.0) -> None:
+        super().__init__(bus, None, lockstep=True, seed=None, extra_args=extra_args,
+                         ready_timeout_s=ready_timeout_s)
+        self.capture = str(capture)
+        self.run = run
+
+    def command(self) -> list[str]:
+        cmd = [sys.executable, "-m", "stand", "replay", self.capture, "--as-plant", "--bus", self.bus]
+        if self.run is not None:
+            cmd += ["--run", str(self.run)]
+        return cmd + self.extra_args
