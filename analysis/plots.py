@@ -31,6 +31,11 @@ WORST = "#ff7f0e"
 AFTER = "#2ca02c"
 
 
+def _target(path):
+    """A file name becomes a Path; a binary file object (BytesIO) is written to as PNG."""
+    return Path(path) if isinstance(path, (str, Path)) else path
+
+
 def _envelope(t: np.ndarray, y: np.ndarray, max_points: int = 4000) -> tuple[np.ndarray, np.ndarray]:
     """Min/max decimation: at most ``max_points`` points that keep every extreme."""
     n = len(t)
@@ -57,7 +62,7 @@ def _spans(mask: np.ndarray, t: np.ndarray) -> list[tuple[float, float]]:
 
 def plot_overlay(ev: Evaluation, path: str | Path, title: str = "", worst: int = 3) -> Path:
     """Measurement vs model (windowed free run) and residual, per record; worst windows below."""
-    path = Path(path)
+    path = _target(path)
     sims = ev.sims
     worst_w = ev.worst_windows(worst)
     nrec = len(sims)
@@ -113,14 +118,14 @@ def plot_overlay(ev: Evaluation, path: str | Path, title: str = "", worst: int =
         ax.tick_params(labelsize=7)
         ax.set_title(f"#{k + 1} worst: {w.t_start:.1f}–{w.t_end:.1f} s, {w.rmse:.3g} kgf ({w.regime})",
                      fontsize=8, color=WORST, loc="left")
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=90, format="png")
     plt.close(fig)
     return path
 
 
 def plot_regimes(ev: Evaluation, path: str | Path) -> Path:
     """RMSE per regime (bars) and slope error relative to the model's slope (dots)."""
-    path = Path(path)
+    path = _target(path)
     regs = ev.regimes
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 0.32 * len(regs) + 1.8), constrained_layout=True)
     names = [f"{r.group}: {r.name}" for r in regs]
@@ -136,13 +141,13 @@ def plot_regimes(ev: Evaluation, path: str | Path) -> Path:
     ax2.axvline(0, color="k", lw=0.5)
     ax2.set_yticks(y, [""] * len(y))
     ax2.set_xlabel("model slope error, % of the model's slope (+: model too fast)")
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=90, format="png")
     plt.close(fig)
     return path
 
 
 def plot_correlations(ev: Evaluation, path: str | Path) -> Path:
-    path = Path(path)
+    path = _target(path)
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 3.2), constrained_layout=True)
     dt = ev.sims[0].record.dt
     for ax, test, title in ((a1, ev.whiteness, "residual autocorrelation"),
@@ -156,14 +161,14 @@ def plot_correlations(ev: Evaluation, path: str | Path) -> Path:
         ax.set_title(f"{title} (±1.96/√N = ±{test.band:.2g}; p = {test.p_value:.2g}: {verdict})",
                      fontsize=9, loc="left")
         ax.set_xlabel("lag, s")
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=90, format="png")
     plt.close(fig)
     return path
 
 
 def plot_history(versions: Sequence[dict], path: str | Path) -> Path:
     """Bars: RMSE of each model version; dotted: the noise floor."""
-    path = Path(path)
+    path = _target(path)
     fig, ax = plt.subplots(figsize=(max(6, 1.3 * len(versions) + 3), 3.6), constrained_layout=True)
     x = np.arange(len(versions))
     rmse = [v["metrics"]["rmse"] for v in versions]
@@ -181,14 +186,14 @@ def plot_history(versions: Sequence[dict], path: str | Path) -> Path:
     if max(rmse) / max(min(rmse), 1e-9) > 30:
         ax.set_yscale("log")
     ax.set_title("error of each model version", fontsize=10, loc="left")
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=90, format="png")
     plt.close(fig)
     return path
 
 
 def plot_candidates(diag, path: str | Path) -> Path:
     """The diagnosis at a glance: starting model and each candidate's RMSE."""
-    path = Path(path)
+    path = _target(path)
     names = [diag.model] + [f"+{c.effect}" for c in diag.candidates]
     rmse = [diag.base_eval.rmse] + [c.rmse for c in diag.candidates]
     colors = [RESID] + [MODEL if c.effect == diag.best else (MEAS if c.earns else "0.7") for c in diag.candidates]
@@ -202,6 +207,6 @@ def plot_candidates(diag, path: str | Path) -> Path:
         ax.set_xscale("log")
     ax.legend(fontsize=8)
     ax.set_title(f"verdict: {diag.verdict}", fontsize=10, loc="left")
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=90, format="png")
     plt.close(fig)
     return path

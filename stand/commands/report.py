@@ -1,0 +1,51 @@
+"""``stand report DATA... --model M``: add a model version to the data set's history, write the HTML page."""
+from __future__ import annotations
+
+import argparse
+
+from analysis.data import load_all
+from analysis.diagnose import diagnose
+from analysis.compare import resolve_model
+from analysis.report import write_report
+
+from .compare import default_out
+from .fit import add_data_args, check_window
+
+
+def register(sub) -> None:
+    p = sub.add_parser("report", help="keep a data set's model history; HTML report of the error falling",
+                       description="Fit the model (a spec, or a model file you edit; --as-given keeps "
+                                   "the file's values), add it as the next version to OUT/history.json "
+                                   "and rewrite OUT/report.html: the error of every version so far, "
+                                   "and the plots, parameters and regimes of the latest. The page is "
+                                   "self-contained (images embedded, no network).")
+    add_data_args(p)
+    p.add_argument("--out", metavar="DIR", help="report directory (default report-<data>)")
+    p.add_argument("--as-given", action="store_true", help="use the model's values as they are (no fit)")
+    p.add_argument("--diagnose", action="store_true",
+                   help="also diagnose what the latest model still misses (slower)")
+    p.add_argument("--new-history", action="store_true",
+                   help="start the history in OUT over (e.g. for a different data set)")
+    p.add_argument("--title", help="title of the page (default: the data files)")
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    check_window(args)
+    records = load_all(args.data)
+    out = args.out or default_out(args.data, "report")
+    d = None
+    res = write_report(records, args.model, out, fit=not args.as_given, window_s=args.window_s,
+                       new_history=args.new_history, title=args.title)
+    if args.diagnose:
+        d = diagnose(records, res.comparison.model, window_s=args.window_s)
+        res = write_report(records, res.comparison.model, out, fit=False, window_s=args.window_s,
+                           diagnosis=d, title=args.title)
+    versions = res.history["versions"]
+    print(f"{'version':8s} {'model':36s} {'RMSE kgf':>9s} {'fit %':>7s}")
+    for v in versions:
+        print(f"v{v['version']:<7d} {v['model']:36s} {v['metrics']['rmse']:9.4g} {v['metrics']['fit_percent']:7.2f}")
+    if d is not None:
+        print(f"\ndiagnosis of v{versions[-1]['version']}: {d.summary}")
+    print(f"\nreport: {res.path}  (history: {res.history_path})")
+    return 0
