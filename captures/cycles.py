@@ -432,11 +432,11 @@ class CycleAssembler:
             fresh = ok.copy()
             if realtime and len(ev):
                 fresh &= (ev.order[idx] < r_order) | (ev.ts[idx] <= r_ts)
-            return fresh, idx
+            return fresh, idx, ok
 
-        f_fresh, f_idx = fresh_values(self.F, fa)
-        v_fresh, v_idx = fresh_values(self.V, va)
-        run.syncs_without_force += int((~np.isin(g, fa)).sum()) if len(g) else 0
+        f_fresh, f_idx, f_has = fresh_values(self.F, fa)
+        v_fresh, v_idx, _ = fresh_values(self.V, va)
+        run.syncs_without_force += int((~f_has).sum())
 
         y = _ffill(np.where(f_fresh, self.F.v["f_y"][f_idx] if len(self.F) else np.nan, np.nan),
                    f_fresh, self.last["y"])
@@ -518,7 +518,7 @@ class CycleAssembler:
             changes = int((np.diff(np.r_[off0, off[:used]]) != 0).sum())
             self.runs[-1].tpdo_resyncs += changes
             # several TPDOs assigned to one SYNC: only the first answers it
-            dup = int(used - len(np.unique(assigned[:used])))
+            dup = int(used - 1 - np.count_nonzero(np.diff(assigned[:used])))   # non-decreasing
             self.runs[-1].tpdos_unpaired += dup
             off0 = int(off[used - 1])
         ev.drop_before(used)

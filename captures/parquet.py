@@ -15,7 +15,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-GROUP_ROWS = 1 << 18
+GROUP_ROWS = 1 << 16
 
 
 class PartWriter:
