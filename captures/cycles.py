@@ -47,7 +47,7 @@ import numpy as np
 from dbc import profile as P
 
 from .dbcdecode import DecodedMessage, FrameDecoder
-from .frames import FrameChunk
+from .frames import ERROR, EXTENDED, REMOTE, FrameChunk
 
 RESYNC_AFTER = 8          #: TPDOs in a row that must disagree with the count before it is re-synced
 MARGIN_SYNCS = 32         #: SYNCs kept back at the end of a chunk until later frames arrive
@@ -217,9 +217,13 @@ class CycleAssembler:
     def feed(self, chunk: FrameChunk, decoded: dict[str, DecodedMessage]) -> None:
         base = self.frames_seen
         self.frames_seen += len(chunk)
-        if self.sync_msg.name in decoded:
-            d = decoded[self.sync_msg.name]
-            self.S.add(base + d.index, d.ts)
+        # SYNC from the raw frames: with its 1-byte counter (the DBC's layout) or without
+        # (DLC 0, CiA 301's plain SYNC, which the DBC decoder counts as the wrong length)
+        mine = self._channel_mask(chunk)
+        sync = np.flatnonzero((chunk.can_id == self.sync_msg.frame_id) & (chunk.dlc <= 1) & mine
+                              & ((chunk.flags & (EXTENDED | REMOTE | ERROR)) == (EXTENDED if self.sync_msg.extended else 0)))
+        if len(sync):
+            self.S.add(base + sync, chunk.ts[sync])
         if self.force_msg.name in decoded:
             d = decoded[self.force_msg.name]
             status = d.raw[self.sig.force_status] if self.has_force_status else np.zeros(len(d.index), np.int64)
@@ -233,13 +237,22 @@ class CycleAssembler:
             d = decoded[self.command_msg.name]
             self.R.add(base + d.index, d.ts, cw=d.raw[self.sig.control_word].astype(np.int64),
                        f_u=d.phys[self.sig.command])
-        self._find_period_writes(chunk, base)
+        self._find_period_writes(chunk, base, mine)
         self._process(final=False)
 
-    def _find_period_writes(self, chunk: FrameChunk, base: int) -> None:
+    def _channel_mask(self, chunk: FrameChunk) -> np.ndarray | bool:
+        """Frames on the channel the decoder keeps (all, without a channel option)."""
+        name = self.decoder.channel
+        if name is None or not chunk.channels:
+            return True
+        if name not in chunk.channels:
+            return np.zeros(len(chunk), bool)
+        return chunk.channel == chunk.channels.index(name)
+
+    def _find_period_writes(self, chunk: FrameChunk, base: int, mine=True) -> None:
         """SDO expedited downloads of 0x1006:00 to any node (0x601..0x67F)."""
         sel = ((chunk.can_id >= 0x601) & (chunk.can_id <= 0x67F) & (chunk.dlc == 8)
-               & ((chunk.flags & 0x07) == 0))
+               & ((chunk.flags & 0x07) == 0) & mine)
         if not sel.any():
             return
         rows = np.flatnonzero(sel)

@@ -6,7 +6,6 @@ benchmarks can make multi-GB captures in seconds. Classic CAN only (no FD, no er
 """
 from __future__ import annotations
 
-import struct
 import zlib
 from pathlib import Path
 

@@ -260,3 +260,26 @@ def test_resolve_offsets_keeps_the_count_through_short_excursions():
     assert off[5] == 0 and np.all(off[:20] == 0) and np.all(off[20:] == 1) and last == 1
     off, last, unstable = resolve_offsets(e[:24], 0, final=False, k=8)
     assert unstable == 20, "four TPDOs off the count are not yet evidence of a loss"
+
+
+def test_sync_without_counter_and_a_second_channel():
+    """CiA 301 allows a SYNC without its counter (DLC 0); frames of another bus in the same
+    file are left out with ``channel``."""
+    run, chunk = traffic(600)
+    syncs = chunk.can_id == 0x080
+    chunk.dlc[syncs] = 0
+    chunk.data[syncs] = 0
+    other = chunk.take(slice(None))
+    other.channel = np.ones(len(other), np.int16)
+    other.channels = ["can0", "can1"]
+    other.data = other.data.copy()
+    other.data[other.can_id == 0x182] = 0xAA
+    both = FrameChunk.concat([chunk, other]).take(np.argsort(np.r_[np.arange(len(chunk)), np.arange(len(other)) + 0.5], kind="stable"))
+    dec = FrameDecoder(channel="can0")
+    asm = CycleAssembler(dec)
+    asm.feed(both, dec.decode(both, asm.wanted))
+    parts = asm.take_rows() + asm.finish()
+    rows = {k: np.concatenate([p[1][k] for p in parts]) for k in parts[0][1]}
+    assert_rows_equal_truth(rows, run)
+    assert dec.stats.other_channel == len(other)
+    assert dec.stats.wrong_dlc == {"SYNC": 601}
