@@ -41,8 +41,9 @@ from .data import Record
 from .metrics import (AFTER_REVERSAL_S, Evaluation, RecordSimulation, command_levels, demeaned_residual,
                       evaluate, reversal_mask)
 
-#: candidates refitted on all the data after screening
-REFIT_TOP = 2
+#: candidates refitted on all the data after screening (the best; the runner-up too when the
+#: data are short enough to be screened whole)
+REFIT_TOP = 1
 #: a candidate must lower the (objective) RMSE by at least this fraction
 MIN_IMPROVEMENT = 0.05
 #: ... and remove at least this share of the error above the noise floor
@@ -232,20 +233,21 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
     # rank on all windows with the screening parameters, refit the best on all data
     scored = []
     for name, f in fits.items():
-        w = _window_sse(f.model, full) if subset else f.window_sse
-        scored.append((float(w.sum()), name, w))
-    scored.sort()
-    for rank, (_, name, w) in enumerate(scored):
+        w, rmse = F.errors(f.model, full)
+        scored.append((float(w.sum()), name, w, rmse))
+    scored.sort(key=lambda x: x[0])
+    for rank, (_, name, w, rmse) in enumerate(scored):
         f = fits[name]
         refit = "screening"
-        if rank < refit_top:
+        if rank < (refit_top if subset else max(refit_top, 2)):
             say(f"refitting +{name} on all windows")
-            f = F.fit_model(full, f.model, starts="given", delay_search=False)
-            w = f.window_sse
+            f = F.fit_model(full, f.model, starts="given", delay_search=False,
+                            tol=F.FTOL if not subset else F.REFIT_TOL)
+            w, rmse = F.errors(f.model, full)
             refit = "final"
             screening["refit_on_all"].append(name)
         fits[name] = f
-        cands.append(_judge(name, f, w, base_w, base_obj, floor, base_eval, full, refit))
+        cands.append(_judge(name, f, w, rmse, base_w, base_obj, floor, base_eval, refit))
     # rank by the error penalized for the parameters it costs (BIC on the objective): among
     # candidates that remove the same error within the noise, the simpler one comes first
     cands.sort(key=lambda c: c.bic)
@@ -290,8 +292,7 @@ def _n_eval(pieces: Sequence[F.Piece]) -> int:
 
 
 def _window_sse(model: PlantModel, pieces: Sequence[F.Piece]) -> np.ndarray:
-    r = F.residual(model, pieces)
-    return np.bincount(F.window_labels(pieces), weights=r * r)
+    return F.window_sse(F.residual(model, pieces), pieces)
 
 
 def objective_floor(pieces: Sequence[F.Piece], sigma: float) -> float:
@@ -302,9 +303,9 @@ def objective_floor(pieces: Sequence[F.Piece], sigma: float) -> float:
     return sigma * math.sqrt(dof / n) if n else math.nan
 
 
-def _judge(name: str, f: F.FitResult, w: np.ndarray, base_w: np.ndarray, base_obj: float,
-           floor: float, base_eval: Evaluation, full: Sequence[F.Piece], refit: str) -> Candidate:
-    n = _n_eval(full)
+def _judge(name: str, f: F.FitResult, w: np.ndarray, rmse: float, base_w: np.ndarray,
+           base_obj: float, floor: float, base_eval: Evaluation, refit: str) -> Candidate:
+    n = base_eval.n
     obj = math.sqrt(w.sum() / n)
     improvement = 1.0 - obj / base_obj if base_obj > 0 else 0.0
     excess = base_obj ** 2 - floor ** 2
@@ -313,8 +314,6 @@ def _judge(name: str, f: F.FitResult, w: np.ndarray, base_w: np.ndarray, base_ob
     d = base_w - w
     z = float(d.mean() / (d.std(ddof=1) / math.sqrt(len(d)))) if len(d) > 1 and d.std() > 0 else (
         math.inf if d.mean() > 0 else 0.0)
-    r = F.residual(f.model, full, adjust_start=False)
-    rmse = math.sqrt(float(r @ r) / len(r))
     warnings = list(f.warnings)
     k = max(1, len(f.free) - 3)
     lr = n * gain / floor ** 2 if floor > 0 else math.inf

@@ -56,6 +56,8 @@ WINDOW_S = 2.0
 LEAD_S = 0.5
 #: relative tolerance on the cost and the step of the polishing least squares
 FTOL = 1e-7
+#: tolerance of the refit on all windows that follows a screening fit (starts near the optimum)
+REFIT_TOL = 1e-5
 #: looser tolerance for screening fits (ranking candidates needs the error to ~0.1 %, not more)
 SCREEN_TOL = 1e-4
 #: relative finite-difference step of the Jacobian (in the optimizer's coordinates)
@@ -195,11 +197,9 @@ def screening_pieces(records: Sequence[Record], window_s: float = WINDOW_S,
     return (out or full), bool(out)
 
 
-def simulate_piece(model: PlantModel, piece: Piece) -> np.ndarray:
-    """Windowed free-run simulation of one piece: ŷ for the evaluated samples (after warm-up).
-
-    Same computation as :meth:`PlantModel.simulate_windows` (which it equals for
-    ``warmup = 0``), with the windows starting after the warm-up."""
+def _cut_windows(model: PlantModel, piece: Piece) -> tuple[Drive, np.ndarray]:
+    """The piece's drive (delay, valve, flow preparation over the whole piece, so the command
+    history runs through) cut into its evaluated windows, and the measured starts."""
     u, y, dt, W, a = piece.u, piece.y, piece.dt, piece.window, piece.warmup
     state = model.new_state(1, dt, 0.0, u[0], piece.t0)
     drv = model.drive(u[None, :], dt, state)
@@ -216,8 +216,69 @@ def simulate_piece(model: PlantModel, piece: Piece) -> np.ndarray:
         return arr.reshape(nw, W)
 
     wdrv = Drive(q=cut(drv.q), aux=[cut(x) for x in drv.aux], dist=cut(drv.dist))
-    starts = y[a + np.arange(nw) * W]
-    return model.integrate(wdrv, starts, dt)[:, :-1].reshape(-1)[:n]
+    return wdrv, y[a + np.arange(nw) * W]
+
+
+def simulate_pieces(model: PlantModel, pieces: Sequence[Piece]) -> list[np.ndarray]:
+    """Windowed free-run simulation of several pieces: ŷ for the evaluated samples of each.
+
+    Pieces with the same sample time and window length are integrated together, all their
+    windows side by side (one pass of the integrator, however many pieces)."""
+    out: list[np.ndarray | None] = [None] * len(pieces)
+    groups: dict[tuple[float, int], list[int]] = {}
+    for i, p in enumerate(pieces):
+        groups.setdefault((p.dt, p.window), []).append(i)
+    for (dt, W), idx in groups.items():
+        cuts = [_cut_windows(model, pieces[i]) for i in idx]
+        if len(cuts) == 1:
+            drv, starts = cuts[0]
+        else:
+            def cat(arrs):
+                return None if arrs[0] is None else np.concatenate(arrs, axis=0)
+            drv = Drive(q=np.concatenate([c[0].q for c in cuts], axis=0),
+                        aux=[cat([c[0].aux[j] for c in cuts]) for j in range(len(cuts[0][0].aux))],
+                        dist=cat([c[0].dist for c in cuts]))
+            starts = np.concatenate([c[1] for c in cuts])
+        yy = model.integrate(drv, starts, dt)[:, :-1]
+        row = 0
+        for i, (d, _) in zip(idx, cuts):
+            k = d.q.shape[0]
+            out[i] = yy[row:row + k].reshape(-1)[:pieces[i].n_eval]
+            row += k
+    return out  # type: ignore[return-value]
+
+
+def simulate_piece(model: PlantModel, piece: Piece) -> np.ndarray:
+    """Windowed free-run simulation of one piece: ŷ for the evaluated samples (after warm-up).
+
+    Same computation as :meth:`PlantModel.simulate_windows` (which it equals for
+    ``warmup = 0``), with the windows starting after the warm-up."""
+    return simulate_pieces(model, [piece])[0]
+
+
+def window_means(r: np.ndarray, W: int) -> np.ndarray:
+    """Mean of ``r`` over consecutive windows of ``W`` samples (the last may be shorter)."""
+    n = len(r)
+    full = n // W
+    nw = -(-n // W)
+    out = np.empty(nw)
+    if full:
+        out[:full] = r[:full * W].reshape(full, W).mean(axis=1)
+    if nw > full:
+        out[-1] = r[full * W:].mean()
+    return out
+
+
+def demean_windows(r: np.ndarray, W: int) -> np.ndarray:
+    """``r`` minus its mean in each window of ``W`` samples."""
+    m = window_means(r, W)
+    out = np.array(r, float, copy=True)
+    full = len(r) // W
+    if full:
+        out[:full * W].reshape(full, W)[:] -= m[:full, None]
+    if len(m) > full:
+        out[full * W:] -= m[-1]
+    return out
 
 
 def residual(model: PlantModel, pieces: Sequence[Piece], adjust_start: bool = True) -> np.ndarray:
@@ -229,12 +290,31 @@ def residual(model: PlantModel, pieces: Sequence[Piece], adjust_start: bool = Tr
     draw (five to ten times larger parameter errors in tests). ``False``: the error from the
     measured start, as reported by :mod:`analysis.metrics`."""
     out = []
+    for p, yhat in zip(pieces, simulate_pieces(model, pieces)):
+        r = yhat - p.y[p.warmup:]
+        out.append(demean_windows(r, p.window) if adjust_start else r)
+    return np.concatenate(out) if len(out) > 1 else out[0]
+
+
+def errors(model: PlantModel, pieces: Sequence[Piece]) -> tuple[np.ndarray, float]:
+    """From one simulation: the objective's squared error per window (starts re-estimated) and
+    the RMSE from the measured starts."""
+    raw = residual(model, pieces, adjust_start=False)
+    adj, k = [], 0
     for p in pieces:
-        r = simulate_piece(model, p) - p.y[p.warmup:]
-        if adjust_start:
-            w = p.window_index()
-            r = r - (np.bincount(w, weights=r) / np.bincount(w))[w]
-        out.append(r)
+        adj.append(demean_windows(raw[k:k + p.n_eval], p.window))
+        k += p.n_eval
+    return window_sse(np.concatenate(adj), pieces), math.sqrt(float(raw @ raw) / len(raw))
+
+
+def window_sse(r: np.ndarray, pieces: Sequence[Piece]) -> np.ndarray:
+    """Sum of squares of a concatenated residual per window, all pieces in order."""
+    out, k = [], 0
+    for p in pieces:
+        seg = r[k:k + p.n_eval]
+        k += p.n_eval
+        out.append(window_means(seg * seg, p.window) * np.diff(
+            np.minimum(np.arange(p.n_windows + 1) * p.window, p.n_eval)))
     return np.concatenate(out)
 
 
@@ -297,41 +377,64 @@ class Parameterization:
 # ------------------------------------------------------------------------------------------
 # variable projection of g and Δ
 # ------------------------------------------------------------------------------------------
+def _linear_in_gain_and_trend(spec: str) -> bool:
+    """True if ŷ is affine in g and Δ with no other additive term: no force-dependent effect and
+    no disturbance (then one simulation gives the projection)."""
+    from plant.effects import Stage, effect_class
+    for name in spec.split("+")[1:]:
+        c = effect_class(name)
+        if c.depends_on_force or c.stage in (Stage.FORCE, Stage.DISTURBANCE):
+            return False
+    return True
+
+
 def project_gain_trend(spec: str, values: Mapping[str, float], pieces: Sequence[Piece],
                        fit_g: bool = True, fit_delta: bool = True) -> tuple[dict[str, float], float]:
     """Solve g and Δ by linear least squares for the other parameters fixed.
 
-    ``ŷ = F + g·A + Δ·B`` exactly when no effect makes the rate depend nonlinearly on the
-    force (all but ``load_pressure``, where it is a first-order approximation). A, B, F come from
-    three simulations. Returns the updated values and the sum of squared errors."""
+    With window starts re-estimated the objective residual is ``demean(g·A + Δ·B − y)`` (A: the
+    windowed response to the flow at unit gain, B: time since the window start), exactly, when
+    no effect makes the rate depend on the force and there is no disturbance: one simulation
+    gives it. Otherwise ``ŷ = F + g·A + Δ·B`` is taken from three simulations (exact for
+    ``leakage``, a first-order approximation for ``load_pressure``). Returns the updated values
+    and the sum of squared errors."""
     vals = dict(values)
+    specs = dict(PlantModel.from_spec(spec, vals).param_specs())
     if not (fit_g or fit_delta):
-        m = PlantModel.from_spec(spec, vals)
-        r = residual(m, pieces)
+        r = residual(PlantModel.from_spec(spec, vals), pieces)
         return vals, float(r @ r)
-    g0 = vals.get("g", 1.0) if not fit_g else 1.0
-    d0 = vals.get("delta", 0.0) if not fit_delta else 0.0
+    g0 = 1.0 if fit_g else vals["g"]
+    d0 = 0.0 if fit_delta else vals["delta"]
     s1 = residual(PlantModel.from_spec(spec, {**vals, "g": g0, "delta": d0}), pieces)
     cols = []
-    if fit_g:
-        s2 = residual(PlantModel.from_spec(spec, {**vals, "g": 2.0, "delta": d0}), pieces)
-        cols.append(s2 - s1)
-    if fit_delta:
-        s3 = residual(PlantModel.from_spec(spec, {**vals, "g": g0, "delta": d0 + 1.0}), pieces)
-        cols.append(s3 - s1)
+    if _linear_in_gain_and_trend(spec):
+        dy = np.concatenate([demean_windows(p.y[p.warmup:], p.window) for p in pieces])
+        if fit_g:  # s1 = demean(g0·A + d0·B − y)
+            cols.append((s1 + dy - d0 * _trend_basis(pieces)) / g0)
+        if fit_delta:
+            cols.append(_trend_basis(pieces))
+    else:
+        if fit_g:
+            s2 = residual(PlantModel.from_spec(spec, {**vals, "g": 2.0 * g0, "delta": d0}), pieces)
+            cols.append((s2 - s1) / g0)
+        if fit_delta:
+            s3 = residual(PlantModel.from_spec(spec, {**vals, "g": g0, "delta": d0 + 1.0}), pieces)
+            cols.append(s3 - s1)
     A = np.column_stack(cols)
-    # residual(θ) = s1 + A·(β − β0); minimize ‖s1 + A·(β − β0)‖
+    # residual(β) ≈ s1 + A·(β − β0); minimize its norm
     step, *_ = np.linalg.lstsq(A, -s1, rcond=None)
-    beta0 = [g0] * fit_g + [d0] * fit_delta
-    beta = np.array(beta0) + step
     names = ["g"] * fit_g + ["delta"] * fit_delta
-    specs = dict(PlantModel.from_spec(spec, vals).param_specs())
+    beta = np.array([g0] * fit_g + [d0] * fit_delta) + step
     for n, b in zip(names, beta):
         p = specs[n]
         vals[n] = float(min(max(b, p.lower), p.upper)) if math.isfinite(b) else p.default
-    m = PlantModel.from_spec(spec, vals)
-    r = residual(m, pieces)
+    r = residual(PlantModel.from_spec(spec, vals), pieces)
     return vals, float(r @ r)
+
+
+def _trend_basis(pieces: Sequence[Piece]) -> np.ndarray:
+    """demean(time since the window start), the objective's column for Δ."""
+    return np.concatenate([demean_windows(p.horizon() * p.dt, p.window) for p in pieces])
 
 
 # ------------------------------------------------------------------------------------------
@@ -533,8 +636,13 @@ def _polish(par: Parameterization, pieces: Sequence[Piece], values: Mapping[str,
     if max_nfev is None:
         max_nfev = 40 * (len(x0) + 1)
     res = optimize.least_squares(fun, x0, bounds=(lo, hi), method="trf", x_scale="jac",
+                                 tr_solver="lsmr" if len(x0) and _n_eval(pieces) > 400_000 else "exact",
                                  diff_step=DIFF_STEP, max_nfev=max_nfev, ftol=tol, xtol=tol)
     return res.x, res
+
+
+def _n_eval(pieces: Sequence[Piece]) -> int:
+    return sum(p.n_eval for p in pieces)
 
 
 def _as_model(model: PlantModel | str) -> PlantModel:
@@ -653,7 +761,7 @@ def _result(model: PlantModel, par: Parameterization, pieces: Sequence[Piece], r
     at the solution (parameters at a bound are held there and get no interval)."""
     labels = window_labels(pieces)
     nw = int(labels[-1]) + 1 if len(labels) else 0
-    wsse = np.bincount(labels, weights=r * r, minlength=nw)
+    wsse = window_sse(r, pieces)
     sse = float(r @ r)
     n = len(r)
     specs = dict(model.param_specs())

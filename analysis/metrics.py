@@ -39,13 +39,15 @@ model, ``mean(Δr)/dt`` (kgf/s), also relative to the model's mean slope there.
 **Residual tests.** Whiteness: autocorrelation of the residual with each window's mean removed
 (that removes ``e_0``; what remains is white if the model is right). Input–residual
 cross-correlation at lags ``−L … L``. Both with the ``±1.96/√N`` band of a white sequence of
-length N (95 % per lag). In closed loop (relay, P-feedback) the command is computed from the noisy
+length N (95 % per lag; N = the samples used, at most :data:`MAX_TEST_SAMPLES` spread over the
+data). In closed loop (relay, P-feedback) the command is computed from the noisy
 force, so the cross-correlation at lags where the residual leads is expected to be non-zero.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
+from functools import cached_property
 from typing import Sequence
 
 import numpy as np
@@ -128,16 +130,16 @@ class RecordSimulation:
     t: np.ndarray               #: time, s
     index: int = 0              #: index of the record in the data set
 
-    @property
+    @cached_property
     def r(self) -> np.ndarray:
         """Residual ``ŷ − y`` (model minus measurement), kgf."""
         return self.yhat - self.y
 
-    @property
+    @cached_property
     def win(self) -> np.ndarray:
         return np.arange(len(self.y)) // self.window
 
-    @property
+    @cached_property
     def horizon(self) -> np.ndarray:
         return np.arange(len(self.y)) % self.window
 
@@ -465,8 +467,32 @@ def _xcorr(a_list: Sequence[np.ndarray], b_list: Sequence[np.ndarray], L: int) -
     return num / den, n
 
 
+#: the residual tests use at most this many samples (spread over the data set, whole windows)
+MAX_TEST_SAMPLES = 400_000
+
+
+def _test_sample(sims: Sequence[RecordSimulation]) -> list[RecordSimulation]:
+    """Whole records while they fit in :data:`MAX_TEST_SAMPLES`, else evenly spaced stretches of
+    50 windows from each (N in the bands is then the number of samples used)."""
+    total = sum(len(s.y) for s in sims)
+    if total <= MAX_TEST_SAMPLES:
+        return list(sims)
+    out = []
+    for s in sims:
+        share = int(MAX_TEST_SAMPLES * len(s.y) / total)
+        span = 50 * s.window
+        k = max(1, share // span)
+        for a in np.linspace(0, max(0, len(s.y) - span), k).astype(int):
+            a -= a % s.window
+            b = min(len(s.y), a + span)
+            out.append(RecordSimulation(s.record, s.start + a, s.window, s.y[a:b], s.yhat[a:b],
+                                        s.u[a:b], s.q[a:b], s.t[a:b], s.index))
+    return out
+
+
 def whiteness_test(sims: Sequence[RecordSimulation], max_lag: int) -> CorrelationTest:
     """Autocorrelation of the window-demeaned residual at lags 1..L; Ljung–Box Q over them."""
+    sims = _test_sample(sims)
     e = demeaned_residual(sims)
     rho, n = _xcorr(e, e, max_lag)
     lags = list(range(1, max_lag + 1))
@@ -480,6 +506,7 @@ def input_correlation_test(sims: Sequence[RecordSimulation], max_lag: int) -> Co
     """ρ between the residual at k + l and the command at k, l = −L..L (l > 0: residual after
     the command). The values are the plain correlations; the Q test uses the input prewhitened
     by an AR(10) filter (applied to both), as the lags of a smooth input are strongly dependent."""
+    sims = _test_sample(sims)
     e = demeaned_residual(sims)
     u = [s.u.astype(float) for s in sims]
     rho, n = _xcorr(e, u, max_lag)

@@ -149,12 +149,15 @@ class PlantModel:
             state.history = np.concatenate([pad, state.history], axis=1)
             H = m + 1
         ext = np.concatenate([state.history, u], axis=1)
-        k = np.arange(K) + H
-        q = (1.0 - f) * ext[:, k - m] + f * ext[:, k - m - 1] if f else ext[:, k - m]
-        state.history = ext[:, -H:]
+        # step k of the block reads ext[H + k − m] and ext[H + k − m − 1]: contiguous slices
+        a = H - m
+        q = (1.0 - f) * ext[:, a:a + K] + f * ext[:, a - 1:a - 1 + K] if f else ext[:, a:a + K].copy()
+        state.history = ext[:, -H:].copy()
         aux: list = []
         dist = None
-        t = state.t[:, None] + dt * np.arange(K)[None, :]
+        t = None
+        if any(e.stage is Stage.DISTURBANCE for e in self.effects):
+            t = state.t[:, None] + dt * np.arange(K)[None, :]
         for eff, est in zip(self.effects, state.effects):
             if eff.stage is Stage.VALVE:
                 q = eff.shape(q, dt, est)
