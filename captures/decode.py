@@ -265,6 +265,25 @@ class _FramesOutput:
             w.close()
 
 
+class _NoCycles:
+    """Stands in for the cycle assembler when the DBC does not describe the stand's loop."""
+
+    wanted: dict = {}
+    runs: list = []
+
+    def feed(self, chunk, decoded) -> None:
+        pass
+
+    def take_rows(self) -> list:
+        return []
+
+    def take_trace(self) -> list:
+        return []
+
+    def finish(self) -> list:
+        return []
+
+
 def decode_capture(path: str | Path, out: str | Path | None = None, *, collect: bool = True,
                    partition_rows: int | None = None, frames_dir: str | Path | None = None,
                    progress: bool = False, trace: bool = False, options: DecodeOptions | None = None,
@@ -289,14 +308,18 @@ def decode_capture(path: str | Path, out: str | Path | None = None, *, collect: 
     try:
         assembler = CycleAssembler(decoder, opts.signals, opts.period_s, opts.clock, sync_trace=trace)
     except (ValueError, DataError) as exc:
-        raise CaptureError(f"the DBC does not describe the stand's loop: {exc}") from None
-    scale_codec = assembler.force_scale
-    force_scale = float(scale_codec.scale)
+        if out is not None or frames_dir is None or trace:
+            raise CaptureError(f"the DBC does not describe the stand's loop ({exc}); give the "
+                               "stand's DBC, or only decode the messages (frames_dir / --frames)") from None
+        assembler = None            # another bus: every message decoded, no control cycles
+    force_scale = float(assembler.force_scale.scale) if assembler is not None else float("nan")
     collected: dict[int, list[dict]] = {}
     traced: dict[int, list[dict]] = {}
     outputs = _RunOutputs(prepare_run_dir(out), partition_rows, opts.run) if out is not None else None
     frames_out = _FramesOutput(Path(frames_dir), partition_rows) if frames_dir is not None else None
     wanted = None if frames_out is not None else assembler.wanted
+    if assembler is None:
+        assembler = _NoCycles()
     bar = None
     if progress:
         from tqdm import tqdm

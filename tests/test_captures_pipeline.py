@@ -165,3 +165,22 @@ def test_stand_decode_refuses_a_capture_without_cycles(tmp_path):
     assert not (tmp_path / "run").exists()
     res = stand_cli("decode", str(path), "--period-ms", "-1")
     assert res.returncode == 2 and "--period-ms" in res.stderr
+
+
+def test_another_dbc_decodes_every_message_to_parquet(tmp_path):
+    """The decoder is DBC-driven: a bus the stand's DBC does not describe still decodes."""
+    run, path = capture(tmp_path, 400)
+    dbc = tmp_path / "other.dbc"
+    dbc.write_text('VERSION ""\nNS_ :\nBS_:\nBU_: X\n'
+                   'BO_ 386 Load: 5 X\n SG_ F : 0|32@1- (0.1,0) [0|0] "N" X\n SG_ S : 32|8@1+ (1,0) [0|0] "" X\n'
+                   'BO_ 128 Tick: 1 X\n SG_ N : 0|8@1+ (1,0) [0|0] "" X\n')
+    result = decode_capture(path, frames_dir=tmp_path / "frames", dbc=dbc)
+    assert result.runs_with_rows() == []
+    load_n = ds.dataset(tmp_path / "frames" / "Load", format="parquet").to_table()
+    assert np.array_equal(load_n.column("F").to_numpy(), run.y_counts * 0.1)
+    assert result.frames.unknown == result.frames.frames - 2 * (run.cycles + 1)
+    with pytest.raises(DataError, match="does not describe the stand's loop"):
+        decode_capture(path, out=tmp_path / "run", dbc=dbc)
+    res = stand_cli("decode", str(path), "--dbc", str(dbc), "--frames", str(tmp_path / "f2"))
+    assert res.returncode == 0, res.stderr
+    assert (tmp_path / "f2" / "Tick").is_dir()

@@ -32,7 +32,8 @@ def register(sub) -> None:
     p.add_argument("--partition-rows", type=int, metavar="N",
                    help="write signals.parquet as a directory of part files of at most N rows each")
     p.add_argument("--frames", metavar="DIR",
-                   help="also write every decoded message as a Parquet dataset DIR/<message>/")
+                   help="also write every decoded message as a Parquet dataset DIR/<message>/ "
+                        "(works with any DBC, also one that does not describe the stand)")
     p.add_argument("--skip-damaged", action="store_true",
                    help="skip damaged lines and go on (candump logs) instead of stopping at the first")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -55,12 +56,12 @@ def main(args: argparse.Namespace) -> int:
     print(result.summary())
     for note in result.notes():
         print(f"  note: {note}")
-    if not result.runs_with_rows():
-        if created:
-            try:
-                out.rmdir()
-            except OSError:
-                pass
+    if out is not None and not result.outputs and created:
+        try:
+            out.rmdir()
+        except OSError:
+            pass
+    if not result.runs_with_rows() and (out is not None or result.frames_dir is None):
         where = f" before the damage at {result.damage.position}" if result.damage else ""
         raise StandError(f"{args.capture}: no control cycles found{where} (no SYNC followed by an "
                          "RPDO with ControlWord 7): is this a capture of the stand, and is --dbc right?")
