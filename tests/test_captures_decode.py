@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from captures import CycleAssembler, FrameChunk, FrameDecoder
 from captures.cycles import resolve_offsets
-from captures.frames import EXTENDED, TX
+from captures.frames import EXTENDED
 from captures.synthetic import FORCE_SCALE, stand_frames, synthetic_run
 
 MIXED_DBC = '''VERSION ""
