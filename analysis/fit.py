@@ -60,6 +60,9 @@ FTOL = 1e-7
 REFIT_TOL = 1e-5
 #: looser tolerance for screening fits (ranking candidates needs the error to ~0.1 %, not more)
 SCREEN_TOL = 1e-4
+#: above this many windows, start values are searched on a subset of them (see
+#: :func:`subset_pieces`) and only the polish runs on all
+SEARCH_WINDOWS = 150
 #: relative finite-difference step of the Jacobian (in the optimizer's coordinates)
 DIFF_STEP = 1e-6
 
@@ -170,7 +173,14 @@ def screening_pieces(records: Sequence[Record], window_s: float = WINDOW_S,
     """A subset of windows for fast screening: all windows if there are at most ``max_windows``,
     else evenly spread chunks of ``chunk_windows`` windows, each with ``warmup_s`` of command
     history before it. Returns ``(pieces, is_subset)``."""
-    full = pieces_from_records(records, window_s)
+    return subset_pieces(pieces_from_records(records, window_s), max_windows, chunk_windows,
+                         warmup_s)
+
+
+def subset_pieces(full: Sequence[Piece], max_windows: int = 150, chunk_windows: int = 10,
+                  warmup_s: float = 1.0) -> tuple[list[Piece], bool]:
+    """See :func:`screening_pieces` (same, from prepared pieces)."""
+    full = list(full)
     total = sum(p.n_windows for p in full)
     if total <= max_windows:
         return full, False
@@ -194,7 +204,7 @@ def screening_pieces(records: Sequence[Record], window_s: float = WINDOW_S,
             a = max(0, s - warm)
             out.append(Piece(p.u[a:s + span], p.y[a:s + span], p.dt, W, s - a, p.record,
                              p.start + a, p.t0 + a * p.dt))
-    return (out or full), bool(out)
+    return (out, True) if out else (full, False)
 
 
 def _cut_windows(model: PlantModel, piece: Piece) -> tuple[Drive, np.ndarray]:
@@ -665,6 +675,7 @@ def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
     confidence intervals."""
     model = _as_model(model)
     pieces = _as_pieces(data, window_s)
+    search, searched_subset = subset_pieces(pieces, SEARCH_WINDOWS) if starts == "auto" else (pieces, False)
     spec = model.spec
     fixed = set(fixed)
     unknown = fixed - set(model.params())
@@ -676,7 +687,7 @@ def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
     fit_g, fit_d = "g" not in fixed, "delta" not in fixed
 
     def project(vals):
-        return project_gain_trend(spec, vals, pieces, fit_g, fit_d)
+        return project_gain_trend(spec, vals, search, fit_g, fit_d)
 
     if not free:
         r = residual(model, pieces)
@@ -689,10 +700,10 @@ def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
     if starts == "auto":
         base_vals = dict(given)
         if delay_search and "tau" not in fixed:
-            tv, _ = initial_delay(pieces, spec, given)
+            tv, _ = initial_delay(search, spec, given)
             base_vals.update({k: tv[k] for k in ("g", "tau", "delta") if k not in fixed})
             candidates.append(project(base_vals)[::-1])
-        summary = DataSummary.of(pieces)
+        summary = DataSummary.of(search)
         names = [e.name for e in model.effects] if grid_effects is None else list(grid_effects)
         for name in names:
             for s in effect_starts(name, summary, base_vals):
@@ -716,10 +727,16 @@ def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
             break  # further starts are clearly worse: one polish is enough
         budget = max_nfev if not seen else min(max_nfev or 10 ** 9, 15 * (len(free) + 1))
         seen.append(key)
-        x, res = _polish(par, pieces, vals, budget, FTOL if tol is None else tol)
+        x, res = _polish(par, search, vals, budget, (FTOL if tol is None else tol)
+                         if not searched_subset else SCREEN_TOL)
         if best is None or res.cost < best[1].cost:
             best = (x, res)
     x, res = best
+    if searched_subset:  # the starts were searched on a subset of the windows: polish on all
+        vals = par.to_values(x)
+        sse_all = residual(par.model(x), pieces)
+        candidates = [(float(sse_all @ sse_all), vals)]
+        x, res = _polish(par, pieces, vals, max_nfev, REFIT_TOL if tol is None else tol)
     # never worse than the best start (a polish can stall in a flat, non-identifiable valley)
     sse_best, vals_best = candidates[0]
     if 2 * res.cost > sse_best * (1 + 1e-9):
