@@ -239,7 +239,7 @@ def estimate_relay(rec: Record, hysteresis_kgf: float | None = None,
         raise DataError(
             f"{rec.source}: no sustained oscillation: {len(events)} relay switches after the start "
             f"give {max(ncyc, 0)} complete cycle(s) ({skip_cycles} skipped); need at least "
-            f"{min_cycles}. Record a longer relay phase (relay_s) or check that the loop oscillates")
+            f"{min_cycles}. Record a longer relay phase (duration_s) or check that the loop oscillates")
     clipped = _clipped_mask(rec.y)[start:]
     i_first = events[0][3]
     if clipped[i_first:].any():

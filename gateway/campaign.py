@@ -78,7 +78,7 @@ class RelayPlan:
 
     amplitudes_pct: tuple[float, ...] = (5.0, 10.0, 15.0, 20.0)
     references_kgf: tuple[float, ...] = tuple(float(r) for r in range(-2500, 2501, 500))
-    relay_s: float = 3.0
+    duration_s: float = 3.0            #: length of each relay phase, s
     hysteresis_kgf: float = 0.0
 
 
@@ -111,7 +111,7 @@ class CampaignPlan:
                    pfeedback=PFeedbackPlan(omegas_rad_s=(1.2566, 2.5133), amplitudes_kgf=(2000.0,),
                                            periods=1.5, transient_s=9.0),
                    relay=RelayPlan(amplitudes_pct=(5.0, 20.0), references_kgf=(-500.0, 500.0),
-                                   relay_s=2.0))
+                                   duration_s=2.0))
 
     def only(self, names: list[str]) -> "CampaignPlan":
         """The plan restricted to some experiments."""
@@ -148,7 +148,7 @@ class CampaignPlan:
             for i, u0 in enumerate(rp.amplitudes_pct):
                 refs = list(rp.references_kgf) if i % 2 == 0 else list(reversed(rp.references_kgf))
                 for r in refs:
-                    add("relay", {"amplitude_pct": u0, "reference_kgf": r, "relay_s": rp.relay_s,
+                    add("relay", {"amplitude_pct": u0, "reference_kgf": r, "duration_s": rp.duration_s,
                                   "hysteresis_kgf": rp.hysteresis_kgf}, f"relay-u{u0:g}-r{r:g}")
         if not out:
             raise ParameterError("the campaign plan has no experiment")

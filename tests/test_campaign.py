@@ -66,7 +66,7 @@ def test_the_report_writes_tables_figures_and_the_summary_with_truth(tmp_path):
     exps = [Meander(amplitude_pct=5, period_s=2, cycles=3), Meander(amplitude_pct=20, period_s=2, cycles=3),
             PFeedback(omega_rad_s=1.2566, periods=1.5, transient_s=9),
             PFeedback(omega_rad_s=2.5133, periods=2, transient_s=9),
-            Relay(amplitude_pct=5, reference_kgf=-500, relay_s=2), Relay(amplitude_pct=20, reference_kgf=500, relay_s=2)]
+            Relay(amplitude_pct=5, reference_kgf=-500, duration_s=2), Relay(amplitude_pct=20, reference_kgf=500, duration_s=2)]
     items = []
     for k, exp in enumerate(exps):
         rec = run_offline(exp, cfg, seed=k).record
@@ -100,7 +100,7 @@ def test_the_report_writes_tables_figures_and_the_summary_with_truth(tmp_path):
 
 def test_stand_estimate_reads_csv_files_and_prints_the_documented_json(tmp_path, capsys):
     cfg = plant(BASE, "base")
-    write_csv(run_offline(Relay(amplitude_pct=10, relay_s=3), cfg, seed=1).record, tmp_path / "relay.csv")
+    write_csv(run_offline(Relay(amplitude_pct=10, duration_s=3), cfg, seed=1).record, tmp_path / "relay.csv")
     write_csv(run_offline(Meander(amplitude_pct=10, period_s=2, cycles=3), cfg).record, tmp_path / "m.csv")
     (tmp_path / "bad.csv").write_text("t,u\n0,1\n")
     code = stand(["estimate", str(tmp_path / "relay.csv"), str(tmp_path / "m.csv"), str(tmp_path / "bad.csv"),
@@ -162,7 +162,7 @@ def test_with_the_reversal_effect_the_transitional_gain_stands_out_less_as_u0_gr
     assert "reversal" in config.model.spec
     start_emulator(config, lockstep=True, seed=4)
     plan = CampaignPlan(meander=MeanderPlan(amplitudes_pct=(5.0, 10.0, 15.0, 20.0), period_s=4.0, cycles=2),
-                        pfeedback=None, relay=RelayPlan(amplitudes_pct=(5.0, 20.0), references_kgf=(0.0,), relay_s=2.0))
+                        pfeedback=None, relay=RelayPlan(amplitudes_pct=(5.0, 20.0), references_kgf=(0.0,), duration_s=2.0))
     seen = []
     with Gateway(GatewayConfig(bus=bus_spec, lockstep=True)) as gw:
         result = run_campaign(gw, plan, tmp_path / "c", progress=False, truth=config.to_dict(),

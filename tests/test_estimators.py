@@ -45,7 +45,7 @@ def open_loop_record(model: PlantModel, u: np.ndarray, seed: int = 0, dt: float 
 # == relay ======================================================================================
 @pytest.mark.parametrize("u0, r", [(5, 0.0), (10, -1500.0), (20, 2500.0)])
 def test_relay_exact_estimates_recover_g_and_tau(u0, r):
-    run = run_offline(Relay(amplitude_pct=u0, reference_kgf=r, relay_s=4), plant(BASE, "base"), seed=u0)
+    run = run_offline(Relay(amplitude_pct=u0, reference_kgf=r, duration_s=4), plant(BASE, "base"), seed=u0)
     est = estimate_relay(run.record)
     assert est.g == pytest.approx(TRUTH["g"], rel=0.03)
     assert est.tau == pytest.approx(TRUTH["tau"], rel=0.04)
@@ -57,7 +57,7 @@ def test_relay_exact_estimates_recover_g_and_tau(u0, r):
 
 
 def test_relay_describing_function_with_the_peak_is_biased_by_pi2_over_8_and_reported():
-    run = run_offline(Relay(amplitude_pct=10, relay_s=4), plant(BASE, "base"), seed=4)
+    run = run_offline(Relay(amplitude_pct=10, duration_s=4), plant(BASE, "base"), seed=4)
     est = estimate_relay(run.record)
     assert est.g_df_peak / TRUTH["g"] == pytest.approx(DF_PEAK_BIAS, rel=0.03)   # +23 %
     assert est.df_bias == pytest.approx(math.pi ** 2 / 8, rel=0.02)
@@ -67,7 +67,7 @@ def test_relay_describing_function_with_the_peak_is_biased_by_pi2_over_8_and_rep
 
 def test_relay_other_plant_and_slower_sampling_need_the_half_period_correction():
     model = {"g": 80.0, "tau": 0.08, "delta": 0.0}
-    run = run_offline(Relay(amplitude_pct=10, relay_s=8), plant(model, "base"), period_s=0.01, seed=1)
+    run = run_offline(Relay(amplitude_pct=10, duration_s=8), plant(model, "base"), period_s=0.01, seed=1)
     est = estimate_relay(run.record)
     assert est.sampling_correction_s == pytest.approx(0.005)
     assert est.g == pytest.approx(80.0, rel=0.03)
@@ -77,7 +77,7 @@ def test_relay_other_plant_and_slower_sampling_need_the_half_period_correction()
 
 
 def test_relay_hysteresis_is_taken_from_the_run_and_corrected():
-    run = run_offline(Relay(amplitude_pct=10, hysteresis_kgf=40.0, relay_s=4), plant(BASE, "base"), seed=2)
+    run = run_offline(Relay(amplitude_pct=10, hysteresis_kgf=40.0, duration_s=4), plant(BASE, "base"), seed=2)
     est = estimate_relay(run.record)
     assert est.hysteresis_kgf == 40.0
     assert est.g == pytest.approx(120.0, rel=0.03)
@@ -88,24 +88,24 @@ def test_relay_hysteresis_is_taken_from_the_run_and_corrected():
 
 def test_relay_reports_an_asymmetric_gain():
     cfg = plant({**BASE, "asymmetry.ratio": 0.2}, "base+asymmetry")
-    est = estimate_relay(run_offline(Relay(amplitude_pct=10, relay_s=4), cfg, seed=5).record)
+    est = estimate_relay(run_offline(Relay(amplitude_pct=10, duration_s=4), cfg, seed=5).record)
     assert est.slope_rise / est.slope_fall == pytest.approx(1.2 / 0.8, rel=0.06)
     assert est.fall_s > est.rise_s
     assert any("asymmetric slopes" in w for w in est.warnings)
     assert est.g == pytest.approx(120.0, rel=0.04), "the mean of the two gains"
-    sym = estimate_relay(run_offline(Relay(amplitude_pct=10, relay_s=4), plant(BASE, "base"), seed=5).record)
+    sym = estimate_relay(run_offline(Relay(amplitude_pct=10, duration_s=4), plant(BASE, "base"), seed=5).record)
     assert not any("asymmetric" in w for w in sym.warnings)
 
 
 def test_relay_with_the_reversal_effect_sees_a_larger_gain_at_small_amplitude():
     cfg = plant(BASE, "base+reversal")
-    g = [estimate_relay(run_offline(Relay(amplitude_pct=u0, relay_s=3), cfg, seed=u0).record).g
+    g = [estimate_relay(run_offline(Relay(amplitude_pct=u0, duration_s=3), cfg, seed=u0).record).g
          for u0 in (5, 10, 20)]
     assert g[0] > g[1] > g[2] > 120.0, g
 
 
 def test_relay_bad_data_gives_clear_errors():
-    short = run_offline(Relay(amplitude_pct=10, relay_s=0.4), plant(BASE, "base")).record
+    short = run_offline(Relay(amplitude_pct=10, duration_s=0.4), plant(BASE, "base")).record
     with pytest.raises(DataError, match="no sustained oscillation"):
         estimate_relay(short)
     flat = make_record(np.arange(500) * 0.002, np.full(500, 10.0), np.linspace(0, 600, 500), np.zeros(500))
@@ -115,7 +115,7 @@ def test_relay_bad_data_gives_clear_errors():
     with pytest.raises(DataError, match="zero throughout"):
         estimate_relay(zero)
     cfg = plant({**BASE, "sensor.range_kgf": 1000.0}, "base")
-    clipped = run_offline(Relay(amplitude_pct=10, reference_kgf=980.0, relay_s=3), cfg,
+    clipped = run_offline(Relay(amplitude_pct=10, reference_kgf=980.0, duration_s=3), cfg,
                           force_limit_kgf=5000.0).record
     with pytest.raises(DataError, match="saturated"):
         estimate_relay(clipped)
@@ -214,7 +214,7 @@ def test_meander_bad_data_gives_clear_errors():
 # == dispatch, detection and JSON ====================================================================
 @pytest.mark.parametrize("experiment", [
     Meander(amplitude_pct=10, period_s=2, cycles=3, set_point_kgf=500.0),
-    Relay(amplitude_pct=15, reference_kgf=-1000.0, relay_s=2),
+    Relay(amplitude_pct=15, reference_kgf=-1000.0, duration_s=2),
     PFeedback(omega_rad_s=2.0, periods=2, transient_s=9),
 ])
 def test_the_experiment_is_recognised_from_a_plain_csv(experiment, tmp_path):
@@ -232,7 +232,7 @@ def test_the_experiment_is_recognised_from_a_plain_csv(experiment, tmp_path):
 
 
 def test_metadata_wins_over_detection_and_an_option_wins_over_both():
-    rec = run_offline(Relay(amplitude_pct=10, relay_s=2), plant(BASE, "base")).record
+    rec = run_offline(Relay(amplitude_pct=10, duration_s=2), plant(BASE, "base")).record
     assert detect_experiment(rec).detected_from == "metadata"
     est = estimate_record(rec, EstimateOptions(experiment="relay", hysteresis_kgf=0.0))
     assert est.detection.detected_from == "option"
@@ -241,7 +241,7 @@ def test_metadata_wins_over_detection_and_an_option_wins_over_both():
 
 
 def test_relay_json_has_the_exact_and_the_paper_estimates_side_by_side():
-    rec = run_offline(Relay(amplitude_pct=10, relay_s=3), plant(BASE, "base"), seed=6).record
+    rec = run_offline(Relay(amplitude_pct=10, duration_s=3), plant(BASE, "base"), seed=6).record
     doc = result_json(estimate_record(rec))
     e = doc["estimates"]
     assert e["g"] == pytest.approx(120.0, rel=0.03) and e["tau"] == pytest.approx(0.05, rel=0.04)

@@ -114,11 +114,19 @@ def test_bad_parameters_are_rejected_with_the_name_and_range(name, params, words
 
 # -- the set-point approach and the guard -----------------------------------------------------
 def test_meander_at_its_set_point_starts_at_once_and_keeps_the_old_length():
-    run = run_offline(Meander(amplitude_pct=5, period_s=1, cycles=2), plant(BASE, "base"))
+    run = run_offline(Meander(amplitude_pct=5, period_s=1, cycles=2, set_point_kgf=0.0), plant(BASE, "base"))
     rec = run.record
     assert run.reason is None and len(rec) == 1000
     assert np.isnan(rec.r).all(), "open loop: no reference during the square wave"
     assert set(rec.u) == {wire(5.0), wire(-5.0)}
+
+
+def test_meander_without_a_set_point_starts_wherever_the_force_is():
+    exp = Meander(amplitude_pct=5, period_s=1, cycles=2)
+    assert exp.params()["set_point_kgf"] is None
+    run = run_offline(exp, plant(BASE, "base"), y0=3000.0)
+    assert run.reason is None and len(run.record) == 1000 and np.isnan(run.record.r).all()
+    assert run.record.y[0] == pytest.approx(3000.0, abs=10)
 
 
 def test_meander_first_brings_the_force_to_the_set_point_and_records_it_as_reference():
@@ -151,7 +159,7 @@ def test_an_unreachable_set_point_stops_the_run_with_a_reason():
 
 def test_the_guard_stops_a_meander_before_the_force_limit():
     # ramps of 120·20·5 = 12,000 kgf would cross the 5,000 kgf limit
-    exp = Meander(amplitude_pct=20, period_s=20, cycles=1)
+    exp = Meander(amplitude_pct=20, period_s=20, cycles=1, set_point_kgf=0.0)
     run = run_offline(exp, plant(BASE, "base"), force_limit_kgf=5000.0)
     assert run.reason == FORCE_NEAR_LIMIT, run.message
     assert "90%" in run.message and "5000" in run.message
@@ -161,7 +169,7 @@ def test_the_guard_stops_a_meander_before_the_force_limit():
 
 # -- relay and P feedback ---------------------------------------------------------------------
 def test_relay_oscillates_about_the_reference_with_two_command_levels():
-    exp = Relay(amplitude_pct=10, reference_kgf=1000.0, relay_s=2.0)
+    exp = Relay(amplitude_pct=10, reference_kgf=1000.0, duration_s=2.0)
     run = run_offline(exp, plant(BASE, "base"))
     rec = run.record
     assert run.reason is None
@@ -217,7 +225,7 @@ def test_stand_run_relay_and_its_guard_on_the_emulator(bus_spec, start_emulator,
     start_emulator(plant(BASE, "base"), lockstep=True, seed=2)
     out = tmp_path / "relay"
     cmd = [sys.executable, "-m", "stand", "run", "relay", "--bus", bus_spec, "--lockstep",
-           "--amplitude-pct", "10", "--reference-kgf", "500", "--relay-s", "1", "--out", str(out),
+           "--amplitude-pct", "10", "--reference-kgf", "500", "--duration-s", "1", "--out", str(out),
            "--no-progress"]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr + done.stdout

@@ -185,7 +185,8 @@ class Meander(PhasedExperiment):
 
     Before the square wave the force is brought to ``set_point_kgf`` by a short proportional loop
     (skipped when it is already there; the reference r is recorded as the set point during that
-    phase and NaN during the open-loop square wave). The first segment of the square wave lasts a
+    phase and NaN during the open-loop square wave). ``set_point_kgf = None`` (the default, as
+    before this option existed) starts the square wave wherever the force is. The first segment of the square wave lasts a
     quarter period, so the force ramps symmetrically around the set point (up g·u0·P/4, down
     g·u0·P/2, ...) instead of drifting away by g·u0·P/2. The run stops itself when |y| reaches
     ``guard_fraction`` of the force limit.
@@ -193,7 +194,7 @@ class Meander(PhasedExperiment):
     :param amplitude_pct: u0, 0 < u0 <= 100 %
     :param period_s: full period P of the square wave, 0.02..600 s
     :param cycles: number of periods, 1..10000
-    :param set_point_kgf: force to start from, kgf
+    :param set_point_kgf: force to start from, kgf (None: where it is)
     :param settle_gain: gain of the approach loop, %/kgf
     :param settle_limit_pct: command limit of the approach loop, %
     :param settle_tolerance_kgf: the set point is reached within ± this, kgf
@@ -204,15 +205,18 @@ class Meander(PhasedExperiment):
     name = "meander"
 
     def __init__(self, amplitude_pct: float = 5.0, period_s: float = 4.0, cycles: float = 5,
-                 set_point_kgf: float = 0.0, settle_gain: float = 0.02, settle_limit_pct: float = 20.0,
+                 set_point_kgf: float | None = None, settle_gain: float = 0.02, settle_limit_pct: float = 20.0,
                  settle_tolerance_kgf: float = 20.0, settle_max_s: float = 10.0,
                  guard_fraction: float = 0.9) -> None:
         self.amplitude_pct = check_range("amplitude_pct", amplitude_pct, 1e-3, 100.0, "%")
         self.period_s = check_range("period_s", period_s, 0.02, 600.0, "s")
         self.cycles = check_range("cycles", cycles, 1, 10000, integer=True)
         self.max_command_pct = max(self.amplitude_pct, settle_limit_pct)
-        self._init_phases(set_point_kgf, settle_gain, settle_limit_pct, settle_tolerance_kgf,
-                          settle_max_s, guard_fraction)
+        check_range("settle_max_s", settle_max_s, 0.0, 3600.0, "s")
+        self.set_point_kgf = None if set_point_kgf is None else float(set_point_kgf)
+        self._init_phases(0.0 if set_point_kgf is None else set_point_kgf, settle_gain, settle_limit_pct,
+                          settle_tolerance_kgf, 0.0 if set_point_kgf is None else settle_max_s,
+                          guard_fraction)
 
     @property
     def main_duration_s(self) -> float:
@@ -220,7 +224,7 @@ class Meander(PhasedExperiment):
 
     def params(self) -> dict[str, Any]:
         return {"amplitude_pct": self.amplitude_pct, "period_s": self.period_s, "cycles": self.cycles,
-                "set_point_kgf": self.approach.target_kgf, **self.phase_params()}
+                "set_point_kgf": self.set_point_kgf, **self.phase_params()}
 
     def main_step(self, tm: float, y: float) -> tuple[float, float]:
         half = self.period_s / 2

@@ -23,7 +23,7 @@ class Relay(PhasedExperiment):
 
     :param amplitude_pct: relay amplitude u0, %
     :param reference_kgf: constant reference r, kgf
-    :param relay_s: length of the relay phase, s
+    :param duration_s: length of the relay phase (after the approach), s
     :param hysteresis_kgf: relay hysteresis ε, kgf (0: ideal relay)
     :param settle_gain: gain of the approach loop, %/kgf
     :param settle_limit_pct: command limit of the approach loop, %
@@ -34,13 +34,13 @@ class Relay(PhasedExperiment):
 
     name = "relay"
 
-    def __init__(self, amplitude_pct: float = 10.0, reference_kgf: float = 0.0, relay_s: float = 4.0,
+    def __init__(self, amplitude_pct: float = 10.0, reference_kgf: float = 0.0, duration_s: float = 4.0,
                  hysteresis_kgf: float = 0.0, settle_gain: float = 0.02, settle_limit_pct: float = 20.0,
                  settle_tolerance_kgf: float = 50.0, settle_max_s: float = 10.0,
                  guard_fraction: float = 0.9) -> None:
         self.amplitude_pct = check_range("amplitude_pct", amplitude_pct, 1e-3, 100.0, "%")
         self.reference_kgf = check_range("reference_kgf", reference_kgf, -1e5, 1e5, "kgf")
-        self.relay_s = check_range("relay_s", relay_s, 0.01, 36000.0, "s")
+        self.relay_s = check_range("duration_s", duration_s, 0.01, 36000.0, "s")
         self.hysteresis_kgf = check_range("hysteresis_kgf", hysteresis_kgf, 0.0, 1e4, "kgf")
         self.max_command_pct = max(self.amplitude_pct, settle_limit_pct)
         self._init_phases(reference_kgf, settle_gain, settle_limit_pct, settle_tolerance_kgf,
@@ -53,7 +53,7 @@ class Relay(PhasedExperiment):
 
     def params(self) -> dict[str, Any]:
         return {"amplitude_pct": self.amplitude_pct, "reference_kgf": self.reference_kgf,
-                "relay_s": self.relay_s, "hysteresis_kgf": self.hysteresis_kgf, **self.phase_params()}
+                "duration_s": self.relay_s, "hysteresis_kgf": self.hysteresis_kgf, **self.phase_params()}
 
     def begin_main(self, y0: float) -> None:
         self._last = self.amplitude_pct if self.reference_kgf >= y0 else -self.amplitude_pct
