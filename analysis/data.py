@@ -8,6 +8,7 @@ across gaps: each keeps its own time base).
 from __future__ import annotations
 
 import csv
+import gzip
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -163,11 +164,30 @@ def read_run(path: str | Path) -> Record:
     return rec
 
 
-CAPTURE_SUFFIXES = (".log", ".asc", ".blf", ".trc", ".mf4", ".csv.gz", ".db")
+def _is_capture(path: Path) -> bool:
+    """A bus capture by its suffixes (``.log``, ``.blf``, ``.asc.gz``, ...); a ``.csv`` is a
+    capture only if its header is python-can's (``timestamp,arbitration_id,...``)."""
+    suffixes = [s.lower() for s in path.suffixes]
+    if suffixes and suffixes[-1] == ".gz":
+        suffixes = suffixes[:-1]
+    if not suffixes:
+        return False
+    if suffixes[-1] == ".csv":
+        try:
+            with (gzip.open(path, "rt") if path.suffix.lower() == ".gz" else path.open()) as fh:
+                header = fh.readline().lower()
+        except OSError:
+            return False
+        return "arbitration_id" in header
+    try:
+        from captures import SUFFIXES
+    except ImportError:  # pragma: no cover - captures ships with the project
+        return False
+    return suffixes[-1] in SUFFIXES
 
 
 def load(path: str | Path) -> Record:
-    """Load one input: run directory, CSV, or (once available) a bus capture."""
+    """Load one input: run directory, CSV ``t,u,y[,r]``, or a bus capture (decoded with the DBC)."""
     path = Path(path)
     if not path.exists():
         raise DataError(f"{path} does not exist")
@@ -175,16 +195,13 @@ def load(path: str | Path) -> Record:
         if is_run_dir(path):
             return read_run(path)
         raise DataError(f"{path} is a directory but not a run (no run.json)")
+    if _is_capture(path):
+        from captures import load_capture
+        return load_capture(path)
     if path.suffix.lower() == ".csv":
         return read_csv(path)
-    if path.suffix.lower() in CAPTURE_SUFFIXES:
-        try:
-            from captures import load_capture
-        except ImportError:
-            raise DataError(f"{path}: decoding bus captures is not available in this version") from None
-        return load_capture(path)
     raise DataError(f"{path}: unknown input type; give a CSV (t,u,y[,r]), a run directory or a "
-                    "bus capture (.log, .asc, .blf, .trc, .mf4)")
+                    "bus capture (.log, .asc, .blf, .trc, .mf4, optionally .gz)")
 
 
 def load_all(paths: Iterable[str | Path]) -> list[Record]:

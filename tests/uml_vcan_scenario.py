@@ -24,14 +24,8 @@ TRUTH = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 
 
 def experiments():
-    runs = {"meander": EXPERIMENTS["meander"](amplitude_pct=5.0, period_s=2.0, cycles=2)}
-    if "relay" in EXPERIMENTS:
-        runs["relay"] = EXPERIMENTS["relay"](**relay_params())
-    return runs
-
-
-def relay_params() -> dict:
-    return {"amplitude_pct": 10.0, "reference_kgf": 0.0, "duration_s": 3.0}
+    return {"meander": EXPERIMENTS["meander"](amplitude_pct=5.0, period_s=2.0, cycles=2),
+            "relay": EXPERIMENTS["relay"](amplitude_pct=10.0, reference_kgf=0.0, duration_s=3.0)}
 
 
 def main(out: Path) -> int:
