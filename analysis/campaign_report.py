@@ -97,6 +97,8 @@ def estimate_inputs(paths: Iterable[str | Path], options: EstimateOptions | None
             item.record = rec if keep_records else None
         except StandError as exc:
             item.error = str(exc)
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:   # unusable numbers
+            item.error = f"{path}: the estimate failed on these data ({type(exc).__name__}: {exc})"
         if path.is_dir():
             try:
                 item.truth = read_truth(path)

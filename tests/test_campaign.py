@@ -157,7 +157,8 @@ def test_stand_campaign_with_the_base_model_meets_the_accuracy_targets(tmp_path,
 
 
 @pytest.mark.e2e
-def test_with_the_reversal_effect_the_transitional_gain_stands_out_less_as_u0_grows(bus_spec, start_emulator, tmp_path):
+def test_with_the_reversal_effect_the_transitional_gain_stands_out_less_as_u0_grows(bus_spec, start_emulator, tmp_path,
+                                                                                  capsys):
     config = plant(BASE)                                     # the emulator's default: base+reversal
     assert "reversal" in config.model.spec
     start_emulator(config, lockstep=True, seed=4)
@@ -165,9 +166,11 @@ def test_with_the_reversal_effect_the_transitional_gain_stands_out_less_as_u0_gr
                         pfeedback=None, relay=RelayPlan(amplitudes_pct=(5.0, 20.0), references_kgf=(0.0,), duration_s=2.0))
     seen = []
     with Gateway(GatewayConfig(bus=bus_spec, lockstep=True)) as gw:
-        result = run_campaign(gw, plan, tmp_path / "c", progress=False, truth=config.to_dict(),
+        result = run_campaign(gw, plan, tmp_path / "c", progress=True, truth=config.to_dict(),
                               on_run=seen.append)
     assert result.status == "complete" and [r.label for r in seen] == [r.label for r in plan.runs()]
+    bar = capsys.readouterr().err
+    assert "campaign:" in bar and "s stand time" in bar and "6/6 06-relay-u20-r0" in bar, bar[-500:]
     report = report_campaign(tmp_path / "c", figures=False)
     contrast = rows(tmp_path / "c" / "meander_contrast.csv")
     ratios = [float(r["ratio"]) for r in contrast]
