@@ -1,25 +1,41 @@
-"""Raw bus capture of a run, written through python-can's loggers.
+"""Raw bus capture of a run, and the network the gateway talks through.
 
-The default file is a candump log (``capture.log``, can-utils' ``candump -L`` format): line based,
-so a crash loses at most the last partial line, and readable by can-utils, python-can's
-``LogReader`` and our decoder. (python-can's BLF and MF4 writers lose everything if the process
-dies before ``stop()``, so they are offered only on request.)
+The default file is a candump log (``capture.log``, can-utils' ``candump -L`` format): line
+based, readable by can-utils, python-can's ``LogReader`` and our decoder. Lines are formatted
+by python-can's ``CanutilsLogWriter`` into memory and written to the file only as whole lines
+(one ``os.write`` per flush, then ``fsync``) at least every ``flush_s`` = 0.25 s, so a killed
+gateway leaves a file that ends with a complete line in all but the rarest case (a kill inside
+that write); :func:`read_capture` also drops a trailing partial line. python-can's BLF and MF4
+writers lose everything if the process dies before ``stop()`` (tests/test_crash_safety.py shows
+it), so they are used only when asked for by the file name.
 
 Frames reach the capture from two sides: received frames from the network's Notifier (this is a
 ``can.Listener``) and frames the gateway itself sends (:class:`TappedNetwork`), because a
 SocketCAN-like bus does not echo a sender's own frames. A background thread does the writing, so
-the control loop only pays for a queue put; it flushes at least every ``flush_s`` seconds.
+the control loop only pays for a queue put.
+
+:class:`TappedNetwork` also puts a :class:`standbus.faults.FrameFilter` in front of the canopen
+stack: only classic 11-bit data frames pass, and once the master has declared its nodes, only
+frames on their ids with the right length (wrong DLC, unexpected ids: counted and dropped).
 """
 from __future__ import annotations
 
+import io
+import logging
 import os
 import queue
 import threading
 import time
 from pathlib import Path
+from typing import Iterator
 
 import can
 import canopen
+from canopen.network import MessageListener
+
+from standbus.faults import FrameFilter
+
+log = logging.getLogger(__name__)
 
 
 class BusCapture(can.Listener):
@@ -27,11 +43,19 @@ class BusCapture(can.Listener):
 
     def __init__(self, path: str | Path, flush_s: float = 0.25) -> None:
         self.path = Path(path)
-        self._writer = can.Logger(str(self.path))
+        self._lines: io.StringIO | None = None
+        if self.path.suffix.lower() == ".log":
+            self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+            self._lines = io.StringIO()
+            self._writer = can.io.CanutilsLogWriter(self._lines)
+        else:   # BLF, MF4, ASC, ...: python-can's own writers, as asked for
+            self._fd = None
+            self._writer = can.Logger(str(self.path))
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._flush_s = flush_s
         self._closed = threading.Event()
         self.frames = 0
+        self.write_errors = 0
         self._thread = threading.Thread(target=self._drain, name="bus-capture", daemon=True)
         self._thread.start()
 
@@ -49,8 +73,11 @@ class BusCapture(can.Listener):
             except queue.Empty:
                 msg = None
             if msg is not None:
-                self._writer.on_message_received(msg)
-                self.frames += 1
+                try:
+                    self._writer.on_message_received(msg)
+                    self.frames += 1
+                except Exception:          # one odd frame must not stop the capture
+                    self.write_errors += 1
             now = time.monotonic()
             if now - last_flush >= self._flush_s or (msg is None and self._closed.is_set()):
                 self._flush()
@@ -59,31 +86,76 @@ class BusCapture(can.Listener):
                     return
 
     def _flush(self) -> None:
-        fh = getattr(self._writer, "file", None)
-        if fh is not None and not fh.closed:
-            fh.flush()
-            try:
+        try:
+            if self._lines is not None:
+                text = self._lines.getvalue()
+                if text:
+                    self._lines.seek(0)
+                    self._lines.truncate()
+                    data = text.encode("ascii", "replace")
+                    while data:                      # whole lines, in as few writes as possible
+                        n = os.write(self._fd, data)
+                        data = data[n:]
+                os.fsync(self._fd)
+                return
+            fh = getattr(self._writer, "file", None)
+            if fh is not None and not fh.closed:
+                fh.flush()
                 os.fsync(fh.fileno())
-            except (OSError, ValueError):
-                pass
+        except (OSError, ValueError, AttributeError) as exc:
+            self.write_errors += 1
+            log.warning("capture %s: flush failed: %s", self.path, exc)
 
     def stop(self) -> None:
         """Write everything queued, then close the file."""
         self._closed.set()
         self._thread.join()
-        self._writer.stop()
+        if self._lines is not None:
+            self._flush()
+            os.close(self._fd)
+            self._fd = None
+        else:
+            self._writer.stop()
+
+
+def read_capture(path: str | Path) -> Iterator[can.Message]:
+    """The frames of a candump ``.log`` capture, tolerating what a crash leaves behind: a last
+    line without its newline is dropped instead of being parsed as a shorter frame."""
+    text = Path(path).read_text(encoding="ascii", errors="replace")
+    if text and not text.endswith("\n"):
+        text = text[:text.rfind("\n") + 1]
+    yield from can.io.CanutilsLogReader(io.StringIO(text))
 
 
 class TappedNetwork(canopen.Network):
-    """A canopen network that also hands every frame it sends to a capture."""
+    """A canopen network that hands every frame it sends to a capture and filters what it
+    receives (see the module docstring)."""
+
+    #: the Notifier's receive timeout, s: also how long closing the network may take
+    NOTIFIER_CYCLE = 0.1
 
     def __init__(self, bus: can.BusABC | None = None) -> None:
         super().__init__(bus)
         self.capture: BusCapture | None = None
+        #: acceptance filter in front of the canopen stack (strict once ids are declared)
+        self.frame_filter = FrameFilter(MessageListener(self).on_message_received)
+        self.listeners = [self.frame_filter]
+
+    def expect(self, can_id: int, lengths=None) -> None:
+        """Accept frames on ``can_id`` with these data lengths; from the first call on, frames
+        on undeclared ids are counted and dropped."""
+        self.frame_filter.expect(can_id, lengths)
+        self.frame_filter.strict = True
+
+    def _channel(self):
+        """The bus's channel name for captured frames (some interfaces keep other objects in
+        ``bus.channel``: python-can's ``virtual`` keeps its receiver list there)."""
+        channel = getattr(self.bus, "channel", None)
+        return channel if isinstance(channel, (str, int)) else None
 
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         msg = can.Message(is_extended_id=can_id > 0x7FF, arbitration_id=can_id, data=data,
-                          is_remote_frame=remote, is_rx=False, channel=getattr(self.bus, "channel", None))
+                          is_remote_frame=remote, is_rx=False, channel=self._channel())
         with self.send_lock:
             self.bus.send(msg)
         capture = self.capture

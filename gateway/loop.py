@@ -3,13 +3,24 @@
 Each cycle::
 
     SYNC(counter) ─▶ wait for the valve and force TPDOs ─▶ supervisor check ─▶ experiment.step
-        ─▶ shaped command ─▶ valve RPDO ─▶ record the row
+        ─▶ error detector ─▶ shaped command ─▶ valve RPDO ─▶ record the row
 
 * **real time**: SYNCs on an absolute schedule (no drift); the TPDOs are awaited until 80 % of
   the period; a late or missing force PDO makes the cycle *stale* (the last reading is reused
-  and counted); a cycle that starts later than one period is an *overrun* (counted).
+  and counted). A synchronous TPDO does not say which SYNC it answers, so when the bus stamps
+  frames with the sender's wall-clock time (udp_loopback, SocketCAN) a TPDO sent before this
+  cycle's SYNC is an old answer that was delayed: counted as late, never taken as fresh; a cycle that starts later than one period is an *overrun* (counted), and one
+  later than ``overrun_limit_s`` stops the run.
 * **lockstep**: the next SYNC goes out as soon as the cycle is complete; the stand (emulator
   with ``--lockstep``) advances one period per SYNC, so a run takes as long as the bus needs.
+  While waiting for an answer the loop checks the heartbeats and EMCYs every 20 ms, so a dead
+  or frozen stand is noticed within the heartbeat timeout, not only after the answer timeout.
+
+When the supervisor trips (:mod:`gateway.supervisor`) the cycle's command is the safe one
+(hold: control word HOLD with zero setpoint; zero: DISABLED with zero setpoint), the row of
+that cycle is recorded with it, and the run ends — or, for a controlled unload, the
+supervisor's unload loop drives the remaining cycles until the force is about zero, then hold.
+Every command sent is either the experiment's command shaped by the supervisor or a safe one.
 
 The TPDO callbacks run on the canopen Notifier thread; they only decode with the precompiled
 PDO layouts and hand the values over through a queue.
@@ -27,13 +38,16 @@ import can
 from dbc import profile as P
 
 from .capture import TappedNetwork
-from .errors import SafetyStop
 from .experiments import Experiment
 from .master import StandMaster
 from .recorder import RunRecorder
-from .supervisor import Supervisor
+from .supervisor import Supervisor, Trip, Unloader
 
 SYNC_COB_ID = 0x80
+#: lockstep: how often the loop looks at heartbeats/EMCYs while it waits for an answer, s
+WAIT_SLICE_S = 0.02
+#: a TPDO stamped more than this before the SYNC went out answers an earlier SYNC, s
+STAMP_SKEW_S = 0.0005
 
 
 @dataclass
@@ -41,10 +55,20 @@ class LoopStats:
     cycles: int = 0
     stale_cycles: int = 0
     overruns: int = 0
+    #: TPDOs of a known layout with the wrong length (never decoded)
     bad_frames: int = 0
     late_frames: int = 0
     max_lateness_s: float = 0.0
     wall_s: float = 0.0
+    #: frames the acceptance filter dropped during the run: on ids of no configured node,
+    #: with a wrong DLC for their id, or not classic data frames (error/remote/extended/FD)
+    unexpected_frames: int = 0
+    wrong_dlc_frames: int = 0
+    not_classic_frames: int = 0
+    #: cycles whose command the supervisor clamped or rate-limited
+    shaped_commands: int = 0
+    #: indicate-only limit events (run.json ``events``)
+    limit_events: int = 0
     #: real time only: SYNC send time minus its scheduled time, s (one per cycle)
     sync_jitter_s: list = field(default_factory=list)
 
@@ -55,6 +79,8 @@ class LoopOutcome:
     reason: str | None            #: machine-readable reason the run ended early
     message: str | None
     stats: LoopStats
+    #: how the run was brought to its safe state (run.json ``safety``), None if it completed
+    safety: dict | None = None
 
 
 class ControlLoop:
@@ -88,7 +114,7 @@ class ControlLoop:
         except struct.error:
             self.stats.bad_frames += 1      # wrong DLC for a known frame: counted, never decoded
             return
-        self._arrivals.put((can_id, values, time.monotonic()))
+        self._arrivals.put((can_id, values, timestamp))
 
     def _subscribe(self) -> None:
         if not self._subscribed:
@@ -111,13 +137,20 @@ class ControlLoop:
         self.network.send_message(self._rpdo.cob_id, self._rpdo.encode(*values))
         return P.counts_to_percent(counts)
 
-    def safe_state(self) -> None:
-        """Zero flow, valve to HOLD (hold setpoint), sent twice in case one frame is lost."""
+    def safe_state(self, action: str = "hold") -> float:
+        """Zero setpoint and the valve to HOLD (its hold setpoint: zero flow) or, for the
+        ``zero`` action, to DISABLED (spool to its fail-safe position); sent twice in case one
+        frame is lost. Returns the wall-clock time of the first send (NaN if the bus failed)."""
+        word = P.CW_DISABLED if action == "zero" else P.CW_HOLD
+        sent = math.nan
         for _ in range(2):
             try:
-                self.send_command(P.CW_HOLD, 0.0)
+                self.send_command(word, 0.0)
+                if sent != sent:
+                    sent = time.time()
             except can.CanError:
                 pass
+        return sent
 
     def _drain(self) -> None:
         while True:
@@ -127,24 +160,38 @@ class ControlLoop:
                 return
             self.stats.late_frames += 1
 
+    def _filter_counts(self) -> dict[str, int]:
+        flt = getattr(self.network, "frame_filter", None)
+        return flt.counts() if flt is not None else {}
+
     # -- the loop --------------------------------------------------------------------------------
     def run(self, experiment: Experiment, recorder: RunRecorder | None, progress=None) -> LoopOutcome:
         """Run ``experiment`` to its end or until the supervisor stops it. The valve is left
-        in HOLD with zero command either way."""
+        in HOLD (or DISABLED after a ``zero`` trip) with zero command either way."""
         self._subscribe()
-        self.supervisor.reset()
+        sup = self.supervisor
+        sup.reset()
+        sup.wait_s = WAIT_SLICE_S if self.lockstep else 0.8 * self.period_s
         experiment.abort = None
-        experiment.configure(self.period_s, self.supervisor.limits.force_limit_kgf)
+        experiment.configure(self.period_s, sup.limits.force_limit_kgf)
         stats = self.stats = LoopStats()
+        filter0 = self._filter_counts()
         T = self.period_s
+        lockstep = self.lockstep
         force_cob = self._force_layout.cob_id
         scale = self.master.force_scale_kgf
+        arrivals = self._arrivals
+        overrun_limit = sup.limits.overrun_limit_s
+        wall_stamps: bool | None = None
         counter = 0
         y = math.nan
         y_counts = 0
         spool = math.nan
         status = 0
-        reason = message = None
+        trip: Trip | None = None          # what ended (or is unloading) the run
+        unloader: Unloader | None = None
+        unload_note: str | None = None
+        final_action = "hold"
         self._drain()
         stats.late_frames = 0
         # Enable the valve with a zero command before the first SYNC.
@@ -155,14 +202,18 @@ class ControlLoop:
         cycle = 0
         try:
             while True:
-                if not self.lockstep:
+                late_trip = None
+                if not lockstep:
                     _sleep_until(next_sync)
                     now = time.perf_counter()
-                    stats.sync_jitter_s.append(now - next_sync)
-                    if now - next_sync > T:
-                        missed = int((now - next_sync) / T)
+                    late = now - next_sync
+                    stats.sync_jitter_s.append(late)
+                    if late > T:
+                        missed = int(late / T)
                         stats.overruns += missed
                         next_sync += missed * T
+                    if late > overrun_limit:
+                        late_trip = sup.overrun(late, time.time() - late)
                     t = next_sync - t_start
                     deadline = next_sync + 0.8 * T
                 else:
@@ -173,14 +224,25 @@ class ControlLoop:
                 sync_wall = time.time()
                 self.network.send_message(SYNC_COB_ID, bytes((counter,)))
                 got_force = got_valve = False
+                wait_trip = None
                 while not (got_force and got_valve):
                     remaining = deadline - time.perf_counter()
                     if remaining <= 0:
                         break
                     try:
-                        cob, values, _ = self._arrivals.get(timeout=remaining)
+                        cob, values, stamp = arrivals.get(timeout=min(remaining, WAIT_SLICE_S))
                     except queue.Empty:
-                        break
+                        if recorder is not None:
+                            recorder.poll()
+                        wait_trip = sup.check_nodes()
+                        if wait_trip is not None:
+                            break
+                        continue
+                    if wall_stamps is None:      # first frame: does the bus stamp wall-clock time?
+                        wall_stamps = abs(stamp - time.time()) < 1.0
+                    if wall_stamps and stamp < sync_wall - STAMP_SKEW_S:
+                        stats.late_frames += 1   # sent before this SYNC: an old answer, delayed
+                        continue
                     if cob == force_cob:
                         y_counts = values[self._force_pos]
                         y = y_counts * scale
@@ -192,40 +254,96 @@ class ControlLoop:
                 stale = not got_force
                 if stale:
                     stats.stale_cycles += 1
-                verdict = self.supervisor.check(y, stale)
-                if verdict is None and self.lockstep and not (got_force and got_valve):
+                r = math.nan
+                new = late_trip or wait_trip or sup.check(y, stale, status, sync_wall,
+                                                          force=unloader is None)
+                if new is None and lockstep and not (got_force and got_valve):
                     link = self.master.valve if got_force else self.master.dynamometer
-                    verdict = ("no_answer_to_sync",
-                               f"{link.role} node {link.id} did not answer SYNC within "
-                               f"{self.lockstep_timeout_s:g} s (is the emulator running with "
-                               "--lockstep on this bus?)")
-                if verdict is not None:
-                    reason, message = verdict
-                    self.safe_state()
-                    break
-                if cycle == 0:
-                    experiment.begin(y)
-                if experiment.finished(t, y):
-                    break
-                u_req, r = experiment.step(t, y)
-                if experiment.abort is not None:
-                    reason, message = experiment.abort
-                    self.safe_state()
-                    break
-                u = self.send_command(P.CW_ACTIVE, self.supervisor.shape_command(u_req))
+                    new = sup.make_trip("no_answer_to_sync",
+                                    f"{link.role} node {link.id} did not answer SYNC within "
+                                    f"{self.lockstep_timeout_s:g} s (is the emulator running with "
+                                    "--lockstep on this bus?)", sync_wall)
+                    new.bound_s = self.lockstep_timeout_s + T
+                if unloader is not None:
+                    # -- controlled unload: the supervisor's loop drives, any fault → hold
+                    if new is not None:
+                        unload_note = f"unload interrupted after {unloader.t:.2f} s: {new.message}"
+                        unloader.outcome = "interrupted"
+                        u = self._end(trip, "hold")
+                    else:
+                        u_un, r = unloader.step(y)
+                        if unloader.done:
+                            u = self._end(trip, "hold")
+                        else:
+                            u = self.send_command(P.CW_ACTIVE, u_un)
+                elif trip is None and new is None:
+                    # -- the experiment drives
+                    if cycle == 0:
+                        experiment.begin(y)
+                    if experiment.finished(t, y):
+                        break
+                    u_req, r = experiment.step(t, y)
+                    if experiment.abort is not None:
+                        reason, message = experiment.abort
+                        new = sup.make_trip(str(reason), str(message), sync_wall)
+                    else:
+                        new = sup.check_error(r, y, stale, sync_wall)
+                    if new is None:
+                        u = self.send_command(P.CW_ACTIVE, sup.shape_command(u_req))
+                if trip is None and new is not None:
+                    trip = new
+                    if trip.action == "unload" and not stale:
+                        unloader = sup.unloader(y)
+                        u_un, r = unloader.step(y)
+                        u = self.send_command(P.CW_ACTIVE, u_un)
+                        trip.safe_wall = time.time()
+                    else:
+                        final_action = trip.action if trip.action == "zero" else "hold"
+                        u = self._end(trip, final_action)
                 if recorder is not None:
                     recorder.append(t, u, y, r, cycle, y_counts, spool, status, stale, sync_wall)
                 cycle += 1
                 stats.cycles = cycle
                 if progress is not None:
                     progress(t)
+                if trip is not None and (unloader is None or unloader.done or unload_note):
+                    break
                 next_sync += T
         except BaseException:
-            self.safe_state()
+            self.safe_state(final_action)
             raise
-        self.safe_state()
+        self.safe_state(final_action)
         stats.wall_s = time.monotonic() - wall0
-        return LoopOutcome("complete" if reason is None else "stopped", reason, message, stats)
+        if stats.sync_jitter_s:
+            stats.max_lateness_s = max(stats.sync_jitter_s)
+        stats.shaped_commands = sup.clamped
+        stats.limit_events = len(sup.events)
+        after = self._filter_counts()
+        stats.unexpected_frames = after.get("unexpected_id", 0) - filter0.get("unexpected_id", 0)
+        stats.wrong_dlc_frames = (after.get("wrong_dlc", 0) - filter0.get("wrong_dlc", 0)) + stats.bad_frames
+        stats.not_classic_frames = after.get("not_classic", 0) - filter0.get("not_classic", 0)
+        if trip is None:
+            return LoopOutcome("complete", None, None, stats)
+        safety = trip.record()
+        message = trip.message
+        if unloader is not None:
+            safety["unload"] = unloader.record(y)
+            if unload_note:
+                safety["unload"]["note"] = unload_note
+                message += f"; {unload_note}"
+            elif unloader.outcome == "unloaded":
+                message += f"; unloaded to {y:.0f} kgf in {unloader.t:.2f} s, then hold"
+            else:
+                message += f"; unload ended ({unloader.outcome}) at {y:.0f} kgf after {unloader.t:.2f} s, hold"
+        return LoopOutcome("stopped", trip.reason, message, stats, safety)
+
+    def _end(self, trip: Trip, action: str) -> float:
+        """Send the safe command for ``trip`` (first time only: note when); returns the
+        command as recorded (0 %)."""
+        sent = self.safe_state(action)
+        if trip.safe_wall is None:
+            trip.safe_wall = sent
+        return 0.0
 
 
 def _sleep_until(target: float) -> None:

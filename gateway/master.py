@@ -9,7 +9,13 @@ Start-up, in the order a careful master does it:
    timeout, and read back the PDO mappings (canopen's ``tpdo.read()``/``rpdo.read()``), checking
    that they carry the objects the control loop needs;
 4. read the dynamometer's unit and decimals (0x6131/0x6132) to scale its process value to kgf;
-5. NMT start, and confirm OPERATIONAL from the heartbeats.
+5. NMT start, and confirm OPERATIONAL from the heartbeats; meanwhile a hold command (zero
+   setpoint) goes to the valve every 20 ms, so its RPDO timeout (armed when it enters
+   OPERATIONAL) never fires before the control loop's first command.
+
+Only frames from the two nodes reach the canopen stack: the master declares their ids and data
+lengths to the network's acceptance filter (EMCY 8, SDO 8, heartbeat 1, each TPDO its mapped
+size once read); anything else is counted and dropped (:class:`gateway.capture.TappedNetwork`).
 """
 from __future__ import annotations
 
@@ -65,6 +71,13 @@ class StandMaster:
         for link in self.links:
             network.add_node(link.node)
             network.subscribe(0x700 + link.id, self._heartbeat_callback(link))
+            if hasattr(network, "expect"):
+                nid = link.id
+                network.expect(0x080 + nid, 8)           # EMCY
+                network.expect(0x580 + nid, 8)           # SDO server → client
+                network.expect(0x700 + nid, 1)           # heartbeat / boot-up
+                for base in (0x180, 0x280, 0x380, 0x480):
+                    network.expect(base + nid, None)     # TPDOs: exact size once configured
         self.force_scale_kgf: float | None = None
         self.valve_tpdo: PdoLayout | None = None
         self.valve_rpdo: PdoLayout | None = None
@@ -73,7 +86,7 @@ class StandMaster:
 
     def _heartbeat_callback(self, link: NodeLink):
         def on_heartbeat(can_id: int, data: bytes, timestamp: float) -> None:
-            if not data:
+            if len(data) != 1:
                 return
             state = data[0] & 0x7F
             link.last_heartbeat = time.monotonic()
@@ -153,6 +166,9 @@ class StandMaster:
                                        [(P.CONTROL_WORD, 0), P.SETPOINT], synchronous=False)
         self.force_tpdo = self._layout(self.dynamometer, self.dynamometer.node.tpdo[1], [P.PV_INT32],
                                        synchronous=True)
+        if hasattr(self.network, "expect"):
+            for layout in (self.valve_tpdo, self.force_tpdo):
+                self.network.expect(layout.cob_id, layout.size)
         dyn = self.dynamometer.node.sdo
         try:
             unit = dyn[P.PV_UNIT[0]][P.PV_UNIT[1]].raw
@@ -167,6 +183,26 @@ class StandMaster:
             self.lockstep_capable = bool(self.valve.node.sdo[P.EMULATOR_CLOCK].raw)
         except (canopen.SdoCommunicationError, canopen.SdoAbortedError, KeyError):
             self.lockstep_capable = False
+
+    def configure_from_eds(self) -> None:
+        """Set up the PDO layouts and the force scale from the EDS defaults, without talking to
+        the nodes (offline use: fuzzing the frame handling, replaying captures)."""
+        for link in self.links:
+            link.node.tpdo.read(from_od=True)
+        self.valve.node.rpdo.read(from_od=True)
+        self.valve_tpdo = self._layout(self.valve, self.valve.node.tpdo[1],
+                                       [(P.STATUS_WORD, 0), P.ACTUAL_VALUE], synchronous=True)
+        self.valve_rpdo = self._layout(self.valve, self.valve.node.rpdo[1],
+                                       [(P.CONTROL_WORD, 0), P.SETPOINT], synchronous=False)
+        self.force_tpdo = self._layout(self.dynamometer, self.dynamometer.node.tpdo[1], [P.PV_INT32],
+                                       synchronous=True)
+        od = self.dynamometer.node.object_dictionary
+        self.force_scale_kgf = P.force_scale_kgf(od[P.PV_UNIT[0]][P.PV_UNIT[1]].default,
+                                                 od[P.PV_DECIMALS[0]][P.PV_DECIMALS[1]].default)
+        if hasattr(self.network, "expect"):
+            for layout in (self.valve_tpdo, self.force_tpdo):
+                self.network.expect(layout.cob_id, layout.size)
+        self.lockstep_capable = False
 
     def _layout(self, link: NodeLink, pdo_map, needed, synchronous: bool) -> PdoLayout:
         if not pdo_map.enabled:
@@ -193,18 +229,32 @@ class StandMaster:
             link.node.sdo[P.COMM_CYCLE_PERIOD].raw = int(round(period_s * 1e6))
 
     # -- 5. start / stop ------------------------------------------------------------------------
-    def start(self, timeout_s: float = 2.0) -> None:
+    def start(self, timeout_s: float = 2.0, keepalive_s: float = 0.02) -> None:
+        """NMT start both nodes and wait for OPERATIONAL; a hold command with zero setpoint goes
+        to the valve every ``keepalive_s`` meanwhile (its RPDO timeout runs from OPERATIONAL)."""
         for link in self.links:
             link.node.nmt.send_command(NMT_START)
-        self.wait_state(5, timeout_s)
+        self.wait_state(5, timeout_s, keepalive=self.hold_command if self.valve_rpdo else None,
+                        keepalive_s=keepalive_s)
+
+    def hold_command(self) -> None:
+        """One valve RPDO: control word HOLD, setpoint 0 (zero flow)."""
+        rpdo = self.valve_rpdo
+        values = [0] * len(rpdo.keys)
+        values[rpdo.position(P.CONTROL_WORD, 0)] = int(P.CW_HOLD)
+        self.network.send_message(rpdo.cob_id, rpdo.encode(*values))
 
     def enter_preoperational(self, timeout_s: float = 1.0) -> None:
         for link in self.links:
             link.node.nmt.send_command(NMT_PREOP)
 
-    def wait_state(self, state: int, timeout_s: float) -> None:
+    def wait_state(self, state: int, timeout_s: float, keepalive=None, keepalive_s: float = 0.02) -> None:
         deadline = time.monotonic() + timeout_s
+        next_keepalive = time.monotonic()
         while time.monotonic() < deadline:
+            if keepalive is not None and time.monotonic() >= next_keepalive:
+                keepalive()
+                next_keepalive += keepalive_s
             if all(l.nmt_state == state for l in self.links):
                 return
             time.sleep(0.005)

@@ -1,9 +1,14 @@
 """Writes a run directory (format: :mod:`gateway.runs`) while the loop runs.
 
-Crash safety: rows are buffered in memory and written as Arrow IPC record batches to
-``signals.arrows`` at least every ``flush_s`` seconds (then flushed and fsync'ed), so after a
-``kill -9`` the run keeps every row up to the last flush. On a clean close the stream is
-converted to ``signals.parquet`` and removed, and ``run.json`` gets the end status and reason.
+Crash safety: rows are buffered in memory and handed, at least every ``flush_s`` = 0.5 s, to a
+writer thread that appends them as one Arrow IPC record batch to ``signals.arrows`` and
+``fsync``s it, so after a ``kill -9`` the run keeps every row up to the last flush (the batch
+being written when the process died is dropped whole by :func:`gateway.runs.load_run`). The
+control loop pays only for list appends and a buffer swap; conversion and disk I/O happen on
+the writer thread, so a slow disk never delays a cycle. While the loop waits for the stand it
+calls :meth:`RunRecorder.poll`, so rows never sit in memory longer than ``flush_s``.
+On a clean close the stream is converted to ``signals.parquet`` and removed, and ``run.json``
+gets the end status and reason.
 """
 from __future__ import annotations
 
@@ -11,7 +16,9 @@ import datetime as _dt
 import json
 import os
 import platform
+import queue
 import sys
+import threading
 import time
 from importlib import metadata as _md
 from pathlib import Path
@@ -21,7 +28,7 @@ import pyarrow as pa
 import pyarrow.ipc
 import pyarrow.parquet as pq
 
-from .errors import StandError
+from .errors import DataError, StandError
 from .runs import (CAPTURE_FILE, COLUMNS, FORMAT, META_FILE, SCHEMA, SIGNALS_FILE, STREAM_FILE,
                    TRUTH_FILE)
 
@@ -80,10 +87,17 @@ class RunRecorder:
         self._stream_path = self.dir / STREAM_FILE
         self._sink = pa.OSFile(str(self._stream_path), "wb")
         self._writer = pa.ipc.new_stream(self._sink, SCHEMA)
+        self._sink.flush()
         self._flush_s = flush_s
         self._last_flush = time.monotonic()
         self.rows = 0
+        #: rows known to be on disk (written and fsync'ed)
+        self.rows_on_disk = 0
         self.closed = False
+        self._error: BaseException | None = None
+        self._batches: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._write_batches, name="run-recorder", daemon=True)
+        self._thread.start()
 
     @property
     def capture_path(self) -> Path:
@@ -104,27 +118,61 @@ class RunRecorder:
         if time.monotonic() - self._last_flush >= self._flush_s:
             self.flush()
 
+    def poll(self) -> None:
+        """Flush if the oldest buffered row is due (the loop calls this while it waits)."""
+        if time.monotonic() - self._last_flush >= self._flush_s:
+            self.flush()
+
     def flush(self) -> None:
-        """Write the buffered rows as one record batch and push them to disk."""
+        """Hand the buffered rows to the writer thread (one record batch, then fsync)."""
         self._last_flush = time.monotonic()
+        if self._error is not None:
+            raise DataError(f"{self._stream_path}: the recorder cannot write: {self._error}")
         if not self._buf["t"]:
             return
-        batch = pa.record_batch([pa.array(self._buf[name], type=SCHEMA.field(name).type)
-                                 for name in COLUMNS], schema=SCHEMA)
-        self._writer.write_batch(batch)
-        self._sink.flush()
-        try:
-            os.fsync(self._sink.fileno())
-        except (OSError, AttributeError, pa.ArrowNotImplementedError):
-            pass
-        for col in self._buf.values():
-            col.clear()
+        rows, self._buf = self._buf, {name: [] for name in COLUMNS}
+        self._batches.put(rows)
+
+    def _write_batches(self) -> None:
+        while True:
+            rows = self._batches.get()
+            if rows is None:
+                return
+            if isinstance(rows, _Barrier):
+                rows.event.set()
+                continue
+            if self._error is not None:
+                continue
+            try:
+                batch = pa.record_batch([pa.array(rows[name], type=SCHEMA.field(name).type)
+                                         for name in COLUMNS], schema=SCHEMA)
+                self._writer.write_batch(batch)
+                self._sink.flush()
+                try:
+                    os.fsync(self._sink.fileno())
+                except (OSError, AttributeError, pa.ArrowNotImplementedError):
+                    pass
+                self.rows_on_disk += batch.num_rows
+            except BaseException as exc:   # disk full, ...: the loop hears it at its next flush
+                self._error = exc
+
+    def sync(self) -> None:
+        """Flush and wait until every row appended so far is on disk."""
+        self.flush()
+        done = threading.Event()
+        self._batches.put(_Barrier(done))
+        done.wait()
 
     def close(self, status: str = "complete", end_reason: str | None = None, **extra: Any) -> Path:
         """Finish the run: Parquet signals, final metadata. Safe to call once."""
         if self.closed:
             return self.dir
-        self.flush()
+        try:
+            self.flush()
+        except DataError:
+            pass
+        self._batches.put(None)
+        self._thread.join()
         self._writer.close()
         self._sink.close()
         with pa.OSFile(str(self._stream_path), "rb") as fh:
@@ -139,3 +187,11 @@ class RunRecorder:
 
     def write_truth(self, truth: dict[str, Any]) -> None:
         write_json(self.truth_path, truth)
+
+
+class _Barrier(dict):
+    """A marker in the writer queue: sets its event when everything before it is written."""
+
+    def __init__(self, event: threading.Event) -> None:
+        super().__init__()
+        self.event = event

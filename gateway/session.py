@@ -55,8 +55,12 @@ class GatewayConfig:
         check_range("boot_timeout_s", self.boot_timeout_s, 0.1, 600, "s")
         check_range("heartbeat_ms", self.heartbeat_ms, 10, 10000, "ms", integer=True)
         check_range("rpdo_timeout_ms", self.rpdo_timeout_ms, 0, 60000, "ms", integer=True)
-        check_range("force_limit_kgf", self.limits.force_limit_kgf, 1, 1e6, "kgf")
-        check_range("command_limit_pct", self.limits.command_limit_pct, 0, 100, "%")
+        self.limits.validate()
+        if self.limits.heartbeat_timeout_s * 1000 <= self.heartbeat_ms:
+            raise ParameterError(
+                f"heartbeat timeout {self.limits.heartbeat_timeout_s * 1e3:g} ms must exceed the "
+                f"nodes' heartbeat period {self.heartbeat_ms} ms (CiA 301: consumer time > producer "
+                "time; 2-3.5x is usual)")
         try:
             BusSpec.parse(self.bus)
         except BusSpecError as exc:
@@ -170,10 +174,14 @@ class Gateway:
                 on_progress(t)
 
         outcome = None
+        failure: BaseException | None = None
         try:
             self.master.assert_period(self.config.period_s)
             self.master.start()
             outcome = self.loop.run(experiment, recorder, tick)
+        except BaseException as exc:
+            failure = exc
+            raise
         finally:
             if bar is not None:
                 if outcome is not None and outcome.status == "complete":
@@ -186,12 +194,24 @@ class Gateway:
                 self.network.notifier.remove_listener(capture)
                 capture.stop()
                 stats = self.loop.stats
-                status = outcome.status if outcome else "aborted"
-                reason = outcome.reason if outcome else "gateway_error"
-                recorder.close(status=status, end_reason=reason,
-                               end_message=outcome.message if outcome else "the gateway raised an error",
+                supervisor = self.loop.supervisor
+                if outcome is not None:
+                    status, reason, message = outcome.status, outcome.reason, outcome.message
+                elif isinstance(failure, KeyboardInterrupt):
+                    status, reason = "aborted", "interrupted"
+                    message = "interrupted (Ctrl-C or SIGTERM); the valve was set to hold, zero command"
+                else:
+                    status, reason = "aborted", "gateway_error"
+                    message = ("the gateway raised an error"
+                               + (f": {type(failure).__name__}: {failure}" if failure else "")
+                               + "; the valve was set to hold, zero command")
+                extra = {}
+                if outcome is not None and outcome.safety is not None:
+                    extra["safety"] = outcome.safety
+                recorder.close(status=status, end_reason=reason, end_message=message,
                                stats=_stats_dict(stats), capture_frames=capture.frames,
-                               emcy=list(self.loop.supervisor.emcy_log))
+                               emcy=list(supervisor.emcy_log), events=list(supervisor.events),
+                               **extra)
         return RunResult(recorder.dir, outcome)
 
 

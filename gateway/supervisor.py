@@ -1,99 +1,374 @@
-"""Run-time protection: decides every cycle whether the run may go on, and shapes the command.
+"""Run-time protection: decides every cycle whether the run may go on, shapes the command, and
+takes the stand to its safe state when it may not — the way servo-hydraulic test controllers do
+it (MTS, Moog: limit detectors with a chosen action, error detectors, controlled unload),
+with CANopen's own mechanisms (heartbeat consumer, EMCY, the valve's status word).
 
-Checked every cycle (each check names the reason written into the run's metadata):
+Detectors (each *trip* names the reason written into the run's metadata; see docs/safety.md
+for the stated reaction times):
 
-* ``force_limit``: |y| beyond the force limit;
-* ``heartbeat_lost``: no heartbeat from a node for longer than the consumer time;
-* ``force_pdo_stale``: no fresh force PDO for N consecutive cycles;
-* ``emcy``: an emergency message from a node (other than "error reset");
-* ``nmt_state``: a node left OPERATIONAL.
+=================  =======================================================  =================
+reason             condition                                                action
+=================  =======================================================  =================
+force_limit        fresh |y| > ``force_limit_kgf``                          ``force_action``
+error_limit        |r − y| > ``error_limit_kgf`` for ``error_time_s``        ``error_action``
+force_pdo_stale    no fresh force PDO for ``stale_cycles`` cycles            hold
+heartbeat_lost     a node's last heartbeat older than ``heartbeat_timeout_s`` hold
+nmt_state          a node's heartbeat says it left OPERATIONAL               hold
+emcy               an EMCY (code ≠ 0x00xx) from a configured node            hold
+valve_fault        the valve's status word shows a fault state               hold
+valve_not_active   the valve not ACTIVE for ``stale_cycles`` fresh cycles    hold
+overrun            a real-time cycle starts > ``overrun_limit_s`` late        hold
+=================  =======================================================  =================
 
-The command is clamped to ±``command_limit_pct`` and rate-limited to ``slew_pct_per_s`` if set.
+Actions:
+
+* ``indicate`` — log an event in the run (``events`` in run.json) and go on;
+* ``hold`` — stop the run: valve control word HOLD with zero setpoint (the valve's hold
+  setpoint 0x6314, zero flow): the actuator stops where it is;
+* ``unload`` — controlled unload (:class:`Unloader`): the experiment stops, a gentle closed loop
+  ramps the force to about zero, then hold. Needs fresh force readings: a communication fault
+  during the unload switches to hold at once;
+* ``zero`` — immediate zero setpoint and the valve to DISABLED (spool to its fail-safe
+  position; 'hydraulics off'), bypassing any slew limit.
+
+The command of every cycle is clamped to ±``command_limit_pct`` and rate-limited to
+``slew_pct_per_s`` (NaN/inf → 0): :meth:`Supervisor.shape_command`.
 """
 from __future__ import annotations
 
 import math
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 from dbc import profile as P
 
+from .errors import ParameterError
+from .experiments.base import check_range
 from .master import StandMaster
+
+ACTIONS = ("indicate", "hold", "unload", "zero")
+#: status word values (bits 0-3) of the valve's fault states
+_FAULT_STATES = frozenset(s.value for s in P.ValveState if s.is_fault)
+_ACTIVE = P.ValveState.ACTIVE.value
+#: an indicate-only detector re-arms when the quantity falls below this share of its limit
+_REARM = 0.95
 
 
 @dataclass
 class SafetyLimits:
+    """The supervisor's configuration (all in the stand's units: kgf, %, s)."""
+
     force_limit_kgf: float = 9500.0
+    #: what a force-limit trip does: indicate | hold | unload | zero
+    force_action: str = "hold"
     command_limit_pct: float = 100.0
+    #: maximum command rate, %/s (None: no slew limit)
     slew_pct_per_s: float | None = None
+    #: error detector: |r − y| beyond this (kgf) for ``error_time_s`` trips (None: off)
+    error_limit_kgf: float | None = None
+    error_time_s: float = 0.1
+    error_action: str = "hold"
     heartbeat_timeout_s: float = 0.35
     stale_cycles: int = 25
+    #: real time: a cycle starting later than this (s) stops the run
+    overrun_limit_s: float = 0.05
+    #: controlled unload: reference ramp rate (kgf/s), loop gain (%/kgf), command bound (%),
+    #: "unloaded" band (kgf) and the time allowed before falling back to hold (s)
+    unload_rate_kgf_per_s: float = 1000.0
+    unload_gain_pct_per_kgf: float = 0.02
+    unload_max_pct: float = 10.0
+    unload_tolerance_kgf: float = 50.0
+    unload_timeout_s: float = 30.0
+
+    def validate(self) -> None:
+        """Raise :class:`ParameterError` for out-of-range, NaN or infinite settings."""
+        check_range("force_limit_kgf", self.force_limit_kgf, 1, 1e6, "kgf")
+        check_range("command_limit_pct", self.command_limit_pct, 0, 100, "%")
+        if self.slew_pct_per_s is not None:
+            check_range("slew_pct_per_s", self.slew_pct_per_s, 1e-3, 1e6, "%/s")
+        if self.error_limit_kgf is not None:
+            check_range("error_limit_kgf", self.error_limit_kgf, 1e-3, 1e6, "kgf")
+        check_range("error_time_s", self.error_time_s, 0, 60, "s")
+        check_range("heartbeat_timeout_s", self.heartbeat_timeout_s, 0.01, 60, "s")
+        check_range("stale_cycles", self.stale_cycles, 1, 100000, integer=True)
+        check_range("overrun_limit_s", self.overrun_limit_s, 1e-4, 60, "s")
+        check_range("unload_rate_kgf_per_s", self.unload_rate_kgf_per_s, 1, 1e6, "kgf/s")
+        check_range("unload_gain_pct_per_kgf", self.unload_gain_pct_per_kgf, 1e-6, 10, "%/kgf")
+        check_range("unload_max_pct", self.unload_max_pct, 0.01, 100, "%")
+        check_range("unload_tolerance_kgf", self.unload_tolerance_kgf, 0.1, 1e5, "kgf")
+        check_range("unload_timeout_s", self.unload_timeout_s, 0.1, 3600, "s")
+        for name in ("force_action", "error_action"):
+            if getattr(self, name) not in ACTIONS:
+                raise ParameterError(f"{name} = {getattr(self, name)!r}: choose one of "
+                                     f"{', '.join(ACTIONS)}")
+
+
+@dataclass
+class Trip:
+    """A detector fired: why, what to do, and the times that bound the reaction."""
+
+    reason: str
+    message: str
+    action: str                       #: hold | unload | zero
+    onset_wall: float                 #: when the fault became observable (time.time())
+    bound_s: float                    #: stated bound from onset to the safe command, s
+    detected_wall: float = field(default_factory=time.time)
+    safe_wall: float | None = None    #: when the safe-state command went out
+
+    def record(self) -> dict[str, Any]:
+        """The ``safety`` block of run.json."""
+        out = {"reason": self.reason, "action": self.action, "message": self.message,
+               "onset": self.onset_wall, "detected": self.detected_wall,
+               "safe_state": self.safe_wall, "bound_s": self.bound_s}
+        if self.safe_wall is not None:
+            out["reaction_s"] = self.safe_wall - self.onset_wall
+        return out
+
+
+class Unloader:
+    """Controlled unload: ramp the force to about zero with a gentle closed loop, then hold.
+
+    Reference ``r(t) = y0 − sign(y0)·min(R·t, |y0|)`` (R = ``unload_rate_kgf_per_s``), command
+    ``u = clip(K·(r − y), ±u_max)`` with K = ``unload_gain_pct_per_kgf``. For the paper's plant
+    dy/dt = g·u(t−τ) (eq. 1) the loop gain is K·g (1/s) and its phase margin
+    π/2 − K·g·τ: the defaults (K = 0.02 %/kgf, g ≈ 120 kgf/(%·s), τ = 50 ms) give a time
+    constant 1/(K·g) ≈ 0.4 s and a phase lag K·g·τ ≈ 0.12 rad: no oscillation even if g is
+    several times larger. Done when the ramp has ended and |y| ≤ ``unload_tolerance_kgf``;
+    gives up (→ hold) if, after a grace time of :attr:`GRACE_S` (the command in flight and the
+    transport delay still push the force on at first), the force is still more than the
+    tolerance above where it started, or it overshoots by 10 % of the force limit at any time,
+    or after ``unload_timeout_s``.
+    """
+
+    GRACE_S = 0.5
+
+    def __init__(self, y0: float, limits: SafetyLimits, period_s: float) -> None:
+        self.y0 = y0
+        self.limits = limits
+        self.period_s = period_s
+        self.t = 0.0
+        self.done = False
+        self.outcome: str | None = None   #: "unloaded", "force_rising", "timeout"
+        self.cycles = 0
+
+    def step(self, y: float) -> tuple[float, float]:
+        """One cycle: ``(command %, reference kgf)``; sets :attr:`done` when finished."""
+        lim = self.limits
+        drop = min(lim.unload_rate_kgf_per_s * self.t, abs(self.y0))
+        r = self.y0 - math.copysign(drop, self.y0)
+        self.t += self.period_s
+        self.cycles += 1
+        rise = abs(y) - abs(self.y0)
+        if rise > 0.1 * lim.force_limit_kgf or (self.t > self.GRACE_S and rise > lim.unload_tolerance_kgf):
+            self.done, self.outcome = True, "force_rising"
+            return 0.0, r
+        if drop >= abs(self.y0) and abs(y) <= lim.unload_tolerance_kgf:
+            self.done, self.outcome = True, "unloaded"
+            return 0.0, r
+        if self.t > lim.unload_timeout_s:
+            self.done, self.outcome = True, "timeout"
+            return 0.0, r
+        u = lim.unload_gain_pct_per_kgf * (r - y)
+        return max(-lim.unload_max_pct, min(lim.unload_max_pct, u)), r
+
+    def record(self, y_end: float) -> dict[str, Any]:
+        return {"from_kgf": self.y0, "to_kgf": y_end, "duration_s": self.t, "outcome": self.outcome}
 
 
 class Supervisor:
+    """Watches one stand (the master's two nodes) for one control loop."""
+
     def __init__(self, master: StandMaster, limits: SafetyLimits, period_s: float) -> None:
         self.master = master
         self.limits = limits
         self.period_s = period_s
-        self._stale_run = 0
-        self._last_u = 0.0
-        self._emcy: list[str] = []
+        #: the longest the loop waits inside a cycle between two looks at the watchdogs, s
+        #: (set by the loop: lockstep answer slice, or 0.8 period in real time)
+        self.wait_s = period_s
         self._lock = threading.Lock()
+        self._emcy: list[tuple[str, float]] = []     # (message, onset wall time) of pending EMCYs
         self.emcy_log: list[dict] = []
+        #: indicate-only events of the current run (force or error limit crossed)
+        self.events: list[dict] = []
+        self.clamped = 0
+        self.reset()
         for link in master.links:
             link.node.emcy.add_callback(self._emcy_callback(link))
 
     def _emcy_callback(self, link):
         def on_emcy(entry) -> None:
+            now = time.time()
+            ts = entry.timestamp if entry.timestamp and abs(entry.timestamp - now) < 5.0 else now
             record = {"node": link.id, "role": link.role, "code": entry.code,
                       "register": entry.register, "text": P.emcy_text(entry.code),
-                      "time": time.time()}
+                      "time": now}
             with self._lock:
                 self.emcy_log.append(record)
                 if entry.code & 0xFF00:
-                    self._emcy.append(f"EMCY 0x{entry.code:04X} from {link.role} node {link.id}: "
-                                      f"{P.emcy_text(entry.code)}")
+                    self._emcy.append((f"EMCY 0x{entry.code:04X} from {link.role} node {link.id}: "
+                                       f"{P.emcy_text(entry.code)}", ts))
         return on_emcy
 
     def reset(self) -> None:
+        """Start of a run: forget pending EMCYs, counters and detector states."""
         with self._lock:
             self._emcy.clear()
         self._stale_run = 0
+        self._stale_since = 0.0
+        self._inactive_run = 0
+        self._err_run = 0
+        self._err_since = 0.0
+        self._force_indicated = False
+        self._error_indicated = False
         self._last_u = 0.0
+        self.events = []
+        self.clamped = 0
+        lim = self.limits
+        T = self.period_s
+        self._err_cycles = max(1, math.ceil(lim.error_time_s / T - 1e-9))
 
-    def check(self, y: float, stale: bool) -> tuple[str, str] | None:
-        """``(reason, message)`` if the run must stop now, else None."""
+    # -- bounds ------------------------------------------------------------------------------------
+    def bound_s(self, reason: str) -> float:
+        """The stated time from a fault's onset to the safe command (s)."""
+        lim, T, wait_s = self.limits, self.period_s, self.wait_s
+        return {
+            "force_limit": T,
+            "error_limit": self._err_cycles * T + T,
+            "force_pdo_stale": lim.stale_cycles * T + T,
+            "heartbeat_lost": lim.heartbeat_timeout_s + T + wait_s,
+            "nmt_state": T + wait_s,
+            "emcy": 2 * T + wait_s,
+            "valve_fault": T,
+            "valve_not_active": lim.stale_cycles * T + T,
+            "overrun": T,
+        }.get(reason, T + wait_s)
+
+    def make_trip(self, reason: str, message: str, onset: float, action: str = "hold") -> Trip:
+        """A trip with this supervisor's stated bound for ``reason``."""
+        return Trip(reason, message, action, onset, self.bound_s(reason))
+
+    # -- per cycle -------------------------------------------------------------------------------
+    def check(self, y: float, stale: bool, status: int = _ACTIVE, sync_wall: float = 0.0,
+              force: bool = True) -> Trip | None:
+        """A :class:`Trip` if the run must stop (or unload) now, else None. ``force=False``
+        skips the force-limit detector (during an unload)."""
         lim = self.limits
         if stale:
+            if self._stale_run == 0:
+                self._stale_since = sync_wall
             self._stale_run += 1
             if self._stale_run >= lim.stale_cycles:
-                return "force_pdo_stale", (f"no fresh force PDO for {self._stale_run} cycles "
-                                           f"({self._stale_run * self.period_s * 1e3:.0f} ms)")
+                return self.make_trip("force_pdo_stale",
+                                  f"no fresh force PDO for {self._stale_run} cycles "
+                                  f"({self._stale_run * self.period_s * 1e3:.0f} ms)", self._stale_since)
         else:
             self._stale_run = 0
-            if not math.isfinite(y) or abs(y) > lim.force_limit_kgf:
-                return "force_limit", f"force {y:.0f} kgf beyond the limit ±{lim.force_limit_kgf:.0f} kgf"
-        with self._lock:
-            if self._emcy:
-                return "emcy", self._emcy[0]
+            if force and not abs(y) <= lim.force_limit_kgf:      # also NaN
+                trip = self._force_limit(y, sync_wall)
+                if trip is not None:
+                    return trip
+            elif self._force_indicated and abs(y) <= _REARM * lim.force_limit_kgf:
+                self._force_indicated = False
+        if self._emcy:
+            with self._lock:
+                message, onset = self._emcy[0]
+            return self.make_trip("emcy", message, onset)
+        state = status & 0xF
+        if state != _ACTIVE and status:
+            if state in _FAULT_STATES:
+                return self.make_trip("valve_fault", f"the valve reports a fault state "
+                                  f"({P.ValveState(state).name}, status word 0x{status:04X})", sync_wall)
+            self._inactive_run += 1
+            if self._inactive_run >= lim.stale_cycles:
+                name = P.ValveState(state).name if state in P.ValveState._value2member_map_ else "?"
+                return self.make_trip("valve_not_active", f"the valve stayed {name} (status word "
+                                  f"0x{status:04X}) for {self._inactive_run} cycles although "
+                                  "commanded ACTIVE", sync_wall)
+        else:
+            self._inactive_run = 0
+        return self.check_nodes()
+
+    def _force_limit(self, y: float, sync_wall: float) -> Trip | None:
+        lim = self.limits
+        message = f"force {y:.0f} kgf beyond the limit ±{lim.force_limit_kgf:.0f} kgf"
+        if lim.force_action == "indicate":
+            if not self._force_indicated:
+                self._force_indicated = True
+                self.events.append({"reason": "force_limit", "message": message, "time": sync_wall,
+                                    "force_kgf": y})
+            return None
+        return self.make_trip("force_limit", message, sync_wall, lim.force_action)
+
+    def check_error(self, r: float, y: float, stale: bool, sync_wall: float = 0.0) -> Trip | None:
+        """The error detector, after the experiment gave this cycle's reference ``r``."""
+        lim = self.limits
+        if lim.error_limit_kgf is None or stale:
+            return None
+        e = r - y
+        if not abs(e) > lim.error_limit_kgf:        # also r = NaN (no reference): no error
+            self._err_run = 0
+            if self._error_indicated and abs(e) <= _REARM * lim.error_limit_kgf:
+                self._error_indicated = False
+            return None
+        if self._err_run == 0:
+            self._err_since = sync_wall
+        self._err_run += 1
+        if self._err_run < self._err_cycles:
+            return None
+        message = (f"control error |r − y| = {abs(e):.0f} kgf beyond {lim.error_limit_kgf:.0f} kgf "
+                   f"for {self._err_run * self.period_s * 1e3:.0f} ms")
+        if lim.error_action == "indicate":
+            if not self._error_indicated:
+                self._error_indicated = True
+                self.events.append({"reason": "error_limit", "message": message, "time": sync_wall,
+                                    "error_kgf": e})
+            return None
+        return self.make_trip("error_limit", message, self._err_since, lim.error_action)
+
+    def check_nodes(self) -> Trip | None:
+        """Communication watchdogs that need no cycle: EMCY, heartbeat, NMT state (also called
+        while the loop waits for a node's answer)."""
+        if self._emcy:
+            with self._lock:
+                message, onset = self._emcy[0]
+            return self.make_trip("emcy", message, onset)
         now = time.monotonic()
+        timeout = self.limits.heartbeat_timeout_s
         for link in self.master.links:
-            if link.last_heartbeat is None or now - link.last_heartbeat > lim.heartbeat_timeout_s:
-                age = "never" if link.last_heartbeat is None else f"{(now - link.last_heartbeat) * 1e3:.0f} ms ago"
-                return "heartbeat_lost", f"{link.role} node {link.id}: last heartbeat {age}"
+            hb = link.last_heartbeat
+            if hb is None or now - hb > timeout:
+                age = "never" if hb is None else f"{(now - hb) * 1e3:.0f} ms ago"
+                onset = time.time() - (0.0 if hb is None else now - hb)
+                return self.make_trip("heartbeat_lost", f"{link.role} node {link.id}: last heartbeat {age} "
+                                  f"(timeout {timeout * 1e3:.0f} ms)", onset)
             if link.nmt_state != 5:
-                return "nmt_state", f"{link.role} node {link.id} left OPERATIONAL (state {link.nmt_state})"
+                return self.make_trip("nmt_state", f"{link.role} node {link.id} left OPERATIONAL "
+                                  f"(state {link.nmt_state})", time.time() - (now - hb))
         return None
 
+    def overrun(self, lateness_s: float, scheduled_wall: float) -> Trip | None:
+        """Real time: a cycle that starts ``lateness_s`` after its scheduled time."""
+        if lateness_s <= self.limits.overrun_limit_s:
+            return None
+        return self.make_trip("overrun", f"control cycle started {lateness_s * 1e3:.0f} ms late "
+                          f"(limit {self.limits.overrun_limit_s * 1e3:.0f} ms): the command was "
+                          "held that long", scheduled_wall)
+
     def shape_command(self, u: float) -> float:
-        """Clamp, rate-limit and sanitise the command (NaN/inf → 0)."""
+        """Clamp, rate-limit and sanitise the command (NaN/inf → 0), in %."""
         lim = self.limits
-        if not math.isfinite(u):
-            u = 0.0
-        u = max(-lim.command_limit_pct, min(lim.command_limit_pct, u))
+        u_in = u
+        if not (-lim.command_limit_pct <= u <= lim.command_limit_pct):   # also NaN
+            u = max(-lim.command_limit_pct, min(lim.command_limit_pct, u)) if math.isfinite(u) else 0.0
         if lim.slew_pct_per_s:
             step = lim.slew_pct_per_s * self.period_s
             u = max(self._last_u - step, min(self._last_u + step, u))
+        if u != u_in:
+            self.clamped += 1
         self._last_u = u
         return u
+
+    def unloader(self, y0: float) -> Unloader:
+        return Unloader(y0, self.limits, self.period_s)

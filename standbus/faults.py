@@ -77,7 +77,8 @@ class FrameFilter(can.Listener):
             if self.strict:
                 self.unexpected_id += 1
                 return
-        elif rule is not None and (len(msg.data) not in rule or msg.dlc != len(msg.data)):
+        if msg.dlc != len(msg.data) or (rule is not None and rule is not _ANY
+                                        and len(msg.data) not in rule):
             self.wrong_dlc += 1
             return
         try:
