@@ -4,7 +4,9 @@ Every SYNC it samples the plant's force through :class:`plant.sensor.Dynamometer
 resolution, range) and publishes the process value 0x9130:01 (INT32) in the unit 0x6131 with
 0x6132 decimal digits (default N with one decimal: 0.1 N per count), plus the AI status 0x6150:01.
 Leaving the measuring range sets the overload bits and sends EMCY 0xFF10 once; coming back sends
-the recovery EMCY 0x0000.
+the recovery EMCY 0x0000. EMCYs go out in PRE-OPERATIONAL and OPERATIONAL (CiA 301); a condition
+that began while the node could not signal it is signalled as soon as it can (e.g. after a reset
+with the force still beyond the range).
 """
 from __future__ import annotations
 
@@ -22,11 +24,13 @@ class DynamometerNode(EmulatedNode):
         super().__init__(network, node_id, eds)
         self.over_range = False
         self.over_range_events = 0
+        self._signalled = False      # what the last EMCY said: over range or not
         self._scale_kgf = None
         self.publish(0.0, False)
 
     def on_boot(self) -> None:
         self._scale_kgf = None
+        self._signalled = False      # a reset clears the error history
 
     def _scale(self) -> float:
         if self._scale_kgf is None:
@@ -52,10 +56,11 @@ class DynamometerNode(EmulatedNode):
         self.live[P.PV_INT32] = counts
         self.live[P.PV_REAL32] = float(counts * self._scale() * P.N_PER_KGF)
         self.live[P.AI_STATUS] = status
-        if over_range != self.over_range and self.operational:
+        self.over_range = over_range
+        if over_range != self._signalled and self.nmt_state in ("PRE-OPERATIONAL", "OPERATIONAL"):
+            self._signalled = over_range
             if over_range:
                 self.over_range_events += 1
                 self.local.emcy.send(P.EMCY_FORCE_OVER_RANGE, 0x01)
             else:
                 self.local.emcy.reset()
-        self.over_range = over_range

@@ -9,7 +9,12 @@ producers. This class adds, per CiA 301:
 * synchronous TPDOs on SYNC (transmission types 1..240: every n-th SYNC);
 * received RPDOs written into the object dictionary and handed to the device;
 * RPDO length errors counted (and reported by EMCY 0x8210), never decoded as garbage;
-* the RPDO timeout (event timer 0x1400+n sub 5) checked by :meth:`check_rpdo_timeout`.
+* the RPDO timeout (event timer 0x1400+n sub 5) checked by :meth:`check_rpdo_timeout`; it runs
+  from the moment the node enters OPERATIONAL, so a master that dies before its first command
+  is caught too;
+* an acceptance filter (:func:`slave_frame_filter`) in front of the stack: NMT commands must
+  have 2 bytes, SYNC 0 or 1, SDO requests 8; error, remote, extended-id and FD frames never
+  reach it (counted and dropped, as a CAN controller's filter and a careful stack would).
 
 Device behaviour (valve, dynamometer) lives in subclasses.
 """
@@ -24,8 +29,10 @@ from pathlib import Path
 from typing import Any
 
 import canopen
+from canopen.network import MessageListener
 
 from dbc.pdo_codec import PdoLayout, PdoLayoutError
+from standbus.faults import FrameFilter
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +70,18 @@ def read_pdo_config(node: canopen.LocalNode, com_index: int, map_index: int) -> 
             obj = obj[subindex]
         entries.append((index, subindex, bits, obj.data_type))
     return PdoConfig(PdoLayout.from_entries(cob & 0x7FF, entries), trans, timer)
+
+
+def slave_frame_filter(network: canopen.Network, node_ids) -> FrameFilter:
+    """Put an acceptance filter in front of ``network``'s canopen stack (before ``connect`` or
+    before the Notifier is made from ``network.listeners``) and return it."""
+    flt = FrameFilter(MessageListener(network).on_message_received)
+    flt.expect(0x000, 2)            # NMT: command, node id
+    flt.expect(0x080, (0, 1))       # SYNC, with or without counter
+    for nid in node_ids:
+        flt.expect(0x600 + nid, 8)  # SDO client → server
+    network.listeners = [flt]
+    return flt
 
 
 class EmulatedNode:
@@ -196,6 +215,14 @@ class EmulatedNode:
             values = cfg.layout.decode(data)
             for (index, sub), value in zip(cfg.layout.keys, values):
                 self.write_object(index, sub, value)
+
+    def rpdo_timeout_due(self, now: float) -> bool:
+        """True if an RPDO with an event timer is overdue (without reporting it)."""
+        with self.lock:
+            if not self.operational or self.last_rpdo_time is None:
+                return False
+            timers = [c.event_timer_ms for c in self.rpdos.values() if c.event_timer_ms]
+            return bool(timers) and now - self.last_rpdo_time > min(timers) / 1000.0
 
     def check_rpdo_timeout(self, now: float) -> bool:
         """True once if an RPDO with an event timer has not arrived within it."""

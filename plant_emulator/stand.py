@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import math
+import select
 import threading
 import time
 from dataclasses import dataclass
@@ -28,11 +29,16 @@ from dbc import profile as P
 from plant.config import PlantConfig
 
 from .dynamometer import DynamometerNode
+from .node import slave_frame_filter
 from .valve import ServoValveNode
 
 log = logging.getLogger(__name__)
 
 _MAX_BLOCK = 200_000  # steps per numpy block when catching up a long gap in real time
+#: a watchdog poll this much later than asked means the process was not running, s
+_STALL_S = 0.02
+#: how long the watchdog waits for frames already in the socket before declaring a timeout, s
+_MAX_DEFERRAL_S = 0.02
 
 
 @dataclass
@@ -58,6 +64,8 @@ class EmulatedStand:
         self.model = config.model
         self.sensor = config.dynamometer(options.seed)
         self.network = canopen.Network(bus)
+        #: frames dropped before the stack (wrong DLC on NMT/SYNC/SDO, error/remote/ext/FD frames)
+        self.frame_filter = slave_frame_filter(self.network, (options.valve_id, options.dynamometer_id))
         self.valve = ServoValveNode(self.network, options.valve_id, VALVE_EDS, options.lockstep)
         self.dynamometer = DynamometerNode(self.network, options.dynamometer_id, DYNAMOMETER_EDS)
         self.lock = threading.RLock()
@@ -77,7 +85,7 @@ class EmulatedStand:
 
     # -- lifecycle -------------------------------------------------------------------------------
     def start(self) -> None:
-        self.network.notifier = can.Notifier(self.bus, self.network.listeners, 0.5)
+        self.network.notifier = can.Notifier(self.bus, self.network.listeners, 0.1)
         self._t_plant = time.monotonic()
         self.valve.boot()
         self.dynamometer.boot()
@@ -170,8 +178,42 @@ class EmulatedStand:
         self._command = self.valve.spool_command_percent()
 
     def _watch(self) -> None:
-        while not self._stop.wait(self.options.watchdog_poll_s):
+        """The valve's RPDO watchdog (event timer 0x1400:05), polled every ``watchdog_poll_s``.
+
+        A real valve counts the timeout in its own firmware, which never stops. This emulator
+        is a process on a shared machine: when the whole process was not scheduled for a while,
+        commands that arrived meanwhile are still waiting in the socket. So a timeout is not
+        declared in a poll that itself came late, nor while frames are waiting to be read
+        (for at most :data:`_MAX_DEFERRAL_S`), which keeps a loaded machine from faking a dead
+        master without hiding a real one."""
+        poll = self.options.watchdog_poll_s
+        last = time.monotonic()
+        deferred_since: float | None = None
+        skipped = 0
+        while not self._stop.wait(poll):
             now = time.monotonic()
+            stalled = now - last > poll + _STALL_S
+            last = now
+            if stalled and skipped < 3:      # never more than 3 polls in a row
+                skipped += 1
+                continue
+            skipped = 0
             with self.lock:
-                if self.valve.check_rpdo_timeout(now):
+                due = self.valve.rpdo_timeout_due(now)
+            if not due:
+                deferred_since = None
+                continue
+            if self._frames_waiting() and (deferred_since is None or now - deferred_since < _MAX_DEFERRAL_S):
+                deferred_since = deferred_since or now
+                continue
+            deferred_since = None
+            with self.lock:
+                if self.valve.check_rpdo_timeout(time.monotonic()):
                     self.valve.fault(P.EMCY_RPDO_TIMEOUT)
+
+    def _frames_waiting(self) -> bool:
+        try:
+            ready, _, _ = select.select([self.bus.fileno()], [], [], 0)
+        except (AttributeError, NotImplementedError, OSError, ValueError, TypeError):
+            return False
+        return bool(ready)

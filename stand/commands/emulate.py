@@ -2,10 +2,12 @@
 from __future__ import annotations
 
 import argparse
+import math
 import signal
 import threading
 
 from plant.config import load_plant_config
+from plant.params import ModelError
 from plant_emulator import EmulatedStand, EmulatorOptions
 from plant_emulator.process import READY
 from standbus import open_bus
@@ -34,6 +36,10 @@ def register(sub) -> None:
 
 def main(args: argparse.Namespace) -> int:
     config = load_plant_config(args.config, args.model, parse_assignments(args.set))
+    if not math.isfinite(config.initial_force_kgf):
+        raise ModelError(f"initial.force_kgf = {config.initial_force_kgf} must be a finite force in kgf")
+    if not (0.01 <= args.step_ms <= 100 and math.isfinite(args.step_ms)):
+        raise ModelError(f"--step-ms {args.step_ms:g} is out of range: use 0.01 to 100 ms")
     options = EmulatorOptions(lockstep=args.lockstep, seed=args.seed, valve_id=args.valve_id,
                               dynamometer_id=args.dynamometer_id, step_s=args.step_ms / 1000.0)
     bus = open_bus(args.bus)
@@ -51,4 +57,10 @@ def main(args: argparse.Namespace) -> int:
     finally:
         stand.stop()
         bus.shutdown()
+    flt = stand.frame_filter
+    if flt.dropped or stand.valve.rpdo_length_errors or stand.valve.faults:
+        print(f"emulator stopped: acceptance filter dropped {flt.dropped} frames "
+              f"({flt.not_classic} error/remote/extended/FD, {flt.wrong_dlc} wrong DLC); "
+              f"{stand.valve.rpdo_length_errors} RPDO length errors; {stand.valve.faults} valve faults",
+              flush=True)
     return 0
