@@ -6,6 +6,7 @@ import argparse
 from dbc import profile as P
 from gateway import GatewayConfig, SafetyLimits
 from gateway.errors import ParameterError
+from gateway.supervisor import ACTIONS
 from standbus import DEFAULT_BUS
 
 
@@ -28,17 +29,68 @@ def add_gateway(p: argparse.ArgumentParser) -> None:
     p.add_argument("--period-ms", type=float, default=2.0, help="control period, ms (default %(default)s)")
     p.add_argument("--lockstep", action="store_true",
                    help="send the next SYNC as soon as a cycle is done (needs the emulator with --lockstep)")
-    p.add_argument("--force-limit", type=float, default=9500.0, metavar="KGF",
-                   help="stop the run (safe state) beyond ±this force, kgf (default %(default)s)")
     p.add_argument("--boot-timeout", type=float, default=5.0, metavar="S",
                    help="seconds to wait for the nodes' boot-up (default %(default)s)")
+    add_safety(p)
+
+
+def add_safety(p: argparse.ArgumentParser) -> None:
+    """The supervisor's limits and reactions (docs/safety.md)."""
+    d = SafetyLimits()
+    g = p.add_argument_group("safety (see docs/safety.md)")
+    g.add_argument("--force-limit", type=float, default=d.force_limit_kgf, metavar="KGF",
+                   help="force limit ±KGF (default %(default)s)")
+    g.add_argument("--limit-action", choices=ACTIONS, default=d.force_action,
+                   help="what the force limit does: indicate (log, go on), hold (valve HOLD, zero "
+                        "command), unload (ramp the force to ~0, then hold), zero (zero command, "
+                        "valve DISABLED) (default %(default)s)")
+    g.add_argument("--command-limit", type=float, default=d.command_limit_pct, metavar="PCT",
+                   help="clamp the valve command to ±PCT %% (default %(default)s)")
+    g.add_argument("--slew-limit", type=float, default=d.slew_pct_per_s, metavar="PCT_PER_S",
+                   help="limit the command's rate of change, %%/s (default: none)")
+    g.add_argument("--error-limit", type=float, default=d.error_limit_kgf, metavar="KGF",
+                   help="error detector: |reference - force| beyond KGF for --error-time trips "
+                        "(closed-loop experiments; default: off)")
+    g.add_argument("--error-time", type=float, default=d.error_time_s, metavar="S",
+                   help="how long the error must persist, s (default %(default)s)")
+    g.add_argument("--error-action", choices=ACTIONS, default=d.error_action,
+                   help="what the error detector does (default %(default)s)")
+    g.add_argument("--stale-cycles", type=int, default=d.stale_cycles, metavar="N",
+                   help="safe state after N cycles without a fresh force PDO (default %(default)s)")
+    g.add_argument("--heartbeat-timeout", type=float, default=d.heartbeat_timeout_s * 1e3, metavar="MS",
+                   help="safe state when a node's heartbeat is older than MS (default %(default)g)")
+    g.add_argument("--overrun-limit", type=float, default=d.overrun_limit_s * 1e3, metavar="MS",
+                   help="real time: safe state when a cycle starts more than MS late (default %(default)g)")
+    g.add_argument("--rpdo-timeout", type=int, default=GatewayConfig.rpdo_timeout_ms, metavar="MS",
+                   help="the valve's own watchdog: fail-safe when no command for MS (0: off; "
+                        "default %(default)s)")
+    g.add_argument("--unload-rate", type=float, default=d.unload_rate_kgf_per_s, metavar="KGF_PER_S",
+                   help="controlled unload: force ramp rate (default %(default)s)")
+
+
+def safety_limits(args: argparse.Namespace) -> SafetyLimits:
+    d = SafetyLimits()
+    get = lambda name, default: getattr(args, name, default)  # noqa: E731
+    return SafetyLimits(
+        force_limit_kgf=get("force_limit", d.force_limit_kgf),
+        force_action=get("limit_action", d.force_action),
+        command_limit_pct=get("command_limit", d.command_limit_pct),
+        slew_pct_per_s=get("slew_limit", d.slew_pct_per_s),
+        error_limit_kgf=get("error_limit", d.error_limit_kgf),
+        error_time_s=get("error_time", d.error_time_s),
+        error_action=get("error_action", d.error_action),
+        stale_cycles=get("stale_cycles", d.stale_cycles),
+        heartbeat_timeout_s=get("heartbeat_timeout", d.heartbeat_timeout_s * 1e3) / 1e3,
+        overrun_limit_s=get("overrun_limit", d.overrun_limit_s * 1e3) / 1e3,
+        unload_rate_kgf_per_s=get("unload_rate", d.unload_rate_kgf_per_s))
 
 
 def gateway_config(args: argparse.Namespace) -> GatewayConfig:
     return GatewayConfig(bus=args.bus, valve_id=args.valve_id, dynamometer_id=args.dynamometer_id,
                          period_s=args.period_ms / 1000.0, lockstep=args.lockstep,
                          boot_timeout_s=args.boot_timeout,
-                         limits=SafetyLimits(force_limit_kgf=args.force_limit))
+                         rpdo_timeout_ms=getattr(args, "rpdo_timeout", GatewayConfig.rpdo_timeout_ms),
+                         limits=safety_limits(args))
 
 
 def parse_assignments(items: list[str] | None, what: str = "--set") -> dict[str, float]:

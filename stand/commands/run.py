@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import inspect
+import signal
 
 from gateway import Gateway
 from gateway.experiments import EXPERIMENTS, make_experiment
@@ -28,15 +29,38 @@ def register(sub) -> None:
         e.set_defaults(func=main)
 
 
+def _terminate(signum, frame) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
 def main(args: argparse.Namespace) -> int:
     params = {k[2:]: v for k, v in vars(args).items() if k.startswith("x_")}
     experiment = make_experiment(args.experiment, params)
-    with Gateway(gateway_config(args)) as gw:
-        result = gw.run(experiment, args.out, progress=False if args.no_progress else None)
+    config = gateway_config(args)
+    # SIGTERM (kill, systemd, a test harness) ends the run like Ctrl-C: valve to hold with zero
+    # command, run closed with end_reason "interrupted" -- never a half-written run.
+    previous = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        with Gateway(config) as gw:
+            result = gw.run(experiment, args.out, progress=False if args.no_progress else None)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     stats = result.outcome.stats
     print(f"run {result.status}: {stats.cycles} cycles, {stats.stale_cycles} stale, "
           f"{stats.overruns} overruns -> {result.path}")
+    ignored = stats.unexpected_frames + stats.wrong_dlc_frames + stats.not_classic_frames
+    if ignored:
+        print(f"ignored {ignored} frames: {stats.unexpected_frames} from unexpected ids, "
+              f"{stats.wrong_dlc_frames} with a wrong DLC, {stats.not_classic_frames} error/remote/"
+              "extended/FD")
+    if stats.limit_events:
+        print(f"{stats.limit_events} limit events indicated (see run.json 'events')")
     if result.reason:
-        print(f"stopped early ({result.reason}): {result.outcome.message}")
+        safety = result.outcome.safety or {}
+        when = ""
+        if safety.get("reaction_s") is not None:
+            when = (f" [safe state {safety['reaction_s'] * 1e3:.1f} ms after onset, "
+                    f"bound {safety['bound_s'] * 1e3:.0f} ms, action {safety['action']}]")
+        print(f"stopped early ({result.reason}): {result.outcome.message}{when}")
         return 1
     return 0
