@@ -1,0 +1,336 @@
+"""Fault injection on the real multi-process bus: the emulator is a separate process
+(``stand emulate``), the gateway runs in this process; every test asserts the reaction and its
+time (measured on the bus: from the injection to the first frame of the reaction).
+
+Stated bounds (docs/safety.md; T = 2 ms period, defaults): stale force 25 cycles → safe state
+≤ 26·T after the last answered SYNC; lost heartbeat ≤ 350 ms + T + 20 ms after the last
+heartbeat; force limit, EMCY: the next command; each assert adds LOAD_ALLOWANCE_S.
+"""
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import can
+import numpy as np
+import pytest
+
+from dbc import profile as P
+from gateway import Gateway, GatewayConfig, SafetyLimits, load_run
+from gateway.capture import read_capture
+from standbus import open_bus
+from standbus.faults import FaultInjector, FaultSpec
+from tests.conftest import plant
+from tests.test_faults_support import (LOAD_ALLOWANCE_S, SAFE_WORDS, Const, RampReference, Sniffer,
+                                       Stall, emcys, first_safe_command, log_reaction, rpdos,
+                                       valve_state)
+
+pytestmark = pytest.mark.e2e
+T = 0.002
+BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
+
+
+def gateway(bus_spec, lockstep, **limits):
+    return Gateway(GatewayConfig(bus=bus_spec, lockstep=lockstep, limits=SafetyLimits(**limits)))
+
+
+def only_experiment_or_safe(run_dir, u_pct):
+    """On the wire: hold commands while the nodes start, the enable (ACTIVE, 0), the
+    experiment's constant command, then safe commands only (HOLD/DISABLED with zero setpoint)."""
+    counts = P.percent_to_counts(u_pct)
+    cmds = [(cw, sp) for _, cw, sp in rpdos(run_dir)]
+    active = int(P.CW_ACTIVE)
+    first = next(i for i, (cw, _) in enumerate(cmds) if cw == active)
+    assert all(c == (int(P.CW_HOLD), 0) for c in cmds[:first]), "keep-alive while starting: hold, 0"
+    assert cmds[first] == (active, 0), "enabled with a zero command"
+    end = next((i for i in range(first + 1, len(cmds)) if cmds[i][0] != active), len(cmds))
+    assert all(sp == counts for _, sp in cmds[first + 1:end]), "the experiment's command"
+    assert all(cw in SAFE_WORDS and sp == 0 for cw, sp in cmds[end:]), "then only safe commands"
+    return end - first
+
+
+# -- the emulator dies or freezes -------------------------------------------------------------------
+@pytest.mark.parametrize("how", ["SIGKILL", "SIGSTOP"])
+@pytest.mark.parametrize("lockstep", [False, True], ids=["realtime", "lockstep"])
+def test_emulator_killed_or_frozen_mid_run(bus_spec, start_emulator, tmp_path, lockstep, how):
+    emu = start_emulator(plant(BASE, model="base"), lockstep=lockstep, seed=2)
+    injected: list[float] = []
+
+    def inject(t):
+        if t >= 1.0 and not injected:
+            injected.append(time.time())
+            emu.signal(getattr(signal, how))
+
+    with gateway(bus_spec, lockstep) as gw:
+        result = gw.run(Const(1.0, 20.0), tmp_path / "run", progress=False, on_progress=inject)
+        sup = gw.loop.supervisor
+        bound = sup.bound_s("heartbeat_lost") if lockstep else sup.bound_s("force_pdo_stale") + T
+    if how == "SIGSTOP":
+        emu.signal(signal.SIGCONT)
+    expected = "heartbeat_lost" if lockstep else "force_pdo_stale"
+    assert (result.status, result.reason) == ("stopped", expected), result.outcome.message
+    run = load_run(result.path)
+    assert not run.recovered and run.meta["status"] == "stopped" and run.meta["end_reason"] == expected
+    assert run.meta["end_message"] == result.outcome.message
+    safe_t, cw, _ = first_safe_command(result.path, injected[0])
+    measured = safe_t - injected[0]
+    assert cw == int(P.CW_HOLD)
+    assert measured <= bound + LOAD_ALLOWANCE_S
+    safety = run.meta["safety"]
+    assert safety["reason"] == expected and safety["reaction_s"] <= safety["bound_s"] + LOAD_ALLOWANCE_S
+    only_experiment_or_safe(result.path, 1.0)
+    assert run.t[-1] >= 1.0 and len(run) == run.meta["stats"]["cycles"]
+    log_reaction(f"emulator {how} ({'lockstep' if lockstep else 'real time'})", measured, bound,
+                 reason=expected, self_reported_s=safety["reaction_s"])
+    if how == "SIGSTOP":   # it wakes up: its valve is no longer driven (HOLD, or FAULT_HOLD by
+        time.sleep(0.3)    # its own RPDO timeout), and it answers again
+        assert valve_state(bus_spec) in (P.ValveState.HOLD, P.ValveState.FAULT_HOLD)
+
+
+# -- a lossy bus: 10 % of the frames lost in both directions ----------------------------------------
+def test_ten_percent_frame_loss_degrades_but_does_not_stop(channel, start_emulator, tmp_path):
+    lossy = "drop=0.1,fault_ids=0x080-0x4FF"
+    emu = start_emulator(plant(BASE, model="base"), lockstep=False, seed=3,
+                         bus=f"udp_loopback:{channel},{lossy},seed=4")
+    with Gateway(GatewayConfig(bus=f"udp_loopback:{channel},{lossy},seed=5")) as gw:
+        result = gw.run(Const(1.0, 3.0), tmp_path / "run", progress=False)
+        lost = gw.network.bus.faults.dropped
+    assert result.status == "complete", result.outcome.message
+    run = load_run(result.path)
+    stale = run.stale
+    runs = np.diff(np.flatnonzero(np.diff(np.concatenate(([0], stale.astype(int), [0]))) != 0))[::2]
+    # ≈ 10 % force frames lost at the gateway + 10 % SYNCs lost at the emulator
+    assert 0.08 < stale.mean() < 0.35, stale.mean()
+    assert runs.max() < 25 and lost > 0
+    assert np.all(run.u == P.counts_to_percent(P.percent_to_counts(1.0)))
+    only_experiment_or_safe(result.path, 1.0)
+    log_reaction("10 % frame loss both ways (real time)", 0.0, 0.0, reason="none (run completes)",
+                 stale_share=float(stale.mean()), longest_stale_run=int(runs.max()))
+    assert emu.proc.poll() is None
+
+
+# -- a slow bus: delayed frames are old data, never fresh ------------------------------------------------
+def test_delayed_frames_count_as_stale_and_stop_the_run(bus_spec, start_emulator, tmp_path):
+    start_emulator(plant(BASE, model="base"), lockstep=False, seed=6)
+    injected: list[float] = []
+    with gateway(bus_spec, False) as gw:
+        def inject(t):
+            if t >= 1.0 and not injected:
+                injected.append(time.time())
+                gw.network.bus.faults = FaultInjector(FaultSpec(delay_s=0.005))   # 2.5 periods
+        result = gw.run(Const(1.0, 10.0), tmp_path / "run", progress=False, on_progress=inject)
+        bound = gw.loop.supervisor.bound_s("force_pdo_stale") + T
+    assert (result.status, result.reason) == ("stopped", "force_pdo_stale"), result.outcome.message
+    run = load_run(result.path)
+    assert run.meta["stats"]["late_frames"] >= 25, "the delayed answers arrived, as late frames"
+    measured = first_safe_command(result.path, injected[0])[0] - injected[0]
+    assert measured <= bound + LOAD_ALLOWANCE_S
+    log_reaction("frames delayed 5 ms (real time)", measured, bound, reason="force_pdo_stale")
+
+
+def test_small_delay_in_lockstep_changes_nothing(channel, start_emulator, tmp_path):
+    """Lockstep waits for the answer: a 1 ms delay on both ends gives the same run bit for bit."""
+    runs = []
+    for i, extra in enumerate(["", ",delay_ms=1"]):
+        emu = start_emulator(plant(BASE), lockstep=True, seed=8, bus=f"udp_loopback:{channel}{extra}")
+        with Gateway(GatewayConfig(bus=f"udp_loopback:{channel}{extra}", lockstep=True)) as gw:
+            result = gw.run(Const(5.0, 0.4), tmp_path / f"run{i}", progress=False)
+        emu.stop()
+        assert result.status == "complete"
+        runs.append(load_run(result.path))
+    assert np.array_equal(runs[0].y, runs[1].y) and np.array_equal(runs[0].u, runs[1].u)
+
+
+# -- garbage on the bus ---------------------------------------------------------------------------------
+def test_a_flood_of_garbage_changes_nothing(channel, start_emulator, tmp_path):
+    """A separate process floods the bus with random frames (error/remote/extended/FD frames,
+    random ids, and the stand's own ids with wrong lengths) at ~4,000 frames/s during a lockstep
+    run: the run is identical to the same run on a quiet bus, every garbage frame is counted,
+    and every command on the wire is the experiment's or the safe one."""
+    bus = f"udp_loopback:{channel}"
+    quiet_emu = start_emulator(plant(BASE), lockstep=True, seed=9)
+    with Gateway(GatewayConfig(bus=bus, lockstep=True)) as gw:
+        quiet = gw.run(Const(5.0, 1.0), tmp_path / "quiet", progress=False)
+    quiet_emu.stop()
+    emu = start_emulator(plant(BASE), lockstep=True, seed=9)
+    flood = subprocess.Popen([sys.executable, "-m", "standbus.faults", "--bus", bus, "--rate", "4000",
+                              "--duration", "60", "--node", "1", "--node", "2", "--tpdo", "0x181:4",
+                              "--tpdo", "0x182:5", "--seed", "1"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert flood.stdout.readline().strip() == "flooding"
+        time.sleep(0.3)
+        with Gateway(GatewayConfig(bus=bus, lockstep=True)) as gw:
+            noisy = gw.run(Const(5.0, 1.0), tmp_path / "noisy", progress=False)
+    finally:
+        flood.send_signal(signal.SIGTERM)
+        flood.wait(10)
+    emu.stop()
+    assert quiet.status == noisy.status == "complete", noisy.outcome.message
+    a, b = load_run(quiet.path), load_run(noisy.path)
+    assert np.array_equal(a.y, b.y) and np.array_equal(a.u, b.u) and np.array_equal(a.valve_status, b.valve_status)
+    stats = b.meta["stats"]
+    counted = stats["unexpected_frames"] + stats["wrong_dlc_frames"] + stats["not_classic_frames"]
+    assert min(stats["unexpected_frames"], stats["wrong_dlc_frames"], stats["not_classic_frames"]) > 20
+    assert a.meta["stats"]["unexpected_frames"] == a.meta["stats"]["wrong_dlc_frames"] == 0
+    only_experiment_or_safe(noisy.path, 5.0)
+    # the raw capture holds the garbage too; what the filter counted during the loop is most of it
+    valid = {0x81: {8}, 0x82: {8}, 0x181: {4}, 0x182: {5}, 0x581: {8}, 0x582: {8}, 0x701: {1}, 0x702: {1}}
+    frames = list(read_capture(noisy.path / "capture.log"))
+    syncs = [f.timestamp for f in frames if f.arbitration_id == 0x80 and not f.is_rx]
+    garbage = [f for f in frames if f.is_rx and syncs[0] <= f.timestamp <= syncs[-1] and (
+        f.is_error_frame or f.is_remote_frame or f.is_extended_id or f.is_fd
+        or len(f.data) not in valid.get(f.arbitration_id, ()))]
+    assert 0.8 * len(garbage) <= counted <= 1.2 * len(garbage) + 50
+    dropped = [line for line in emu.output if "acceptance filter dropped" in line]
+    assert dropped and int(dropped[0].split("dropped ")[1].split()[0]) > 100
+
+
+# -- force limit and its actions ---------------------------------------------------------------------------
+@pytest.mark.parametrize("action", ["hold", "zero", "unload", "indicate"])
+def test_force_limit_actions(bus_spec, start_emulator, tmp_path, action):
+    start_emulator(plant({**BASE, "initial.force_kgf": 1500.0}, model="base"), lockstep=True, seed=4)
+    with gateway(bus_spec, True, force_limit_kgf=2000.0, force_action=action) as gw:
+        result = gw.run(Const(20.0, 1.0), tmp_path / "run", progress=False)
+    run = load_run(result.path)
+    over = np.flatnonzero(np.abs(run.y) > 2000.0)
+    assert over.size
+    k = over[0]
+    if action == "indicate":
+        assert result.status == "complete" and run.meta["events"][0]["reason"] == "force_limit"
+        assert len(run.meta["events"]) == 1 and run.meta["stats"]["limit_events"] == 1
+        assert np.all(run.u == P.counts_to_percent(P.percent_to_counts(20.0)))
+        return
+    assert (result.status, result.reason) == ("stopped", "force_limit")
+    assert run.u[k] == 0.0 and run.u[k - 1] > 19.9, "the command after the first reading beyond the limit is safe"
+    # on the bus: the safe command follows the force PDO that carried the over-limit reading
+    frames = list(read_capture(result.path / "capture.log"))
+    syncs = [f for f in frames if f.arbitration_id == 0x80]
+    tpdo = next(f for f in frames if f.arbitration_id == 0x182 and f.timestamp >= syncs[k].timestamp)
+    first = first_safe_command(result.path, syncs[k].timestamp) if action != "unload" else None
+    safety = run.meta["safety"]
+    assert safety["action"] == action
+    if action == "unload":
+        un = safety["unload"]
+        assert un["outcome"] == "unloaded" and abs(run.y[-1]) <= 50.0 + 10.0
+        after = run.u[k:]
+        assert np.all(np.abs(after) <= SafetyLimits().unload_max_pct + 1e-9) and after[-1] == 0.0
+        assert np.all(np.diff(run.r[k:]) <= 0) and run.r[-1] == 0.0, "reference ramps down"
+        active = [ts for ts, cw, sp in rpdos(result.path) if ts >= syncs[k].timestamp and cw == int(P.CW_ACTIVE)]
+        measured = active[0] - tpdo.timestamp
+        assert rpdos(result.path)[-1][1] == int(P.CW_HOLD)
+    else:
+        measured = first[0] - tpdo.timestamp
+        assert first[1] == (int(P.CW_DISABLED) if action == "zero" else int(P.CW_HOLD))
+        expect = P.ValveState.DISABLED if action == "zero" else P.ValveState.HOLD
+        assert valve_state(bus_spec) == expect
+    assert 0 <= measured <= T + LOAD_ALLOWANCE_S
+    log_reaction(f"force limit, action {action} (lockstep)", measured, T, reason="force_limit",
+                 unload_s=safety.get("unload", {}).get("duration_s"))
+
+
+# -- error detector ---------------------------------------------------------------------------------------
+def test_error_detector_trips_after_the_stated_time(bus_spec, start_emulator, tmp_path):
+    start_emulator(plant(BASE, model="base"), lockstep=True, seed=5)
+    with gateway(bus_spec, True, error_limit_kgf=200.0, error_time_s=0.1) as gw:
+        result = gw.run(RampReference(1000.0, 2.0), tmp_path / "run", progress=False)
+    assert (result.status, result.reason) == ("stopped", "error_limit"), result.outcome.message
+    run = load_run(result.path)
+    e = np.abs(run.r - run.y)
+    first = np.flatnonzero(e > 200.0)[0]
+    assert len(run) - 1 - first == 50 - 1, "tripped on the 50th cycle (0.1 s) beyond the limit"
+    assert run.u[-1] == 0.0 and run.t[-1] == pytest.approx(0.3, abs=0.01)
+    log_reaction("error detector |r−y|>200 kgf for 0.1 s (lockstep)",
+                 (len(run) - first) * T, 0.1 + T, reason="error_limit", measured_in="stand time")
+
+
+# -- control-loop overrun ----------------------------------------------------------------------------------
+def test_a_stalled_loop_is_caught_by_both_watchdogs(bus_spec, start_emulator, tmp_path):
+    """The experiment hangs for 0.3 s: the valve's RPDO timeout (100 ms) puts it into FAULT_HOLD
+    with EMCY 0x8250 while the gateway is stuck; the gateway's first cycle after the stall sees
+    the overrun and sends the safe command at once."""
+    start_emulator(plant(BASE, model="base"), lockstep=False, seed=6)
+    exp = Stall(1.0, 10.0, at_s=1.0, stall_s=0.3)
+    with gateway(bus_spec, False) as gw:
+        result = gw.run(exp, tmp_path / "run", progress=False)
+    assert (result.status, result.reason) == ("stopped", "overrun"), result.outcome.message
+    frames = list(read_capture(result.path / "capture.log"))
+    valve_emcy = [(ts, code) for ts, code in emcys(frames, 1) if ts >= exp.stalled_at]
+    assert valve_emcy and valve_emcy[0][1] == P.EMCY_RPDO_TIMEOUT
+    valve_reaction = valve_emcy[0][0] - exp.stalled_at
+    assert 0.1 <= valve_reaction <= 0.1 + 0.005 + 0.02 + LOAD_ALLOWANCE_S
+    resumed = exp.stalled_at + exp.stall_s
+    safe = first_safe_command(result.path, exp.stalled_at)[0]
+    assert safe >= resumed - 0.01 and safe - resumed <= T + LOAD_ALLOWANCE_S
+    log_reaction("valve RPDO timeout while the gateway stalls", valve_reaction, 0.125,
+                 reason="EMCY 0x8250, FAULT_HOLD")
+    log_reaction("control-loop overrun (real time)", safe - resumed, T, reason="overrun",
+                 measured_from="end of the stall")
+
+
+# -- EMCYs ---------------------------------------------------------------------------------------------------
+def test_dynamometer_over_range_emcy_stops_the_run(bus_spec, start_emulator, tmp_path):
+    start_emulator(plant({**BASE, "initial.force_kgf": 2500.0, "sensor.range_kgf": 3000.0}, model="base"),
+                   lockstep=True, seed=7)
+    with gateway(bus_spec, True) as gw:
+        result = gw.run(Const(20.0, 2.0), tmp_path / "run", progress=False)
+    assert (result.status, result.reason) == ("stopped", "emcy")
+    assert "0xFF10 from dynamometer node 2" in result.outcome.message
+    run = load_run(result.path)
+    assert run.meta["emcy"][0]["code"] == P.EMCY_FORCE_OVER_RANGE
+    frames = list(read_capture(result.path / "capture.log"))
+    t_emcy = emcys(frames, 2)[0][0]
+    measured = first_safe_command(result.path, t_emcy)[0] - t_emcy
+    bound = run.meta["safety"]["bound_s"]
+    assert measured <= bound + LOAD_ALLOWANCE_S
+    assert run.y.max() <= 3000.0
+    log_reaction("EMCY from the dynamometer (over range, lockstep)", measured, bound, reason="emcy")
+
+
+def test_a_foreign_command_frame_makes_the_valve_complain_and_the_gateway_stop(bus_spec, start_emulator, tmp_path):
+    """Someone else sends on the valve's command COB-ID with a wrong length: the valve ignores
+    it, reports EMCY 0x8210 (PDO length error, CiA 301), and the gateway goes to its safe state."""
+    start_emulator(plant(BASE, model="base"), lockstep=True, seed=8)
+    intruder = open_bus(bus_spec)
+    sent: list[float] = []
+
+    def inject(t):
+        if t >= 0.5 and not sent:
+            sent.append(time.time())
+            intruder.send(can.Message(arbitration_id=0x201, data=b"\x07\x00\x10", is_extended_id=False))
+
+    try:
+        with gateway(bus_spec, True) as gw:
+            result = gw.run(Const(1.0, 3.0), tmp_path / "run", progress=False, on_progress=inject)
+    finally:
+        intruder.shutdown()
+    assert (result.status, result.reason) == ("stopped", "emcy") and "0x8210" in result.outcome.message
+    run = load_run(result.path)
+    assert np.all(run.valve_status[:-1] & 0xF == P.ValveState.ACTIVE.value), "the bad frame was ignored"
+    measured = first_safe_command(result.path, sent[0])[0] - sent[0]
+    assert measured <= run.meta["safety"]["bound_s"] + LOAD_ALLOWANCE_S
+    log_reaction("foreign RPDO with wrong DLC → valve EMCY 0x8210 (lockstep)", measured,
+                 run.meta["safety"]["bound_s"], reason="emcy")
+
+
+def test_run_json_says_why_and_how_fast(bus_spec, start_emulator, tmp_path):
+    """The metadata of a stopped run: reason, message, action and the stated/measured times."""
+    emu = start_emulator(plant(BASE, model="base"), lockstep=False, seed=9)
+
+    def kill(t):
+        if t >= 0.5:
+            emu.signal(signal.SIGKILL)
+
+    with gateway(bus_spec, False) as gw:
+        result = gw.run(Const(1.0, 5.0), tmp_path / "run", progress=False, on_progress=kill)
+    meta = json.loads((result.path / "run.json").read_text())
+    assert meta["status"] == "stopped" and meta["end_reason"] == "force_pdo_stale"
+    assert meta["end_message"].startswith("no fresh force PDO for 25 cycles")
+    s = meta["safety"]
+    assert s["action"] == "hold" and s["onset"] <= s["detected"] <= s["safe_state"]
+    assert s["bound_s"] == pytest.approx(26 * T) and s["reaction_s"] == pytest.approx(s["safe_state"] - s["onset"])
+    assert meta["limits"]["stale_cycles"] == 25 and meta["limits"]["force_action"] == "hold"
+    for key in ("unexpected_frames", "wrong_dlc_frames", "not_classic_frames", "late_frames", "stale_cycles"):
+        assert key in meta["stats"]
