@@ -341,8 +341,9 @@ def describe_residual(ev: Evaluation) -> list[str]:
     """Plain-words description of where and how the model ``ev.model`` misses the data."""
     out: list[str] = []
     floor = ev.noise_floor
-    out.append(f"windowed RMSE {ev.rmse:.3g} kgf = {ev.excess_ratio:.2f}× the noise floor "
-               f"({floor:.3g} kgf from σ = {ev.noise_sigma:.3g} kgf), fit {ev.fit_percent:.2f} %")
+    out.append(f"windowed RMSE {ev.rmse:.3g} kgf, fit {ev.fit_percent:.2f} %; noise floor "
+               f"{floor:.3g} kgf (σ = {ev.noise_sigma:.3g} kgf); with the window starts "
+               f"re-estimated the error is {ev.excess_ratio:.2f}× what the noise allows")
     rev = reversal_transient(ev.sims, ev.model.tau)
     if rev is not None:
         out.append(rev)
@@ -387,20 +388,36 @@ def reversal_transient(sims: Sequence[RecordSimulation], tau: float,
         return None
     c = np.vstack(curves)
     dt = dts[0]
-    med = c.mean(axis=0)
-    se = c[:, -1].std(ddof=1) / math.sqrt(len(c))
-    final = float(med[-10:].mean())
-    if abs(final) < max(4 * se, 1e-9):
+    mean = c.mean(axis=0)
+    se = c.std(axis=0, ddof=1) / math.sqrt(len(c))
+    phases = []
+    for sign in (1, -1):
+        k = int(np.argmax(sign * mean))
+        if k > 0 and sign * mean[k] > max(4 * se[k], 1e-9):
+            phases.append((k, float(mean[k])))
+    if not phases:
         return None
-    reach = np.flatnonzero(np.abs(med) >= 0.9 * abs(final))
-    t90 = float(reach[0] * dt) if len(reach) else horizon_s
-    if final > 0:
-        return (f"after each reversal the force moves {final:.3g} kgf further in the new direction "
-                f"than the model predicts, 90 % of it within {t90:.2f} s (a transient the model "
-                f"lacks: faster take-off after a change of direction)")
-    return (f"after each reversal the force lags {-final:.3g} kgf behind the model in the new "
-            f"direction, 90 % of it within {t90:.2f} s (a slower take-off than the model: "
-            f"lag or extra delay)")
+    phases.sort()
+    words = []
+    for k, peak in phases:
+        if peak > 0:
+            words.append(f"moves up to {peak:.3g} kgf further in the new direction than the model "
+                         f"predicts (at {k * dt:.2f} s)")
+        else:
+            words.append(f"lags up to {-peak:.3g} kgf behind the model (at {k * dt:.2f} s)")
+    first, last = phases[0], phases[-1]
+    if len(phases) == 2:
+        meaning = ("a slow start then a faster take-off than the model: a transient after the "
+                   "change of direction that the model lacks" if first[1] < 0 else
+                   "a fast start then a slower ramp than the model: a transient after the change "
+                   "of direction that the model lacks")
+    elif first[1] > 0:
+        meaning = "a faster take-off after a change of direction than the model has"
+    else:
+        meaning = "a slower take-off than the model: a lag, or more delay"
+    return (f"after each reversal the force " + ", then ".join(words)
+            + f": the error concentrates in the first {last[0] * dt:.2f} s after the reversals "
+            f"({meaning})")
 
 
 def slope_observations(sims: Sequence[RecordSimulation]) -> list[str]:

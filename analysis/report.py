@@ -178,7 +178,7 @@ def render_html(history: dict[str, Any], c: Comparison, diagnosis: Any = None,
     parts.append(_img(lambda v, f: plots.plot_history(v, f), versions))
     rows = ["<table><tr><th>version</th><th class='l'>model</th><th class='l'>from</th>"
             "<th>parameters</th><th>RMSE, kgf</th><th>change</th><th>fit, %</th>"
-            "<th>RMSE / noise floor</th><th class='l'>when</th></tr>"]
+            "<th>× noise floor</th><th class='l'>when</th></tr>"]
     prev = None
     for v in versions:
         m = v["metrics"]
@@ -187,7 +187,7 @@ def render_html(history: dict[str, Any], c: Comparison, diagnosis: Any = None,
         rows.append(f"<tr{cls}><td>v{v['version']}</td><td class='l'><code>{_e(v['model'])}</code></td>"
                     f"<td class='l'>{_e(Path(v['source']).name)}{'' if v['fitted'] else ' (as given)'}</td>"
                     f"<td>{v['n_params']}</td><td>{_num(m['rmse'])}</td><td>{change}</td>"
-                    f"<td>{_num(m['fit_percent'], 5)}</td><td>{_num(m.get('rmse_over_floor'), 3)}</td>"
+                    f"<td>{_num(m['fit_percent'], 5)}</td><td>{_num(m.get('excess_ratio'), 3)}</td>"
                     f"<td class='l'>{_e(v['time'])}</td></tr>")
         prev = m["rmse"]
     rows.append("</table>")
@@ -195,8 +195,9 @@ def render_html(history: dict[str, Any], c: Comparison, diagnosis: Any = None,
     # -- latest version ---------------------------------------------------------------------------
     parts.append(f"<h2>Latest: v{versions[-1]['version']} <code>{_e(c.model.spec)}</code></h2>")
     parts.append(f"<p>RMSE <b>{ev.rmse:.4g} kgf</b>, fit <b>{ev.fit_percent:.2f} %</b>, noise floor "
-                 f"{ev.noise_floor:.3g} kgf (σ = {ev.noise_sigma:.3g} kgf): the error is "
-                 f"<b>{ev.excess_ratio:.2f}×</b> what a perfect model would show.</p>")
+                 f"{ev.noise_floor:.3g} kgf (σ = {ev.noise_sigma:.3g} kgf). With the window starts "
+                 f"re-estimated (the fit's objective) the error is <b>{ev.excess_ratio:.2f}×</b> what "
+                 f"a perfect model would show.</p>")
     prow = ["<table><tr><th class='l'>parameter</th><th>value</th><th>95 % interval</th>"
             "<th class='l'>unit</th></tr>"]
     specs = dict(c.model.param_specs())
