@@ -38,8 +38,9 @@ from plant.effects import effect_class
 
 from . import fit as F
 from .data import Record
-from .metrics import (AFTER_REVERSAL_S, Evaluation, RecordSimulation, command_levels, demeaned_residual,
-                      evaluate, reversal_mask)
+from .metrics import (AFTER_REVERSAL_S, Evaluation, RecordSimulation, command_levels,
+                      demeaned_residual, evaluate, input_correlation_test, is_closed_loop,
+                      reversal_mask, simulate_records)
 
 #: candidates refitted on all the data after screening (the best; the runner-up too when the
 #: data are short enough to be screened whole)
@@ -57,6 +58,8 @@ MIN_Z = 2.0
 UNEXPLAINED_RATIO = 1.12
 #: below this ratio the model is within the noise: nothing to explain
 ADEQUATE_RATIO = 1.03
+#: above this ratio to the white-noise floor, the residual is checked for being coloured noise
+COLOURED_RATIO = 1.03
 #: two candidates whose error reductions are within this fraction are "not separable"
 AMBIGUITY_SHARE = 0.85
 
@@ -219,7 +222,8 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
     sigma = base_eval.noise_sigma
     floor = objective_floor(full, sigma)
     base_obj = math.sqrt(base_w.sum() / _n_eval(full))
-    cands: list[Candidate] = []
+    warnings = list(base_fit.warnings)
+    judged: list[tuple] = []
     fits: dict[str, F.FitResult] = {}
     for name in effects:
         say(f"trying +{name}")
@@ -247,17 +251,39 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
             refit = "final"
             screening["refit_on_all"].append(name)
         fits[name] = f
-        cands.append(_judge(name, f, w, rmse, base_w, base_obj, floor, base_eval, refit))
-    # rank by the error penalized for the parameters it costs (BIC on the objective): among
-    # candidates that remove the same error within the noise, the simpler one comes first
-    cands.sort(key=lambda c: c.bic)
+        judged.append((name, f, w, rmse, refit))
+
+    def judge_all(fl: float) -> list[Candidate]:
+        out = [_judge(name, f, w, rmse, base_w, base_obj, fl, base_eval, refit)
+               for name, f, w, rmse, refit in judged]
+        # rank by the error penalized for the parameters it costs (BIC on the objective): among
+        # candidates that remove the same error within the noise, the simpler one comes first
+        return sorted(out, key=lambda c: c.bic)
+
+    cands = judge_all(floor)
+    # correlated (coloured) measurement noise: the white-noise floor from second differences is
+    # then too low. If what the best model leaves is noise-like — unrelated to the command, no
+    # periodic component — its level is the floor.
+    top = cands[0] if cands and cands[0].improvement >= MIN_IMPROVEMENT else None
+    ref_model = top.fit.model if top is not None else base_model
+    ref_obj = top.objective_rmse if top is not None else base_obj
+    noise_like = None
+    if ref_obj > COLOURED_RATIO * floor:
+        noise_like = residual_is_noise(ref_model, records, window_s, floor)
+        if noise_like:
+            warnings.append(
+                f"the error left by {ref_model.spec} ({ref_obj:.3g} kgf, objective) is "
+                f"{ref_obj / floor:.2f}× the white-noise floor but looks like noise (broadband, "
+                f"unrelated to the command): the measurement noise is correlated in time "
+                f"(a filtered sensor?); it is taken as the noise floor")
+            floor = ref_obj
+            cands = judge_all(floor)
     earning = [c for c in cands if c.earns]
     best = earning[0] if earning else None
     ratio = base_obj / floor if floor > 0 else math.inf
     observations = describe_residual(base_eval)
     ambiguities = _ambiguities(records, base_fit, cands, best)
     unexplained = None
-    warnings = list(base_fit.warnings)
     if best is not None:
         verdict = "missing_effect"
         after = best.objective_rmse / floor if floor > 0 else math.inf
@@ -471,8 +497,7 @@ def describe_unexplained(ev: Evaluation, floor: float, ratio: float,
     """What the residual left by every candidate looks like: periodic or broadband, where."""
     f, amp, share = periodic_component(ev.sims, floor)
     corr = command_has_line(ev.sims, f) if f is not None else False
-    closed = any(s.record.experiment in ("relay", "pfeedback") or s.record.has_reference()
-                 for s in ev.sims)
+    closed = is_closed_loop(ev.sims)
     if f is not None and share >= 0.5:
         desc = (f"the residual is periodic at {f:.3g} Hz (amplitude ≈ {amp:.3g} kgf, "
                 f"{_pct(share)} of the error above the noise)"
@@ -493,6 +518,20 @@ def describe_unexplained(ev: Evaluation, floor: float, ratio: float,
                      f"error in {_pct(where.time_share)} of the time)")
     return Unexplained(dominant_frequency_hz=f, amplitude_kgf=amp, periodic_share=share,
                        rmse_over_floor=ratio, correlated_with_command=corr, description=desc)
+
+
+def residual_is_noise(model: PlantModel, records: Sequence[Record], window_s: float,
+                      floor: float) -> bool:
+    """The residual of ``model`` is noise-like: not correlated with the command (prewhitened
+    cross-correlation test, p ≥ 0.01) and without a periodic component that carries half of its
+    excess over ``floor``."""
+    sims = simulate_records(model, records, window_s)
+    dt = min(s.record.dt for s in sims)
+    L = int(max(10, min(250, round(0.25 / dt))))
+    if not input_correlation_test(sims, L).white:
+        return False
+    f, _, share = periodic_component(sims, floor)
+    return f is None or share < 0.5
 
 
 def command_has_line(sims: Sequence[RecordSimulation], f: float) -> bool:

@@ -505,10 +505,19 @@ def whiteness_test(sims: Sequence[RecordSimulation], max_lag: int) -> Correlatio
     return _test(lags, vals, n, q, max_lag)
 
 
+def is_closed_loop(sims: Sequence[RecordSimulation]) -> bool:
+    """Feedback data: the command was computed from the measured force (relay, P-feedback: the
+    record names the experiment or carries a reference r)."""
+    return any(s.record.experiment in ("relay", "pfeedback") or s.record.has_reference() for s in sims)
+
+
 def input_correlation_test(sims: Sequence[RecordSimulation], max_lag: int) -> CorrelationTest:
     """ρ between the residual at k + l and the command at k, l = −L..L (l > 0: residual after
     the command). The values are the plain correlations; the Q test uses the input prewhitened
-    by an AR(10) filter (applied to both), as the lags of a smooth input are strongly dependent."""
+    by an AR(10) filter (applied to both), as the lags of a smooth input are strongly dependent.
+    In closed loop the command reacts to the measured noise, so only l ≥ 1 (the residual after
+    the command) enter the test."""
+    closed = is_closed_loop(sims)
     sims = _test_sample(sims)
     e = demeaned_residual(sims)
     u = [s.u.astype(float) for s in sims]
@@ -517,8 +526,10 @@ def input_correlation_test(sims: Sequence[RecordSimulation], max_lag: int) -> Co
     uw = [_ar_filter(x, a) for x in u]
     ew = [_ar_filter(x, a) for x in e]
     rw, nw = _xcorr(ew, uw, max_lag)
+    if closed:
+        rw = rw[max_lag + 1:]
     q = float(nw * np.sum(rw ** 2))
-    return _test(list(range(-max_lag, max_lag + 1)), rho, n, q, 2 * max_lag + 1)
+    return _test(list(range(-max_lag, max_lag + 1)), rho, n, q, len(rw))
 
 
 def _ar_fit(xs: Sequence[np.ndarray], order: int) -> np.ndarray:

@@ -236,3 +236,25 @@ def test_diagnosis_json_has_the_stable_schema():
     assert 0.7 <= c["improvement"] <= 1 and c["rmse"] < out["base"]["rmse"]
     assert out["unexplained"] is None
     assert math.isfinite(out["noise_sigma"])
+
+
+# ------------------------------------------------------------------------------------------
+# correlated (coloured) measurement noise: not a model error
+# ------------------------------------------------------------------------------------------
+def _coloured(model, time_constant_s, sigma=4.0, seed=18):
+    from scipy.signal import lfilter
+    from analysis.data import make_record
+    u = np.concatenate([S.square_wave(a, 2.0, 2, 0.002) for a in (5.0, 10.0, 15.0, 20.0)])
+    y = model.simulate(u, 0.002, u_before=0.0)
+    a = math.exp(-0.002 / time_constant_s)
+    e = lfilter([math.sqrt(1 - a * a)], [1.0, -a], np.random.default_rng(seed).normal(0, sigma, len(u)))
+    return make_record(np.arange(len(u)) * 0.002, u, np.round((y + e) / 0.5) * 0.5)
+
+
+def test_coloured_noise_is_not_taken_for_a_model_error_and_does_not_hide_one():
+    """A low-pass filtered dynamometer: second differences see only part of the noise. What the
+    model leaves is broadband and unrelated to the command, so it is noise."""
+    d = diagnose([_coloured(plant(), 0.02)])
+    assert d.verdict == "adequate", d.summary
+    assert any("correlated in time" in w for w in d.warnings)
+    assert_found(diagnose([_coloured(plant("reversal"), 0.02)]), "reversal")
