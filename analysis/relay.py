@@ -231,6 +231,12 @@ def estimate_relay(rec: Record, hysteresis_kgf: float | None = None,
     t, u, y = rec.t[start:], rec.u[start:], rec.y[start:]
     if len(t) < 20:
         raise DataError(f"{rec.source}: the relay phase (command ±{u0:g} %) has only {len(t)} samples")
+    r_part = rec.r[start:]
+    levels = np.unique(r_part[np.isfinite(r_part)])
+    if len(levels) > 1:
+        raise DataError(f"{rec.source}: the reference changes within the relay phase ({len(levels)} "
+                        f"values from {levels.min():.0f} to {levels.max():.0f} kgf); one relay estimate "
+                        "needs one constant r: split the record per reference")
     events = _regular(_events(t, u, T))
     # the cycles: from one switch to −u0 (y crossing r upward) to the next
     events = events[2 * skip_cycles:]

@@ -114,6 +114,10 @@ def test_relay_bad_data_gives_clear_errors():
     zero = make_record(np.arange(500) * 0.002, np.zeros(500), np.zeros(500))
     with pytest.raises(DataError, match="zero throughout"):
         estimate_relay(zero)
+    two_refs = run_offline(Relay(amplitude_pct=10, duration_s=2), plant(BASE, "base")).record
+    two_refs.r[len(two_refs) // 2:] = 100.0
+    with pytest.raises(DataError, match="reference changes"):
+        estimate_relay(two_refs)
     cfg = plant({**BASE, "sensor.range_kgf": 1000.0}, "base")
     clipped = run_offline(Relay(amplitude_pct=10, reference_kgf=980.0, duration_s=3), cfg,
                           force_limit_kgf=5000.0).record
