@@ -36,7 +36,7 @@ from tqdm import tqdm
 
 from .errors import ParameterError, StandError
 from .experiments import make_experiment
-from .experiments.meander import FORCE_NEAR_LIMIT, SET_POINT_NOT_REACHED
+from .experiments.phases import FORCE_NEAR_LIMIT, SET_POINT_NOT_REACHED
 from .recorder import write_json
 from .runs import TRUTH_FILE
 from .session import Gateway

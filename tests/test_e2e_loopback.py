@@ -65,7 +65,10 @@ def test_realtime_meander_works_too(bus_spec, start_emulator, tmp_path):
     assert result.status == "complete", result.outcome.message
     run = load_run(result.path)
     assert run.meta["clock"] == "realtime"
-    assert len(run) == pytest.approx(2000, abs=2)
+    # a loaded machine may make the loop miss a few cycles: they are counted, and t says so
+    overruns = run.meta["stats"]["overruns"]
+    assert len(run) + overruns == pytest.approx(2000, abs=2) and overruns < 100
+    assert run.t[-1] == pytest.approx(4.0, abs=0.01)
     assert np.median(np.diff(run.t)) == pytest.approx(0.002, rel=0.01)
     assert run.stale.mean() < 0.05
     est = estimate_meander(read_run(result.path))

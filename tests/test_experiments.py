@@ -20,7 +20,8 @@ from analysis.data import Record, make_record
 from dbc import profile as P
 from gateway.errors import ParameterError
 from gateway.experiments import EXPERIMENTS, Experiment, make_experiment
-from gateway.experiments.meander import FORCE_NEAR_LIMIT, SET_POINT_NOT_REACHED, Meander
+from gateway.experiments.meander import Meander
+from gateway.experiments.phases import FORCE_NEAR_LIMIT, SET_POINT_NOT_REACHED
 from gateway.experiments.pfeedback import PFeedback
 from gateway.experiments.relay import Relay
 from plant.config import PlantConfig

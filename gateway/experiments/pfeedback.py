@@ -5,7 +5,7 @@ import math
 from typing import Any
 
 from .base import check_range
-from .meander import PhasedExperiment
+from .phases import PhasedExperiment
 
 
 class PFeedback(PhasedExperiment):

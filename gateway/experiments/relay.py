@@ -1,11 +1,10 @@
 """Relay feedback ``u = u0·sign(r − y)``: the paper's Figs. 19-23, estimator eq. 4."""
 from __future__ import annotations
 
-import math
 from typing import Any
 
 from .base import check_range
-from .meander import PhasedExperiment
+from .phases import PhasedExperiment
 
 
 class Relay(PhasedExperiment):
