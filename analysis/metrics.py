@@ -513,8 +513,9 @@ def is_closed_loop(sims: Sequence[RecordSimulation]) -> bool:
 
 def input_correlation_test(sims: Sequence[RecordSimulation], max_lag: int) -> CorrelationTest:
     """ρ between the residual at k + l and the command at k, l = −L..L (l > 0: residual after
-    the command). The values are the plain correlations; the Q test uses the input prewhitened
-    by an AR(10) filter (applied to both), as the lags of a smooth input are strongly dependent.
+    the command). The values are the plain correlations; the Q test uses both signals
+    prewhitened by their own AR(10) filters, as the lags of a smooth input (or of a coloured
+    residual) are strongly dependent.
     In closed loop the command reacts to the measured noise, so only l ≥ 1 (the residual after
     the command) enter the test."""
     closed = is_closed_loop(sims)
@@ -522,9 +523,12 @@ def input_correlation_test(sims: Sequence[RecordSimulation], max_lag: int) -> Co
     e = demeaned_residual(sims)
     u = [s.u.astype(float) for s in sims]
     rho, n = _xcorr(e, u, max_lag)
-    a = _ar_fit(u, 10)
-    uw = [_ar_filter(x, a) for x in u]
-    ew = [_ar_filter(x, a) for x in e]
+    # each side whitened by its own AR(10) filter: then, under "no relation", the correlations
+    # at different lags are independent and N·Σρ² is χ² (a coloured residual would otherwise
+    # make neighbouring lags move together and the test fire too often)
+    a_u, a_e = _ar_fit(u, 10), _ar_fit(e, 10)
+    uw = [_ar_filter(x, a_u) for x in u]
+    ew = [_ar_filter(x, a_e) for x in e]
     rw, nw = _xcorr(ew, uw, max_lag)
     if closed:
         rw = rw[max_lag + 1:]

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Sequence
 
 import matplotlib
+import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -116,6 +117,7 @@ def plot_overlay(ev: Evaluation, path: str | Path, title: str = "", worst: int =
         ax2.set_ylabel("ŷ − y", fontsize=7, color=RESID)
         ax2.tick_params(labelsize=7)
         ax.tick_params(labelsize=7)
+        ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(4))
         ax.set_title(f"#{k + 1} worst: {w.t_start:.1f}–{w.t_end:.1f} s, {w.rmse:.3g} kgf ({w.regime})",
                      fontsize=8, color=WORST, loc="left")
     fig.savefig(path, dpi=90, format="png")

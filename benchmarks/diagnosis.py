@@ -20,18 +20,24 @@ TARGET_S = 30.0
 
 def hour_of_meanders(duration_s: float, seed: int = 0) -> tuple[Record, PlantModel]:
     """The emulator's default plant (base + reversal) under meanders at 5, 10, 15, 20 % with
-    periods of 2 and 4 s, one after the other, for ``duration_s``; 2 kgf noise, 0.5 kgf steps."""
+    periods of 2 and 4 s, five periods each, one after the other for ``duration_s``; after each
+    block a 1 s hold brings the force back toward zero (as an operator would). 2 kgf noise,
+    0.5 kgf resolution."""
     truth = PlantModel.from_spec("base+reversal", {"g": 120.0, "tau": 0.05, "delta": 8.0})
-    blocks, total = [], 0
     rng = np.random.default_rng(seed)
     n = int(round(duration_s / DT))
+    state = truth.new_state(1, DT, y0=0.0, u0=0.0)
+    us, ys, total = [], [], 0
     while total < n:
         u = square_wave(float(rng.choice([5.0, 10.0, 15.0, 20.0])), float(rng.choice([2.0, 4.0])), 5, DT)
-        blocks.append(u)
-        total += len(u)
-    u = np.concatenate(blocks)[:n]
-    y = truth.simulate(u, DT, y0=0.0, u_before=0.0)
-    reading, _ = Dynamometer(noise_kgf=2.0, resolution_kgf=0.5, range_kgf=1e6, seed=seed).measure(y)
+        back = np.full(int(round(1.0 / DT)), float(np.clip(-state.y[0] / (truth.g * 1.0), -20, 20)))
+        for block in (u, back):
+            ys.append(np.concatenate([state.y, truth.advance(state, block[None, :], DT)[0][:-1]]))
+            us.append(block)
+            total += len(block)
+    u = np.concatenate(us)[:n]
+    y = np.concatenate(ys)[:n]
+    reading, _ = Dynamometer(noise_kgf=2.0, resolution_kgf=0.5, seed=seed).measure(y)
     t = np.arange(n) * DT
     return make_record(t, u, reading, source=f"benchmark {duration_s:.0f} s"), truth
 
