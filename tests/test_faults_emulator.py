@@ -1,0 +1,143 @@
+"""The emulated nodes' own protection (what a real CiA 408 valve / CiA 404 transducer does),
+in-process on python-can's ``virtual`` bus: EMCY on over range and its recovery EMCY, the
+acceptance filter, PDO length errors, and the RPDO timeout."""
+from __future__ import annotations
+
+import struct
+import time
+import uuid
+
+import can
+import pytest
+
+from dbc import profile as P
+from plant.params import ModelError
+from plant_emulator import EmulatedStand, EmulatorOptions
+from plant_emulator.stand import validate_config
+from tests.conftest import plant
+
+
+class ScriptedForce(EmulatedStand):
+    """The dynamometer reads a scripted force (the measure_force hook)."""
+
+    readings: list[float] = []
+
+    def measure_force(self):
+        y = self.readings.pop(0) if self.readings else 0.0
+        return y, abs(y) > 3000.0
+
+
+@pytest.fixture
+def emulator():
+    channel = f"emu-{uuid.uuid4().hex[:8]}"
+    started = []
+
+    def start(klass=EmulatedStand, lockstep=True):
+        bus = can.Bus(interface="virtual", channel=channel)
+        stand = klass(bus, plant(), EmulatorOptions(lockstep=lockstep, seed=1))
+        stand.start()
+        master = can.Bus(interface="virtual", channel=channel)
+        started.append((stand, bus, master))
+        time.sleep(0.05)
+        while master.recv(0) is not None:
+            pass
+        return stand, master
+
+    yield start
+    for stand, bus, master in started:
+        stand.stop()
+        bus.shutdown()
+        master.shutdown()
+
+
+def send(bus, can_id, data, **kw):
+    bus.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=kw.pop("ext", False), **kw))
+
+
+def collect(bus, seconds):
+    out, deadline = [], time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        m = bus.recv(0.01)
+        if m is not None:
+            out.append(m)
+    return out
+
+
+def emcy_codes(frames, node):
+    return [struct.unpack_from("<H", bytes(f.data))[0] for f in frames if f.arbitration_id == 0x80 + node]
+
+
+def test_over_range_emcy_once_and_recovery_emcy_when_it_clears(emulator):
+    stand, master = emulator(ScriptedForce)
+    stand.readings[:] = [100.0, 3500.0, 3600.0, 3700.0, 2000.0, 1000.0, 4000.0]
+    send(master, 0x000, b"\x01\x00")                   # NMT start all
+    time.sleep(0.05)
+    frames = []
+    for k in range(7):
+        send(master, 0x080, bytes([k + 1]))
+        frames += collect(master, 0.03)
+    assert emcy_codes(frames, 2) == [P.EMCY_FORCE_OVER_RANGE, P.EMCY_NO_ERROR, P.EMCY_FORCE_OVER_RANGE]
+    assert stand.dynamometer.over_range_events == 2
+    # a reset with the force still beyond the range: signalled again as soon as it can be
+    stand.readings[:] = [4000.0]
+    send(master, 0x000, b"\x81\x02")
+    time.sleep(0.05)
+    send(master, 0x080, b"\x01")
+    assert emcy_codes(collect(master, 0.1), 2) == [P.EMCY_FORCE_OVER_RANGE]
+
+
+def test_malformed_nmt_and_sync_frames_are_ignored_and_counted(emulator):
+    stand, master = emulator()
+    send(master, 0x000, b"\x01\x00")
+    time.sleep(0.05)
+    assert stand.valve.operational
+    syncs = stand._syncs
+    send(master, 0x000, b"\x02\x00\x00")                # STOP with a wrong length
+    send(master, 0x080, b"\x01\x02")                    # SYNC with 2 bytes
+    send(master, 0x080, b"\x01", ext=True)              # extended id
+    send(master, 0x080, b"", is_remote_frame=True)      # remote frame
+    send(master, 0x601, b"\x40\x41\x60")                # SDO request, 3 bytes
+    frames = collect(master, 0.1)
+    assert stand.valve.operational and stand._syncs == syncs
+    assert not [f for f in frames if f.arbitration_id in (0x181, 0x182, 0x581)]
+    assert stand.frame_filter.wrong_dlc == 3 and stand.frame_filter.not_classic == 2
+    send(master, 0x080, b"\x05")
+    assert {f.arbitration_id for f in collect(master, 0.1)} >= {0x181, 0x182}, "a good SYNC still works"
+
+
+def test_rpdo_with_a_wrong_length_is_reported_and_not_applied(emulator):
+    stand, master = emulator()
+    send(master, 0x000, b"\x01\x01")
+    send(master, 0x201, struct.pack("<Hh", int(P.CW_ACTIVE), 1000))
+    time.sleep(0.05)
+    assert stand.valve.state is P.ValveState.ACTIVE and stand.valve.setpoint_counts == 1000
+    send(master, 0x201, b"\x0b\x00\xff\x7f\x00")         # HOLD + full command, 5 bytes
+    frames = collect(master, 0.05)
+    assert emcy_codes(frames, 1) == [0x8210]
+    assert stand.valve.state is P.ValveState.ACTIVE and stand.valve.setpoint_counts == 1000
+    assert stand.valve.rpdo_length_errors == 1
+
+
+def test_rpdo_timeout_from_operational_without_any_command(emulator):
+    """A master that starts the node and dies before its first command: fault within the event
+    timer (0x1400:05 = 100 ms from the EDS), EMCY 0x8250, zero flow."""
+    stand, master = emulator(lockstep=False)
+    t0 = time.monotonic()
+    send(master, 0x000, b"\x01\x01")
+    frames = collect(master, 0.3)
+    codes = emcy_codes(frames, 1)
+    assert codes == [P.EMCY_RPDO_TIMEOUT]
+    assert stand.valve.state is P.ValveState.FAULT_HOLD and stand.valve.spool_command_percent() == 0.0
+    emcy_time = next(f.timestamp for f in frames if f.arbitration_id == 0x81)
+    assert 0.1 <= emcy_time - (time.time() - (time.monotonic() - t0)) <= 0.1 + 0.2
+    # a reset-fault edge brings it back to DISABLED with the recovery EMCY
+    send(master, 0x201, struct.pack("<Hh", int(P.ControlBit.RESET_FAULT), 0))
+    assert emcy_codes(collect(master, 0.05), 1) == [P.EMCY_NO_ERROR]
+    assert stand.valve.state is P.ValveState.DISABLED
+
+
+def test_the_emulator_refuses_a_config_it_cannot_run():
+    config = plant()
+    config.initial_force_kgf = float("nan")
+    with pytest.raises(ModelError, match="initial.force_kgf = nan"):
+        validate_config(config)
