@@ -5,9 +5,12 @@ based, readable by can-utils, python-can's ``LogReader`` and our decoder. Lines 
 by python-can's ``CanutilsLogWriter`` into memory and written to the file only as whole lines
 (one ``os.write`` per flush, then ``fsync``) at least every ``flush_s`` = 0.25 s, so a killed
 gateway leaves a file that ends with a complete line in all but the rarest case (a kill inside
-that write); :func:`read_capture` also drops a trailing partial line. python-can's BLF and MF4
-writers lose everything if the process dies before ``stop()`` (tests/test_crash_safety.py shows
-it), so they are used only when asked for by the file name.
+that write); :func:`read_capture` also drops a trailing partial line. python-can's BLF writer
+keeps frames in a 128 KiB in-memory container (about 2,700 frames: one to two seconds of this
+bus at a 2 ms period) and writes it only when full or on ``stop()``, so a killed process loses
+up to that much — a short run loses all of it (tests/test_crash_safety.py shows it); its MF4
+writer (asammdf) finishes the file only on ``stop()``. They are used only when asked for by the
+file name.
 
 Frames reach the capture from two sides: received frames from the network's Notifier (this is a
 ``can.Listener``) and frames the gateway itself sends (:class:`TappedNetwork`), because a
