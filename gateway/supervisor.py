@@ -72,8 +72,9 @@ class SafetyLimits:
     error_action: str = "hold"
     heartbeat_timeout_s: float = 0.35
     stale_cycles: int = 25
-    #: real time: a cycle starting later than this (s) stops the run
-    overrun_limit_s: float = 0.05
+    #: real time: a cycle starting later than this (s) stops the run (default: the valve's
+    #: RPDO timeout, beyond which it has dropped to its fail-safe state anyway)
+    overrun_limit_s: float = 0.1
     #: controlled unload: reference ramp rate (kgf/s), loop gain (%/kgf), command bound (%),
     #: "unloaded" band (kgf) and the time allowed before falling back to hold (s)
     unload_rate_kgf_per_s: float = 1000.0
