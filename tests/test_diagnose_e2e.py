@@ -6,6 +6,7 @@ run directories as one data set.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -22,10 +23,19 @@ pytestmark = pytest.mark.e2e
 BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 
 
+def _config(bus_spec: str) -> GatewayConfig:
+    cfg = GatewayConfig(bus=bus_spec, lockstep=True)
+    # lockstep: stand time is not wall time; on a loaded test machine a wall-clock heartbeat
+    # watchdog (where the supervisor has one) must not end the run
+    if hasattr(cfg.limits, "heartbeat_timeout_s"):
+        cfg.limits = dataclasses.replace(cfg.limits, heartbeat_timeout_s=10.0)
+    return cfg
+
+
 def _runs(bus_spec, start_emulator, tmp_path, model):
     start_emulator(plant(BASE, model=model), lockstep=True, seed=5)
     paths = []
-    with Gateway(GatewayConfig(bus=bus_spec, lockstep=True)) as gw:
+    with Gateway(_config(bus_spec)) as gw:
         for amp in (5.0, 20.0):
             res = gw.run(Meander(amplitude_pct=amp, period_s=2.0, cycles=3), tmp_path / f"m{amp:g}",
                          progress=False)
