@@ -444,7 +444,7 @@ def reversal_transient(sims: Sequence[RecordSimulation], tau: float,
         meaning = "a faster take-off after a change of direction than the model has"
     else:
         meaning = "a slower take-off than the model: a lag, or more delay"
-    return (f"after each reversal the force " + ", then ".join(words)
+    return ("after each reversal the force " + ", then ".join(words)
             + f": the error concentrates in the first {last[0] * dt:.2f} s after the reversals "
             f"({meaning})")
 
@@ -680,8 +680,8 @@ def _ambiguities(records: Sequence[Record], base_fit: F.FitResult, cands: Sequen
                                  separating_experiment("asymmetry", "trend")))
         if {"leakage", "load_pressure"} <= names or (best and best.effect in ("leakage", "load_pressure")):
             out.append(Ambiguity(["leakage", "load_pressure"],
-                                 f"at a single command amplitude the orifice law's slow-down "
-                                 f"(∝ sign(u)·y) acts like a leak toward zero force.",
+                                 "at a single command amplitude the orifice law's slow-down "
+                                 "(∝ sign(u)·y) acts like a leak toward zero force.",
                                  separating_experiment("leakage", "load_pressure")))
     if ex.continuous and not ex.has_steps and ex.single_frequency and "lag" in names:
         out.append(Ambiguity(["lag", "delay"],

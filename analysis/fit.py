@@ -618,7 +618,6 @@ class FitResult:
     nfev: int
     success: bool
     message: str
-    subset: bool = False      #: fitted on a screening subset of the windows
     window_sse: np.ndarray | None = field(default=None, repr=False)
     correlation: np.ndarray | None = field(default=None, repr=False)
     free: list[str] = field(default_factory=list)
@@ -671,8 +670,11 @@ def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
     ``fixed``: parameter names kept at their given values. ``starts``: ``"auto"`` (grids and
     projections described in the module docstring, plus the given values) or ``"given"`` (only
     the model's values). ``grid_effects``: effects whose start grids are tried (default: all of
-    the model's); ``delay_search``: grid-search τ first. Returns a :class:`FitResult` with
-    confidence intervals."""
+    the model's); ``delay_search``: grid-search τ first; ``n_polish``: how many of the best
+    starts are polished; ``tol``: relative tolerance of the polish (default :data:`FTOL`). With
+    more than :data:`SEARCH_WINDOWS` windows the starts are searched (and polished loosely) on a
+    subset of them, then polished on all. Returns a :class:`FitResult` with confidence
+    intervals."""
     model = _as_model(model)
     pieces = _as_pieces(data, window_s)
     search, searched_subset = subset_pieces(pieces, SEARCH_WINDOWS) if starts == "auto" else (pieces, False)

@@ -55,7 +55,7 @@ import numpy as np
 from plant import PlantModel
 
 from .data import Record
-from .fit import LEAD_S, WINDOW_S, Piece, pieces_from_records, simulate_piece
+from .fit import WINDOW_S, pieces_from_records, simulate_piece
 
 #: length of the "just after a reversal" regime, s
 AFTER_REVERSAL_S = 0.2
@@ -345,7 +345,7 @@ def force_levels(y: np.ndarray) -> tuple[np.ndarray, list[str]]:
 def regime_labels(sims: Sequence[RecordSimulation], tau: float) -> dict[str, tuple[np.ndarray, list[str]]]:
     """For each regime group: an integer label per evaluated sample (all records concatenated,
     −1 = not in the group) and the names."""
-    after, direction, level, force = [], [], [], []
+    after, direction = [], []
     for s in sims:
         _, m = reversal_mask(s.q, s.record.dt)
         after.append(np.where(np.sign(s.q) == 0, -1, np.where(m, 0, 1)))

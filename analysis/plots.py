@@ -105,7 +105,7 @@ def plot_overlay(ev: Evaluation, path: str | Path, title: str = "", worst: int =
             ax.legend(loc="upper right", fontsize=8)
         if i == nrec - 1:
             axr.set_xlabel("time, s  (shaded: worst windows; green: first "
-                           f"0.2 s after reversals; dotted: ± noise floor)")
+                           "0.2 s after reversals; dotted: ± noise floor)")
     for k, w in enumerate(worst_w):
         ax = fig.add_subplot(gs[-1, k])
         s = next(x for x in sims if x.index == w.record and x.t[0] <= w.t_start <= x.t[-1])

@@ -5,7 +5,6 @@ import argparse
 
 from analysis.data import load_all
 from analysis.diagnose import diagnose
-from analysis.compare import resolve_model
 from analysis.report import write_report
 
 from .compare import default_out
