@@ -138,6 +138,8 @@ class Ambiguity:
     experiment: str               #: the experiment that would separate them
 
     def text(self) -> str:
+        if len(self.effects) == 1:
+            return f"{self.effects[0]}: {self.reason} To test it: {self.experiment}."
         return f"{' vs '.join(self.effects)}: {self.reason} To separate them: {self.experiment}."
 
 
@@ -683,11 +685,20 @@ def _ambiguities(records: Sequence[Record], base_fit: F.FitResult, cands: Sequen
                                  "at a single command amplitude the orifice law's slow-down "
                                  "(∝ sign(u)·y) acts like a leak toward zero force.",
                                  separating_experiment("leakage", "load_pressure")))
-    if ex.continuous and not ex.has_steps and ex.single_frequency and "lag" in names:
+    if ex.continuous and not ex.has_steps and "lag" in names and (best is None or best.effect != "lag"):
+        what = "a smooth single-frequency signal" if ex.single_frequency else "smooth, without steps"
         out.append(Ambiguity(["lag", "delay"],
-                             "the command is a smooth single-frequency signal: a valve lag T adds "
-                             "phase like extra delay at that frequency, so only τ + T is determined.",
+                             f"the command is {what}: a valve lag T shifts a slow command like "
+                             f"extra delay, so mainly τ + T is determined (fitted τ = "
+                             f"{base_fit.model.tau * 1e3:.1f} ms may include a lag).",
                              separating_experiment("lag", "delay")))
+    if "saturation" in names and best is None:
+        top = max((abs(r.u).max() for r in records), default=0.0)
+        if top < 100.0:
+            out.append(Ambiguity(["saturation"],
+                                 f"the command never exceeds {top:.3g} %: a flow limit above that "
+                                 f"cannot show in these data.",
+                                 "runs at larger command amplitudes"))
     # candidates the data do not separate (comparable error reductions)
     if best is not None:
         gain_best = 1 - (1 - best.improvement) ** 2

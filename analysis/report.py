@@ -258,6 +258,6 @@ def _diagnosis_html(d: Any) -> str:
                    f"<td>{-100 * c.rmse_reduction:+.1f} %</td><td>{'yes' if c.earns else 'no'}</td></tr>")
     out.append("</table><ul>")
     out += [f"<li>{_e(o)}</li>" for o in d.observations]
-    out += [f"<li><b>cannot tell apart</b>: {_e(a.text())}</li>" for a in d.ambiguities]
+    out += [f"<li><b>cannot tell</b>: {_e(a.text())}</li>" for a in d.ambiguities]
     out.append("</ul>")
     return "".join(out)

@@ -93,7 +93,7 @@ def main(args: argparse.Namespace) -> int:
         print(f"  - unexplained: {d.unexplained.description}")
     if d.ambiguities:
         print()
-        print("the data cannot tell apart:")
+        print("what these data cannot tell:")
         for a in d.ambiguities:
             print(f"  - {a.text()}")
     for w in d.warnings:
