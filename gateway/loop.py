@@ -170,7 +170,7 @@ class ControlLoop:
         in HOLD (or DISABLED after a ``zero`` trip) with zero command either way."""
         self._subscribe()
         sup = self.supervisor
-        sup.reset()
+        sup.reset(getattr(experiment, "max_command_pct", None))
         sup.wait_s = WAIT_SLICE_S if self.lockstep else 0.8 * self.period_s
         experiment.abort = None
         experiment.configure(self.period_s, sup.limits.force_limit_kgf)

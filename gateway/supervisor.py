@@ -31,8 +31,9 @@ Actions:
 * ``zero`` — immediate zero setpoint and the valve to DISABLED (spool to its fail-safe
   position; 'hydraulics off'), bypassing any slew limit.
 
-The command of every cycle is clamped to ±``command_limit_pct`` and rate-limited to
-``slew_pct_per_s`` (NaN/inf → 0): :meth:`Supervisor.shape_command`.
+The command of every cycle is clamped to ±``command_limit_pct`` (and to the experiment's own
+declared ``max_command_pct``) and rate-limited to ``slew_pct_per_s`` (NaN/inf → 0):
+:meth:`Supervisor.shape_command`.
 """
 from __future__ import annotations
 
@@ -212,8 +213,10 @@ class Supervisor:
                                        f"{P.emcy_text(entry.code)}", ts))
         return on_emcy
 
-    def reset(self) -> None:
-        """Start of a run: forget pending EMCYs, counters and detector states."""
+    def reset(self, max_command_pct: float | None = None) -> None:
+        """Start of a run: forget pending EMCYs, counters and detector states. The command is
+        clamped to the smaller of ``command_limit_pct`` and the experiment's own declared
+        ``max_command_pct``."""
         with self._lock:
             self._emcy.clear()
         self._stale_run = 0
@@ -229,6 +232,9 @@ class Supervisor:
         lim = self.limits
         T = self.period_s
         self._err_cycles = max(1, math.ceil(lim.error_time_s / T - 1e-9))
+        self.u_max = lim.command_limit_pct
+        if max_command_pct is not None and math.isfinite(max_command_pct) and max_command_pct >= 0:
+            self.u_max = min(self.u_max, float(max_command_pct))
 
     # -- bounds ------------------------------------------------------------------------------------
     def bound_s(self, reason: str) -> float:
@@ -361,8 +367,9 @@ class Supervisor:
         """Clamp, rate-limit and sanitise the command (NaN/inf → 0), in %."""
         lim = self.limits
         u_in = u
-        if not (-lim.command_limit_pct <= u <= lim.command_limit_pct):   # also NaN
-            u = max(-lim.command_limit_pct, min(lim.command_limit_pct, u)) if math.isfinite(u) else 0.0
+        u_max = self.u_max
+        if not (-u_max <= u <= u_max):   # also NaN
+            u = max(-u_max, min(u_max, u)) if math.isfinite(u) else 0.0
         if lim.slew_pct_per_s:
             step = lim.slew_pct_per_s * self.period_s
             u = max(self._last_u - step, min(self._last_u + step, u))

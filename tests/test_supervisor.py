@@ -252,3 +252,12 @@ def test_unload_times_out():
     model = PlantModel.from_spec("base", {"g": 120.0, "tau": 0.05, "delta": 0.0})
     un, _, _, _ = unload_sim(2000.0, model, limits)
     assert un.outcome == "timeout" and un.t == pytest.approx(0.5, abs=2 * T)
+
+
+def test_the_experiments_declared_maximum_is_enforced_too(stand):
+    _, _, make = stand
+    sup = make(command_limit_pct=50.0)
+    sup.reset(max_command_pct=5.0)
+    assert [sup.shape_command(u) for u in (4.0, 7.0, -9.0)] == [4.0, 5.0, -5.0]
+    sup.reset(max_command_pct=float("nan"))          # a broken declaration falls back to the limit
+    assert sup.shape_command(70.0) == 50.0
