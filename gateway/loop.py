@@ -27,6 +27,7 @@ PDO layouts and hand the values over through a queue.
 """
 from __future__ import annotations
 
+import logging
 import math
 import queue
 import struct
@@ -42,6 +43,8 @@ from .experiments import Experiment
 from .master import StandMaster
 from .recorder import RunRecorder
 from .supervisor import Supervisor, Trip, Unloader
+
+log = logging.getLogger(__name__)
 
 SYNC_COB_ID = 0x80
 #: lockstep: how often the loop looks at heartbeats/EMCYs while it waits for an answer, s
@@ -268,6 +271,7 @@ class ControlLoop:
                     # -- controlled unload: the supervisor's loop drives, any fault → hold
                     if new is not None:
                         unload_note = f"unload interrupted after {unloader.t:.2f} s: {new.message}"
+                        log.warning("%s; hold", unload_note)
                         unloader.outcome = "interrupted"
                         u = self._end(trip, "hold")
                     else:
@@ -292,6 +296,8 @@ class ControlLoop:
                         u = self.send_command(P.CW_ACTIVE, sup.shape_command(u_req))
                 if trip is None and new is not None:
                     trip = new
+                    log.warning("cycle %d (t = %.3f s): %s: %s -> %s", cycle, t, trip.reason,
+                                trip.message, trip.action)
                     if trip.action == "unload" and not stale:
                         unloader = sup.unloader(y)
                         u_un, r = unloader.step(y)

@@ -4,7 +4,14 @@
 
     RUN/
       run.json          metadata: experiment and parameters, bus, node ids and identities,
-                        period, clock, versions, start/end, why it ended, counters
+                        period, clock, versions, start/end, why it ended, counters.
+                        A run that did not complete has ``status`` "stopped" (the
+                        supervisor or the experiment stopped it) or "aborted" (error,
+                        Ctrl-C/SIGTERM), ``end_reason``/``end_message``, and for a
+                        supervisor stop ``safety`` (reason, action, onset/detected/
+                        safe_state wall times, reaction_s, bound_s, unload);
+                        ``events`` lists indicate-only limit crossings; ``stats`` counts
+                        stale/late cycles and ignored frames (docs/safety.md)
       signals.parquet   one row per control cycle (columns below)
       signals.arrows    the same while the run is going (Arrow IPC stream, flushed at least
                         every 0.5 s); a run cut short by a crash keeps only this file, and

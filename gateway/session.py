@@ -208,6 +208,8 @@ class Gateway:
                 extra = {}
                 if outcome is not None and outcome.safety is not None:
                     extra["safety"] = outcome.safety
+                if capture.write_errors:
+                    extra["capture_write_errors"] = capture.write_errors
                 recorder.close(status=status, end_reason=reason, end_message=message,
                                stats=_stats_dict(stats), capture_frames=capture.frames,
                                emcy=list(supervisor.emcy_log), events=list(supervisor.events),

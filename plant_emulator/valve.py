@@ -13,15 +13,21 @@ The spool command that reaches the hydraulics:
 * HOLD and FAULT_HOLD: the hold setpoint 0x6314 (default 0: no flow);
 * INIT, DISABLED, FAULT_*: the fail-safe position, zero flow.
 
-Faults: RPDO timeout (EMCY 0x8250), NMT leaving OPERATIONAL while ACTIVE (goes to HOLD).
+Faults: RPDO timeout (EMCY 0x8250; the timer runs from entering OPERATIONAL, so a master that
+dies before its first command is caught too), NMT leaving OPERATIONAL while ACTIVE (goes to
+HOLD). A fault holds until a rising edge of the reset-fault bit (recovery EMCY 0x0000); an RPDO
+of the wrong length is never applied (EMCY 0x8210, see :mod:`plant_emulator.node`).
 """
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 from dbc import profile as P
 
 from .node import EmulatedNode
+
+log = logging.getLogger(__name__)
 
 
 class ServoValveNode(EmulatedNode):
@@ -106,6 +112,8 @@ class ServoValveNode(EmulatedNode):
                 return
             self.before_change()
             self.faults += 1
+            log.warning("valve node %d: fault 0x%04X (%s) -> FAULT_HOLD", self.id, emcy_code,
+                        P.emcy_text(emcy_code))
             self.state = P.ValveState.FAULT_HOLD
             self._refresh()
             self.after_change()
