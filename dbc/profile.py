@@ -130,6 +130,7 @@ def force_scale_kgf(unit_code: int, decimals: int) -> float:
 
 # -- EMCY error codes (CiA 301 generic; 0xFFxx device specific) ------------------------------------
 EMCY_NO_ERROR = 0x0000
+EMCY_PDO_LENGTH = 0x8210          # CiA 301: PDO not processed due to length error
 EMCY_RPDO_TIMEOUT = 0x8250        # CiA 301: RPDO timeout
 EMCY_HEARTBEAT = 0x8130           # CiA 301: life guard / heartbeat error
 EMCY_FORCE_OVER_RANGE = 0xFF10    # dynamometer: force beyond the measuring range
@@ -139,6 +140,7 @@ EMCY_VALVE_FAULT = 0xFF20         # valve: device fault reaction
 def emcy_text(code: int) -> str:
     return {
         EMCY_NO_ERROR: "error reset / no error",
+        EMCY_PDO_LENGTH: "PDO not processed: wrong length",
         EMCY_RPDO_TIMEOUT: "RPDO timeout (no command received in time)",
         EMCY_HEARTBEAT: "heartbeat error",
         EMCY_FORCE_OVER_RANGE: "force beyond the measuring range",

@@ -34,7 +34,7 @@ from typing import Any, Mapping
 
 from .effects import effect_class
 from .model import BASE_PARAMS, PlantModel
-from .params import ModelError
+from .params import ModelError, Param
 from .sensor import Dynamometer
 
 if sys.version_info >= (3, 11):
@@ -62,7 +62,7 @@ def read_toml(path: str | Path) -> dict[str, Any]:
 
 def model_from_mapping(data: Mapping[str, Any], where: str = "model") -> PlantModel:
     """Build a model from the ``[base]`` and ``[effects.NAME]`` tables of a parsed TOML file."""
-    base = dict(data.get("base", {}) or {})
+    base = _table(data, "base", where)
     known_base = {p.name for p in BASE_PARAMS}
     unknown = set(base) - known_base
     if unknown:
@@ -70,12 +70,13 @@ def model_from_mapping(data: Mapping[str, Any], where: str = "model") -> PlantMo
                          f"known: g, tau, delta")
     values: dict[str, float] = dict(base)
     names: list[str] = []
-    effects = data.get("effects", {}) or {}
-    if not isinstance(effects, Mapping):
-        raise ModelError(f"{where}: 'effects' must be tables like [effects.reversal]")
+    effects = _table(data, "effects", where)
     for name, table in effects.items():
         effect_class(name)  # validates the name
-        table = dict(table or {})
+        if not isinstance(table, Mapping):
+            raise ModelError(f"{where}: effects.{name} must be a table like [effects.{name}], "
+                             f"got {table!r}")
+        table = dict(table)
         enabled = table.pop("enabled", True)
         if not isinstance(enabled, bool):
             raise ModelError(f"{where}: effects.{name}.enabled must be true or false")
@@ -93,6 +94,15 @@ def model_from_mapping(data: Mapping[str, Any], where: str = "model") -> PlantMo
         names += [n for n in listed[1:] if n not in names]
     spec = "+".join(["base"] + names)
     return PlantModel.from_spec(spec, values)
+
+
+def _table(data: Mapping[str, Any], name: str, where: str) -> dict[str, Any]:
+    value = data.get(name, {})
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        raise ModelError(f"{where}: '{name}' must be a table ([{name}]), got {value!r}")
+    return dict(value)
 
 
 def load_model_file(path: str | Path) -> PlantModel:
@@ -119,6 +129,12 @@ def _num(v: float) -> str:
     return repr(float(v)) if math.isfinite(v) else "nan"
 
 
+#: ``[initial]`` keys: where the plant starts
+INITIAL_PARAMS: tuple[Param, ...] = (
+    Param("force_kgf", 0.0, -1e6, 1e6, "kgf", "force at the start"),
+)
+
+
 @dataclass
 class PlantConfig:
     """What the emulator needs: the true model, the dynamometer and the initial force."""
@@ -126,6 +142,14 @@ class PlantConfig:
     model: PlantModel = field(default_factory=lambda: PlantModel.from_spec(DEFAULT_MODEL, DEFAULT_VALUES))
     sensor: dict[str, float] = field(default_factory=dict)
     initial_force_kgf: float = 0.0
+
+    def validate(self) -> "PlantConfig":
+        """Raise :class:`ModelError` unless the emulator can run this (finite initial force in
+        range, a valid sensor table); returns self."""
+        for p in INITIAL_PARAMS:
+            p.validate(getattr(self, "initial_" + p.name), "initial")
+        self.dynamometer(seed=0)
+        return self
 
     def dynamometer(self, seed: int | None) -> Dynamometer:
         return Dynamometer.from_mapping(self.sensor, seed=seed)
@@ -156,11 +180,13 @@ def load_plant_config(path: str | Path | None = None, model_spec: str | None = N
         model = model_from_mapping(data, where)
     else:
         model = PlantModel.from_spec(DEFAULT_MODEL, DEFAULT_VALUES)
-    sensor = dict(data.get("sensor", {}) or {})
-    initial = dict(data.get("initial", {}) or {})
-    bad = set(initial) - {"force_kgf"}
+    sensor = _table(data, "sensor", where)
+    initial = _table(data, "initial", where)
+    known_initial = {p.name for p in INITIAL_PARAMS}
+    bad = set(initial) - known_initial
     if bad:
-        raise ModelError(f"{where}: [initial] has no key(s) {', '.join(sorted(bad))}; known: force_kgf")
+        raise ModelError(f"{where}: [initial] has no key(s) {', '.join(sorted(bad))}; "
+                         f"known: {', '.join(sorted(known_initial))}")
     params = model.params()
     spec = model.spec
     if model_spec:
@@ -171,11 +197,13 @@ def load_plant_config(path: str | Path | None = None, model_spec: str | None = N
         if key.startswith("sensor."):
             sensor[key.split(".", 1)[1]] = value
         elif key.startswith("initial."):
-            initial[key.split(".", 1)[1]] = value
+            name = key.split(".", 1)[1]
+            if name not in known_initial:
+                raise ModelError(f"--set {key}: [initial] has no key {name!r}; "
+                                 f"known: {', '.join(sorted(known_initial))}")
+            initial[name] = value
         else:
             params[key] = value
     model = PlantModel.from_spec(spec, params)
-    cfg = PlantConfig(model=model, sensor=sensor,
-                      initial_force_kgf=float(initial.get("force_kgf", 0.0)))
-    cfg.dynamometer(seed=0)  # validate the sensor table now, with a clear message
-    return cfg
+    force = INITIAL_PARAMS[0].validate(initial.get("force_kgf", 0.0), "initial")
+    return PlantConfig(model=model, sensor=sensor, initial_force_kgf=force).validate()

@@ -26,9 +26,11 @@ class Param:
     log: bool = False
 
     def validate(self, value: float, owner: str) -> float:
+        if isinstance(value, (bool, str, bytes)):
+            raise ModelError(f"{owner}.{self.name} must be a number, got {value!r}")
         try:
             value = float(value)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise ModelError(f"{owner}.{self.name} must be a number, got {value!r}") from None
         if not math.isfinite(value):
             raise ModelError(f"{owner}.{self.name} must be finite, got {value}")

@@ -31,13 +31,14 @@ from typing import Any
 import canopen
 from canopen.network import MessageListener
 
+from dbc import profile as P
 from dbc.pdo_codec import PdoLayout, PdoLayoutError
 from standbus.faults import FrameFilter
 
 log = logging.getLogger(__name__)
 
 NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
-EMCY_PDO_LENGTH = 0x8210
+EMCY_PDO_LENGTH = P.EMCY_PDO_LENGTH
 PDO_DISABLED = 1 << 31
 
 

@@ -26,8 +26,7 @@ import numpy as np
 
 from dbc import DYNAMOMETER_EDS, VALVE_EDS
 from dbc import profile as P
-from plant.config import PlantConfig, load_plant_config
-from plant.params import ModelError
+from plant.config import PlantConfig
 
 from .dynamometer import DynamometerNode
 from .node import slave_frame_filter
@@ -40,36 +39,6 @@ _MAX_BLOCK = 200_000  # steps per numpy block when catching up a long gap in rea
 _STALL_S = 0.02
 #: how long the watchdog waits for frames already in the socket before declaring a timeout, s
 _MAX_DEFERRAL_S = 0.02
-
-
-#: the largest initial force the emulator accepts, kgf (the sensor model's largest range)
-MAX_INITIAL_FORCE_KGF = 1e6
-
-
-def validate_config(config: PlantConfig) -> PlantConfig:
-    """Refuse a configuration the emulator cannot run (raises :class:`ModelError`): the initial
-    force must be a finite number within ±1e6 kgf (plant.config reads it without a check)."""
-    f = config.initial_force_kgf
-    if isinstance(f, bool) or not isinstance(f, (int, float)) or not math.isfinite(f) \
-            or abs(f) > MAX_INITIAL_FORCE_KGF:
-        raise ModelError(f"initial.force_kgf = {f!r} must be a finite force within "
-                         f"±{MAX_INITIAL_FORCE_KGF:g} kgf")
-    return config
-
-
-def load_emulator_config(path=None, model_spec: str | None = None, overrides=None) -> PlantConfig:
-    """:func:`plant.config.load_plant_config` for the emulator: every malformed input ends as
-    one :class:`ModelError` that names the file, never another exception, and the result is
-    checked by :func:`validate_config`."""
-    where = str(path) if path else "the emulator configuration"
-    try:
-        config = load_plant_config(path, model_spec, overrides)
-    except ModelError:
-        raise
-    except (TypeError, ValueError, AttributeError, KeyError) as exc:
-        raise ModelError(f"{where}: malformed value or table ({type(exc).__name__}: {exc}); "
-                         "see plant/config.py for the file format") from None
-    return validate_config(config)
 
 
 @dataclass
@@ -87,9 +56,9 @@ class EmulatedStand:
     :meth:`stop` (or use as a context manager)."""
 
     def __init__(self, bus: can.BusABC, config: PlantConfig, options: EmulatorOptions) -> None:
+        config.validate()
         if options.valve_id == options.dynamometer_id:
             raise ValueError("the valve and the dynamometer need different node ids")
-        validate_config(config)
         self.bus = bus
         self.config = config
         self.options = options

@@ -20,7 +20,9 @@ from gateway import GatewayConfig, SafetyLimits
 from gateway.errors import ParameterError
 from plant.config import load_plant_config
 from plant.params import ModelError
-from plant_emulator.stand import MAX_INITIAL_FORCE_KGF, load_emulator_config
+from plant.config import INITIAL_PARAMS, load_plant_config as load_emulator_config
+
+MAX_INITIAL_FORCE_KGF = INITIAL_PARAMS[0].upper
 from standbus import BusSpec, BusSpecError, open_bus
 
 FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow,
@@ -119,9 +121,6 @@ def test_set_overrides_load_or_fail_clearly(overrides, model):
     assert_runnable(config)
 
 
-@pytest.mark.xfail(strict=True, reason="plant/config.py: load_plant_config accepts a non-finite "
-                   "initial.force_kgf and raises TypeError/ValueError for some malformed tables "
-                   "(the emulator guards itself with plant_emulator.stand.load_emulator_config)")
 @pytest.mark.parametrize("text", ['[initial]\nforce_kgf = nan\n', '[initial]\nforce_kgf = "x"\n',
                                   'base = 3\n', '[effects]\nreversal = 3\n'])
 def test_load_plant_config_itself_rejects_these(tmp_path, text):
@@ -197,8 +196,8 @@ def test_gateway_limits_are_valid_or_refused(force, cmd, slew, err, hb, stale, o
     (["run", "meander", "--heartbeat-timeout", "50"], "must exceed the nodes' heartbeat period"),
     (["run", "meander", "--stale-cycles", "0"], "stale_cycles = 0"),
     (["run", "meander", "--bus", "udp_loopback:x,drop=7"], "fault injection: drop=7"),
-    (["emulate", "--set", "initial.force_kgf=nan"], "initial.force_kgf = nan"),
-    (["emulate", "--set", "initial.force_kgf=1e12"], "within"),
+    (["emulate", "--set", "initial.force_kgf=nan"], "initial.force_kgf must be finite"),
+    (["emulate", "--set", "initial.force_kgf=1e12"], "outside its physical range"),
 ])
 def test_the_command_line_refuses_bad_safety_input_in_one_line(tmp_path, argv, words):
     if argv[0] == "run":

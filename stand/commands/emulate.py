@@ -7,8 +7,8 @@ import signal
 import threading
 
 from plant.params import ModelError
+from plant.config import load_plant_config
 from plant_emulator import EmulatedStand, EmulatorOptions
-from plant_emulator.stand import load_emulator_config
 from plant_emulator.process import READY
 from standbus import open_bus
 
@@ -35,7 +35,7 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    config = load_emulator_config(args.config, args.model, parse_assignments(args.set))
+    config = load_plant_config(args.config, args.model, parse_assignments(args.set))
     if not (0.01 <= args.step_ms <= 100 and math.isfinite(args.step_ms)):
         raise ModelError(f"--step-ms {args.step_ms:g} is out of range: use 0.01 to 100 ms")
     options = EmulatorOptions(lockstep=args.lockstep, seed=args.seed, valve_id=args.valve_id,
