@@ -219,10 +219,14 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
                  "refit_on_all": ["base"]}
     say(f"fitting {start.spec}" + (f" on {n_screen_w} of {n_full_w} windows" if subset else ""))
     base_fit = F.fit_model(screen, start, covariance=not subset)
+    screen_base = base_fit.model
     if subset:
         base_fit = F.fit_model(full, base_fit.model, starts="given", delay_search=False)
     base_model = base_fit.model
     base_w = _window_sse(base_model, full)
+    # candidates fitted on the screening windows only are compared with the base fitted there
+    # too (both evaluated on all windows): nested models, like with like
+    screen_ref = F.errors(screen_base, full) if subset else None
     base_eval = evaluate(base_model, records, window_s)
     sigma = base_eval.noise_sigma
     floor = objective_floor(full, sigma)
@@ -259,8 +263,14 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
         judged.append((name, f, w, rmse, refit))
 
     def judge_all(fl: float) -> list[Candidate]:
-        out = [_judge(name, f, w, rmse, base_w, base_obj, fl, base_eval, refit)
-               for name, f, w, rmse, refit in judged]
+        out = []
+        for name, f, w, rmse, refit in judged:
+            if refit == "screening" and screen_ref is not None:
+                ref_w, ref_rmse = screen_ref
+            else:
+                ref_w, ref_rmse = base_w, base_eval.rmse
+            ref_obj = math.sqrt(ref_w.sum() / base_eval.n)
+            out.append(_judge(name, f, w, rmse, ref_w, ref_obj, ref_rmse, fl, base_eval.n, refit))
         # rank by the error penalized for the parameters it costs (BIC on the objective): among
         # candidates that remove the same error within the noise, the simpler one comes first
         return sorted(out, key=lambda c: c.bic)
@@ -335,8 +345,8 @@ def objective_floor(pieces: Sequence[F.Piece], sigma: float) -> float:
 
 
 def _judge(name: str, f: F.FitResult, w: np.ndarray, rmse: float, base_w: np.ndarray,
-           base_obj: float, floor: float, base_eval: Evaluation, refit: str) -> Candidate:
-    n = base_eval.n
+           base_obj: float, base_rmse: float, floor: float, n: int, refit: str) -> Candidate:
+    """Judge one candidate against its reference fit of the starting model (same windows)."""
     obj = math.sqrt(w.sum() / n)
     improvement = 1.0 - obj / base_obj if base_obj > 0 else 0.0
     excess = base_obj ** 2 - floor ** 2
@@ -356,7 +366,7 @@ def _judge(name: str, f: F.FitResult, w: np.ndarray, rmse: float, base_w: np.nda
                  and consistent)
     return Candidate(effect=name, spec=f.model.spec, params=f.model.params(), rmse=rmse,
                      objective_rmse=obj, improvement=improvement,
-                     rmse_reduction=1.0 - rmse / base_eval.rmse if base_eval.rmse > 0 else 0.0,
+                     rmse_reduction=1.0 - rmse / base_rmse if base_rmse > 0 else 0.0,
                      excess_share=share, z=z, lr=lr, earns=earns,
                      bic=n * math.log(max(obj, 1e-300) ** 2) + len(f.free) * math.log(n), refit_on=refit, warnings=warnings, fit=f)
 

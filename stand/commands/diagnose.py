@@ -80,7 +80,8 @@ def main(args: argparse.Namespace) -> int:
           f"judged on the error with re-estimated window starts)")
     if d.screening["subset"]:
         print(f"(screened on {d.screening['windows_screened']} of {d.screening['windows_total']} windows; "
-              f"refitted on all: {', '.join(d.screening['refit_on_all'])})")
+              f"refitted on all: {', '.join(d.screening['refit_on_all'])}; the others keep their "
+              f"screening fit and are compared with the starting model fitted on the same windows)")
     best = d.best_candidate
     if best is not None:
         print()
