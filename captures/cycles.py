@@ -85,6 +85,9 @@ class RunInfo:
     period_source: str | None = None      #: "argument" | "SDO 0x1006" | "median SYNC interval"
     period_us_written: list = field(default_factory=list)
     clock: str | None = None              #: "lockstep" | "realtime"
+    #: "argument" | "SDO 0x2100" (the gateway read the emulator clock at run start) | "SYNC timing"
+    clock_source: str | None = None
+    clock_read: list = field(default_factory=list)
     first_sync_ts: float | None = None
     last_sync_ts: float | None = None
     syncs: int = 0
@@ -205,6 +208,7 @@ class CycleAssembler:
         self.V = _Events(("status", "f_spool"))
         self.R = _Events(("cw", "f_u"))
         self.P = _Events(("us",))
+        self.C = _Events(("clock",))
         self.sync_g0 = 0                # global index of self.S's first SYNC
         self.runs: list[RunInfo] = []
         self._out: list[tuple[int, dict]] = []
@@ -238,6 +242,7 @@ class CycleAssembler:
             self.R.add(base + d.index, d.ts, cw=d.raw[self.sig.control_word].astype(np.int64),
                        f_u=d.phys[self.sig.command])
         self._find_period_writes(chunk, base, mine)
+        self._find_clock_reads(chunk, base, mine)
         self._process(final=False)
 
     def _channel_mask(self, chunk: FrameChunk) -> np.ndarray | bool:
@@ -266,6 +271,21 @@ class CycleAssembler:
         value = raw[:, 0] | raw[:, 1] << 8 | raw[:, 2] << 16 | raw[:, 3] << 24
         value &= (1 << (8 * (4 - unused))) - 1
         self.P.add(base + rows, chunk.ts[rows], us=value)
+
+    def _find_clock_reads(self, chunk: FrameChunk, base: int, mine=True) -> None:
+        """SDO expedited upload responses of 0x2100:00 (the emulated valve's clock: 0 real time,
+        1 lockstep) from any node (0x581..0x5FF): the gateway reads it at each run start, so a
+        capture says how its SYNCs map to stand time even when the wall clock cannot."""
+        sel = ((chunk.can_id >= 0x581) & (chunk.can_id <= 0x5FF) & (chunk.dlc == 8)
+               & ((chunk.flags & 0x07) == 0) & mine)
+        if not sel.any():
+            return
+        rows = np.flatnonzero(sel)
+        d = chunk.data[rows]
+        hit = ((d[:, 0] & 0xE3) == 0x43) & (d[:, 1] == 0x00) & (d[:, 2] == 0x21) & (d[:, 3] == 0)
+        if hit.any():
+            rows = rows[hit]
+            self.C.add(base + rows, chunk.ts[rows], clock=d[hit][:, 4].astype(np.int64))
 
     # -- output ----------------------------------------------------------------------------
     def take_rows(self) -> list[tuple[int, dict]]:
@@ -322,6 +342,11 @@ class CycleAssembler:
     def _next_boundary(self) -> int | None:
         """The first SYNC of the next run, if a 0x1006 download after this run's first SYNC
         (and a SYNC after the download) is in the buffer."""
+        if len(self.C):  # clock reads before the run's first SYNC belong to the run
+            before = np.flatnonzero(self._seg(self.C.order) < self.run_first_g)
+            if len(before):
+                self.runs[-1].clock_read.extend(int(v) for v in self.C.v["clock"][before])
+                self.C.drop_before(int(before[-1]) + 1)
         if not len(self.P):
             return None
         seg = self._seg(self.P.order)
@@ -366,11 +391,15 @@ class CycleAssembler:
         else:
             run.period_s, run.period_source = math.nan, "unknown (one SYNC)"
         if self.clock_arg is not None:
-            run.clock = self.clock_arg
+            run.clock, run.clock_source = self.clock_arg, "argument"
+        elif run.clock_read:
+            run.clock = "lockstep" if run.clock_read[-1] == 1 else "realtime"
+            run.clock_source = "SDO 0x2100"
         elif median is None or not math.isfinite(run.period_s):
-            run.clock = "lockstep"
+            run.clock, run.clock_source = "lockstep", "SYNC timing"
         else:
             run.clock = "lockstep" if median < 0.5 * run.period_s else "realtime"
+            run.clock_source = "SYNC timing"
         if run.clock == "realtime":
             run.grid_bias = _grid_bias((sync_ts[:GRID_SYNCS * 10] - sync_ts[0]) / run.period_s)
 

@@ -141,6 +141,7 @@ class DecodeResult:
             "clock": run.clock,
             "period_s": run.period_s,
             "period_source": run.period_source,
+            "clock_source": run.clock_source,
             "force_scale_kgf_per_count": self.force_scale,
             "started": _iso(run.first_sync_ts),
             "ended": _iso(run.last_sync_ts),

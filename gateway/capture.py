@@ -159,9 +159,9 @@ class TappedNetwork(canopen.Network):
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         msg = can.Message(is_extended_id=can_id > 0x7FF, arbitration_id=can_id, data=data,
                           is_remote_frame=remote, is_rx=False, channel=self._channel())
-        with self.send_lock:
-            self.bus.send(msg)
         capture = self.capture
-        if capture is not None:
-            msg.timestamp = time.time()
-            capture.on_sent(msg)
+        with self.send_lock:
+            if capture is not None:  # captured as handed to the bus: before the answers to it
+                msg.timestamp = time.time()
+                capture.on_sent(msg)
+            self.bus.send(msg)

@@ -83,6 +83,8 @@ class StandMaster:
         self.valve_rpdo: PdoLayout | None = None
         self.force_tpdo: PdoLayout | None = None
         self.lockstep_capable: bool | None = None
+        #: the stand's clock object 0x2100 (0 real time, 1 lockstep), None if it has none
+        self.stand_clock: int | None = None
 
     def _heartbeat_callback(self, link: NodeLink):
         def on_heartbeat(can_id: int, data: bytes, timestamp: float) -> None:
@@ -180,9 +182,10 @@ class StandMaster:
         except ValueError as exc:
             raise NodeError(self.dynamometer.id, f"dynamometer node {self.dynamometer.id}: {exc}") from None
         try:
-            self.lockstep_capable = bool(self.valve.node.sdo[P.EMULATOR_CLOCK].raw)
+            self.stand_clock = int(self.valve.node.sdo[P.EMULATOR_CLOCK].raw)
         except (canopen.SdoCommunicationError, canopen.SdoAbortedError, KeyError):
-            self.lockstep_capable = False
+            self.stand_clock = None  # a real valve: no such object
+        self.lockstep_capable = self.stand_clock == 1
 
     def configure_from_eds(self) -> None:
         """Set up the PDO layouts and the force scale from the EDS defaults, without talking to
@@ -222,11 +225,14 @@ class StandMaster:
                                      f"type {tt}; the loop needs a synchronous TPDO (type 1)")
         return layout
 
-    def assert_period(self, period_s: float) -> None:
-        """Write the communication cycle period 0x1006 again (at each run start, so the run's
-        capture says which period its SYNCs stand for, also in lockstep)."""
+    def declare_run(self, period_s: float) -> None:
+        """At each run start, make the run's capture self-describing: write the communication
+        cycle period 0x1006 again (which period the SYNCs stand for), and on a stand that can run
+        in lockstep read its clock 0x2100 (whether they stand for wall-clock time at all)."""
         for link in self.links:
             link.node.sdo[P.COMM_CYCLE_PERIOD].raw = int(round(period_s * 1e6))
+        if self.stand_clock is not None:  # only a stand that has the object (the emulator)
+            self.valve.node.sdo[P.EMULATOR_CLOCK].raw
 
     # -- 5. start / stop ------------------------------------------------------------------------
     def start(self, timeout_s: float = 2.0, keepalive_s: float = 0.02) -> None:

@@ -13,7 +13,6 @@
 """
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -157,11 +156,12 @@ class Gateway:
             raise StandError("the gateway is not connected; use it as a context manager")
         recorder = RunRecorder(out, self.metadata(experiment))
         capture = BusCapture(recorder.capture_path)
-        self.network.notifier.add_listener(capture)
+        # first in line, so frames reach the capture in the order they were received
+        self.network.notifier.listeners.insert(0, capture)
         self.network.capture = capture
         bar = None
         if progress or (progress is None and experiment.duration_s > 3.0):
-            bar = tqdm(total=round(experiment.duration_s, 1), unit="s", unit_scale=False,
+            bar = tqdm(total=round(experiment.max_duration_s, 1), unit="s", unit_scale=False,
                        desc=f"{experiment.name}", leave=False, disable=None if progress is None else not progress,
                        bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total} s stand time [{elapsed}<{remaining}]")
         shown = [0.0]
@@ -176,7 +176,7 @@ class Gateway:
         outcome = None
         failure: BaseException | None = None
         try:
-            self.master.assert_period(self.config.period_s)
+            self.master.declare_run(self.config.period_s)
             self.master.start()
             outcome = self.loop.run(experiment, recorder, tick)
         except BaseException as exc:

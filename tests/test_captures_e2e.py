@@ -32,6 +32,7 @@ def test_lockstep_capture_decodes_bit_for_bit_to_the_recorded_run(bus_spec, star
     rows = decoded.signals[0]
     info = decoded.runs[0]
     assert info.clock == "lockstep" and info.period_source == "SDO 0x1006" and info.period_s == 0.002
+    assert info.clock_source == "SDO 0x2100", "the gateway declares the clock in the capture"
     assert len(rows["t"]) == len(recorded) >= 1000
     for name in ("t",) + EXACT:
         assert np.array_equal(rows[name], recorded.signals[name]), name
@@ -50,6 +51,7 @@ def test_realtime_capture_decodes_to_the_recorded_run(bus_spec, start_emulator, 
     decoded = decode_capture(result.path / "capture.log")
     rows = decoded.signals[0]
     assert decoded.runs[0].clock == "realtime" and decoded.runs[0].period_s == 0.002
+    assert decoded.runs[0].clock_source == "SDO 0x2100"
     # every cycle the gateway recorded, with the command it sent (also the trip cycle of a run
     # the supervisor stopped on a loaded host)
     assert len(rows["t"]) == len(recorded) > 0

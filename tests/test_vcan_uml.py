@@ -90,8 +90,9 @@ def test_candump_capture_decodes_to_the_recorded_signals(vcan_runs, name):
     frames = list(can.LogReader(info["candump"]))
     assert sum(f.arbitration_id == 0x080 for f in frames) >= len(run)
     # candump -L file → the stand's run signals. Inside UML a lockstep run goes at about real
-    # speed, so its wall clock cannot tell the decoder it was lockstep: say so.
-    decoded = load_capture(info["candump"], clock="lockstep")
+    # speed, so only the gateway's read of the stand's clock (0x2100) at run start tells the
+    # decoder that the SYNCs stand for stand time, not wall-clock time.
+    decoded = load_capture(info["candump"])
     assert len(decoded) == len(run)
     assert np.array_equal(decoded.u, run.u) and np.array_equal(decoded.y, run.y)
     assert np.array_equal(decoded.t, run.t)

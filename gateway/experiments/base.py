@@ -44,6 +44,12 @@ class Experiment(ABC):
     @abstractmethod
     def duration_s(self) -> float: ...
 
+    @property
+    def max_duration_s(self) -> float:
+        """Upper bound of the run's stand time (progress bars); experiments with phases of
+        variable length (a set-point approach) say more than :attr:`duration_s`."""
+        return self.duration_s
+
     @abstractmethod
     def params(self) -> dict[str, Any]:
         """The parameters as recorded in the run's metadata."""
