@@ -55,9 +55,10 @@ class GatewayConfig:
         check_range("heartbeat_ms", self.heartbeat_ms, 10, 10000, "ms", integer=True)
         check_range("rpdo_timeout_ms", self.rpdo_timeout_ms, 0, 60000, "ms", integer=True)
         self.limits.validate()
-        if self.limits.heartbeat_timeout_s * 1000 <= self.heartbeat_ms:
+        heartbeat_timeout_s = self.limits.resolved(self.lockstep).heartbeat_timeout_s
+        if heartbeat_timeout_s * 1000 <= self.heartbeat_ms:
             raise ParameterError(
-                f"heartbeat timeout {self.limits.heartbeat_timeout_s * 1e3:g} ms must exceed the "
+                f"heartbeat timeout {heartbeat_timeout_s * 1e3:g} ms must exceed the "
                 f"nodes' heartbeat period {self.heartbeat_ms} ms (CiA 301: consumer time > producer "
                 "time; 2-3.5x is usual)")
         try:
@@ -114,7 +115,7 @@ class Gateway:
                 raise StandError(
                     "--lockstep needs a stand that advances one period per SYNC (the emulator "
                     "started with --lockstep); this stand runs in real time. Drop --lockstep.")
-            supervisor = Supervisor(self.master, cfg.limits, cfg.period_s)
+            supervisor = Supervisor(self.master, cfg.limits, cfg.period_s, cfg.lockstep)
             self.loop = ControlLoop(self.network, self.master, supervisor, cfg.period_s, cfg.lockstep)
         except BaseException:
             self.close()
@@ -143,7 +144,7 @@ class Gateway:
             "period_s": cfg.period_s,
             "nodes": {link.role: {"id": link.id, "identity": link.identity} for link in m.links},
             "force_scale_kgf_per_count": m.force_scale_kgf,
-            "limits": asdict(cfg.limits),
+            "limits": asdict(cfg.limits.resolved(cfg.lockstep)),
         }
 
     def run(self, experiment: Experiment, out: str | Path, progress: bool | None = None,

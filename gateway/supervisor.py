@@ -40,6 +40,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -57,6 +58,10 @@ _ACTIVE = P.ValveState.ACTIVE.value
 _REARM = 0.95
 
 
+HEARTBEAT_TIMEOUT_REALTIME_S = 0.35
+HEARTBEAT_TIMEOUT_LOCKSTEP_S = 1.0
+
+
 @dataclass
 class SafetyLimits:
     """The supervisor's configuration (all in the stand's units: kgf, %, s)."""
@@ -71,7 +76,10 @@ class SafetyLimits:
     error_limit_kgf: float | None = None
     error_time_s: float = 0.1
     error_action: str = "hold"
-    heartbeat_timeout_s: float = 0.35
+    #: a node's heartbeat older than this (s) stops the run; None: 0.35 s in real time
+    #: (3.5 × the 100 ms producer time) and 1.0 s in lockstep, where a busy machine may delay
+    #: the emulator's wall-clock heartbeats while SYNCs run as fast as the bus goes
+    heartbeat_timeout_s: float | None = None
     stale_cycles: int = 25
     #: real time: a cycle starting later than this (s) stops the run (default: the valve's
     #: RPDO timeout, beyond which it has dropped to its fail-safe state anyway)
@@ -84,6 +92,13 @@ class SafetyLimits:
     unload_tolerance_kgf: float = 50.0
     unload_timeout_s: float = 30.0
 
+    def resolved(self, lockstep: bool) -> "SafetyLimits":
+        """A copy with the automatic settings decided for the clock mode."""
+        if self.heartbeat_timeout_s is not None:
+            return self
+        return dataclasses.replace(self, heartbeat_timeout_s=HEARTBEAT_TIMEOUT_LOCKSTEP_S if lockstep
+                                   else HEARTBEAT_TIMEOUT_REALTIME_S)
+
     def validate(self) -> None:
         """Raise :class:`ParameterError` for out-of-range, NaN or infinite settings."""
         check_range("force_limit_kgf", self.force_limit_kgf, 1, 1e6, "kgf")
@@ -93,7 +108,8 @@ class SafetyLimits:
         if self.error_limit_kgf is not None:
             check_range("error_limit_kgf", self.error_limit_kgf, 1e-3, 1e6, "kgf")
         check_range("error_time_s", self.error_time_s, 0, 60, "s")
-        check_range("heartbeat_timeout_s", self.heartbeat_timeout_s, 0.01, 60, "s")
+        if self.heartbeat_timeout_s is not None:
+            check_range("heartbeat_timeout_s", self.heartbeat_timeout_s, 0.01, 60, "s")
         check_range("stale_cycles", self.stale_cycles, 1, 100000, integer=True)
         check_range("overrun_limit_s", self.overrun_limit_s, 1e-4, 60, "s")
         check_range("unload_rate_kgf_per_s", self.unload_rate_kgf_per_s, 1, 1e6, "kgf/s")
@@ -182,9 +198,10 @@ class Unloader:
 class Supervisor:
     """Watches one stand (the master's two nodes) for one control loop."""
 
-    def __init__(self, master: StandMaster, limits: SafetyLimits, period_s: float) -> None:
+    def __init__(self, master: StandMaster, limits: SafetyLimits, period_s: float,
+                 lockstep: bool = False) -> None:
         self.master = master
-        self.limits = limits
+        self.limits = limits.resolved(lockstep)
         self.period_s = period_s
         #: the longest the loop waits inside a cycle between two looks at the watchdogs, s
         #: (set by the loop: lockstep answer slice, or 0.8 period in real time)

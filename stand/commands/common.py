@@ -57,8 +57,9 @@ def add_safety(p: argparse.ArgumentParser) -> None:
                    help="what the error detector does (default %(default)s)")
     g.add_argument("--stale-cycles", type=int, default=d.stale_cycles, metavar="N",
                    help="safe state after N cycles without a fresh force PDO (default %(default)s)")
-    g.add_argument("--heartbeat-timeout", type=float, default=d.heartbeat_timeout_s * 1e3, metavar="MS",
-                   help="safe state when a node's heartbeat is older than MS (default %(default)g)")
+    g.add_argument("--heartbeat-timeout", type=float, default=None, metavar="MS",
+                   help="safe state when a node's heartbeat is older than MS (default 350 in real "
+                        "time, 1000 in lockstep)")
     g.add_argument("--overrun-limit", type=float, default=d.overrun_limit_s * 1e3, metavar="MS",
                    help="real time: safe state when a cycle starts more than MS late (default %(default)g)")
     g.add_argument("--rpdo-timeout", type=int, default=GatewayConfig.rpdo_timeout_ms, metavar="MS",
@@ -80,7 +81,7 @@ def safety_limits(args: argparse.Namespace) -> SafetyLimits:
         error_time_s=get("error_time", d.error_time_s),
         error_action=get("error_action", d.error_action),
         stale_cycles=get("stale_cycles", d.stale_cycles),
-        heartbeat_timeout_s=get("heartbeat_timeout", d.heartbeat_timeout_s * 1e3) / 1e3,
+        heartbeat_timeout_s=None if get("heartbeat_timeout", None) is None else args.heartbeat_timeout / 1e3,
         overrun_limit_s=get("overrun_limit", d.overrun_limit_s * 1e3) / 1e3,
         unload_rate_kgf_per_s=get("unload_rate", d.unload_rate_kgf_per_s))
 
