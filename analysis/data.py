@@ -103,21 +103,58 @@ def make_record(t, u, y, r=None, source: str = "<arrays>", experiment: str | Non
 
 
 def read_csv(path: str | Path) -> Record:
-    """CSV with a header naming at least ``t``, ``u``, ``y`` (optionally ``r``); s, %, kgf."""
+    """CSV with a header naming at least ``t``, ``u``, ``y`` (optionally ``r``); s, %, kgf.
+
+    Read with pyarrow's multi-threaded CSV reader (an hour at 500 Hz in well under a second);
+    a file it refuses is read again line by line, so the error names the line and the value."""
     path = Path(path)
+    header = _csv_header(path)
+    names = [h.strip().lower() for h in header]
+    missing = [c for c in ("t", "u", "y") if c not in names]
+    if missing:
+        raise DataError(f"{path}: the header must name columns t,u,y[,r] (s, %, kgf); "
+                        f"missing {', '.join(missing)} (header: {','.join(header)})")
+    wanted = {c: header[names.index(c)] for c in ("t", "u", "y", "r") if c in names}
     try:
-        with path.open(newline="") as fh:
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+        table = pacsv.read_csv(
+            path, read_options=pacsv.ReadOptions(column_names=[h for h in header], skip_rows=1),
+            convert_options=pacsv.ConvertOptions(
+                include_columns=list(wanted.values()),
+                column_types={name: pa.float64() for name in wanted.values()},
+                null_values=["", "nan", "NaN", "NAN", "na", "NA", "null", "NULL"],
+                strings_can_be_null=True))
+    except Exception:   # pyarrow refused it: the line reader says exactly where and why
+        return _read_csv_lines(path, header)
+    if table.num_rows == 0:
+        raise DataError(f"{path}: no data rows after the header")
+    cols = {c: table.column(name).to_numpy(zero_copy_only=False).astype(float)
+            for c, name in wanted.items()}
+    return make_record(cols["t"], cols["u"], cols["y"], cols.get("r"), source=str(path))
+
+
+def _csv_header(path: Path) -> list[str]:
+    try:
+        with (gzip.open(path, "rt", newline="") if path.suffix.lower() == ".gz"
+              else path.open(newline="")) as fh:
+            header = next(csv.reader(fh), None)
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"cannot read {path}: {exc}") from None
+    if header is None:
+        raise DataError(f"{path}: empty file")
+    return header
+
+
+def _read_csv_lines(path: Path, header: list[str]) -> Record:
+    names = [h.strip().lower() for h in header]
+    cols = {c: names.index(c) for c in ("t", "u", "y", "r") if c in names}
+    rows = []
+    try:
+        with (gzip.open(path, "rt", newline="") if path.suffix.lower() == ".gz"
+              else path.open(newline="")) as fh:
             reader = csv.reader(fh)
-            header = next(reader, None)
-            if header is None:
-                raise DataError(f"{path}: empty file")
-            names = [h.strip().lower() for h in header]
-            missing = [c for c in ("t", "u", "y") if c not in names]
-            if missing:
-                raise DataError(f"{path}: the header must name columns t,u,y[,r] (s, %, kgf); "
-                                f"missing {', '.join(missing)} (header: {','.join(header)})")
-            cols = {c: names.index(c) for c in ("t", "u", "y", "r") if c in names}
-            rows = []
+            next(reader, None)
             for lineno, row in enumerate(reader, start=2):
                 if not row or all(not c.strip() for c in row):
                     continue
@@ -128,7 +165,7 @@ def read_csv(path: str | Path) -> Record:
                                  if "r" in cols else math.nan])
                 except ValueError as exc:
                     raise DataError(f"{path}:{lineno}: {exc}") from None
-    except OSError as exc:
+    except (OSError, UnicodeDecodeError) as exc:
         raise DataError(f"cannot read {path}: {exc}") from None
     if not rows:
         raise DataError(f"{path}: no data rows after the header")
