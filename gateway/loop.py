@@ -27,6 +27,8 @@ PDO layouts and hand the values over through a queue.
 """
 from __future__ import annotations
 
+import contextlib
+import gc
 import logging
 import math
 import queue
@@ -170,7 +172,8 @@ class ControlLoop:
     # -- the loop --------------------------------------------------------------------------------
     def run(self, experiment: Experiment, recorder: RunRecorder | None, progress=None) -> LoopOutcome:
         """Run ``experiment`` to its end or until the supervisor stops it. The valve is left
-        in HOLD (or DISABLED after a ``zero`` trip) with zero command either way."""
+        in HOLD (or DISABLED after a ``zero`` trip) with zero command either way. Call it inside
+        :func:`steady_heap` entered before the nodes start (as :meth:`Gateway.run` does)."""
         self._subscribe()
         sup = self.supervisor
         sup.reset(getattr(experiment, "max_command_pct", None))
@@ -350,6 +353,20 @@ class ControlLoop:
         if trip.safe_wall is None:
             trip.safe_wall = sent
         return 0.0
+
+
+@contextlib.contextmanager
+def steady_heap():
+    """Collect once, then freeze everything alive for the run, so the garbage collector only
+    ever scans what the run itself allocates. A full collection of a large heap (a notebook, a
+    long test session) otherwise stalls the loop for tens to hundreds of ms: measured 60 ms with
+    100,000 objects, longer than the valve's 100 ms RPDO timeout in bigger sessions."""
+    gc.collect()
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
 
 
 def _sleep_until(target: float) -> None:

@@ -238,10 +238,11 @@ class StandMaster:
     def start(self, timeout_s: float = 2.0, keepalive_s: float = 0.02) -> None:
         """NMT start both nodes and wait for OPERATIONAL; a hold command with zero setpoint goes
         to the valve every ``keepalive_s`` meanwhile (its RPDO timeout runs from OPERATIONAL)."""
+        commanded = time.monotonic()
         for link in self.links:
             link.node.nmt.send_command(NMT_START)
         self.wait_state(5, timeout_s, keepalive=self.hold_command if self.valve_rpdo else None,
-                        keepalive_s=keepalive_s)
+                        keepalive_s=keepalive_s, since=commanded)
 
     def hold_command(self) -> None:
         """One valve RPDO: control word HOLD, setpoint 0 (zero flow)."""
@@ -254,14 +255,20 @@ class StandMaster:
         for link in self.links:
             link.node.nmt.send_command(NMT_PREOP)
 
-    def wait_state(self, state: int, timeout_s: float, keepalive=None, keepalive_s: float = 0.02) -> None:
+    def wait_state(self, state: int, timeout_s: float, keepalive=None, keepalive_s: float = 0.02,
+                   since: float | None = None) -> None:
+        """Wait until every node's heartbeat reports ``state``; with ``since`` (monotonic time
+        of the NMT command) only heartbeats received after it count: one already on its way
+        may still carry the state before the command."""
         deadline = time.monotonic() + timeout_s
         next_keepalive = time.monotonic()
+        fresh = (lambda l: True) if since is None else (
+            lambda l: l.last_heartbeat is not None and l.last_heartbeat > since)
         while time.monotonic() < deadline:
             if keepalive is not None and time.monotonic() >= next_keepalive:
                 keepalive()
                 next_keepalive += keepalive_s
-            if all(l.nmt_state == state for l in self.links):
+            if all(l.nmt_state == state and fresh(l) for l in self.links):
                 return
             time.sleep(0.005)
         for link in self.links:

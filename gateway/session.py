@@ -25,7 +25,7 @@ from standbus import DEFAULT_BUS, BusSpec, BusSpecError, open_bus
 from .capture import BusCapture, TappedNetwork
 from .errors import ParameterError, StandError
 from .experiments import Experiment, check_range
-from .loop import ControlLoop, LoopOutcome
+from .loop import ControlLoop, LoopOutcome, steady_heap
 from .master import StandMaster
 from .recorder import RunRecorder
 from .supervisor import SafetyLimits, Supervisor
@@ -178,8 +178,9 @@ class Gateway:
         failure: BaseException | None = None
         try:
             self.master.declare_run(self.config.period_s)
-            self.master.start()
-            outcome = self.loop.run(experiment, recorder, tick)
+            with steady_heap():   # before the valve's RPDO timeout starts running
+                self.master.start()
+                outcome = self.loop.run(experiment, recorder, tick)
         except BaseException as exc:
             failure = exc
             raise
