@@ -85,6 +85,19 @@ def _fmt(v: float, digits: int = 4) -> str:
     return f"{v:.{digits}g}"
 
 
+def interval_label(estimate) -> str:
+    """What to print beside a parameter: its 95 % interval, or why there is none."""
+    if estimate is None:
+        return "as given"
+    if estimate.fixed:
+        return "fixed"
+    if estimate.at_bound:
+        return "at its bound"
+    if not estimate.identifiable:
+        return "not identifiable"
+    return interval_text(estimate.value, estimate.low, estimate.high)
+
+
 def interval_text(value: float, low: float, high: float) -> str:
     """``[low, high]`` with enough digits to tell the ends from the value."""
     if not (math.isfinite(low) and math.isfinite(high)):
@@ -100,18 +113,7 @@ def params_table(c: Comparison) -> str:
     specs = dict(c.model.param_specs())
     for name, value in c.model.params().items():
         unit = specs[name].unit
-        if c.fit is not None and name in c.fit.estimates:
-            e = c.fit.estimates[name]
-            if e.fixed:
-                ci = "fixed"
-            elif e.at_bound:
-                ci = "at its bound"
-            elif not e.identifiable:
-                ci = "not identifiable"
-            else:
-                ci = interval_text(e.value, e.low, e.high)
-        else:
-            ci = "as given"
+        ci = interval_label(c.fit.estimates.get(name) if c.fit is not None else None)
         lines.append(f"{name:24s} {_fmt(value, 6):>12s}  {ci:>27s}  {unit}")
     return "\n".join(lines)
 

@@ -33,7 +33,7 @@ from gateway.errors import DataError
 from plant import PlantModel
 
 from . import plots
-from .compare import Comparison, compare, interval_text, jsonable
+from .compare import Comparison, compare, interval_label, jsonable
 from .data import Record
 from .fit import WINDOW_S
 
@@ -202,17 +202,7 @@ def render_html(history: dict[str, Any], c: Comparison, diagnosis: Any = None,
             "<th class='l'>unit</th></tr>"]
     specs = dict(c.model.param_specs())
     for k, val in c.model.params().items():
-        e = c.fit.estimates.get(k) if c.fit is not None else None
-        if e is None:
-            ci = "as given"
-        elif e.fixed:
-            ci = "fixed"
-        elif e.at_bound:
-            ci = "at its bound"
-        elif not e.identifiable:
-            ci = "not identifiable"
-        else:
-            ci = interval_text(e.value, e.low, e.high)
+        ci = interval_label(c.fit.estimates.get(k) if c.fit is not None else None)
         prow.append(f"<tr><td class='l'>{_e(k)}</td><td>{_num(val, 6)}</td><td>{_e(ci)}</td>"
                     f"<td class='l'>{_e(specs[k].unit)}</td></tr>")
     prow.append("</table>")

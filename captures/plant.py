@@ -91,15 +91,8 @@ class ReplayedStand(EmulatedStand):
         self.runs_started = 0
         self.exhausted_syncs = 0
         self.warnings: list[str] = []
-        started = self.dynamometer.on_operational
 
-        def on_operational() -> None:
-            self.restart()
-            started()
-
-        self.dynamometer.on_operational = on_operational
-
-    def restart(self) -> None:
+    def run_started(self) -> None:
         """A run starts (the dynamometer entered OPERATIONAL): replay from the first sample."""
         self.index = 0
         self.runs_started += 1

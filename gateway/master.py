@@ -162,15 +162,7 @@ class StandMaster:
             except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
                 raise NodeError(link.id, f"{link.role} node {link.id}: configuration over SDO "
                                          f"failed: {exc}") from None
-        self.valve_tpdo = self._layout(self.valve, self.valve.node.tpdo[1],
-                                       [(P.STATUS_WORD, 0), P.ACTUAL_VALUE], synchronous=True)
-        self.valve_rpdo = self._layout(self.valve, self.valve.node.rpdo[1],
-                                       [(P.CONTROL_WORD, 0), P.SETPOINT], synchronous=False)
-        self.force_tpdo = self._layout(self.dynamometer, self.dynamometer.node.tpdo[1], [P.PV_INT32],
-                                       synchronous=True)
-        if hasattr(self.network, "expect"):
-            for layout in (self.valve_tpdo, self.force_tpdo):
-                self.network.expect(layout.cob_id, layout.size)
+        self._set_layouts()
         dyn = self.dynamometer.node.sdo
         try:
             unit = dyn[P.PV_UNIT[0]][P.PV_UNIT[1]].raw
@@ -193,19 +185,24 @@ class StandMaster:
         for link in self.links:
             link.node.tpdo.read(from_od=True)
         self.valve.node.rpdo.read(from_od=True)
+        self._set_layouts()
+        od = self.dynamometer.node.object_dictionary
+        self.force_scale_kgf = P.force_scale_kgf(od[P.PV_UNIT[0]][P.PV_UNIT[1]].default,
+                                                 od[P.PV_DECIMALS[0]][P.PV_DECIMALS[1]].default)
+        self.lockstep_capable = False
+
+    def _set_layouts(self) -> None:
+        """The control loop's PDO layouts from the PDO maps just read, checked for what it
+        needs; the frame filter then accepts exactly those TPDOs."""
         self.valve_tpdo = self._layout(self.valve, self.valve.node.tpdo[1],
                                        [(P.STATUS_WORD, 0), P.ACTUAL_VALUE], synchronous=True)
         self.valve_rpdo = self._layout(self.valve, self.valve.node.rpdo[1],
                                        [(P.CONTROL_WORD, 0), P.SETPOINT], synchronous=False)
         self.force_tpdo = self._layout(self.dynamometer, self.dynamometer.node.tpdo[1], [P.PV_INT32],
                                        synchronous=True)
-        od = self.dynamometer.node.object_dictionary
-        self.force_scale_kgf = P.force_scale_kgf(od[P.PV_UNIT[0]][P.PV_UNIT[1]].default,
-                                                 od[P.PV_DECIMALS[0]][P.PV_DECIMALS[1]].default)
         if hasattr(self.network, "expect"):
             for layout in (self.valve_tpdo, self.force_tpdo):
                 self.network.expect(layout.cob_id, layout.size)
-        self.lockstep_capable = False
 
     def _layout(self, link: NodeLink, pdo_map, needed, synchronous: bool) -> PdoLayout:
         if not pdo_map.enabled:

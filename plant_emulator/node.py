@@ -100,6 +100,8 @@ class EmulatedNode:
         self.live: dict[tuple[int, int], Any] = {}
         self.local.add_read_callback(self._read_live)
         self.local.add_write_callback(self._on_sdo_write)
+        #: called (no arguments) each time the node enters OPERATIONAL, after its own hook
+        self.started_listeners: list = []
         self.tpdos: list[PdoConfig] = []
         self.rpdos: dict[int, PdoConfig] = {}
         self._sync_count = 0
@@ -169,6 +171,8 @@ class EmulatedNode:
         # is caught too.
         self.last_rpdo_time = time.monotonic()
         self.on_operational()
+        for listener in self.started_listeners:
+            listener()
 
     def _pdo(self, com: int, mapping: int) -> PdoConfig | None:
         try:

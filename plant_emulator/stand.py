@@ -74,6 +74,7 @@ class EmulatedStand:
         self.dynamometer.lock = self.lock
         self.valve.before_change = self._catch_up
         self.valve.after_change = self.command_changed
+        self.dynamometer.started_listeners.append(self.run_started)
         self.network.subscribe(0x80, self._on_sync)
         self._plant_dt = options.step_s
         self._plant = self.model.new_state(1, self._plant_dt, y0=config.initial_force_kgf)
@@ -162,6 +163,10 @@ class EmulatedStand:
 
     # -- the two steps of a SYNC that a different force source (e.g. a replayed capture)
     # -- overrides -------------------------------------------------------------------------------
+    def run_started(self) -> None:
+        """Hook: the master started the nodes (NMT OPERATIONAL), i.e. a run begins. The plant
+        just goes on; a different force source (a replayed capture) restarts here."""
+
     def advance_plant(self) -> None:
         """Bring the plant to the time of this SYNC (lockstep: one period; real time: now)."""
         if self.options.lockstep:
