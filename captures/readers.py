@@ -80,7 +80,7 @@ class PythonCanReader:
             return can.LogReader(str(self.path))
         except ImportError as exc:
             raise CaptureError(f"{self.path}: reading {self.format} files needs an optional package "
-                               f"python-can could not import ({exc}); e.g. pip install asammdf") from None
+                               f"python-can could not import ({exc}); e.g. pip install 'hydrostand[mf4]' (asammdf)") from None
         except (OSError, ValueError) as exc:
             raise CaptureError(f"{self.path}: cannot open as {self.format}: {exc}") from None
 
