@@ -29,6 +29,31 @@ def config_to_toml(config: PlantConfig) -> str:
     return text
 
 
+def serve_until_signalled(make_stand, bus_spec: str, ready_line):
+    """Run an emulated stand in *this* process (the body of ``stand emulate`` and
+    ``stand replay --as-plant``) until SIGINT or SIGTERM: open the bus, build the stand with
+    ``make_stand(bus)``, start it, print ``ready_line(stand)`` (the line :class:`EmulatorProcess`
+    waits for), then stop it and close the bus whatever happens. Returns the stopped stand."""
+    from standbus import open_bus
+
+    bus = open_bus(bus_spec)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        stand = make_stand(bus)
+        try:
+            stand.start()
+            print(f"{READY}: {ready_line(stand)}", flush=True)
+            while not stop.wait(0.5):
+                pass
+        finally:
+            stand.stop()
+    finally:
+        bus.shutdown()
+    return stand
+
+
 class EmulatorProcess:
     """A ``stand emulate`` child process; terminated (SIGTERM, then SIGKILL) on exit."""
 

@@ -3,14 +3,11 @@ from __future__ import annotations
 
 import argparse
 import math
-import signal
-import threading
 
 from plant.params import ModelError
 from plant.config import load_plant_config
 from plant_emulator import EmulatedStand, EmulatorOptions
-from plant_emulator.process import READY
-from standbus import open_bus
+from plant_emulator.process import serve_until_signalled
 
 from .common import add_bus, add_node_ids, parse_assignments
 
@@ -40,21 +37,11 @@ def main(args: argparse.Namespace) -> int:
         raise ModelError(f"--step-ms {args.step_ms:g} is out of range: use 0.01 to 100 ms")
     options = EmulatorOptions(lockstep=args.lockstep, seed=args.seed, valve_id=args.valve_id,
                               dynamometer_id=args.dynamometer_id, step_s=args.step_ms / 1000.0)
-    bus = open_bus(args.bus)
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    stand = EmulatedStand(bus, config, options)
-    try:
-        stand.start()
-        print(f"{READY}: valve node {args.valve_id}, dynamometer node {args.dynamometer_id} on "
-              f"{args.bus} ({'lockstep' if args.lockstep else 'real time'}); model {config.model.spec}",
-              flush=True)
-        while not stop.wait(0.5):
-            pass
-    finally:
-        stand.stop()
-        bus.shutdown()
+    stand = serve_until_signalled(
+        lambda bus: EmulatedStand(bus, config, options), args.bus,
+        lambda stand: f"valve node {args.valve_id}, dynamometer node {args.dynamometer_id} on "
+                      f"{args.bus} ({'lockstep' if args.lockstep else 'real time'}); "
+                      f"model {config.model.spec}")
     flt = stand.frame_filter
     if flt.dropped or stand.valve.rpdo_length_errors or stand.valve.faults:
         print(f"emulator stopped: acceptance filter dropped {flt.dropped} frames "

@@ -12,7 +12,7 @@ from captures.plant import ReplayedStand, force_trace
 from captures.replay import Replayer
 from gateway.errors import StandError
 from plant_emulator import EmulatorOptions
-from plant_emulator.process import READY
+from plant_emulator.process import serve_until_signalled
 from standbus import open_bus
 
 from .common import add_bus, add_node_ids
@@ -84,21 +84,11 @@ def main(args: argparse.Namespace) -> int:
 def as_plant(args: argparse.Namespace) -> int:
     trace = force_trace(args.capture, run=args.run)
     options = EmulatorOptions(lockstep=True, valve_id=args.valve_id, dynamometer_id=args.dynamometer_id)
-    bus = open_bus(args.bus)
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    stand = ReplayedStand(bus, trace, options)
-    try:
-        stand.start()
-        print(f"{READY}: replaying {len(trace):,} recorded force samples (run {trace.run}, "
-              f"{trace.period_s * 1e3:g} ms) of {args.capture} as valve node {args.valve_id} and "
-              f"dynamometer node {args.dynamometer_id} on {args.bus}", flush=True)
-        while not stop.wait(0.5):
-            pass
-    finally:
-        stand.stop()
-        bus.shutdown()
+    stand = serve_until_signalled(
+        lambda bus: ReplayedStand(bus, trace, options), args.bus,
+        lambda stand: f"replaying {len(trace):,} recorded force samples (run {trace.run}, "
+                      f"{trace.period_s * 1e3:g} ms) of {args.capture} as valve node {args.valve_id} "
+                      f"and dynamometer node {args.dynamometer_id} on {args.bus}")
     print(f"replayed the recording in {stand.runs_started} run(s)"
           + (f"; {stand.exhausted_syncs} SYNC(s) after its end got the last sample" if stand.exhausted_syncs else ""))
     for w in dict.fromkeys(stand.warnings):
