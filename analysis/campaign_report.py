@@ -254,6 +254,14 @@ def _plt():
     return plt
 
 
+def _save(plt, fig, path: Path) -> Path:
+    """Lay out, write (PNG, 110 dpi) and close one figure; returns its path."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def _truth_line(ax, value: float | None, label: str = "truth (emulator)") -> None:
     if value is not None:
         ax.axhline(value, color="k", ls="--", lw=1, label=label)
@@ -283,11 +291,7 @@ def meander_figures(portions: list[dict], g_true: float | None, out: Path) -> li
         ax.set_title(f"Fig. {fig_no}: gain g during the {title} (95 % CI)")
         ax.grid(alpha=0.3)
         ax.legend()
-        path = out / f"fig{fig_no}_meander_{kind}.png"
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        files.append(path)
+        files.append(_save(plt, fig, out / f"fig{fig_no}_meander_{kind}.png"))
     return files
 
 
@@ -310,11 +314,7 @@ def pfeedback_figures(rows: list[dict], g_true: float | None, out: Path) -> list
         ax.set_ylabel("A_r, kgf")
         ax.set_zlabel("g, kgf/(%·s)")
         ax.set_title("Fig. 15: g by eq. (3) over ω and A_r")
-        path = out / "fig15_pfeedback_surface.png"
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        files.append(path)
+        files.append(_save(plt, fig, out / "fig15_pfeedback_surface.png"))
     for fig_no, x_key, group_key, xlabel, glabel in (
             (17, "omega_rad_s", "A_r_kgf", "ω, rad/s", "A_r = {:g} kgf"),
             (18, "A_r_kgf", "omega_rad_s", "A_r, kgf", "ω = {:.4g} rad/s")):
@@ -332,11 +332,8 @@ def pfeedback_figures(rows: list[dict], g_true: float | None, out: Path) -> list
         ax.set_title(f"Fig. {fig_no}: g by eq. (3), view along {'ω' if fig_no == 17 else 'A_r'}")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-        path = out / f"fig{fig_no}_pfeedback_g_vs_{'omega' if fig_no == 17 else 'amplitude'}.png"
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        files.append(path)
+        name = f"fig{fig_no}_pfeedback_g_vs_{'omega' if fig_no == 17 else 'amplitude'}.png"
+        files.append(_save(plt, fig, out / name))
     return files
 
 
@@ -359,11 +356,7 @@ def relay_figures(rows: list[dict], g_true: float | None, tau_true: float | None
         ax.set_zlabel("g, kgf/(%·s)")
         ax.set_title("Fig. 21: relay estimates of g over u0 and r")
         ax.legend()
-        path = out / "fig21_relay_g_surface.png"
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        files.append(path)
+        files.append(_save(plt, fig, out / "fig21_relay_g_surface.png"))
     for fig_no, keys, ylabel, truth, scale, name in (
             (22, (("g", "exact 4A/(u0·P)"), ("g_eq4_peak", "eq. (4), peak (biased ×π²/8)"),
                   ("g_eq4_harmonic", "eq. (4), first harmonic")), "g, kgf/(%·s)", g_true, 1.0, "g"),
@@ -379,11 +372,7 @@ def relay_figures(rows: list[dict], g_true: float | None, tau_true: float | None
         ax.set_title(f"Fig. {fig_no}: relay estimates of {'g' if name == 'g' else 'τ'}, view along u0")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-        path = out / f"fig{fig_no}_relay_{name}_vs_u0.png"
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        files.append(path)
+        files.append(_save(plt, fig, out / f"fig{fig_no}_relay_{name}_vs_u0.png"))
     return files
 
 
@@ -413,11 +402,7 @@ def trace_figures(items: list[ReportInput], out: Path) -> list[Path]:
         a2.set_xlabel("t, s")
         a2.grid(alpha=0.3)
         a1.set_title(f"Fig. {fig_no}: {exp}, {Path(item.source).name}")
-        path = out / f"fig{fig_no:02d}_{exp}_trace.png"
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        files.append(path)
+        files.append(_save(plt, fig, out / f"fig{fig_no:02d}_{exp}_trace.png"))
     return files
 
 
