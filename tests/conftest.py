@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import time
 import uuid
 
 import pytest
@@ -11,6 +12,17 @@ from plant.config import PlantConfig, load_plant_config
 from plant_emulator.process import EmulatorProcess
 
 _counter = itertools.count()
+
+
+def recv_frames(bus, n: int, timeout: float = 2.0, poll: float = 0.1) -> list:
+    """Up to ``n`` frames from ``bus``, waiting at most ``timeout`` seconds in all."""
+    out = []
+    deadline = time.monotonic() + timeout
+    while len(out) < n and time.monotonic() < deadline:
+        m = bus.recv(poll)
+        if m is not None:
+            out.append(m)
+    return out
 
 
 @pytest.fixture

@@ -8,21 +8,12 @@ import time
 import can
 import pytest
 
+from tests.conftest import recv_frames
 from standbus import BusSpecError, open_bus
 from standbus.faults import (ALL_LENGTHS, FaultInjector, FaultSpec, FrameFilter, canopen_protected,
                              garbage_frame, parse_id_range)
 from standbus.loopback import LoopbackBus, _open_socket
 from standbus import wire
-
-
-def _frames(bus, n, timeout=5.0):
-    out = []
-    deadline = time.monotonic() + timeout
-    while len(out) < n and time.monotonic() < deadline:
-        m = bus.recv(0.05)
-        if m is not None:
-            out.append(m)
-    return out
 
 
 # -- acceptance filter ----------------------------------------------------------------------------
@@ -112,7 +103,7 @@ def test_loopback_drops_the_requested_share_only_on_the_chosen_ids(channel):
         for i in range(1000):
             tx.send(can.Message(arbitration_id=0x182, data=struct.pack("<I", i), is_extended_id=False))
             tx.send(can.Message(arbitration_id=0x702, data=b"\x05", is_extended_id=False))
-        got = _frames(rx, 2000, timeout=3.0)
+        got = recv_frames(rx, 2000, timeout=3.0)
     finally:
         rx.shutdown(); tx.shutdown()
     pdo = [struct.unpack("<I", m.data)[0] for m in got if m.arbitration_id == 0x182]

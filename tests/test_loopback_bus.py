@@ -13,19 +13,10 @@ import time
 import can
 import pytest
 
+from tests.conftest import recv_frames
 from standbus import BusSpec, BusSpecError, open_bus
 from standbus import wire
 from standbus.loopback import LoopbackBus, resolve_channel
-
-
-def _recv_all(bus, n, timeout=2.0):
-    out = []
-    deadline = time.monotonic() + timeout
-    while len(out) < n and time.monotonic() < deadline:
-        m = bus.recv(0.1)
-        if m is not None:
-            out.append(m)
-    return out
 
 
 def test_wire_format_keeps_every_flag_dlc_and_timestamp():
@@ -57,7 +48,7 @@ def test_frames_go_to_other_instances_not_back_to_the_sender(channel):
     b = LoopbackBus(channel)
     try:
         a.send(can.Message(arbitration_id=0x181, data=b"\x01\x02\x03", is_extended_id=False))
-        got = _recv_all(b, 1)
+        got = recv_frames(b, 1)
         assert len(got) == 1 and got[0].arbitration_id == 0x181 and bytes(got[0].data) == b"\x01\x02\x03"
         assert abs(got[0].timestamp - time.time()) < 5
         assert a.recv(0.2) is None, "a SocketCAN-like bus does not echo a sender's own frames"
@@ -69,7 +60,7 @@ def test_receive_own_messages_on_request(channel):
     a = LoopbackBus(channel, receive_own_messages=True)
     try:
         a.send(can.Message(arbitration_id=0x55, data=b"\xAA", is_extended_id=False))
-        got = _recv_all(a, 1)
+        got = recv_frames(a, 1)
         assert got and got[0].arbitration_id == 0x55 and got[0].is_rx is False
     finally:
         a.shutdown()
@@ -90,7 +81,7 @@ def test_frames_from_one_sender_arrive_in_order(channel):
     try:
         for i in range(2000):
             a.send(can.Message(arbitration_id=0x200, data=struct.pack("<I", i), is_extended_id=False))
-        got = _recv_all(b, 2000, timeout=10)
+        got = recv_frames(b, 2000, timeout=10)
         assert [struct.unpack("<I", m.data)[0] for m in got] == list(range(2000))
     finally:
         a.shutdown(); b.shutdown()
@@ -154,7 +145,7 @@ def test_no_datagram_leaves_loopback(channel):
     try:
         for i in range(1000):
             a.send(can.Message(arbitration_id=0x80, data=bytes([i % 256]), is_extended_id=False))
-        assert len(_recv_all(b, 1000, timeout=10)) == 1000, "the bus itself must work meanwhile"
+        assert len(recv_frames(b, 1000, timeout=10)) == 1000, "the bus itself must work meanwhile"
         time.sleep(0.3)
     finally:
         stop.set()

@@ -5,7 +5,6 @@ from __future__ import annotations
 import subprocess
 import sys
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -18,6 +17,7 @@ from captures.synthetic import stand_frames, synthetic_run
 from captures.writers import write_candump
 from gateway import Gateway, GatewayConfig, load_run
 from gateway.experiments import Meander
+from tests.conftest import recv_frames
 from standbus import open_bus
 from tests.conftest import plant
 
@@ -93,11 +93,7 @@ def _receive(spec: str, n: int, timeout_s: float = 20.0):
 
     def pump():
         ready.set()
-        deadline = time.monotonic() + timeout_s
-        while len(out) < n and time.monotonic() < deadline:
-            m = bus.recv(0.1)
-            if m is not None:
-                out.append(m)
+        out.extend(recv_frames(bus, n, timeout_s))
         bus.shutdown()
 
     th = threading.Thread(target=pump, daemon=True)
