@@ -285,7 +285,7 @@ def estimate_relay(rec: Record, hysteresis_kgf: float | None = None,
     # per cycle: rise (trough→peak) and fall (peak→trough) pairs
     g_c, tau_c, rise_c, fall_c, a_c, b_c = [], [], [], [], [], []
     for i in range(len(apexes) - 2):
-        (t0, y0, k0), (t1, y1, k1), (t2, y2, _) = apexes[i], apexes[i + 1], apexes[i + 2]
+        (t0, y0, k0), (t1, y1, _), (t2, y2, _) = apexes[i], apexes[i + 1], apexes[i + 2]
         if k0 != -1:
             continue
         R, F = y1 - y0, y1 - y2

@@ -444,7 +444,6 @@ class CycleAssembler:
             return
         g = np.arange(lo, hi)
         s = g - self.sync_g0
-        sync_order = self.S.order[s]
         sync_ts = self.S.ts[s]
         # the command: first RPDO after each SYNC
         r_seg = self._seg(self.R.order)

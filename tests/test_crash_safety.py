@@ -25,7 +25,7 @@ from gateway.capture import TappedNetwork, read_capture
 from gateway.master import NMT_START, StandMaster
 from standbus import open_bus
 from tests.conftest import plant
-from tests.test_faults_support import LOAD_ALLOWANCE_S, Sniffer, emcys, log_reaction, valve_state
+from tests.test_faults_support import LOAD_ALLOWANCE_S, Sniffer, log_reaction, valve_state
 
 BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 #: the valve's RPDO timeout (0x1400:05, as the gateway writes it) + watchdog poll + deferral, s

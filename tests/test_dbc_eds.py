@@ -1,7 +1,6 @@
 """The DBC describes exactly the frames the EDS files' PDO mappings produce."""
 from __future__ import annotations
 
-import struct
 
 import canopen
 import cantools

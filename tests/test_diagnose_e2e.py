@@ -6,7 +6,6 @@ run directories as one data set.
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import subprocess
 import sys
@@ -15,7 +14,7 @@ import pytest
 
 from analysis.data import read_run
 from analysis.diagnose import diagnose
-from gateway import Gateway, GatewayConfig
+from gateway import Gateway, GatewayConfig, SafetyLimits
 from gateway.experiments import Meander
 from tests.conftest import plant
 
@@ -24,12 +23,9 @@ BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 
 
 def _config(bus_spec: str) -> GatewayConfig:
-    cfg = GatewayConfig(bus=bus_spec, lockstep=True)
-    # lockstep: stand time is not wall time; on a loaded test machine a wall-clock heartbeat
-    # watchdog (where the supervisor has one) must not end the run
-    if hasattr(cfg.limits, "heartbeat_timeout_s"):
-        cfg.limits = dataclasses.replace(cfg.limits, heartbeat_timeout_s=10.0)
-    return cfg
+    # lockstep: stand time is not wall time; on a loaded test machine the wall-clock heartbeat
+    # watchdog must not end the run
+    return GatewayConfig(bus=bus_spec, lockstep=True, limits=SafetyLimits(heartbeat_timeout_s=10.0))
 
 
 def _runs(bus_spec, start_emulator, tmp_path, model):

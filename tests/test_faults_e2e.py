@@ -24,7 +24,7 @@ from gateway.capture import read_capture
 from standbus import open_bus
 from standbus.faults import FaultInjector, FaultSpec
 from tests.conftest import plant
-from tests.test_faults_support import (LOAD_ALLOWANCE_S, SAFE_WORDS, Const, RampReference, Sniffer,
+from tests.test_faults_support import (LOAD_ALLOWANCE_S, SAFE_WORDS, Const, RampReference,
                                        Stall, emcys, first_safe_command, log_reaction, rpdos,
                                        valve_state)
 

@@ -11,14 +11,12 @@ from __future__ import annotations
 import math
 import os
 import random
-import socket
 import struct
 import threading
 import time
 import uuid
 
 import can
-import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
