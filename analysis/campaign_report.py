@@ -33,6 +33,7 @@ from .data import Record, load
 from .estimate import Estimate, EstimateOptions, error_json, estimate_record, result_json
 from .meander import MeanderEstimate, mean_ci
 from .pfeedback import PFeedbackEstimate
+from .plots import pyplot
 from .relay import DF_PEAK_BIAS, RelayEstimate
 
 
@@ -247,13 +248,6 @@ def relay_rows(items: list[ReportInput]) -> list[dict]:
 
 
 # -- figures -------------------------------------------------------------------------------------
-def _plt():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
 def _save(plt, fig, path: Path) -> Path:
     """Lay out, write (PNG, 110 dpi) and close one figure; returns its path."""
     fig.tight_layout()
@@ -276,7 +270,7 @@ def _errbar(ax, x, y, lo, hi, **kw) -> None:
 def meander_figures(portions: list[dict], g_true: float | None, out: Path) -> list[Path]:
     if not portions:
         return []
-    plt = _plt()
+    plt = pyplot()
     files = []
     for fig_no, kind, title in ((11, "main", "main portions"), (12, "transitional", "transitional portions")):
         fig, ax = plt.subplots(figsize=(6, 4))
@@ -298,7 +292,7 @@ def meander_figures(portions: list[dict], g_true: float | None, out: Path) -> li
 def pfeedback_figures(rows: list[dict], g_true: float | None, out: Path) -> list[Path]:
     if not rows:
         return []
-    plt = _plt()
+    plt = pyplot()
     files = []
     omegas = sorted({r["omega_rad_s"] for r in rows})
     amps = sorted({round(r["A_r_kgf"]) for r in rows})
@@ -340,7 +334,7 @@ def pfeedback_figures(rows: list[dict], g_true: float | None, out: Path) -> list
 def relay_figures(rows: list[dict], g_true: float | None, tau_true: float | None, out: Path) -> list[Path]:
     if not rows:
         return []
-    plt = _plt()
+    plt = pyplot()
     files = []
     u0s = sorted({r["u0_pct"] for r in rows})
     refs = sorted({r["r_kgf"] for r in rows})
@@ -378,7 +372,7 @@ def relay_figures(rows: list[dict], g_true: float | None, tau_true: float | None
 
 def trace_figures(items: list[ReportInput], out: Path) -> list[Path]:
     """One example run of each experiment: u and y against time (Figs. 4, 14, 20)."""
-    plt = _plt()
+    plt = pyplot()
     files = []
     for exp, fig_no in (("meander", 4), ("pfeedback", 14), ("relay", 20)):
         item = next((i for i in items if i.estimate is not None and i.record is not None

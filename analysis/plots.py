@@ -16,14 +16,18 @@ import math
 from pathlib import Path
 from typing import Sequence
 
-import matplotlib
-import matplotlib.ticker
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from .metrics import Evaluation, reversal_mask
 
-from .metrics import Evaluation, reversal_mask  # noqa: E402
+
+def pyplot():
+    """matplotlib's pyplot on the Agg backend, imported on first use: loading it costs about
+    0.2 s, which no command that draws nothing (``stand emulate``, ``stand run``) should pay."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
 
 MEAS = "#1f77b4"
 MODEL = "#d62728"
@@ -63,6 +67,8 @@ def _spans(mask: np.ndarray, t: np.ndarray) -> list[tuple[float, float]]:
 
 def plot_overlay(ev: Evaluation, path: str | Path, title: str = "", worst: int = 3) -> Path:
     """Measurement vs model (windowed free run) and residual, per record; worst windows below."""
+    plt = pyplot()
+    from matplotlib.ticker import MaxNLocator
     path = _target(path)
     sims = ev.sims
     worst_w = ev.worst_windows(worst)
@@ -117,7 +123,7 @@ def plot_overlay(ev: Evaluation, path: str | Path, title: str = "", worst: int =
         ax2.set_ylabel("ŷ − y", fontsize=7, color=RESID)
         ax2.tick_params(labelsize=7)
         ax.tick_params(labelsize=7)
-        ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(4))
+        ax.xaxis.set_major_locator(MaxNLocator(4))
         ax.set_title(f"#{k + 1} worst: {w.t_start:.1f}–{w.t_end:.1f} s, {w.rmse:.3g} kgf ({w.regime})",
                      fontsize=8, color=WORST, loc="left")
     fig.savefig(path, dpi=90, format="png")
@@ -127,6 +133,7 @@ def plot_overlay(ev: Evaluation, path: str | Path, title: str = "", worst: int =
 
 def plot_regimes(ev: Evaluation, path: str | Path) -> Path:
     """RMSE per regime (bars) and slope error relative to the model's slope (dots)."""
+    plt = pyplot()
     path = _target(path)
     regs = ev.regimes
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 0.32 * len(regs) + 1.8), constrained_layout=True)
@@ -149,6 +156,7 @@ def plot_regimes(ev: Evaluation, path: str | Path) -> Path:
 
 
 def plot_correlations(ev: Evaluation, path: str | Path) -> Path:
+    plt = pyplot()
     path = _target(path)
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 3.2), constrained_layout=True)
     dt = ev.sims[0].record.dt
@@ -170,6 +178,7 @@ def plot_correlations(ev: Evaluation, path: str | Path) -> Path:
 
 def plot_history(versions: Sequence[dict], path: str | Path) -> Path:
     """Bars: RMSE of each model version; dotted: the noise floor."""
+    plt = pyplot()
     path = _target(path)
     fig, ax = plt.subplots(figsize=(max(6, 1.3 * len(versions) + 3), 3.6), constrained_layout=True)
     x = np.arange(len(versions))
@@ -195,6 +204,7 @@ def plot_history(versions: Sequence[dict], path: str | Path) -> Path:
 
 def plot_candidates(diag, path: str | Path) -> Path:
     """The diagnosis at a glance: starting model and each candidate's RMSE."""
+    plt = pyplot()
     path = _target(path)
     names = [diag.model] + [f"+{c.effect}" for c in diag.candidates]
     rmse = [diag.base_eval.rmse] + [c.rmse for c in diag.candidates]
