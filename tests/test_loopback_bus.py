@@ -211,3 +211,53 @@ def test_bus_spec_parsing_and_clear_errors():
         BusSpec.parse("socketcan:vcan0,bitrate")
     with pytest.raises(BusSpecError, match="cannot open CAN bus"):
         open_bus("udp_loopback:300.1.2.3:99")
+
+
+def test_own_frames_are_dropped_in_the_kernel_and_still_reach_others(channel):
+    a, b = LoopbackBus(channel), LoopbackBus(channel)
+    own = LoopbackBus(channel, receive_own_messages=True)
+    try:
+        if sys.platform.startswith("linux"):
+            assert a.kernel_self_filter and not own.kernel_self_filter
+        for i in range(50):
+            a.send(can.Message(arbitration_id=0x300, data=bytes((i,)), is_extended_id=False))
+        assert [m.data[0] for m in recv_frames(b, 50)] == list(range(50))
+        assert len(recv_frames(own, 50)) == 50
+        time.sleep(0.05)
+        if a.kernel_self_filter:   # nothing even reached a's socket
+            with pytest.raises(BlockingIOError):
+                a._socket.recv(100)
+        own.send(can.Message(arbitration_id=0x301, data=b"", is_extended_id=False))
+        assert [m.arbitration_id for m in recv_frames(own, 1)] == [0x301]
+        assert [m.arbitration_id for m in recv_frames(a, 1)] == [0x301]
+    finally:
+        a.shutdown(); b.shutdown(); own.shutdown()
+
+
+def test_busy_poll_receives_and_still_times_out(channel):
+    from standbus import prefer_busy_poll
+    a = LoopbackBus(channel)
+    b = LoopbackBus(channel, busy_poll_us=2000)
+    off = LoopbackBus(channel, busy_poll_us=0)
+    try:
+        assert b.busy_poll_s == pytest.approx(0.002) and a.busy_poll_s is None
+        assert prefer_busy_poll(a, 0.001) and a.busy_poll_s == 0.001
+        assert not prefer_busy_poll(off, 0.001), "an explicit 0 is the user's choice"
+        assert prefer_busy_poll(b, 0.001) and b.busy_poll_s == pytest.approx(0.002)
+        t0 = time.monotonic()
+        assert b.recv(0.05) is None
+        assert 0.045 < time.monotonic() - t0 < 1.0
+        threading.Timer(0.01, lambda: a.send(can.Message(arbitration_id=0x7, data=b"\x01",
+                                                         is_extended_id=False))).start()
+        got = b.recv(1.0)     # arrives while polling
+        assert got is not None and got.arbitration_id == 0x7
+        threading.Timer(0.05, lambda: a.send(can.Message(arbitration_id=0x8, data=b"",
+                                                         is_extended_id=False))).start()
+        got = b.recv(1.0)     # arrives after the polling window, while sleeping
+        assert got is not None and got.arbitration_id == 0x8
+    finally:
+        a.shutdown(); b.shutdown(); off.shutdown()
+    with pytest.raises(can.CanInitializationError, match="busy_poll_us"):
+        LoopbackBus(channel, busy_poll_us=-1)
+    with pytest.raises(can.CanInitializationError, match="busy_poll_us"):
+        LoopbackBus(channel, busy_poll_us="fast")

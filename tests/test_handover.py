@@ -1,0 +1,68 @@
+"""HandoverNotifier: the lockstep loop receives on its own thread while the reader thread parks,
+and every frame still reaches every listener exactly once, in order."""
+from __future__ import annotations
+
+import threading
+import time
+
+import can
+import pytest
+
+from standbus import HandoverNotifier
+from standbus.loopback import LoopbackBus
+
+
+def frame(i: int) -> can.Message:
+    return can.Message(arbitration_id=0x180, data=i.to_bytes(2, "little"), is_extended_id=False)
+
+
+def test_frames_reach_every_listener_once_in_order_across_handovers(channel):
+    sender, bus = LoopbackBus(channel), LoopbackBus(channel)
+    got: list[tuple[int, str]] = []
+    notifier = HandoverNotifier(bus, [lambda m: got.append((int.from_bytes(m.data, "little"),
+                                                             threading.current_thread().name))],
+                                timeout=0.005)
+    try:
+        main = threading.current_thread().name
+        i = 0
+        for spin in (0.0, 0.001, 0.0):
+            for _ in range(100):                     # the reader thread delivers
+                sender.send(frame(i)); i += 1
+            time.sleep(0.05)
+            with notifier.handover(spin_s=spin) as pump:
+                first = i
+                for _ in range(100):                 # the caller delivers
+                    sender.send(frame(i)); i += 1
+                    msg = pump(1.0)
+                    assert msg is not None
+                assert pump(0.02) is None            # times out cleanly
+                assert all(t == main for n, t in got if n >= first)
+        for _ in range(50):                          # and the reader thread takes over again
+            sender.send(frame(i)); i += 1
+        deadline = time.monotonic() + 2
+        while len(got) < i and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert [n for n, _ in got] == list(range(i))
+        assert got[-1][1] != main
+    finally:
+        notifier.stop(); sender.shutdown(); bus.shutdown()
+
+
+def test_the_bus_goes_back_to_the_reader_after_an_exception(channel):
+    sender, bus = LoopbackBus(channel), LoopbackBus(channel)
+    got = []
+    notifier = HandoverNotifier(bus, [got.append], timeout=0.005)
+    try:
+        with pytest.raises(KeyError):
+            with notifier.handover():
+                raise KeyError("boom")
+        sender.send(frame(1))
+        deadline = time.monotonic() + 2
+        while not got and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert len(got) == 1
+    finally:
+        notifier.stop(); sender.shutdown(); bus.shutdown()
+    with pytest.raises(RuntimeError, match="stopped"):
+        with notifier.handover():
+            pass
