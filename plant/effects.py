@@ -262,17 +262,25 @@ class Reversal(Effect):
 
     def prepare(self, q, dt, state):
         n, K = q.shape
+        steps = np.arange(K)
         sgn = np.sign(q)
-        idx = np.where(sgn != 0, np.arange(K)[None, :], -1)
-        idx = np.maximum.accumulate(idx, axis=1)
-        held = np.where(idx >= 0, np.take_along_axis(sgn, np.maximum(idx, 0), axis=1),
-                        state["direction"][:, None])
-        prev = np.concatenate([state["direction"][:, None], held[:, :-1]], axis=1)
+        if sgn.all():       # no zero command: the direction is the command's sign
+            held = sgn
+        else:               # a zero command keeps the last direction
+            idx = np.maximum.accumulate(np.where(sgn != 0, steps, -1), axis=1)
+            held = np.where(idx >= 0, sgn[np.arange(n)[:, None], np.maximum(idx, 0)],
+                            state["direction"][:, None])
+        prev = np.empty_like(held)
+        prev[:, 0] = state["direction"]
+        prev[:, 1:] = held[:, :-1]
         reversal = (held != prev) & (prev != 0)
-        # index of the last reversal at or before each step (-1: none in this block)
-        last = np.maximum.accumulate(np.where(reversal, np.arange(K)[None, :], -1), axis=1)
-        steps = np.arange(K)[None, :]
-        since = np.where(last >= 0, (steps - last) * dt, state["since"][:, None] + steps * dt)
+        carried = state["since"][:, None] + steps * dt
+        if reversal.any():
+            # index of the last reversal at or before each step (-1: none in this block)
+            last = np.maximum.accumulate(np.where(reversal, steps, -1), axis=1)
+            since = np.where(last >= 0, (steps - last) * dt, carried)
+        else:
+            since = carried
         state["direction"] = held[:, -1].copy()
         state["since"] = since[:, -1] + dt
         return np.exp(-since / self.decay)

@@ -62,6 +62,10 @@ class PlantModel:
             raise ModelError(f"effect(s) listed twice: {', '.join(sorted(dupes))}")
         order = list(CATALOGUE)
         self.effects: list[Effect] = sorted(effects, key=lambda e: (e.stage, order.index(e.name)))
+        # per stage, once (the emulator steps a few samples per SYNC: this is its hot path)
+        self._flow = [e for e in self.effects if e.stage is Stage.FLOW]
+        self._force = [e for e in self.effects if e.stage is Stage.FORCE]
+        self._has_disturbance = any(e.stage is Stage.DISTURBANCE for e in self.effects)
 
     # -- description --------------------------------------------------------------------------
     @property
@@ -156,7 +160,7 @@ class PlantModel:
         aux: list = []
         dist = None
         t = None
-        if any(e.stage is Stage.DISTURBANCE for e in self.effects):
+        if self._has_disturbance:
             t = state.t[:, None] + dt * np.arange(K)[None, :]
         for eff, est in zip(self.effects, state.effects):
             if eff.stage is Stage.VALVE:
@@ -169,16 +173,10 @@ class PlantModel:
         state.t = state.t + K * dt
         return Drive(q=q, aux=aux, dist=dist)
 
-    def _flow_effects(self) -> list[Effect]:
-        return [e for e in self.effects if e.stage is Stage.FLOW]
-
-    def _force_effects(self) -> list[Effect]:
-        return [e for e in self.effects if e.stage is Stage.FORCE]
-
     def integrate(self, drv: Drive, y0: np.ndarray, dt: float) -> np.ndarray:
         """Force trajectory (n, K+1) from ``y0`` (n,) under the block's drive."""
-        flow = self._flow_effects()
-        force = self._force_effects()
+        flow = self._flow
+        force = self._force
         y0 = np.asarray(y0, float)
         n, K = drv.q.shape
         needs_y = any(e.depends_on_force for e in flow) or any(

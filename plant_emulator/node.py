@@ -30,6 +30,7 @@ from typing import Any
 
 import canopen
 from canopen.network import MessageListener
+from canopen.nmt import NMT_STATES
 
 from dbc import profile as P
 from dbc.pdo_codec import PdoLayout, PdoLayoutError
@@ -37,6 +38,7 @@ from standbus.faults import FrameFilter
 
 log = logging.getLogger(__name__)
 
+NMT_STATE_CODES = {name: code for code, name in NMT_STATES.items()}
 NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
 EMCY_PDO_LENGTH = P.EMCY_PDO_LENGTH
 PDO_DISABLED = 1 << 31
@@ -98,6 +100,10 @@ class EmulatedNode:
         network.subscribe(0, self._on_nmt)
         #: live values of objects the device computes (status word, process value, ...)
         self.live: dict[tuple[int, int], Any] = {}
+        #: stored values already decoded (the SYNC path reads a few objects every cycle; through
+        #: canopen's SDO layer a read costs ~10 µs). Kept exact: every SDO write updates it,
+        #: PDO writes and resets drop what they change.
+        self._stored: dict[tuple[int, int], Any] = {}
         self.local.add_read_callback(self._read_live)
         self.local.add_write_callback(self._on_sdo_write)
         #: called (no arguments) each time the node enters OPERATIONAL, after its own hook
@@ -134,6 +140,7 @@ class EmulatedNode:
             return
         with self.lock:
             if command in (NMT_RESET_NODE, NMT_RESET_COMM):
+                self._stored.clear()
                 if command == NMT_RESET_NODE:
                     self.local.data_store.clear()    # application parameters back to EDS values
                 else:
@@ -142,12 +149,22 @@ class EmulatedNode:
                 self.boot()
                 return
             was_operational = self.operational
+            before = self.nmt_state
             self.local.nmt.on_command(can_id, data, timestamp)
             if self.operational and not was_operational:
                 self._start_pdos()
             elif was_operational and not self.operational:
                 self._stop_pdos()
                 self.on_leave_operational()
+            if self.nmt_state != before:
+                self._heartbeat_now()
+
+    def _heartbeat_now(self) -> None:
+        """A heartbeat right at a state change (as CANopenNode devices send one), so the master
+        sees the new state at once instead of up to one heartbeat period later."""
+        if int(self.value(0x1017)) > 0:
+            state = NMT_STATE_CODES[self.nmt_state]
+            self.network.send_message(0x700 + self.id, bytes((state,)))
 
     def _start_pdos(self) -> None:
         od = self.local.object_dictionary
@@ -217,9 +234,10 @@ class EmulatedNode:
                 self.local.emcy.send(EMCY_PDO_LENGTH, 0x10, struct.pack("<H", len(data)))
                 return
             self.last_rpdo_time = time.monotonic()
-            values = cfg.layout.decode(data)
-            for (index, sub), value in zip(cfg.layout.keys, values):
-                self.write_object(index, sub, value)
+            changes = list(zip(cfg.layout.keys, cfg.layout.decode(data)))
+            for (index, sub), value in changes:
+                self.store_object(index, sub, value)
+            self.on_objects_written(changes)
 
     def rpdo_timeout_due(self, now: float) -> bool:
         """True if an RPDO with an event timer is overdue (without reporting it)."""
@@ -246,26 +264,35 @@ class EmulatedNode:
         key = (index, sub)
         if key in self.live:
             return self.live[key]
+        try:
+            return self._stored[key]
+        except KeyError:
+            pass
         var = self.local.sdo[index]
         if sub or not isinstance(var, canopen.sdo.SdoVariable):
             var = var[sub]
-        return var.raw
+        value = self._stored[key] = var.raw
+        return value
 
-    def write_object(self, index: int, sub: int, value: Any) -> None:
-        """Store a value received by PDO and let the device react."""
+    def store_object(self, index: int, sub: int, value: Any) -> None:
+        """Store a value received by PDO (the device is told by the caller)."""
         obj = self.local.object_dictionary[index]
         if not isinstance(obj, canopen.objectdictionary.ODVariable):
             obj = obj[sub]
         self.local.data_store.setdefault(index, {})[sub] = obj.encode_raw(value)
-        self.on_object_written(index, sub, value)
+        self._stored.pop((index, sub), None)
 
     def _read_live(self, index: int, subindex: int, od: Any) -> Any:
         return self.live.get((index, subindex))
 
     def _on_sdo_write(self, index: int, subindex: int, od: Any, data: bytes) -> None:
-        if index >= 0x2000:
-            with self.lock:
-                self.on_object_written(index, subindex, od.decode_raw(data))
+        # canopen calls this before it stores ``data``; the cache takes the new value at once
+        # (under the lock), so no reader can cache the old one in between.
+        with self.lock:
+            value = od.decode_raw(data)
+            if index >= 0x2000:
+                self.on_object_written(index, subindex, value)
+            self._stored[index, subindex] = value
 
     # -- device hooks -------------------------------------------------------------------------
     def on_boot(self) -> None:
@@ -279,3 +306,9 @@ class EmulatedNode:
 
     def on_object_written(self, index: int, sub: int, value: Any) -> None:
         """A device object was written by RPDO or SDO."""
+
+    def on_objects_written(self, changes: list[tuple[tuple[int, int], Any]]) -> None:
+        """The objects of one RPDO were written, ``[((index, sub), value), ...]`` (by default
+        :meth:`on_object_written` for each)."""
+        for (index, sub), value in changes:
+            self.on_object_written(index, sub, value)

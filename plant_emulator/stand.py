@@ -27,6 +27,7 @@ import numpy as np
 from dbc import DYNAMOMETER_EDS, VALVE_EDS
 from dbc import profile as P
 from plant.config import PlantConfig
+from standbus import LOCKSTEP_BUSY_POLL_S, prefer_busy_poll
 
 from .dynamometer import DynamometerNode
 from .node import slave_frame_filter
@@ -87,6 +88,8 @@ class EmulatedStand:
 
     # -- lifecycle -------------------------------------------------------------------------------
     def start(self) -> None:
+        if self.options.lockstep:   # the next SYNC follows the answer within ~0.1 ms: poll for it
+            prefer_busy_poll(self.bus, LOCKSTEP_BUSY_POLL_S)
         self.network.notifier = can.Notifier(self.bus, self.network.listeners, 0.1)
         self._t_plant = time.monotonic()
         self.valve.boot()

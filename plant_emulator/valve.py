@@ -77,11 +77,16 @@ class ServoValveNode(EmulatedNode):
         self.after_change()
 
     def on_object_written(self, index: int, sub: int, value: Any) -> None:
+        self.on_objects_written([((index, sub), value)])
+
+    def on_objects_written(self, changes) -> None:
+        """One command (an RPDO: control word and setpoint) changes the spool once."""
         self.before_change()
-        if index == P.CONTROL_WORD:
-            self._apply_control_word(int(value))
-        elif (index, sub) == P.SETPOINT:
-            self.setpoint_counts = int(value)
+        for (index, sub), value in changes:
+            if index == P.CONTROL_WORD:
+                self._apply_control_word(int(value))
+            elif (index, sub) == P.SETPOINT:
+                self.setpoint_counts = int(value)
         self._refresh()
         self.after_change()
 

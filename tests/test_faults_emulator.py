@@ -140,3 +140,35 @@ def test_the_emulator_refuses_a_config_it_cannot_run():
     config.initial_force_kgf = float("nan")
     with pytest.raises(ModelError, match="initial.force_kgf must be finite"):
         config.validate()
+
+
+def test_a_state_change_is_announced_by_a_heartbeat_at_once(emulator):
+    """With a 1 s heartbeat period the master would wait up to 1 s to see OPERATIONAL; the node
+    sends one heartbeat right at the change (CANopenNode behaviour)."""
+    stand, master = emulator()
+    for node in (P.VALVE_NODE_ID, P.DYNAMOMETER_NODE_ID):   # heartbeat period 1000 ms by SDO
+        send(master, 0x600 + node, bytes((0x2B, 0x17, 0x10, 0x00)) + struct.pack("<H", 1000) + bytes(2))
+    collect(master, 0.1)
+    send(master, 0x000, bytes((0x01, 0)))                   # NMT start all
+    frames = collect(master, 0.15)
+    beats = {f.arbitration_id - 0x700: f.data[0] for f in frames if 0x700 < f.arbitration_id < 0x780}
+    assert beats == {P.VALVE_NODE_ID: 5, P.DYNAMOMETER_NODE_ID: 5}
+    send(master, 0x000, bytes((0x01, 0)))                   # no change: no extra heartbeat
+    assert not [f for f in collect(master, 0.15) if 0x700 < f.arbitration_id < 0x780]
+
+
+def test_sdo_written_limits_reach_the_spool_at_the_next_command(emulator):
+    """The valve reads its limits from a cache of the object dictionary: an SDO write must
+    take effect, not the value cached before it."""
+    stand, master = emulator()
+    valve = stand.valve
+    valve.state = P.ValveState.ACTIVE
+    valve.setpoint_counts = P.percent_to_counts(50.0)
+    assert stand.valve.spool_command_percent() == pytest.approx(50.0, abs=0.01)  # caches the limit
+    limit = P.percent_to_counts(20.0)
+    send(master, 0x600 + P.VALVE_NODE_ID,
+         bytes((0x2B,)) + struct.pack("<HB", P.UPPER_LIMIT, 0) + struct.pack("<h", limit) + bytes(2))
+    reply = [f for f in collect(master, 0.2) if f.arbitration_id == 0x580 + P.VALVE_NODE_ID]
+    assert reply and reply[0].data[0] == 0x60, "the SDO write was refused"
+    assert stand.valve.spool_command_percent() == pytest.approx(20.0, abs=0.01)
+    assert stand.valve.limit_reached
