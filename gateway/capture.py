@@ -36,6 +36,7 @@ import can
 import canopen
 from canopen.network import MessageListener
 
+from standbus import HandoverNotifier
 from standbus.faults import FrameFilter
 
 log = logging.getLogger(__name__)
@@ -137,15 +138,32 @@ class TappedNetwork(canopen.Network):
     """A canopen network that hands every frame it sends to a capture and filters what it
     receives (see the module docstring)."""
 
-    #: the Notifier's receive timeout, s: also how long closing the network may take
+    #: the Notifier's receive timeout, s: also how long closing the network (or handing the bus
+    #: to the control loop) may take
     NOTIFIER_CYCLE = 0.1
 
-    def __init__(self, bus: can.BusABC | None = None) -> None:
+    def __init__(self, bus: can.BusABC | None = None, notifier_cycle_s: float | None = None) -> None:
         super().__init__(bus)
+        if notifier_cycle_s is not None:
+            self.NOTIFIER_CYCLE = notifier_cycle_s
         self.capture: BusCapture | None = None
         #: acceptance filter in front of the canopen stack (strict once ids are declared)
         self.frame_filter = FrameFilter(MessageListener(self).on_message_received)
         self.listeners = [self.frame_filter]
+
+    def connect(self, *args, **kwargs) -> "TappedNetwork":
+        """As canopen's, with a :class:`~standbus.HandoverNotifier`: the lockstep control loop
+        reads the bus on its own thread (:meth:`handover`)."""
+        if self.bus is None:
+            self.bus = can.Bus(*args, **kwargs)
+        self.notifier = HandoverNotifier(self.bus, self.listeners, self.NOTIFIER_CYCLE)
+        return self
+
+    def handover(self, spin_s: float = 0.0):
+        """Context manager: the bus reader thread parks; yields ``pump(timeout)`` that receives
+        one frame on the caller's thread (polling ``spin_s`` before it sleeps) and hands it to
+        every listener (canopen, capture)."""
+        return self.notifier.handover(spin_s)
 
     def expect(self, can_id: int, lengths=None) -> None:
         """Accept frames on ``can_id`` with these data lengths; from the first call on, frames

@@ -267,7 +267,7 @@ class StandMaster:
                 next_keepalive += keepalive_s
             if all(l.nmt_state == state and fresh(l) for l in self.links):
                 return
-            time.sleep(0.005)
+            time.sleep(0.001)
         for link in self.links:
             if link.nmt_state != state:
                 raise NodeError(link.id, f"{link.role} node {link.id} did not report "

@@ -13,6 +13,7 @@ gets the end status and reason.
 from __future__ import annotations
 
 import datetime as _dt
+import functools
 import json
 import os
 import platform
@@ -33,14 +34,20 @@ from .runs import (CAPTURE_FILE, COLUMNS, FORMAT, META_FILE, SCHEMA, SIGNALS_FIL
                    TRUTH_FILE)
 
 
-def versions() -> dict[str, str]:
+@functools.lru_cache(maxsize=1)
+def _installed_versions() -> tuple[tuple[str, str], ...]:
     out = {"python": platform.python_version()}
     for dist in ("hydrostand", "python-can", "canopen", "cantools", "numpy", "scipy", "pyarrow"):
         try:
             out[dist] = _md.version(dist)
         except _md.PackageNotFoundError:
             pass
-    return out
+    return tuple(out.items())
+
+
+def versions() -> dict[str, str]:
+    """Python's and the stack's versions, for run.json (read once per process: ~7 ms)."""
+    return dict(_installed_versions())
 
 
 def now_iso() -> str:
