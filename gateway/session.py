@@ -21,6 +21,7 @@ from tqdm import tqdm
 
 from dbc import profile as P
 from standbus import DEFAULT_BUS, BusSpec, BusSpecError, open_bus
+from standbus.realtime import DEFAULT_PRIORITY, realtime_threads
 
 from .capture import BusCapture, TappedNetwork
 from .errors import ParameterError, StandError
@@ -44,9 +45,13 @@ class GatewayConfig:
     heartbeat_ms: int = 100
     rpdo_timeout_ms: int = 100
     limits: SafetyLimits = field(default_factory=SafetyLimits)
+    #: real time: SCHED_FIFO priority of the loop and bus reader threads during a run where the
+    #: host allows it (standbus.realtime); 0: ordinary scheduling
+    rt_priority: int = DEFAULT_PRIORITY
 
     def validate(self) -> None:
         check_range("period_s", self.period_s, 0.0005, 0.1, "s")
+        check_range("rt_priority", self.rt_priority, 0, 99, integer=True)
         check_range("valve_id", self.valve_id, 1, 127, integer=True)
         check_range("dynamometer_id", self.dynamometer_id, 1, 127, integer=True)
         if self.valve_id == self.dynamometer_id:
@@ -104,7 +109,8 @@ class Gateway:
             bus = open_bus(cfg.bus)
         except BusSpecError as exc:
             raise StandError(str(exc)) from None
-        self.network = TappedNetwork(bus)
+        # lockstep: the loop takes the bus from the reader thread at every run (<= one cycle)
+        self.network = TappedNetwork(bus, notifier_cycle_s=0.005 if cfg.lockstep else None)
         self.network.connect()
         try:
             self.master = StandMaster(self.network, cfg.valve_id, cfg.dynamometer_id)
@@ -175,12 +181,18 @@ class Gateway:
                 on_progress(t)
 
         outcome = None
+        scheduling: dict | None = None
         failure: BaseException | None = None
         try:
             self.master.declare_run(self.config.period_s)
             with steady_heap():   # before the valve's RPDO timeout starts running
                 self.master.start()
-                outcome = self.loop.run(experiment, recorder, tick)
+                if self.config.lockstep:     # wall-clock timing does not matter
+                    outcome = self.loop.run(experiment, recorder, tick)
+                else:
+                    threads = [0] + self.network.notifier.reader_thread_ids()
+                    with realtime_threads(self.config.rt_priority, threads) as scheduling:
+                        outcome = self.loop.run(experiment, recorder, tick)
         except BaseException as exc:
             failure = exc
             raise
@@ -208,6 +220,8 @@ class Gateway:
                                + (f": {type(failure).__name__}: {failure}" if failure else "")
                                + "; the valve was set to hold, zero command")
                 extra = {}
+                if scheduling is not None:
+                    extra["realtime"] = scheduling
                 if outcome is not None and outcome.safety is not None:
                     extra["safety"] = outcome.safety
                 if capture.write_errors:

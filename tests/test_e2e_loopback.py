@@ -11,6 +11,7 @@ from analysis.data import read_run
 from analysis.meander import estimate_meander
 from gateway import Gateway, GatewayConfig, load_run
 from gateway.experiments import Meander
+from standbus.realtime import realtime_allowed
 from tests.conftest import plant
 
 pytestmark = pytest.mark.e2e
@@ -73,6 +74,12 @@ def test_realtime_meander_works_too(bus_spec, start_emulator, tmp_path):
     assert run.stale.mean() < 0.05
     est = estimate_meander(read_run(result.path))
     assert est.g == pytest.approx(BASE["g"], rel=0.05)
+    # the loop ran at a real-time priority where the host allows it, and run.json says which
+    sched = run.meta["realtime"]
+    if realtime_allowed():
+        assert sched == {"policy": "SCHED_FIFO", "priority": 50}
+    else:
+        assert sched["policy"] == "normal" and sched["note"]
 
 
 def test_progress_bar_is_shown_on_longer_runs(bus_spec, start_emulator, tmp_path, capsys):

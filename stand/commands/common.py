@@ -8,6 +8,7 @@ from gateway import GatewayConfig, SafetyLimits
 from gateway.errors import ParameterError
 from gateway.supervisor import ACTIONS
 from standbus import DEFAULT_BUS
+from standbus.realtime import DEFAULT_PRIORITY
 
 
 def add_bus(p: argparse.ArgumentParser, default: str | None = DEFAULT_BUS) -> None:
@@ -31,7 +32,14 @@ def add_gateway(p: argparse.ArgumentParser) -> None:
                    help="send the next SYNC as soon as a cycle is done (needs the emulator with --lockstep)")
     p.add_argument("--boot-timeout", type=float, default=5.0, metavar="S",
                    help="seconds to wait for the nodes' boot-up (default %(default)s)")
+    add_rt_priority(p, "real time: run the control loop and bus reader threads")
     add_safety(p)
+
+
+def add_rt_priority(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--rt-priority", type=int, default=DEFAULT_PRIORITY, metavar="N",
+                   help=f"{what} at SCHED_FIFO priority N (1-99) where the host allows it (Linux, "
+                        "root or CAP_SYS_NICE); 0: ordinary scheduling (default %(default)s)")
 
 
 def add_safety(p: argparse.ArgumentParser) -> None:
@@ -90,6 +98,7 @@ def gateway_config(args: argparse.Namespace) -> GatewayConfig:
     return GatewayConfig(bus=args.bus, valve_id=args.valve_id, dynamometer_id=args.dynamometer_id,
                          period_s=args.period_ms / 1000.0, lockstep=args.lockstep,
                          boot_timeout_s=args.boot_timeout,
+                         rt_priority=getattr(args, "rt_priority", DEFAULT_PRIORITY),
                          rpdo_timeout_ms=getattr(args, "rpdo_timeout", GatewayConfig.rpdo_timeout_ms),
                          limits=safety_limits(args))
 

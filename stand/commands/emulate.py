@@ -9,7 +9,9 @@ from plant.config import load_plant_config
 from plant_emulator import EmulatedStand, EmulatorOptions
 from plant_emulator.process import serve_until_signalled
 
-from .common import add_bus, add_node_ids, parse_assignments
+from standbus.realtime import make_realtime
+
+from .common import add_bus, add_node_ids, add_rt_priority, parse_assignments
 
 
 def register(sub) -> None:
@@ -28,6 +30,7 @@ def register(sub) -> None:
                         "initial.force_kgf=500 (repeatable)")
     p.add_argument("--seed", type=int, default=None, help="seed of the measurement noise (reproducible runs)")
     p.add_argument("--step-ms", type=float, default=0.5, help="plant integration step, ms (default %(default)s)")
+    add_rt_priority(p, "real time: run the emulator (the stand's hardware)")
     p.set_defaults(func=main)
 
 
@@ -37,10 +40,17 @@ def main(args: argparse.Namespace) -> int:
         raise ModelError(f"--step-ms {args.step_ms:g} is out of range: use 0.01 to 100 ms")
     options = EmulatorOptions(lockstep=args.lockstep, seed=args.seed, valve_id=args.valve_id,
                               dynamometer_id=args.dynamometer_id, step_s=args.step_ms / 1000.0)
+    scheduling = "lockstep"
+    if not args.lockstep:   # before any thread starts: they all inherit it
+        if not 0 <= args.rt_priority <= 99:
+            raise ModelError(f"--rt-priority {args.rt_priority} is out of range: use 0 (off) to 99")
+        result = make_realtime(args.rt_priority) if args.rt_priority else "off"
+        scheduling = (f"SCHED_FIFO priority {args.rt_priority}" if not isinstance(result, str)
+                      else f"ordinary scheduling ({result})")
     stand = serve_until_signalled(
         lambda bus: EmulatedStand(bus, config, options), args.bus,
         lambda stand: f"valve node {args.valve_id}, dynamometer node {args.dynamometer_id} on "
-                      f"{args.bus} ({'lockstep' if args.lockstep else 'real time'}); "
+                      f"{args.bus} ({'lockstep' if args.lockstep else 'real time'}, {scheduling}); "
                       f"model {config.model.spec}")
     flt = stand.frame_filter
     if flt.dropped or stand.valve.rpdo_length_errors or stand.valve.faults:

@@ -1,0 +1,87 @@
+"""Real-time scheduling for the threads that keep a bus cycle: SCHED_FIFO where the host allows.
+
+A 2 ms control loop on a shared machine misses a cycle whenever an ordinary process is
+scheduled in its place at the wrong moment. Test controllers run their loop at a real-time
+priority; so do we, on Linux, when the process may (root or CAP_SYS_NICE): the gateway's loop and
+bus reader threads for the length of a real-time run, the real-time emulator for its life. The
+kernel's real-time throttling (``/proc/sys/kernel/sched_rt_runtime_us``, 95 % by default) keeps a
+runaway thread from freezing the host. Where it is not allowed nothing changes, and the caller
+says so (run.json ``realtime``).
+
+Priorities: 1-99; the default 50 leaves room above for kernel interrupt threads and below for
+anything the user wants to rank lower.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+from typing import Iterable, Iterator
+
+DEFAULT_PRIORITY = 50
+
+
+def _supported() -> bool:
+    return sys.platform.startswith("linux") and hasattr(os, "sched_setscheduler")
+
+
+def make_realtime(priority: int, tid: int = 0) -> tuple[int, int] | str:
+    """Put thread ``tid`` (0: the calling thread; threads it starts later inherit it) in
+    SCHED_FIFO at ``priority``. Returns what to pass to :func:`restore`, or why it could not."""
+    if not _supported():
+        return "real-time scheduling needs Linux"
+    if not 1 <= int(priority) <= 99:
+        return f"priority {priority} is not 1-99"
+    try:
+        before = (os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
+        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(int(priority)))
+    except PermissionError:
+        return "not permitted (needs root or CAP_SYS_NICE)"
+    except OSError as exc:
+        return f"refused by the host: {exc.strerror or exc}"
+    return before
+
+
+def realtime_allowed() -> bool:
+    """Whether this process may use SCHED_FIFO (tried on the calling thread and undone)."""
+    result = make_realtime(1)
+    if isinstance(result, str):
+        return False
+    restore(result)
+    return True
+
+
+def restore(previous: tuple[int, int], tid: int = 0) -> None:
+    """Give thread ``tid`` back the policy :func:`make_realtime` returned (the thread may be gone)."""
+    try:
+        os.sched_setscheduler(tid, previous[0], os.sched_param(previous[1]))
+    except OSError:
+        pass
+
+
+@contextlib.contextmanager
+def realtime_threads(priority: int | None, tids: Iterable[int] = (0,)) -> Iterator[dict]:
+    """SCHED_FIFO for these threads (native ids; 0 is the caller) inside the block. Yields what
+    happened, for the run's metadata: ``{"policy": "SCHED_FIFO", "priority": 50}`` or
+    ``{"policy": "normal", "note": why}``."""
+    if not priority:
+        yield {"policy": "normal", "note": "real-time priority off"}
+        return
+    applied: list[tuple[int, tuple[int, int]]] = []
+    note = None
+    for tid in tids:
+        result = make_realtime(priority, tid)
+        if isinstance(result, str):
+            note = result
+            break
+        applied.append((tid, result))
+    if note is not None:      # all or nothing: one thread at FIFO waiting on another is worse
+        for tid, previous in applied:
+            restore(previous, tid)
+        applied = []
+    try:
+        yield ({"policy": "SCHED_FIFO", "priority": int(priority)} if note is None
+               else {"policy": "normal", "note": note})
+    finally:
+        for tid, previous in applied:
+            restore(previous, tid)

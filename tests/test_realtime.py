@@ -1,0 +1,53 @@
+"""Real-time scheduling of the loop threads (standbus.realtime)."""
+from __future__ import annotations
+
+import os
+import sys
+import threading
+
+import pytest
+
+from standbus.realtime import make_realtime, realtime_allowed, realtime_threads
+
+
+def _policy(tid: int = 0) -> int:
+    return os.sched_getscheduler(tid)
+
+
+def test_off_changes_nothing():
+    before = _policy() if hasattr(os, "sched_getscheduler") else None
+    with realtime_threads(0) as sched:
+        assert sched == {"policy": "normal", "note": "real-time priority off"}
+        if before is not None:
+            assert _policy() == before
+
+
+@pytest.mark.skipif(not realtime_allowed(), reason="SCHED_FIFO is not permitted here (needs Linux and root "
+                                           "or CAP_SYS_NICE)")
+def test_fifo_for_the_block_then_back_for_this_and_another_thread():
+    stop = threading.Event()
+    worker = threading.Thread(target=stop.wait, daemon=True)
+    worker.start()
+    before = (_policy(), _policy(worker.native_id))
+    try:
+        with realtime_threads(50, [0, worker.native_id]) as sched:
+            assert sched == {"policy": "SCHED_FIFO", "priority": 50}
+            assert _policy() == os.SCHED_FIFO and _policy(worker.native_id) == os.SCHED_FIFO
+            assert os.sched_getparam(0).sched_priority == 50
+        assert (_policy(), _policy(worker.native_id)) == before
+    finally:
+        stop.set()
+
+
+@pytest.mark.skipif(not realtime_allowed(), reason="SCHED_FIFO is not permitted here")
+def test_all_or_nothing_when_one_thread_cannot_be_raised():
+    before = _policy()
+    gone = 2**22 + 12345      # beyond pid_max: no such thread
+    with realtime_threads(50, [0, gone]) as sched:
+        assert sched["policy"] == "normal" and "refused" in sched["note"]
+        assert _policy() == before, "the calling thread was put back"
+
+
+def test_a_priority_out_of_range_is_refused_with_the_reason():
+    assert make_realtime(0) == "priority 0 is not 1-99" or not sys.platform.startswith("linux")
+    assert isinstance(make_realtime(100), str)
