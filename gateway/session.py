@@ -13,6 +13,7 @@
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -45,8 +46,8 @@ class GatewayConfig:
     heartbeat_ms: int = 100
     rpdo_timeout_ms: int = 100
     limits: SafetyLimits = field(default_factory=SafetyLimits)
-    #: real time: SCHED_FIFO priority of the loop and bus reader threads during a run where the
-    #: host allows it (standbus.realtime); 0: ordinary scheduling
+    #: real time: SCHED_FIFO priority of the process's threads (loop, bus reader, recorder,
+    #: capture) during a run where the host allows it (standbus.realtime); 0: ordinary scheduling
     rt_priority: int = DEFAULT_PRIORITY
 
     def validate(self) -> None:
@@ -190,7 +191,10 @@ class Gateway:
                 if self.config.lockstep:     # wall-clock timing does not matter
                     outcome = self.loop.run(experiment, recorder, tick)
                 else:
-                    threads = [0] + self.network.notifier.reader_thread_ids()
+                    # every thread of the process, not only the loop's: they share the GIL, and
+                    # one preempted while it holds it stalls the loop (priority inversion;
+                    # measured: 2-7 ms stalls with only the loop and reader threads raised)
+                    threads = [t.native_id for t in threading.enumerate() if t.native_id]
                     with realtime_threads(self.config.rt_priority, threads) as scheduling:
                         outcome = self.loop.run(experiment, recorder, tick)
         except BaseException as exc:

@@ -60,11 +60,6 @@ class HandoverNotifier(can.Notifier):
                     raise
                 log.debug("suppressed exception: %s", exc)
 
-    def reader_thread_ids(self) -> list[int]:
-        """Native (kernel) ids of the reader threads, e.g. to raise their scheduling priority."""
-        return [t.native_id for t in self._readers
-                if isinstance(t, threading.Thread) and t.native_id is not None]
-
     def stop(self, timeout: float = 5.0) -> None:
         self._stopped = True
         self._resume.set()
