@@ -13,7 +13,6 @@
 """
 from __future__ import annotations
 
-import threading
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -22,7 +21,7 @@ from tqdm import tqdm
 
 from dbc import profile as P
 from standbus import DEFAULT_BUS, BusSpec, BusSpecError, open_bus
-from standbus.realtime import DEFAULT_PRIORITY, realtime_threads
+from standbus.realtime import DEFAULT_PRIORITY, process_threads, realtime_threads
 
 from .capture import BusCapture, TappedNetwork
 from .errors import ParameterError, StandError
@@ -191,11 +190,8 @@ class Gateway:
                 if self.config.lockstep:     # wall-clock timing does not matter
                     outcome = self.loop.run(experiment, recorder, tick)
                 else:
-                    # every thread of the process, not only the loop's: they share the GIL, and
-                    # one preempted while it holds it stalls the loop (priority inversion;
-                    # measured: 2-7 ms stalls with only the loop and reader threads raised)
-                    threads = [t.native_id for t in threading.enumerate() if t.native_id]
-                    with realtime_threads(self.config.rt_priority, threads) as scheduling:
+                    # every thread of the process, not only the loop's (see process_threads)
+                    with realtime_threads(self.config.rt_priority, process_threads()) as scheduling:
                         outcome = self.loop.run(experiment, recorder, tick)
         except BaseException as exc:
             failure = exc

@@ -7,7 +7,7 @@ import threading
 
 import pytest
 
-from standbus.realtime import make_realtime, realtime_allowed, realtime_threads
+from standbus.realtime import make_realtime, process_threads, realtime_allowed, realtime_threads
 
 
 def _policy(tid: int = 0) -> int:
@@ -39,13 +39,37 @@ def test_fifo_for_the_block_then_back_for_this_and_another_thread():
         stop.set()
 
 
+def test_all_or_nothing_when_one_thread_cannot_be_raised(monkeypatch):
+    import standbus.realtime as rt
+    calls = []
+
+    def fake(priority, tid=0):
+        calls.append(("raise", tid))
+        return (0, 0) if tid == 1 else "not permitted (needs root or CAP_SYS_NICE)"
+
+    monkeypatch.setattr(rt, "make_realtime", fake)
+    monkeypatch.setattr(rt, "restore", lambda previous, tid=0: calls.append(("restore", tid)))
+    with rt.realtime_threads(50, [1, 2, 3]) as sched:
+        assert sched == {"policy": "normal", "note": "not permitted (needs root or CAP_SYS_NICE)"}
+        assert calls == [("raise", 1), ("raise", 2), ("restore", 1)], "thread 1 was put back at once"
+    assert calls[-1] == ("restore", 1) and len(calls) == 3, "and not restored twice"
+
+
 @pytest.mark.skipif(not realtime_allowed(), reason="SCHED_FIFO is not permitted here")
-def test_all_or_nothing_when_one_thread_cannot_be_raised():
-    before = _policy()
-    gone = 2**22 + 12345      # beyond pid_max: no such thread
-    with realtime_threads(50, [0, gone]) as sched:
-        assert sched["policy"] == "normal" and "refused" in sched["note"]
-        assert _policy() == before, "the calling thread was put back"
+def test_a_thread_that_ended_meanwhile_is_skipped_and_every_thread_is_listed():
+    stop = threading.Event()
+    worker = threading.Thread(target=stop.wait, daemon=True)
+    worker.start()
+    ended = threading.Thread(target=lambda: None)
+    ended.start(); ended.join()
+    tids = process_threads()
+    assert threading.get_native_id() in tids and worker.native_id in tids
+    try:
+        with realtime_threads(50, tids + [ended.native_id]) as sched:
+            assert sched == {"policy": "SCHED_FIFO", "priority": 50}
+            assert _policy(worker.native_id) == os.SCHED_FIFO
+    finally:
+        stop.set()
 
 
 def test_a_priority_out_of_range_is_refused_with_the_reason():
