@@ -252,6 +252,32 @@ class StandMaster:
         for link in self.links:
             link.node.nmt.send_command(NMT_PREOP)
 
+    # -- 6. faults ------------------------------------------------------------------------------
+    def valve_state(self) -> P.ValveState | None:
+        """The valve's device state from its status word 0x6041 (read by SDO; None if unknown)."""
+        state = int(self.valve.node.sdo[P.STATUS_WORD].raw) & 0xF
+        return P.ValveState(state) if state in P.ValveState._value2member_map_ else None
+
+    def reset_valve_fault(self) -> str | None:
+        """CiA 408 fault reset: a rising edge of the reset-fault bit of the control word 0x6040,
+        written by SDO (so it works in PRE-OPERATIONAL, between runs). A valve in FAULT_HOLD goes
+        to DISABLED. Returns what was reset (``"FAULT_HOLD -> DISABLED"``), None if the valve had
+        no fault. Raises :class:`NodeError` if the fault stays (its cause is still there)."""
+        before = self.valve_state()
+        if before is None or not before.is_fault:
+            return None
+        sdo = self.valve.node.sdo
+        sdo[P.CONTROL_WORD].raw = 0                           # the edge needs the bit low first
+        sdo[P.CONTROL_WORD].raw = int(P.ControlBit.RESET_FAULT)
+        sdo[P.CONTROL_WORD].raw = int(P.CW_DISABLED)
+        after = self.valve_state()
+        if after is None or after.is_fault:
+            raise NodeError(self.valve.id, f"valve node {self.valve.id} stayed in "
+                                           f"{after.name if after else 'an unknown state'} after a "
+                                           "fault reset: its cause is still there (see its EMCY)")
+        log.info("valve node %d: fault reset, %s -> %s", self.valve.id, before.name, after.name)
+        return f"{before.name} -> {after.name}"
+
     def wait_state(self, state: int, timeout_s: float, keepalive=None, keepalive_s: float = 0.02,
                    since: float | None = None) -> None:
         """Wait until every node's heartbeat reports ``state``; with ``since`` (monotonic time

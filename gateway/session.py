@@ -153,14 +153,25 @@ class Gateway:
             "limits": asdict(cfg.limits.resolved(cfg.lockstep)),
         }
 
+    def reset_faults(self) -> str | None:
+        """Reset a fault the valve latched (RPDO timeout, ...), as an operator would after
+        removing its cause: CiA 408 reset-fault edge. Returns what was reset, None if nothing
+        was latched; raises :class:`NodeError` if the fault stays."""
+        if self.master is None:
+            raise StandError("the gateway is not connected; use it as a context manager")
+        return self.master.reset_valve_fault()
+
     def run(self, experiment: Experiment, out: str | Path, progress: bool | None = None,
-            on_progress: Callable[[float], None] | None = None) -> RunResult:
+            on_progress: Callable[[float], None] | None = None,
+            reset_faults: bool = False) -> RunResult:
         """Run one experiment and record it in the run directory ``out``.
 
         ``progress``: True/False forces the progress bar on/off; None shows it for runs of more
-        than a few seconds of stand time when stderr is a terminal."""
+        than a few seconds of stand time when stderr is a terminal. ``reset_faults``: first
+        reset a fault the valve latched (:meth:`reset_faults`; run.json ``fault_reset``)."""
         if self.loop is None:
             raise StandError("the gateway is not connected; use it as a context manager")
+        fault_reset = self.reset_faults() if reset_faults else None
         recorder = RunRecorder(out, self.metadata(experiment))
         capture = BusCapture(recorder.capture_path)
         # first in line, so frames reach the capture in the order they were received
@@ -220,6 +231,8 @@ class Gateway:
                                + (f": {type(failure).__name__}: {failure}" if failure else "")
                                + "; the valve was set to hold, zero command")
                 extra = {}
+                if fault_reset is not None:
+                    extra["fault_reset"] = fault_reset
                 if scheduling is not None:
                     extra["realtime"] = scheduling
                 if outcome is not None and outcome.safety is not None:

@@ -303,7 +303,9 @@ class Supervisor:
         if state != _ACTIVE and status:
             if state in _FAULT_STATES:
                 return self.make_trip("valve_fault", f"the valve reports a fault state "
-                                  f"({P.ValveState(state).name}, status word 0x{status:04X})", sync_wall)
+                                  f"({P.ValveState(state).name}, status word 0x{status:04X}); it "
+                                  "stays latched until reset: remove the cause, then run with "
+                                  "--reset-faults (Gateway.reset_faults())", sync_wall)
             self._inactive_run += 1
             if self._inactive_run >= lim.stale_cycles:
                 name = P.ValveState(state).name if state in P.ValveState._value2member_map_ else "?"

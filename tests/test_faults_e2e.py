@@ -284,6 +284,27 @@ def test_a_stalled_loop_is_caught_by_both_watchdogs(bus_spec, start_emulator, tm
                  measured_from="end of the stall")
 
 
+def test_a_latched_valve_fault_stops_the_next_run_until_it_is_reset(bus_spec, start_emulator, tmp_path):
+    """CiA 408: a valve fault stays latched. The next run stops at its first cycle and says how to
+    clear it; the reset-fault edge (run with reset_faults) clears it and the run completes."""
+    start_emulator(plant(BASE, model="base"), lockstep=False, seed=6)
+    with gateway(bus_spec, False) as gw:
+        first = gw.run(Stall(1.0, 2.0, at_s=0.5, stall_s=0.3), tmp_path / "stall", progress=False)
+        assert first.reason == "overrun"
+        assert gw.master.valve_state() is P.ValveState.FAULT_HOLD
+        again = gw.run(Const(1.0, 0.5), tmp_path / "again", progress=False)
+        assert (again.status, again.reason) == ("stopped", "valve_fault")
+        assert again.outcome.stats.cycles <= 2 and "--reset-faults" in again.outcome.message
+        assert gw.reset_faults() == "FAULT_HOLD -> DISABLED"
+        assert gw.reset_faults() is None, "nothing latched any more"
+        assert gw.run(Stall(1.0, 2.0, at_s=0.5, stall_s=0.3), tmp_path / "stall2",
+                      progress=False).reason == "overrun"
+        reset = gw.run(Const(1.0, 0.5), tmp_path / "reset", progress=False, reset_faults=True)
+    assert reset.status == "complete", reset.outcome.message
+    assert load_run(reset.path).meta["fault_reset"] == "FAULT_HOLD -> DISABLED"
+    assert "fault_reset" not in load_run(again.path).meta
+
+
 # -- EMCYs ---------------------------------------------------------------------------------------------------
 def test_dynamometer_over_range_emcy_stops_the_run(bus_spec, start_emulator, tmp_path):
     start_emulator(plant({**BASE, "initial.force_kgf": 2500.0, "sensor.range_kgf": 3000.0}, model="base"),

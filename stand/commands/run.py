@@ -26,6 +26,9 @@ def register(sub) -> None:
         add_gateway(e)
         e.add_argument("--out", required=True, metavar="DIR", help="run directory to create")
         e.add_argument("--no-progress", action="store_true", help="no progress bar")
+        e.add_argument("--reset-faults", action="store_true",
+                       help="before the run, reset a fault the valve latched (CiA 408 reset-fault "
+                            "edge); only once its cause is gone")
         e.set_defaults(func=main)
 
 
@@ -42,7 +45,8 @@ def main(args: argparse.Namespace) -> int:
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         with Gateway(config) as gw:
-            result = gw.run(experiment, args.out, progress=False if args.no_progress else None)
+            result = gw.run(experiment, args.out, progress=False if args.no_progress else None,
+                            reset_faults=args.reset_faults)
     finally:
         signal.signal(signal.SIGTERM, previous)
     stats = result.outcome.stats
