@@ -258,3 +258,38 @@ def test_coloured_noise_is_not_taken_for_a_model_error_and_does_not_hide_one():
     assert d.verdict == "adequate", d.summary
     assert any("correlated in time" in w for w in d.warnings)
     assert_found(diagnose([_coloured(plant("reversal"), 0.02)]), "reversal")
+
+
+# ------------------------------------------------------------------------------------------
+# an oscillation in runs that do not start in phase (see also test_diagnose_independent.py)
+# ------------------------------------------------------------------------------------------
+def _records(u_list, disturbance=None, seed=3, dt=0.002):
+    """One record per command in ``u_list``: the base model, white noise 2 kgf, 0.5 kgf steps,
+    plus ``disturbance(t, rng)`` on the measurement."""
+    from analysis.data import make_record
+    rng = np.random.default_rng(seed)
+    base = plant()
+    out = []
+    for u in u_list:
+        t = np.arange(len(u)) * dt
+        y = base.simulate(u, dt, u_before=0.0)
+        if disturbance is not None:
+            y = y + disturbance(t, rng)
+        y = np.round((y + rng.normal(0.0, 2.0, len(u))) / 0.5) * 0.5
+        out.append(make_record(t, u, y))
+    return out
+
+
+def _squares():
+    return [S.square_wave(a, 4.0, 4, 0.002) for a in (5.0, 10.0, 15.0, 20.0)]
+
+
+def test_an_oscillation_with_its_own_phase_in_every_run_is_found():
+    """Separate runs do not start in phase with a disturbance: amplitude and phase are fitted
+    per record (a common phase cancelled out: 3 kgf reported for 20, and 'adequate' on the
+    meanders alone)."""
+    d = diagnose(_records(_squares(), disturbance=lambda t, rng: 20.0 * np.sin(
+        2 * np.pi * 3.0 * t + rng.uniform(0, 2 * np.pi))))
+    assert d.verdict == "unexplained", d.summary
+    assert d.unexplained.dominant_frequency_hz == pytest.approx(3.0, abs=0.05)
+    assert d.unexplained.amplitude_kgf == pytest.approx(20.0, rel=0.15)

@@ -1,0 +1,233 @@
+"""An independent stand simulator for testing the diagnosis (numpy and the standard library).
+
+Written apart from plant/ and analysis/synthetic.py (by a separate session that had not read
+them), with effect laws that differ from the catalogue's where a real stand might: a reversal
+timed from the undelayed command, a sensor lag, backlash, a power-law flow, friction, an
+oscillation with its own phase in every run. tests/test_diagnose_independent.py checks what
+`stand diagnose` makes of them.
+
+Plant:  dy/dt = g * q(t) * (effect factors) + delta  [- leak*y] [- friction]
+        q(t)  = flow from the delayed, zero-order-held command u(t - tau)
+Fine Euler step H = 0.1 ms (20 sub-steps per 2 ms sample). The command is computed / given
+once per 2 ms sample and held. Delay is realised on the fine grid (tau rounded to 0.1 ms).
+Measurement (sampled at the start of each 2 ms sample, before the command of that sample is
+computed):  y_meas = quantize(y_sensor + oscillation + N(0, sigma^2), 0.5 kgf).
+Closed loops (relay, P-feedback) see y_meas.
+
+Exactly one hidden effect per simulation (or "none"):
+  rev_cmd    boost 1 + B*exp(-s/Tr) on the flow, s = time since the last sign change of the
+             UNDELAYED command u(t) (sign change = new nonzero sign differs from last nonzero sign)
+  rev_flow   same law, s = time since the last sign change of the delayed flow q
+  lag        first-order valve lag after the delay, T = 15 ms
+  deadzone   command dead zone (shifted): u -> sign(u)*max(0, |u| - 1 %)
+  saturation flow clipped at +-12 %
+  asymmetry  negative flow x 0.8
+  loadpress  flow * sqrt(max(0, 1 - sign(q)*y/Fs)), Fs = 12000 kgf (y = true force)
+  leakage    - lambda*y, lambda = 0.1 1/s
+  sensorlag  dynamometer first-order lag 10 ms (noise added after the lag)
+  backlash   +-0.5 % play (backlash) on the command: x = clip(x, u-0.5, u+0.5)
+  flownl     q = sign(u) * 10 * (|u|/10)^0.8
+  osc        20 kgf * sin(2*pi*3 Hz*t + phase) added to the measurement
+  friction   |dy/dt| from the flow reduced by 100 kgf/s (never reversing it) when |q| > 0
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+H = 1e-4
+TS = 2e-3
+SUB = int(round(TS / H))
+
+DEFAULTS = dict(g=118.0, tau=0.0517, delta=6.0, sigma=2.0, res=0.5)
+
+EFFECT_PARAMS = {
+    "none": {},
+    "rev_cmd": dict(boost=2.0, decay=0.15),
+    "rev_flow": dict(boost=2.0, decay=0.15),
+    "lag": dict(T=0.015),
+    "deadzone": dict(d=1.0),
+    "saturation": dict(qmax=12.0),
+    "asymmetry": dict(neg=0.8),
+    "loadpress": dict(Fs=12000.0),
+    "leakage": dict(lam=0.1),
+    "sensorlag": dict(T=0.010),
+    "backlash": dict(band=0.5),
+    "flownl": dict(ref=10.0, p=0.8),
+    "osc": dict(A=20.0, f=3.0),
+    "friction": dict(F=100.0),
+}
+
+
+def _sgn(x: float) -> int:
+    return 1 if x > 0 else (-1 if x < 0 else 0)
+
+
+def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None,
+             plant: dict | None = None, osc_phase: float = 0.0):
+    """Simulate n samples. controller(k, t, y_meas) -> (u, r). Returns t, u, y_meas, r, y_true."""
+    p = dict(DEFAULTS)
+    if plant:
+        p.update(plant)
+    ep = EFFECT_PARAMS[effect]
+    rng = rng or np.random.default_rng(0)
+    g, delta = p["g"], p["delta"]
+    D = int(round(p["tau"] / H))           # delay in fine steps
+    sigma, res = p["sigma"], p["res"]
+    noise = rng.normal(0.0, sigma, n)
+
+    t_out = np.arange(n) * TS
+    u_out = np.zeros(n)
+    r_out = np.full(n, np.nan)
+    ym_out = np.zeros(n)
+    yt_out = np.zeros(n)
+    ucmd = [0.0] * n                       # command after command-side effects (before delay)
+
+    e = effect
+    y = float(y0)
+    ys = float(y0)                         # sensor state
+    qv = 0.0                               # valve lag state
+    bl = 0.0                               # backlash output
+    last_cmd_sign = 0
+    t_cmd_rev = -1e9
+    last_q_sign = 0
+    t_q_rev = -1e9
+    two_pi_f = 2 * math.pi * ep.get("f", 0.0)
+
+    for k in range(n):
+        tk = k * TS
+        # --- measurement at t_k
+        meas = ys if e == "sensorlag" else y
+        if e == "osc":
+            meas += ep["A"] * math.sin(two_pi_f * tk + osc_phase)
+        meas += noise[k]
+        meas = round(meas / res) * res
+        ym_out[k] = meas
+        yt_out[k] = y
+        # --- controller
+        u, r = controller(k, tk, meas)
+        u = max(-100.0, min(100.0, float(u)))
+        u_out[k] = u
+        r_out[k] = r
+        uc = u
+        if e == "backlash":
+            b = ep["band"]
+            bl = min(max(bl, uc - b), uc + b)
+            uc = bl
+        ucmd[k] = uc
+        if e == "rev_cmd":
+            s = _sgn(u)
+            if s != 0:
+                if last_cmd_sign != 0 and s != last_cmd_sign:
+                    t_cmd_rev = tk
+                last_cmd_sign = s
+        # --- fine steps over [t_k, t_k + TS)
+        base_i = k * SUB
+        for j in range(SUB):
+            i = base_i + j
+            t = i * H
+            di = i - D
+            v = ucmd[di // SUB] if di >= 0 else 0.0
+            # valve chain
+            if e == "deadzone":
+                a = abs(v) - ep["d"]
+                v = math.copysign(a, v) if a > 0 else 0.0
+            elif e == "flownl":
+                v = math.copysign(ep["ref"] * (abs(v) / ep["ref"]) ** ep["p"], v) if v != 0 else 0.0
+            if e == "lag":
+                qv += H / ep["T"] * (v - qv)
+                q = qv
+            else:
+                q = v
+            if e == "saturation":
+                q = max(-ep["qmax"], min(ep["qmax"], q))
+            elif e == "asymmetry":
+                if q < 0:
+                    q *= ep["neg"]
+            elif e == "loadpress":
+                q *= math.sqrt(max(0.0, 1.0 - _sgn(q) * y / ep["Fs"]))
+            elif e == "rev_cmd":
+                q *= 1.0 + ep["boost"] * math.exp(-(t - t_cmd_rev) / ep["decay"])
+            elif e == "rev_flow":
+                s = _sgn(q)
+                if s != 0:
+                    if last_q_sign != 0 and s != last_q_sign:
+                        t_q_rev = t
+                    last_q_sign = s
+                q *= 1.0 + ep["boost"] * math.exp(-(t - t_q_rev) / ep["decay"])
+            rate = g * q
+            if e == "friction" and q != 0.0:
+                m = abs(rate) - ep["F"]
+                rate = math.copysign(m, rate) if m > 0 else 0.0
+            rate += delta
+            if e == "leakage":
+                rate -= ep["lam"] * y
+            y += H * rate
+            if e == "sensorlag":
+                ys += H / ep["T"] * (y - ys)
+    return t_out, u_out, ym_out, r_out, yt_out
+
+
+# ---------------------------------------------------------------- experiments
+
+def meander(u0: float, half_period: float = 2.0, cycles: int = 4, hold: float = 0.5):
+    """Open loop: hold 0 for `hold` s, +u0 for a quarter period, then alternate every half period."""
+    n = int(round((hold + half_period / 2 + cycles * 2 * half_period) / TS))
+    u = np.zeros(n)
+    t = np.arange(n) * TS
+    tt = t - hold
+    on = tt >= 0
+    # quarter period of +u0, then alternating half periods
+    seg = np.floor((tt + half_period / 2) / half_period).astype(int)
+    u[on] = u0 * np.where(seg[on] % 2 == 0, 1.0, -1.0)
+
+    def ctl(k, tk, ym):
+        return u[k], math.nan
+    return n, ctl
+
+
+def relay(u0: float, ref: float, duration: float):
+    n = int(round(duration / TS))
+
+    def ctl(k, tk, ym):
+        e = ref - ym
+        return (u0 if e > 0 else -u0 if e < 0 else 0.0), ref
+    return n, ctl
+
+
+def pfeedback(kp: float, amp: float, freq: float, duration: float):
+    n = int(round(duration / TS))
+    w = 2 * math.pi * freq
+
+    def ctl(k, tk, ym):
+        r = amp * math.sin(w * tk)
+        return kp * (r - ym), r
+    return n, ctl
+
+
+PLAN = [
+    # (name, kind, args, y0)
+    ("meander_u5", "meander", dict(u0=5.0), 0.0),
+    ("meander_u10", "meander", dict(u0=10.0), 0.0),
+    ("meander_u15", "meander", dict(u0=15.0), 0.0),
+    ("meander_u20", "meander", dict(u0=20.0), 0.0),
+    ("relay_r0", "relay", dict(u0=10.0, ref=0.0, duration=20.0), -300.0),
+    ("relay_r2000", "relay", dict(u0=10.0, ref=2000.0, duration=20.0), 1500.0),
+    ("pfb_f0.5", "pfeedback", dict(kp=0.005, amp=2000.0, freq=0.5, duration=30.0), 0.0),
+    ("pfb_f1.5", "pfeedback", dict(kp=0.005, amp=2000.0, freq=1.5, duration=30.0), 0.0),
+]
+
+
+def make_dataset(effect: str, seed: int, fixed_phase: float | None = None):
+    """All runs of one data set: list of (name, t, u, y_meas, r, y_true)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for name, kind, args, y0 in PLAN:
+        n, ctl = {"meander": meander, "relay": relay, "pfeedback": pfeedback}[kind](**args)
+        phase = float(rng.uniform(0, 2 * math.pi))
+        if fixed_phase is not None:
+            phase = fixed_phase
+        t, u, ym, r, yt = simulate(n, ctl, effect=effect, y0=y0, rng=rng, osc_phase=phase)
+        out.append((name, kind, t, u, ym, r, yt))
+    return out
