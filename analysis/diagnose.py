@@ -68,8 +68,10 @@ NOISE_P = 1e-3
 #: free-run: a model error, not noise (noise, white or coloured, gives n(t) − n(t₀): flat once
 #: past its correlation time; filtered noise up to 0.2 s gave 0.70-1.71 on 16 s records)
 NOISE_GROWTH_MAX = 2.0
-#: two candidates whose error reductions are within this fraction are "not separable"
-AMBIGUITY_SHARE = 0.85
+#: a second candidate that leaves at most this times the error the best leaves is "not
+#: separable" from it (comparing what is left, not what is removed: 63 % and 93 % removed leave
+#: errors five times apart, which the data do separate)
+AMBIGUITY_RATIO = 1.1
 
 #: what separates two explanations (unordered pair -> experiment)
 SEPARATING_EXPERIMENT = {
@@ -752,18 +754,16 @@ def _ambiguities(records: Sequence[Record], base_fit: F.FitResult, cands: Sequen
                                  "runs at larger command amplitudes"))
     # candidates the data do not separate (comparable error reductions)
     if best is not None:
-        gain_best = 1 - (1 - best.improvement) ** 2
         for c in cands:
             if c is best or not c.earns:
                 continue
-            g = 1 - (1 - c.improvement) ** 2
-            if gain_best > 0 and g >= AMBIGUITY_SHARE * gain_best:
+            if c.objective_rmse <= AMBIGUITY_RATIO * best.objective_rmse:
                 pair = [best.effect, c.effect]
                 if any(set(a.effects) == set(pair) for a in out):
                     continue
-                out.append(Ambiguity(pair, f"+{c.effect} removes nearly as much error as "
-                                           f"+{best.effect} ({100 * c.improvement:.0f} % vs "
-                                           f"{100 * best.improvement:.0f} %).",
+                out.append(Ambiguity(pair, f"+{c.effect} leaves about as little error as "
+                                           f"+{best.effect} ({c.objective_rmse:.3g} vs "
+                                           f"{best.objective_rmse:.3g} kgf).",
                                      separating_experiment(*pair)))
         # parameters of the best candidate the data do not determine
         if best.fit is not None:
