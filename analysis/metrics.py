@@ -331,7 +331,13 @@ def command_levels(u_abs: np.ndarray) -> tuple[np.ndarray, list[str]]:
         return group, [f"|u| = {v:g} %" for v in levels]
     edges = np.unique(np.quantile(u_abs[nz], [0, 0.25, 0.5, 0.75, 1.0]))
     group[nz] = np.clip(np.searchsorted(edges, u_abs[nz], side="right") - 1, 0, len(edges) - 2)
-    return group, [f"|u| in [{a:.3g}, {b:.3g}] %" for a, b in zip(edges[:-1], edges[1:])]
+    return group, [f"|u| in [{_level(a)}, {_level(b)}] %" for a, b in zip(edges[:-1], edges[1:])]
+
+
+def _level(v: float) -> str:
+    """A command level for a label: 3 digits, and 0 for the smallest |u| of a continuous
+    command (not 7.11e-05)."""
+    return "0" if abs(v) < 0.005 else f"{v:.3g}"
 
 
 def force_levels(y: np.ndarray) -> tuple[np.ndarray, list[str]]:
