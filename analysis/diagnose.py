@@ -97,6 +97,9 @@ SEPARATING_EXPERIMENT = {
                                                "levels: the load-pressure effect swaps "
                                                "extend/retract with the sign of the force",
     frozenset({"reversal", "lag"}): "the meander at several amplitudes and periods",
+    frozenset({"lag", "sensor lag"}): "nothing on the command side: only a second force "
+                                      "measurement, or the dynamometer's own filter setting "
+                                      "from its configuration or data sheet",
 }
 
 
@@ -745,6 +748,12 @@ def _ambiguities(records: Sequence[Record], base_fit: F.FitResult, cands: Sequen
                              f"extra delay, so mainly τ + T is determined (fitted τ = "
                              f"{base_fit.model.tau * 1e3:.1f} ms may include a lag).",
                              separating_experiment("lag", "delay")))
+    if best is not None and best.effect == "lag":
+        out.append(Ambiguity(["lag", "sensor lag"],
+                             "a first-order filter in the dynamometer acts on the measured force "
+                             "exactly like a valve lag on an integrating plant (the two commute), "
+                             "in open and closed loop alike: the data cannot tell where the lag is.",
+                             separating_experiment("lag", "sensor lag")))
     if "saturation" in names and best is None:
         top = max((abs(r.u).max() for r in records), default=0.0)
         if top < 100.0:
