@@ -64,6 +64,21 @@ def _sgn(x: float) -> int:
     return 1 if x > 0 else (-1 if x < 0 else 0)
 
 
+class _Reversals:
+    """Time of the last sign change (a new non-zero sign that differs from the last one)."""
+
+    def __init__(self) -> None:
+        self.last = 0
+        self.at = -1e9
+
+    def see(self, x: float, t: float) -> None:
+        s = _sgn(x)
+        if s != 0:
+            if self.last != 0 and s != self.last:
+                self.at = t
+            self.last = s
+
+
 def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None,
              plant: dict | None = None, osc_phase: float = 0.0):
     """Simulate n samples. controller(k, t, y_meas) -> (u, r). Returns t, u, y_meas, r, y_true."""
@@ -89,10 +104,8 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
     ys = float(y0)                         # sensor state
     qv = 0.0                               # valve lag state
     bl = 0.0                               # backlash output
-    last_cmd_sign = 0
-    t_cmd_rev = -1e9
-    last_q_sign = 0
-    t_q_rev = -1e9
+    cmd_rev = _Reversals()                 # of the undelayed command
+    flow_rev = _Reversals()                # of the delayed flow
     two_pi_f = 2 * math.pi * ep.get("f", 0.0)
 
     for k in range(n):
@@ -117,11 +130,7 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
             uc = bl
         ucmd[k] = uc
         if e == "rev_cmd":
-            s = _sgn(u)
-            if s != 0:
-                if last_cmd_sign != 0 and s != last_cmd_sign:
-                    t_cmd_rev = tk
-                last_cmd_sign = s
+            cmd_rev.see(u, tk)
         # --- fine steps over [t_k, t_k + TS)
         base_i = k * SUB
         for j in range(SUB):
@@ -148,14 +157,10 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
             elif e == "loadpress":
                 q *= math.sqrt(max(0.0, 1.0 - _sgn(q) * y / ep["Fs"]))
             elif e == "rev_cmd":
-                q *= 1.0 + ep["boost"] * math.exp(-(t - t_cmd_rev) / ep["decay"])
+                q *= 1.0 + ep["boost"] * math.exp(-(t - cmd_rev.at) / ep["decay"])
             elif e == "rev_flow":
-                s = _sgn(q)
-                if s != 0:
-                    if last_q_sign != 0 and s != last_q_sign:
-                        t_q_rev = t
-                    last_q_sign = s
-                q *= 1.0 + ep["boost"] * math.exp(-(t - t_q_rev) / ep["decay"])
+                flow_rev.see(q, t)
+                q *= 1.0 + ep["boost"] * math.exp(-(t - flow_rev.at) / ep["decay"])
             rate = g * q
             if e == "friction" and q != 0.0:
                 m = abs(rate) - ep["F"]
