@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import threading
 import time
 from typing import Callable, Iterator
@@ -70,9 +71,9 @@ class HandoverNotifier(can.Notifier):
                  wait_s: float | None = None) -> Iterator[Callable[[float], can.Message | None]]:
         """Park the reader thread and yield ``pump(timeout)``: receive one frame (waiting at
         most ``timeout`` s), hand it to the listeners, return it (None on timeout). ``spin_s``:
-        poll the bus (``recv(0)``) that long before sleeping in ``recv``; a sleeping thread
-        takes ~15 µs to wake, most of a lockstep round trip. The bus is given back when the
-        block ends, even on an exception."""
+        poll the bus (``recv(0)``, yielding the core between polls) up to that long before
+        sleeping in ``recv``: a sleeping thread takes ~15 µs to wake, most of a lockstep round
+        trip. The bus is given back when the block ends, even on an exception."""
         if self._stopped:
             raise RuntimeError("the notifier is stopped")
         with self._handover_lock:
@@ -84,6 +85,7 @@ class HandoverNotifier(can.Notifier):
                 lock = self._lock
                 deliver = self._on_message_received
                 clock = time.perf_counter
+                yield_cpu = getattr(os, "sched_yield", lambda: None)
 
                 def pump(timeout: float) -> can.Message | None:
                     msg = None
@@ -92,9 +94,11 @@ class HandoverNotifier(can.Notifier):
                         stop = start + min(spin_s, timeout)
                         while msg is None and clock() < stop:
                             msg = bus.recv(0)
+                            if msg is None:
+                                yield_cpu()     # a peer waiting for this core runs first
                         if msg is None:
-                            timeout = max(0.0, timeout - (clock() - start))
-                    if msg is None:
+                            msg = bus.recv(max(0.0, timeout - (clock() - start)))
+                    else:
                         msg = bus.recv(timeout)
                     if msg is not None:
                         with lock:
