@@ -5,7 +5,6 @@ every run was described as broadband at 3 kgf (now 20 kgf at 3 Hz), and a flow l
 catalogue was waved off as coloured sensor noise."""
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
