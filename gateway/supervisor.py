@@ -241,8 +241,8 @@ class Supervisor:
         self._inactive_run = 0
         self._err_run = 0
         self._err_since = 0.0
-        self._force_indicated = False
-        self._error_indicated = False
+        #: indicate-only detectors that logged their event and wait to re-arm
+        self._indicated: set[str] = set()
         self._last_u = 0.0
         self.events = []
         self.clamped = 0
@@ -293,8 +293,8 @@ class Supervisor:
                 trip = self._force_limit(y, sync_wall)
                 if trip is not None:
                     return trip
-            elif self._force_indicated and abs(y) <= _REARM * lim.force_limit_kgf:
-                self._force_indicated = False
+            elif abs(y) <= _REARM * lim.force_limit_kgf:
+                self._indicated.discard("force_limit")
         if self._emcy:
             with self._lock:
                 message, onset = self._emcy[0]
@@ -316,16 +316,22 @@ class Supervisor:
             self._inactive_run = 0
         return self.check_nodes()
 
+    def _limit_reached(self, reason: str, action: str, message: str, onset: float,
+                       sync_wall: float, **values: float) -> Trip | None:
+        """A limit detector fired: its trip, or for ``indicate`` one event per excursion
+        (re-armed when the quantity is back below :data:`_REARM` of the limit) and go on."""
+        if action != "indicate":
+            return self.make_trip(reason, message, onset, action)
+        if reason not in self._indicated:
+            self._indicated.add(reason)
+            self.events.append({"reason": reason, "message": message, "time": sync_wall, **values})
+        return None
+
     def _force_limit(self, y: float, sync_wall: float) -> Trip | None:
         lim = self.limits
         message = f"force {y:.0f} kgf beyond the limit ±{lim.force_limit_kgf:.0f} kgf"
-        if lim.force_action == "indicate":
-            if not self._force_indicated:
-                self._force_indicated = True
-                self.events.append({"reason": "force_limit", "message": message, "time": sync_wall,
-                                    "force_kgf": y})
-            return None
-        return self.make_trip("force_limit", message, sync_wall, lim.force_action)
+        return self._limit_reached("force_limit", lim.force_action, message, sync_wall, sync_wall,
+                                   force_kgf=y)
 
     def check_error(self, r: float, y: float, stale: bool, sync_wall: float = 0.0) -> Trip | None:
         """The error detector, after the experiment gave this cycle's reference ``r``."""
@@ -335,8 +341,8 @@ class Supervisor:
         e = r - y
         if not abs(e) > lim.error_limit_kgf:        # also r = NaN (no reference): no error
             self._err_run = 0
-            if self._error_indicated and abs(e) <= _REARM * lim.error_limit_kgf:
-                self._error_indicated = False
+            if abs(e) <= _REARM * lim.error_limit_kgf:
+                self._indicated.discard("error_limit")
             return None
         if self._err_run == 0:
             self._err_since = sync_wall
@@ -345,13 +351,8 @@ class Supervisor:
             return None
         message = (f"control error |r − y| = {abs(e):.0f} kgf beyond {lim.error_limit_kgf:.0f} kgf "
                    f"for {self._err_run * self.period_s * 1e3:.0f} ms")
-        if lim.error_action == "indicate":
-            if not self._error_indicated:
-                self._error_indicated = True
-                self.events.append({"reason": "error_limit", "message": message, "time": sync_wall,
-                                    "error_kgf": e})
-            return None
-        return self.make_trip("error_limit", message, self._err_since, lim.error_action)
+        return self._limit_reached("error_limit", lim.error_action, message, self._err_since,
+                                   sync_wall, error_kgf=e)
 
     def check_nodes(self) -> Trip | None:
         """Communication watchdogs that need no cycle: EMCY, heartbeat, NMT state (also called
