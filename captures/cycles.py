@@ -254,18 +254,29 @@ class CycleAssembler:
             return np.zeros(len(chunk), bool)
         return chunk.channel == chunk.channels.index(name)
 
-    def _find_period_writes(self, chunk: FrameChunk, base: int, mine=True) -> None:
-        """SDO expedited downloads of 0x1006:00 to any node (0x601..0x67F)."""
-        sel = ((chunk.can_id >= 0x601) & (chunk.can_id <= 0x67F) & (chunk.dlc == 8)
+    @staticmethod
+    def _sdo_expedited(chunk: FrameChunk, cob_lo: int, command: int, index: int, mine
+                       ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Rows and data of expedited SDO frames on ``cob_lo``..``cob_lo + 0x7E`` (any node) with
+        command byte ``command`` (size bits masked) for ``index``:00; None if there are none."""
+        sel = ((chunk.can_id >= cob_lo) & (chunk.can_id <= cob_lo + 0x7E) & (chunk.dlc == 8)
                & ((chunk.flags & 0x07) == 0) & mine)
         if not sel.any():
-            return
+            return None
         rows = np.flatnonzero(sel)
         d = chunk.data[rows]
-        hit = (((d[:, 0] & 0xE3) == 0x23) & (d[:, 1] == 0x06) & (d[:, 2] == 0x10) & (d[:, 3] == 0))
+        hit = (((d[:, 0] & 0xE3) == command) & (d[:, 1] == index & 0xFF) & (d[:, 2] == index >> 8)
+               & (d[:, 3] == 0))
         if not hit.any():
+            return None
+        return rows[hit], d[hit]
+
+    def _find_period_writes(self, chunk: FrameChunk, base: int, mine=True) -> None:
+        """SDO expedited downloads of 0x1006:00 to any node (0x601..0x67F)."""
+        found = self._sdo_expedited(chunk, 0x601, 0x23, P.COMM_CYCLE_PERIOD, mine)
+        if found is None:
             return
-        rows, d = rows[hit], d[hit]
+        rows, d = found
         unused = ((d[:, 0] >> 2) & 0x3).astype(np.int64)
         raw = d[:, 4:8].astype(np.int64)
         value = raw[:, 0] | raw[:, 1] << 8 | raw[:, 2] << 16 | raw[:, 3] << 24
@@ -276,16 +287,10 @@ class CycleAssembler:
         """SDO expedited upload responses of 0x2100:00 (the emulated valve's clock: 0 real time,
         1 lockstep) from any node (0x581..0x5FF): the gateway reads it at each run start, so a
         capture says how its SYNCs map to stand time even when the wall clock cannot."""
-        sel = ((chunk.can_id >= 0x581) & (chunk.can_id <= 0x5FF) & (chunk.dlc == 8)
-               & ((chunk.flags & 0x07) == 0) & mine)
-        if not sel.any():
-            return
-        rows = np.flatnonzero(sel)
-        d = chunk.data[rows]
-        hit = ((d[:, 0] & 0xE3) == 0x43) & (d[:, 1] == 0x00) & (d[:, 2] == 0x21) & (d[:, 3] == 0)
-        if hit.any():
-            rows = rows[hit]
-            self.C.add(base + rows, chunk.ts[rows], clock=d[hit][:, 4].astype(np.int64))
+        found = self._sdo_expedited(chunk, 0x581, 0x43, P.EMULATOR_CLOCK, mine)
+        if found is not None:
+            rows, d = found
+            self.C.add(base + rows, chunk.ts[rows], clock=d[:, 4].astype(np.int64))
 
     # -- output ----------------------------------------------------------------------------
     def take_rows(self) -> list[tuple[int, dict]]:
