@@ -105,12 +105,9 @@ class ControlLoop:
         self._arrivals: queue.SimpleQueue = queue.SimpleQueue()
         self._force_layout = master.force_tpdo
         self._valve_layout = master.valve_tpdo
-        self._rpdo = master.valve_rpdo
         self._force_pos = self._force_layout.position(*P.PV_INT32)
         self._status_pos = self._valve_layout.position(P.STATUS_WORD, 0)
         self._spool_pos = self._valve_layout.position(*P.ACTUAL_VALUE)
-        self._rpdo_cw = self._rpdo.position(P.CONTROL_WORD, 0)
-        self._rpdo_sp = self._rpdo.position(*P.SETPOINT)
         self.stats = LoopStats()
         self._subscribed = False
         #: lockstep: receives one frame on the loop's own thread (the reader thread parked)
@@ -141,10 +138,8 @@ class ControlLoop:
     # -- helpers ---------------------------------------------------------------------------------
     def send_command(self, control_word: int, u_pct: float) -> float:
         """Send the valve RPDO; returns the command as it went on the wire (quantized, %)."""
-        values = [0] * len(self._rpdo.keys)
-        values[self._rpdo_cw] = int(control_word)
-        values[self._rpdo_sp] = counts = P.percent_to_counts(u_pct)
-        self.network.send_message(self._rpdo.cob_id, self._rpdo.encode(*values))
+        counts = P.percent_to_counts(u_pct)
+        self.master.send_valve_command(control_word, counts)
         return P.counts_to_percent(counts)
 
     def safe_state(self, action: str = "hold") -> float:

@@ -198,6 +198,8 @@ class StandMaster:
                                        [(P.STATUS_WORD, 0), P.ACTUAL_VALUE], synchronous=True)
         self.valve_rpdo = self._layout(self.valve, self.valve.node.rpdo[1],
                                        [(P.CONTROL_WORD, 0), P.SETPOINT], synchronous=False)
+        self._rpdo_cw = self.valve_rpdo.position(P.CONTROL_WORD, 0)
+        self._rpdo_sp = self.valve_rpdo.position(*P.SETPOINT)
         self.force_tpdo = self._layout(self.dynamometer, self.dynamometer.node.tpdo[1], [P.PV_INT32],
                                        synchronous=True)
         if hasattr(self.network, "expect"):
@@ -241,12 +243,17 @@ class StandMaster:
         self.wait_state(5, timeout_s, keepalive=self.hold_command if self.valve_rpdo else None,
                         keepalive_s=keepalive_s, since=commanded)
 
-    def hold_command(self) -> None:
-        """One valve RPDO: control word HOLD, setpoint 0 (zero flow)."""
+    def send_valve_command(self, control_word: int, setpoint_counts: int) -> None:
+        """One valve RPDO: control word and setpoint (the rest of the mapping zero)."""
         rpdo = self.valve_rpdo
         values = [0] * len(rpdo.keys)
-        values[rpdo.position(P.CONTROL_WORD, 0)] = int(P.CW_HOLD)
+        values[self._rpdo_cw] = int(control_word)
+        values[self._rpdo_sp] = setpoint_counts
         self.network.send_message(rpdo.cob_id, rpdo.encode(*values))
+
+    def hold_command(self) -> None:
+        """One valve RPDO: control word HOLD, setpoint 0 (zero flow)."""
+        self.send_valve_command(P.CW_HOLD, 0)
 
     def enter_preoperational(self, timeout_s: float = 1.0) -> None:
         for link in self.links:
