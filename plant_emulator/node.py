@@ -250,13 +250,10 @@ class EmulatedNode:
     def check_rpdo_timeout(self, now: float) -> bool:
         """True once if an RPDO with an event timer has not arrived within it."""
         with self.lock:
-            if not self.operational or self.last_rpdo_time is None:
+            if not self.rpdo_timeout_due(now):
                 return False
-            timers = [c.event_timer_ms for c in self.rpdos.values() if c.event_timer_ms]
-            if timers and now - self.last_rpdo_time > min(timers) / 1000.0:
-                self.last_rpdo_time = None  # report once until the next RPDO
-                return True
-            return False
+            self.last_rpdo_time = None  # report once until the next RPDO
+            return True
 
     # -- object access ------------------------------------------------------------------------
     def value(self, index: int, sub: int = 0) -> Any:
