@@ -73,6 +73,10 @@ NOISE_GROWTH_MAX = 2.0
 #: errors five times apart, which the data do separate)
 AMBIGUITY_RATIO = 1.1
 
+#: BIC differences below this are a tie (Kass & Raftery: under 2 is "not worth more than a bare
+#: mention"); tied candidates are ranked in catalogue order
+BIC_TIE = 2.0
+
 #: what separates two explanations (unordered pair -> experiment)
 SEPARATING_EXPERIMENT = {
     frozenset({"lag", "delay"}): "a meander (step commands) or P-feedback at several reference "
@@ -97,6 +101,23 @@ SEPARATING_EXPERIMENT = {
                                                "levels: the load-pressure effect swaps "
                                                "extend/retract with the sign of the force",
     frozenset({"reversal", "lag"}): "the meander at several amplitudes and periods",
+    frozenset({"deadzone", "backlash"}): "P-feedback with a harmonic reference (a command that "
+                                         "turns smoothly): a play delays the valve at every "
+                                         "turning point of the command, a dead zone only cuts "
+                                         "the flow near zero; square waves (meander, relay) "
+                                         "cannot tell them apart",
+    frozenset({"deadzone", "flow_curve"}): "the meander at three or more amplitudes (e.g. 5, 10, "
+                                           "15, 20 %): two amplitudes fit both exactly; a dead "
+                                           "zone lowers every slope by g·d, a flow curve bends "
+                                           "the slopes as |u|^p",
+    frozenset({"saturation", "flow_curve"}): "the meander at amplitudes below and beyond the "
+                                             "suspected limit: a flow limit leaves the small "
+                                             "amplitudes' slopes in proportion and flattens only "
+                                             "above it, a flow curve bends them all",
+    frozenset({"flow_curve", "gain"}): "the meander at several amplitudes: the ramp slopes grow "
+                                       "as |u|^p instead of in proportion to |u|",
+    frozenset({"backlash", "gain"}): "the meander at several amplitudes, or P-feedback with a "
+                                     "harmonic reference",
     frozenset({"lag", "sensor lag"}): "nothing on the command side: only a second force "
                                       "measurement, or the dynamometer's own filter setting "
                                       "from its configuration or data sheet",
@@ -281,9 +302,7 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
                 ref_w, ref_rmse = base_w, base_eval.rmse
             ref_obj = math.sqrt(ref_w.sum() / base_eval.n)
             out.append(_judge(name, f, w, rmse, ref_w, ref_obj, ref_rmse, fl, base_eval.n, refit))
-        # rank by the error penalized for the parameters it costs (BIC on the objective): among
-        # candidates that remove the same error within the noise, the simpler one comes first
-        return sorted(out, key=lambda c: c.bic)
+        return rank_candidates(out)
 
     cands = judge_all(floor)
     # correlated (coloured) measurement noise: the white-noise floor from second differences is
@@ -342,6 +361,26 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
                      objective_floor=floor, observations=observations, ambiguities=ambiguities,
                      unexplained=unexplained, summary=summary, screening=screening,
                      warnings=warnings)
+
+
+def rank_candidates(cands: Sequence[Candidate]) -> list[Candidate]:
+    """Rank by the error penalized for the parameters it costs (BIC on the objective): among
+    candidates that remove the same error within the noise, the simpler one comes first. Runs
+    of candidates within :data:`BIC_TIE` of the first of the run are the data's tie (a dead zone
+    and a play under square waves are the same model): they keep the catalogue's order, which
+    lists the common valve effects first."""
+    order = list(CATALOGUE)
+    ranked = sorted(cands, key=lambda c: c.bic)
+    out: list[Candidate] = []
+    i = 0
+    while i < len(ranked):
+        j = i + 1
+        while j < len(ranked) and ranked[j].bic - ranked[i].bic < BIC_TIE:
+            j += 1
+        out += sorted(ranked[i:j], key=lambda c: order.index(c.effect) if c.effect in order
+                      else len(order))
+        i = j
+    return out
 
 
 def _n_eval(pieces: Sequence[F.Piece]) -> int:
@@ -720,6 +759,17 @@ def _ambiguities(records: Sequence[Record], base_fit: F.FitResult, cands: Sequen
                                  f"at a single command amplitude (|u| = {lv}) a dead zone d only "
                                  f"lowers the slope to g·(|u| − d): it looks exactly like a lower gain g.",
                                  separating_experiment("deadzone", "gain")))
+        if "flow_curve" in names:
+            out.append(Ambiguity(["flow_curve", "gain"],
+                                 f"at a single command amplitude (|u| = {lv}) a bent flow curve "
+                                 f"only changes the slope: it looks exactly like another gain g.",
+                                 separating_experiment("flow_curve", "gain")))
+        if "backlash" in names:
+            out.append(Ambiguity(["backlash", "gain"],
+                                 f"at a single command amplitude (|u| = {lv}) a play of width w "
+                                 f"lowers the slope to g·(|u| − w/2): it looks exactly like a "
+                                 f"lower gain g.",
+                                 separating_experiment("backlash", "gain")))
         if "saturation" in names:
             out.append(Ambiguity(["saturation", "gain"],
                                  f"at a single command amplitude (|u| = {lv}) a flow limit below it "

@@ -202,6 +202,93 @@ class Saturation(Effect):
         return np.clip(q, -self.limit, self.limit)
 
 
+@register
+class Backlash(Effect):
+    r"""Play (backlash) between the command and the spool: hysteresis of the valve.
+
+    Physics: the mechanical feedback wire of a two-stage servo-valve, the torque motor's
+    magnetic hysteresis and any linkage between an actuator and the spool leave a play of total
+    width ``w``: after the command turns back, it must travel ``w`` before the spool moves (a
+    servo-valve data sheet states it as "hysteresis", typically under 3 %). The spool position
+    is the play operator of the command,
+
+    .. math::  q'_k = \min\!\big(\max(q'_{k-1},\ q_k - w/2),\ q_k + w/2\big).
+
+    Under a square wave ``±u0`` (meander, relay) it is exactly a dead zone of ``w/2``; under a
+    continuous command (P-feedback with a harmonic reference) it delays the valve by the time
+    the command takes to cross the play and flattens the turning points, which a dead zone does
+    not do. The spool starts centred on the command held before the data.
+    """
+
+    name = "backlash"
+    stage = Stage.VALVE
+    summary = "play of total width w between command and spool (hysteresis)"
+    params = (Param("width", 1.0, 0.0, 30.0, "%", "total width w of the play"),)
+
+    def init_state(self, n, u0):
+        return {"x": np.array(u0, float)}
+
+    def shape(self, q, dt, state):
+        h = 0.5 * self.width
+        x0 = state["x"]
+        if h == 0.0:
+            state["x"] = q[:, -1].copy()
+            return q
+        out = np.empty_like(q)
+        for i in range(q.shape[0]):
+            row = q[i]
+            # the output moves only where the command changes: walk those samples, hold between
+            at = np.flatnonzero(np.diff(row)) + 1
+            x = float(x0[i])
+            first = row[0]
+            x = first - h if x < first - h else (first + h if x > first + h else x)
+            moved = [x]
+            for v in row[at].tolist():
+                lo = v - h
+                if x < lo:
+                    x = lo
+                else:
+                    hi = v + h
+                    if x > hi:
+                        x = hi
+                moved.append(x)
+            seg = np.zeros(row.shape[0], dtype=np.intp)
+            seg[at] = 1
+            out[i] = np.asarray(moved)[np.cumsum(seg)]
+            x0[i] = x
+        state["x"] = x0
+        return out
+
+
+@register
+class FlowCurve(Effect):
+    r"""A flow characteristic that is not a straight line: flow grows as a power of the opening.
+
+    Physics: the valve's flow versus command is linear only for a critically lapped spool with
+    rectangular ports at a constant pressure drop. Port shape (round or notched ports), lap
+    (underlap raises the gain near null) and flow forces at large openings bend it; a power law
+    through the point ``u_ref = 10 %`` describes the bend with one number:
+
+    .. math::  q' = \operatorname{sign}(q)\,u_{ref}\left(\frac{|q|}{u_{ref}}\right)^{p}.
+
+    ``p < 1``: degressive (slopes grow less than in proportion to |u|), ``p > 1``: progressive.
+    ``g`` stays the gain at 10 %. One amplitude cannot show it (it is then a gain change); the
+    meander at several amplitudes does: the ramp slopes go as ``|u0|^p``.
+    """
+
+    name = "flow_curve"
+    stage = Stage.VALVE
+    summary = "power-law flow characteristic q = sign(u)·u_ref·(|u|/u_ref)^p"
+    U_REF = 10.0
+    params = (Param("exponent", 1.0, 0.3, 3.0, "1", "power p of the flow curve (1: linear)"),)
+
+    def shape(self, q, dt, state):
+        p = self.exponent
+        if p == 1.0:
+            return q
+        return np.sign(q) * self.U_REF * (np.abs(q) / self.U_REF) ** p
+
+
 # ------------------------------------------------------------------------------------------
 # FLOW stage
 # ------------------------------------------------------------------------------------------

@@ -24,6 +24,7 @@ HIDDEN = {
     "saturation": {"saturation.limit": 12.0},
     "leakage": {"leakage.rate": 0.3},
     "load_pressure": {"load_pressure.stall_force": 5000.0},
+    "flow_curve": {"flow_curve.exponent": 0.75},
 }
 
 
@@ -179,6 +180,32 @@ def test_dead_zone_from_one_amplitude_is_a_warned_ambiguity_and_more_amplitudes_
     two = diagnose([S.meander(truth, (5.0, 20.0), period_s=2.0, cycles=3, seed=12)])
     assert_found(two, "deadzone")
     assert not any(set(a.effects) == {"deadzone", "gain"} for a in two.ambiguities)
+
+
+def test_dead_zone_and_flow_curve_from_two_amplitudes_are_a_warned_tie():
+    """Two amplitudes fit a dead zone and a power-law flow curve exactly: the tie goes to the
+    catalogue's order (dead zone) and the report names the experiment that separates them."""
+    truth = plant("flow_curve", flow_curve__exponent=1.3)
+    two = diagnose([S.meander(truth, (5.0, 20.0), period_s=2.0, cycles=3, seed=15)])
+    assert two.best in ("deadzone", "flow_curve")
+    amb = [a for a in two.ambiguities if set(a.effects) == {"deadzone", "flow_curve"}]
+    assert amb and "three or more amplitudes" in amb[0].experiment
+    four = diagnose([meander4(truth, seed=15)])
+    assert_found(four, "flow_curve")
+    assert four.best_candidate.params["flow_curve.exponent"] == pytest.approx(1.3, abs=0.03)
+
+
+def test_backlash_is_a_dead_zone_under_square_waves_and_p_feedback_separates_them():
+    truth = plant("backlash", backlash__width=3.0)
+    square = diagnose([meander4(truth, seed=16)])
+    assert square.best == "deadzone"          # w/2 of dead zone: the same model under ±u0
+    assert square.best_candidate.params["deadzone.width"] == pytest.approx(1.5, rel=0.05)
+    amb = [a for a in square.ambiguities if set(a.effects) == {"deadzone", "backlash"}]
+    assert amb and "P-feedback" in amb[0].experiment
+    both = diagnose([meander4(truth, seed=16), pfeedback(truth, seed=16)])
+    assert_found(both, "backlash")
+    assert both.best_candidate.params["backlash.width"] == pytest.approx(3.0, rel=0.05)
+    assert not any(set(a.effects) == {"deadzone", "backlash"} for a in both.ambiguities)
 
 
 def test_asymmetry_from_one_amplitude_is_the_trend_and_the_report_says_so():

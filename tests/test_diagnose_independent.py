@@ -2,7 +2,8 @@
 simulator with its own effect laws, one hidden effect per data set (4 meanders, 2 relay and 2
 P-feedback runs, 170 s). Found in a probe of this code: an oscillation with its own phase in
 every run was described as broadband at 3 kgf (now 20 kgf at 3 Hz), and a flow law outside the
-catalogue was waved off as coloured sensor noise."""
+catalogue was waved off as coloured sensor noise. Its backlash and power-law flow then joined
+the catalogue (backlash, flow_curve), with their own laws written apart from the simulator's."""
 from __future__ import annotations
 
 
@@ -20,7 +21,8 @@ EFFECTS = list(sim.EFFECT_PARAMS)
 NAMED = {"rev_cmd": "reversal", "rev_flow": "reversal", "lag": "lag", "deadzone": "deadzone",
          "saturation": "saturation", "asymmetry": "asymmetry", "loadpress": "load_pressure",
          "leakage": "leakage", "sensorlag": "lag",   # for an integrator a sensor lag is a lag
-         "friction": "deadzone"}                     # Coulomb friction on the rate = a dead zone
+         "friction": "deadzone",                     # Coulomb friction on the rate = a dead zone
+         "backlash": "backlash", "flownl": "flow_curve"}
 
 
 def dataset(effect: str) -> list:
@@ -43,15 +45,14 @@ def test_independent_simulator(effect):
             assert not any("still" in w for w in d.warnings), d.warnings
         else:
             assert any("still" in w and "noise floor" in w for w in d.warnings), d.warnings
-    elif effect == "osc":
+        if effect == "backlash":   # the simulator's ±band play is a play of total width 2·band
+            want = 2 * sim.EFFECT_PARAMS["backlash"]["band"]
+            assert d.best_candidate.params["backlash.width"] == pytest.approx(want, rel=0.1)
+        if effect == "flownl":     # the same power law (its reference level only rescales g)
+            want = sim.EFFECT_PARAMS["flownl"]["p"]
+            assert d.best_candidate.params["flow_curve.exponent"] == pytest.approx(want, abs=0.03)
+    else:
+        assert effect == "osc", effect
         assert d.verdict == "unexplained", d.summary
         assert d.unexplained.dominant_frequency_hz == pytest.approx(3.0, abs=0.05)
         assert d.unexplained.amplitude_kgf == pytest.approx(20.0, rel=0.15)
-    else:                          # backlash, flownl: not in the catalogue
-        assert not any("looks like noise" in w for w in d.warnings), d.warnings
-        if d.verdict == "missing_effect":
-            assert any("still" in w for w in d.warnings), d.warnings
-        else:
-            assert d.verdict == "unexplained", d.summary
-            partial = [o for o in d.observations if "would lower the error" in o]
-            assert all("below the" in o or "part of the missing" in o for o in partial), partial

@@ -39,7 +39,8 @@ def test_delay_is_exact_even_between_samples(tau):
 
 
 @pytest.mark.parametrize("spec", ["base", "base+reversal", "base+lag+deadzone", "base+saturation+asymmetry",
-                                  "base+leakage", "base+load_pressure+reversal+lag+oscillation"])
+                                  "base+leakage", "base+load_pressure+reversal+lag+oscillation",
+                                  "base+backlash+flow_curve"])
 def test_emulator_blocks_and_analysis_windows_run_the_same_model(spec):
     """Stepping in small blocks (the emulator), whole records and windows (the analysis) agree."""
     m = PlantModel.from_spec(spec, {"g": 110, "tau": 0.031})
@@ -57,6 +58,34 @@ def test_deadzone_reduces_the_slope_by_the_overlap():
     for u0 in (5.0, 10.0):
         y = m.simulate(np.full_like(t, u0), DT, u_before=u0)
         assert slope(t, y, 0.1, 1.0) == pytest.approx(100 * (u0 - 2.0))
+
+
+def test_backlash_is_a_play_the_command_must_cross_after_turning_back():
+    m = PlantModel.from_spec("base+backlash", {"g": 100, "tau": 0, "backlash.width": 2.0})
+    t = np.arange(0, 1, DT)
+    # a held command: the spool sits at u - w/2 once the play is taken up (a dead zone of w/2)
+    y = m.simulate(np.full_like(t, 6.0), DT, u_before=0.0)
+    assert slope(t, y, 0.1, 1.0) == pytest.approx(100 * (6.0 - 1.0))
+    # a triangle 0 → 5 → 0: up, the spool trails by w/2; turning back, it holds while the
+    # command crosses the play (no flow for w / rate = 2 % / (10 %/s) = 0.2 s), then trails
+    ramp = np.concatenate([np.linspace(0, 5, 250, endpoint=False), np.linspace(5, 0, 250)])
+    e = m.effect("backlash")
+    q = e.shape(ramp[None, :], DT, e.init_state(1, np.array([0.0])))[0]
+    assert np.max(np.abs(q[50:250] - (ramp[50:250] - 1.0))) < 1e-12
+    top = q.max()
+    assert top == pytest.approx(5.0 - 1.0)
+    held = np.flatnonzero(q == top)
+    assert len(held) == pytest.approx(0.2 / DT, abs=2)
+    assert np.max(np.abs(q[300:] - (ramp[300:] + 1.0).clip(max=top))) < 1e-12
+
+
+def test_flow_curve_bends_the_slopes_as_a_power_of_the_command():
+    m = PlantModel.from_spec("base+flow_curve", {"g": 100, "tau": 0, "flow_curve.exponent": 0.8})
+    t = np.arange(0, 1, DT)
+    for u0 in (5.0, 10.0, -20.0):
+        y = m.simulate(np.full_like(t, u0), DT, u_before=u0)
+        want = 100 * math.copysign(10 * (abs(u0) / 10) ** 0.8, u0)
+        assert slope(t, y, 0.1, 1.0) == pytest.approx(want)
 
 
 def test_saturation_caps_the_flow():
