@@ -149,6 +149,8 @@ class Candidate:
     lr: float                     #: likelihood-ratio statistic N·ΔMSE/floor² (χ²(k) under "noise only")
     bic: float                    #: N·ln(MSE) + k·ln(N) on the objective (ranking)
     earns: bool                   #: earns its extra parameters (see module docstring)
+    helps: bool                   #: lowers the error significantly and consistently, maybe only
+                                  #: part of it (``earns`` without the excess-share criterion)
     refit_on: str                 #: "final" (refitted on all windows, tight tolerance, intervals)
                                   #: or "screening" (screening fit only)
     warnings: list[str] = field(default_factory=list)
@@ -301,7 +303,7 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
             else:
                 ref_w, ref_rmse = base_w, base_eval.rmse
             ref_obj = math.sqrt(ref_w.sum() / base_eval.n)
-            out.append(_judge(name, f, w, rmse, ref_w, ref_obj, ref_rmse, fl, base_eval.n, refit))
+            out.append(judge(name, f, w, rmse, ref_w, ref_obj, ref_rmse, fl, base_eval.n, refit))
         return rank_candidates(out)
 
     cands = judge_all(floor)
@@ -399,7 +401,7 @@ def objective_floor(pieces: Sequence[F.Piece], sigma: float) -> float:
     return sigma * math.sqrt(dof / n) if n else math.nan
 
 
-def _judge(name: str, f: F.FitResult, w: np.ndarray, rmse: float, base_w: np.ndarray,
+def judge(name: str, f: F.FitResult, w: np.ndarray, rmse: float, base_w: np.ndarray,
            base_obj: float, base_rmse: float, floor: float, n: int, refit: str) -> Candidate:
     """Judge one candidate against its reference fit of the starting model (same windows)."""
     obj = math.sqrt(w.sum() / n)
@@ -417,12 +419,12 @@ def _judge(name: str, f: F.FitResult, w: np.ndarray, rmse: float, base_w: np.nda
     # the per-window z guards small gains against a few lucky windows; a large gain that the
     # likelihood-ratio test calls significant needs no window-by-window consistency
     consistent = z >= MIN_Z or improvement >= 0.2
-    earns = bool(improvement >= MIN_IMPROVEMENT and share >= MIN_EXCESS_SHARE and significant
-                 and consistent)
+    helps = bool(improvement >= MIN_IMPROVEMENT and significant and consistent)
+    earns = helps and share >= MIN_EXCESS_SHARE
     return Candidate(effect=name, spec=f.model.spec, params=f.model.params(), rmse=rmse,
                      objective_rmse=obj, improvement=improvement,
                      rmse_reduction=1.0 - rmse / base_rmse if base_rmse > 0 else 0.0,
-                     excess_share=share, z=z, lr=lr, earns=earns,
+                     excess_share=share, z=z, lr=lr, earns=earns, helps=helps,
                      bic=n * math.log(max(obj, 1e-300) ** 2) + len(f.free) * math.log(n), refit_on=refit, warnings=warnings, fit=f)
 
 

@@ -176,30 +176,37 @@ def plot_correlations(ev: Evaluation, path: str | Path) -> Path:
     return path
 
 
-def plot_history(versions: Sequence[dict], path: str | Path) -> Path:
-    """Bars: RMSE of each model version; dotted: the noise floor."""
+def _error_bars(labels: Sequence[str], rmse: Sequence[float], floor: float | None, title: str,
+                path: str | Path) -> Path:
+    """Bars: the windowed RMSE of a sequence of models, the last highlighted; dotted: the noise
+    floor."""
     plt = pyplot()
     path = _target(path)
-    fig, ax = plt.subplots(figsize=(max(6, 1.3 * len(versions) + 3), 3.6), constrained_layout=True)
-    x = np.arange(len(versions))
-    rmse = [v["metrics"]["rmse"] for v in versions]
-    bars = ax.bar(x, rmse, color=[MEAS] * (len(versions) - 1) + [MODEL])
+    fig, ax = plt.subplots(figsize=(max(6, 1.3 * len(rmse) + 3), 3.6), constrained_layout=True)
+    x = np.arange(len(rmse))
+    bars = ax.bar(x, rmse, color=[MEAS] * (len(rmse) - 1) + [MODEL])
     for b, v in zip(bars, rmse):
         ax.annotate(f"{v:.3g}", (b.get_x() + b.get_width() / 2, b.get_height()), ha="center",
                     va="bottom", fontsize=8)
-    floor = versions[-1]["metrics"].get("noise_floor_rmse")
     if floor:
         ax.axhline(floor, color="k", ls=":", lw=1, label=f"noise floor {floor:.3g} kgf")
         ax.legend(fontsize=8)
-    ax.set_xticks(x, [f"v{v['version']}\n{v['model'].replace('base+', '+').replace('+', ' +')}"
-                      for v in versions], fontsize=8)
+    ax.set_xticks(x, labels, fontsize=8)
     ax.set_ylabel("windowed RMSE, kgf")
     if max(rmse) / max(min(rmse), 1e-9) > 30:
         ax.set_yscale("log")
-    ax.set_title("error of each model version", fontsize=10, loc="left")
+    ax.set_title(title, fontsize=10, loc="left")
     fig.savefig(path, dpi=90, format="png")
     plt.close(fig)
     return path
+
+
+def plot_history(versions: Sequence[dict], path: str | Path) -> Path:
+    """Bars: RMSE of each model version; dotted: the noise floor."""
+    return _error_bars([f"v{v['version']}\n{v['model'].replace('base+', '+').replace('+', ' +')}"
+                        for v in versions], [v["metrics"]["rmse"] for v in versions],
+                       versions[-1]["metrics"].get("noise_floor_rmse"),
+                       "error of each model version", path)
 
 
 def plot_candidates(diag, path: str | Path) -> Path:
@@ -222,3 +229,11 @@ def plot_candidates(diag, path: str | Path) -> Path:
     fig.savefig(path, dpi=90, format="png")
     plt.close(fig)
     return path
+
+
+def plot_stepwise(result, path: str | Path) -> Path:
+    """The build-up at a glance: the error after each added effect, against the noise floor."""
+    steps = result.steps
+    labels = ["base" if i == 0 else f"+{steps[i - 1].added}" for i in range(len(steps))]
+    return _error_bars(labels, [s.rmse for s in steps], steps[-1].diagnosis.base_eval.noise_floor,
+                       f"stepwise: {result.verdict} with {result.model.spec}", path)

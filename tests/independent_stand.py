@@ -14,7 +14,7 @@ Measurement (sampled at the start of each 2 ms sample, before the command of tha
 computed):  y_meas = quantize(y_sensor + oscillation + N(0, sigma^2), 0.5 kgf).
 Closed loops (relay, P-feedback) see y_meas.
 
-Exactly one hidden effect per simulation (or "none"):
+One hidden effect per simulation (or "none"), or several joined by "+":
   rev_cmd    boost 1 + B*exp(-s/Tr) on the flow, s = time since the last sign change of the
              UNDELAYED command u(t) (sign change = new nonzero sign differs from last nonzero sign)
   rev_flow   same law, s = time since the last sign change of the delayed flow q
@@ -81,11 +81,18 @@ class _Reversals:
 
 def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None,
              plant: dict | None = None, osc_phase: float = 0.0):
-    """Simulate n samples. controller(k, t, y_meas) -> (u, r). Returns t, u, y_meas, r, y_true."""
+    """Simulate n samples. controller(k, t, y_meas) -> (u, r). Returns t, u, y_meas, r, y_true.
+
+    ``effect``: one name of EFFECT_PARAMS, or several joined by "+" (applied together, each in
+    its place along the chain)."""
     p = dict(DEFAULTS)
     if plant:
         p.update(plant)
-    ep = EFFECT_PARAMS[effect]
+    es = set(effect.split("+")) - {"none"}
+    unknown = es - set(EFFECT_PARAMS)
+    if unknown:
+        raise ValueError(f"unknown effect(s) {sorted(unknown)}")
+    P = {name: EFFECT_PARAMS[name] for name in es}
     rng = rng or np.random.default_rng(0)
     g, delta = p["g"], p["delta"]
     D = int(round(p["tau"] / H))           # delay in fine steps
@@ -99,21 +106,20 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
     yt_out = np.zeros(n)
     ucmd = [0.0] * n                       # command after command-side effects (before delay)
 
-    e = effect
     y = float(y0)
     ys = float(y0)                         # sensor state
     qv = 0.0                               # valve lag state
     bl = 0.0                               # backlash output
     cmd_rev = _Reversals()                 # of the undelayed command
     flow_rev = _Reversals()                # of the delayed flow
-    two_pi_f = 2 * math.pi * ep.get("f", 0.0)
+    two_pi_f = 2 * math.pi * P.get("osc", {}).get("f", 0.0)
 
     for k in range(n):
         tk = k * TS
         # --- measurement at t_k
-        meas = ys if e == "sensorlag" else y
-        if e == "osc":
-            meas += ep["A"] * math.sin(two_pi_f * tk + osc_phase)
+        meas = ys if "sensorlag" in es else y
+        if "osc" in es:
+            meas += P["osc"]["A"] * math.sin(two_pi_f * tk + osc_phase)
         meas += noise[k]
         meas = round(meas / res) * res
         ym_out[k] = meas
@@ -124,12 +130,12 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
         u_out[k] = u
         r_out[k] = r
         uc = u
-        if e == "backlash":
-            b = ep["band"]
+        if "backlash" in es:
+            b = P["backlash"]["band"]
             bl = min(max(bl, uc - b), uc + b)
             uc = bl
         ucmd[k] = uc
-        if e == "rev_cmd":
+        if "rev_cmd" in es:
             cmd_rev.see(u, tk)
         # --- fine steps over [t_k, t_k + TS)
         base_i = k * SUB
@@ -139,38 +145,40 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
             di = i - D
             v = ucmd[di // SUB] if di >= 0 else 0.0
             # valve chain
-            if e == "deadzone":
-                a = abs(v) - ep["d"]
+            if "deadzone" in es:
+                a = abs(v) - P["deadzone"]["d"]
                 v = math.copysign(a, v) if a > 0 else 0.0
-            elif e == "flownl":
-                v = math.copysign(ep["ref"] * (abs(v) / ep["ref"]) ** ep["p"], v) if v != 0 else 0.0
-            if e == "lag":
-                qv += H / ep["T"] * (v - qv)
+            if "flownl" in es:
+                fp = P["flownl"]
+                v = math.copysign(fp["ref"] * (abs(v) / fp["ref"]) ** fp["p"], v) if v != 0 else 0.0
+            if "lag" in es:
+                qv += H / P["lag"]["T"] * (v - qv)
                 q = qv
             else:
                 q = v
-            if e == "saturation":
-                q = max(-ep["qmax"], min(ep["qmax"], q))
-            elif e == "asymmetry":
-                if q < 0:
-                    q *= ep["neg"]
-            elif e == "loadpress":
-                q *= math.sqrt(max(0.0, 1.0 - _sgn(q) * y / ep["Fs"]))
-            elif e == "rev_cmd":
-                q *= 1.0 + ep["boost"] * math.exp(-(t - cmd_rev.at) / ep["decay"])
-            elif e == "rev_flow":
+            if "saturation" in es:
+                q = max(-P["saturation"]["qmax"], min(P["saturation"]["qmax"], q))
+            if "asymmetry" in es and q < 0:
+                q *= P["asymmetry"]["neg"]
+            if "loadpress" in es:
+                q *= math.sqrt(max(0.0, 1.0 - _sgn(q) * y / P["loadpress"]["Fs"]))
+            if "rev_cmd" in es:
+                rp = P["rev_cmd"]
+                q *= 1.0 + rp["boost"] * math.exp(-(t - cmd_rev.at) / rp["decay"])
+            if "rev_flow" in es:
+                rp = P["rev_flow"]
                 flow_rev.see(q, t)
-                q *= 1.0 + ep["boost"] * math.exp(-(t - flow_rev.at) / ep["decay"])
+                q *= 1.0 + rp["boost"] * math.exp(-(t - flow_rev.at) / rp["decay"])
             rate = g * q
-            if e == "friction" and q != 0.0:
-                m = abs(rate) - ep["F"]
+            if "friction" in es and q != 0.0:
+                m = abs(rate) - P["friction"]["F"]
                 rate = math.copysign(m, rate) if m > 0 else 0.0
             rate += delta
-            if e == "leakage":
-                rate -= ep["lam"] * y
+            if "leakage" in es:
+                rate -= P["leakage"]["lam"] * y
             y += H * rate
-            if e == "sensorlag":
-                ys += H / ep["T"] * (y - ys)
+            if "sensorlag" in es:
+                ys += H / P["sensorlag"]["T"] * (y - ys)
     return t_out, u_out, ym_out, r_out, yt_out
 
 

@@ -11,6 +11,9 @@ from analysis import plots
 from analysis.compare import resolve_model
 from analysis.data import load_all
 from analysis.diagnose import diagnosable_effects, diagnose
+from analysis.stepwise import MAX_EFFECTS, stepwise
+
+from plant import model_to_toml
 
 from .compare import default_out
 from .fit import add_data_args, check_window, print_json
@@ -32,15 +35,29 @@ def register(sub) -> None:
     p.add_argument("--json", action="store_true",
                    help='print {"verdict", "base": {"rmse", ...}, "candidates": [{"effect", "rmse", '
                         '"improvement", ...}], "unexplained": {...} or null, ...} as JSON')
+    p.add_argument("--stepwise", action="store_true",
+                   help="build the model up: add the best effect, diagnose again, until the model "
+                        "is within the noise (for data that miss several effects at once); then "
+                        "check each added effect with the others in place")
+    p.add_argument("--max-effects", type=int, default=MAX_EFFECTS, metavar="N",
+                   help=f"with --stepwise: add at most N effects (default {MAX_EFFECTS})")
+    p.add_argument("--save", metavar="FILE.toml",
+                   help="write the model it arrives at as a model file (the best candidate, or with "
+                        "--stepwise the final model; nothing is written when there is none)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=main)
 
 
 def main(args: argparse.Namespace) -> int:
     check_window(args)
+    if args.max_effects < 1:
+        from gateway.errors import ParameterError
+        raise ParameterError(f"--max-effects {args.max_effects} is out of range: give 1 or more")
     records = load_all(args.data)
     model, _ = resolve_model(args.model)
     effects = [e.strip() for e in args.effects.split(",") if e.strip()] if args.effects else None
+    if args.stepwise:
+        return main_stepwise(args, records, model, effects)
     total = 1 + len(effects if effects is not None else diagnosable_effects(model))
     bar = None if args.no_progress else tqdm(total=total, desc="diagnose", unit="model",
                                              file=sys.stderr, leave=False)
@@ -55,6 +72,9 @@ def main(args: argparse.Namespace) -> int:
     finally:
         if bar is not None:
             bar.close()
+    best = d.best_candidate
+    saved = save_model(args, best.fit.model if best is not None else None,
+                       f"stand diagnose: {d.summary}")
     files = []
     if args.plots is not None:
         out = Path(args.plots) if args.plots else default_out(args.data, "diagnose")
@@ -82,7 +102,6 @@ def main(args: argparse.Namespace) -> int:
         print(f"(screened on {d.screening['windows_screened']} of {d.screening['windows_total']} windows; "
               f"refitted on all: {', '.join(d.screening['refit_on_all'])}; the others keep their "
               f"screening fit and are compared with the starting model fitted on the same windows)")
-    best = d.best_candidate
     if best is not None:
         print()
         print(f"fitted {best.spec}: " + ", ".join(f"{k} = {v:.4g}" for k, v in best.params.items()))
@@ -101,4 +120,81 @@ def main(args: argparse.Namespace) -> int:
         print(f"note: {w}")
     if files:
         print("\nplots: " + ", ".join(str(f) for f in files))
+    if saved:
+        print(f"model saved: {saved}")
+    return 0
+
+
+def save_model(args: argparse.Namespace, model, summary: str) -> Path | None:
+    """--save: the model arrived at, as a model file (None: there is no model to save)."""
+    if not args.save or model is None:
+        if args.save:
+            print(f"note: no model to save to {args.save}: no effect earned its parameters",
+                  file=sys.stderr)
+        return None
+    path = Path(args.save)
+    header = (f"from {', '.join(Path(d).name for d in args.data)}\n{summary}")
+    path.write_text(model_to_toml(model, header))
+    return path
+
+
+def main_stepwise(args: argparse.Namespace, records, model, effects) -> int:
+    bar = None if args.no_progress else tqdm(desc="diagnose --stepwise", unit="model",
+                                             file=sys.stderr, leave=False)
+
+    def progress(msg: str) -> None:
+        if bar is not None and not msg.startswith("refitting"):
+            bar.set_postfix_str(msg)
+            bar.update(1)
+
+    try:
+        r = stepwise(records, model, window_s=args.window_s, max_effects=args.max_effects,
+                     effects=effects, progress=progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    saved = save_model(args, r.model if len(r.model.effects) or r.verdict == "adequate" else None,
+                       f"stand diagnose --stepwise: {r.summary}")
+    files = []
+    if args.plots is not None:
+        out = Path(args.plots) if args.plots else default_out(args.data, "diagnose")
+        out.mkdir(parents=True, exist_ok=True)
+        files.append(plots.plot_stepwise(r, out / "stepwise.png"))
+        files.append(plots.plot_candidates(r.last, out / "candidates_last_step.png"))
+        files.append(plots.plot_overlay(r.last.base_eval, out / "overlay_final_model.png"))
+    if args.json:
+        out = r.to_dict()
+        out["plots"] = [str(f) for f in files]
+        print_json(out)
+        return 0
+    print(f"verdict: {r.verdict.upper()}")
+    print(f"  {r.summary}")
+    print()
+    print(f"{'step':>4s}  {'model':40s} {'RMSE kgf':>9s} {'× floor':>8s}  next")
+    for i, s in enumerate(r.steps):
+        nxt = f"+{s.added}: {s.why}" if s.added else s.why
+        print(f"{i:4d}  {s.model:40s} {s.rmse:9.4g} {s.over_floor:8.2f}  {nxt}")
+    print(f"(× floor: the error with re-estimated window starts over the noise floor, "
+          f"{r.last.objective_floor:.3g} kgf)")
+    if r.needed:
+        print()
+        print("each added effect, checked with the others in place:")
+        for n in r.needed:
+            print(f"  - {n.text()}")
+    print()
+    print(f"fitted {r.model.spec}: " + ", ".join(f"{k} = {v:.4g}" for k, v in r.model.params().items()))
+    last = r.last
+    if last.unexplained:
+        print(f"  - unexplained: {last.unexplained.description}")
+    if last.ambiguities:
+        print()
+        print("what these data cannot tell (last step):")
+        for a in last.ambiguities:
+            print(f"  - {a.text()}")
+    for w in last.warnings:
+        print(f"note: {w}")
+    if files:
+        print("\nplots: " + ", ".join(str(f) for f in files))
+    if saved:
+        print(f"model saved: {saved}")
     return 0

@@ -1,0 +1,204 @@
+r"""Build the model up one effect at a time, as a user would: diagnose, add the effect that
+lowers the error most, diagnose again, until the model is within the noise.
+
+Real stands rarely miss just one effect. With several, no single catalogue effect may remove
+most of the error above the noise, so :func:`analysis.diagnose.diagnose` alone says
+*unexplained* and lists the effects that would remove part of it. ``stepwise`` (forward
+selection with a backward check, like stepwise regression):
+
+1. diagnoses the current model (start: the paper's base model);
+2. adds the best candidate that *earns its parameters*, or, when none does, the best one that
+   *helps* (lowers the error by at least :data:`~analysis.diagnose.MIN_IMPROVEMENT`,
+   significantly and consistently over the windows: part of the missing behaviour);
+3. stops when the diagnosis says *adequate*, when nothing helps, or after ``max_effects``;
+4. checks every added effect again with the others in place (an effect picked early can become
+   redundant once a later one explains the same error): it is refitted without it, and dropped
+   if it no longer helps. What stays is reported with how much worse the error would be
+   without it.
+
+The steps keep their whole diagnoses (observations, ambiguities, warnings of each).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+from plant import PlantModel
+
+from . import fit as F
+from .data import Record
+from .diagnose import Candidate, Diagnosis, diagnose, judge
+
+#: effects added at most (each step is one diagnosis: all candidates fitted)
+MAX_EFFECTS = 5
+
+
+@dataclass
+class Step:
+    """One diagnosis of the build-up and what it led to."""
+
+    model: str                    #: the model diagnosed
+    rmse: float                   #: its windowed RMSE from the measured starts, kgf
+    over_floor: float             #: its objective error over the noise floor
+    diagnosis: Diagnosis = field(repr=False)
+    added: str | None = None      #: the effect added after this diagnosis
+    why: str = ""                 #: why it was added, or why the build-up stopped here
+
+    def to_dict(self) -> dict:
+        return {"model": self.model, "rmse": self.rmse, "over_floor": self.over_floor,
+                "added": self.added, "why": self.why, "diagnosis": self.diagnosis.to_dict()}
+
+
+@dataclass
+class Needed:
+    """An effect of the final model, checked with the others in place."""
+
+    effect: str
+    kept: bool
+    error_without: float          #: objective RMSE of the final model refitted without it, kgf
+    factor: float                 #: error without it / error with it (objective)
+
+    def text(self) -> str:
+        if self.kept:
+            return (f"{self.effect}: without it the error is {self.factor:.2f}× higher "
+                    f"({self.error_without:.3g} kgf)")
+        return (f"{self.effect}: dropped — once the others are in, the model without it leaves "
+                f"{self.error_without:.3g} kgf, within what fitting noise explains")
+
+
+@dataclass
+class Stepwise:
+    steps: list[Step]
+    model: PlantModel             #: the final model (after the backward check), fitted
+    fit: F.FitResult = field(repr=False)
+    verdict: str                  #: "adequate" | "unexplained" | "max_effects"
+    needed: list[Needed]
+    summary: str
+
+    @property
+    def path(self) -> list[str]:
+        return [s.model for s in self.steps]
+
+    @property
+    def last(self) -> Diagnosis:
+        return self.steps[-1].diagnosis
+
+    def to_dict(self) -> dict:
+        return {"verdict": self.verdict, "model": self.model.spec, "params": self.model.params(),
+                "intervals": {k: e.to_dict() for k, e in self.fit.estimates.items()},
+                "summary": self.summary, "needed": [vars(n) for n in self.needed],
+                "steps": [s.to_dict() for s in self.steps]}
+
+
+def pick(d: Diagnosis) -> tuple[Candidate | None, str]:
+    """The candidate to add after diagnosis ``d``, and why (or why none)."""
+    if d.best_candidate is not None:
+        c = d.best_candidate
+        return c, (f"earns its parameters: lowers the error by {100 * c.rmse_reduction:.0f} %, "
+                   f"{100 * max(c.excess_share, 0):.0f} % of the excess over the noise")
+    if d.verdict == "adequate":
+        return None, "adequate: the error is within the noise"
+    helping = [c for c in d.candidates if c.helps]
+    if not helping:
+        return None, "no catalogue effect lowers the error significantly"
+    c = helping[0]
+    return c, (f"part of the missing behaviour: lowers the error by {100 * c.rmse_reduction:.0f} % "
+               f"({100 * max(c.excess_share, 0):.0f} % of the excess), significant and "
+               f"consistent over the windows")
+
+
+def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
+             window_s: float = F.WINDOW_S, max_effects: int = MAX_EFFECTS,
+             effects: Sequence[str] | None = None,
+             progress: Callable[[str], None] | None = None) -> Stepwise:
+    """Add effects to ``model`` one at a time until it explains ``records`` (module docstring)."""
+    say = progress or (lambda msg: None)
+    current = PlantModel.from_spec(model) if isinstance(model, str) else model
+    steps: list[Step] = []
+    added: list[str] = []
+    verdict = "max_effects"
+    while True:
+        say(f"diagnosing {current.spec}")
+        todo = None if effects is None else [e for e in effects if current.effect(e) is None]
+        d = diagnose(records, current, window_s=window_s, effects=todo, progress=progress)
+        floor = d.objective_floor
+        step = Step(model=d.base_fit.model.spec, rmse=d.base_eval.rmse,
+                    over_floor=d.base_fit.objective_rmse / floor if floor > 0 else math.inf,
+                    diagnosis=d)
+        steps.append(step)
+        c, why = pick(d)
+        if c is not None and len(added) >= max_effects:
+            step.why = f"stopped after {max_effects} added effects (--max-effects); next: {c.effect}"
+            break
+        step.why = why
+        if c is None:
+            verdict = "adequate" if d.verdict == "adequate" else "unexplained"
+            break
+        step.added = c.effect
+        added.append(c.effect)
+        current = c.fit.model
+    last = steps[-1].diagnosis
+    final_fit = last.base_fit
+    needed: list[Needed] = []
+    if len(added) >= 2:
+        say("checking each added effect with the others in place")
+        final_fit, needed = backward_check(records, final_fit, added, last.objective_floor, window_s)
+    summary = _summary(steps, verdict, final_fit, needed, last)
+    return Stepwise(steps=steps, model=final_fit.model, fit=final_fit, verdict=verdict,
+                    needed=needed, summary=summary)
+
+
+def without(model: PlantModel, effect: str) -> PlantModel:
+    """``model`` minus one effect, the other values kept (the start of its refit)."""
+    spec = "+".join(["base"] + [e.name for e in model.effects if e.name != effect])
+    values = {k: v for k, v in model.params().items() if not k.startswith(effect + ".")}
+    return PlantModel.from_spec(spec, values)
+
+
+def backward_check(records: Sequence[Record], full: F.FitResult, added: Sequence[str],
+                   floor: float, window_s: float) -> tuple[F.FitResult, list[Needed]]:
+    """Refit the model without each added effect in turn; drop the one that helps least if it
+    no longer helps, and repeat. Returns the final fit and the verdict on every added effect."""
+    pieces = F.pieces_from_records(records, window_s)
+    n = sum(p.n_eval for p in pieces)
+    dropped: list[Needed] = []
+    while True:
+        w_full, rmse_full = F.errors(full.model, pieces)
+        obj_full = math.sqrt(w_full.sum() / n)
+        checks = []
+        for name in [a for a in added if full.model.effect(a) is not None]:
+            reduced = F.fit_model(pieces, without(full.model, name), starts="given",
+                                  delay_search=False)
+            w_red, rmse_red = F.errors(reduced.model, pieces)
+            obj_red = math.sqrt(w_red.sum() / n)
+            # judged as a candidate added to the reduced model, like in the diagnosis
+            c = judge(name, full, w_full, rmse_full, w_red, obj_red, rmse_red, floor, n, "final")
+            checks.append((c.helps, obj_red / obj_full if obj_full > 0 else math.inf, name,
+                           reduced, obj_red))
+        weakest = min(checks, key=lambda x: (x[0], x[1]), default=None)
+        if weakest is None or weakest[0]:
+            kept = [Needed(name, True, obj_red, factor)
+                    for _, factor, name, _, obj_red in checks]
+            return full, kept + dropped
+        _, factor, name, reduced, obj_red = weakest
+        dropped.append(Needed(name, False, obj_red, factor))
+        full = reduced
+
+
+def _summary(steps: list[Step], verdict: str, fit: F.FitResult, needed: list[Needed],
+             last: Diagnosis) -> str:
+    path = " → ".join([steps[0].model] + [f"+{s.added}" for s in steps if s.added])
+    first, end = steps[0], steps[-1]
+    change = (f"error {first.rmse:.3g} → {end.rmse:.3g} kgf ({first.over_floor:.2f}× → "
+              f"{end.over_floor:.2f}× the noise floor)")
+    dropped = [n.effect for n in needed if not n.kept]
+    tail = f"; dropped again: {', '.join(dropped)}" if dropped else ""
+    if verdict == "adequate":
+        head = f"adequate with {fit.model.spec}"
+    elif verdict == "unexplained":
+        head = (f"{fit.model.spec} is the closest the catalogue gets; the rest is unexplained"
+                + (f" ({last.unexplained.description})" if last.unexplained else ""))
+    else:
+        head = f"stopped at {fit.model.spec} (effect limit); the error is still above the noise"
+    return f"{head}: {path}, {change}{tail}"

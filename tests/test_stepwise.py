@@ -1,0 +1,99 @@
+"""stand diagnose --stepwise: data that miss several effects at once, built up one effect at a
+time (our plant model, and the independent simulator of tests/independent_stand.py)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from analysis import synthetic as S
+from analysis.data import make_record, write_csv
+from analysis.stepwise import stepwise
+from plant import PlantModel, load_model_file
+from stand.cli import main
+from tests import independent_stand as sim
+
+BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
+THREE = {"reversal.boost": 1.5, "reversal.decay": 0.1, "leakage.rate": 0.2, "backlash.width": 2.0}
+
+
+def campaign(truth: PlantModel, seed: int) -> list:
+    """Meanders at four amplitudes, relay at three references, P-feedback at two frequencies."""
+    return [S.meander(truth, (5.0, 10.0, 15.0, 20.0), period_s=2.0, cycles=2, seed=seed),
+            S.relay(truth, 10.0, (0.0, 1500.0, -1500.0), 6.0, seed=seed),
+            S.pfeedback(truth, gain=0.005, amplitude_kgf=2000.0, omegas_rad_s=(0.6283, 1.5), seed=seed)]
+
+
+def independent(combo: str, seed: int) -> list:
+    return [make_record(t, u, y, r if np.isfinite(r).any() else None, source=name)
+            for name, _, t, u, y, r, _ in sim.make_dataset(combo, seed)]
+
+
+def test_three_effects_no_single_one_explains_are_found_one_after_another():
+    truth = PlantModel.from_spec("base+reversal+leakage+backlash", {**BASE, **THREE})
+    r = stepwise(campaign(truth, seed=5))
+    # alone, no effect removes most of the error: the plain diagnosis calls it unexplained
+    assert r.steps[0].diagnosis.verdict == "unexplained"
+    assert r.verdict == "adequate", r.summary
+    assert {e.name for e in r.model.effects} == {"reversal", "leakage", "backlash"}
+    for name, want in {**BASE, **THREE}.items():
+        if name != "reversal.exponent":
+            assert r.model.params()[name] == pytest.approx(want, rel=0.05, abs=0.005), name
+    rmse = [s.rmse for s in r.steps]
+    assert all(b < a for a, b in zip(rmse, rmse[1:])), rmse          # the error falls each step
+    assert r.steps[-1].over_floor < 1.1
+    assert "part of the missing behaviour" in r.steps[0].why
+    assert all(n.kept and n.factor > 2 for n in r.needed), r.needed
+
+
+def test_an_effect_picked_early_is_dropped_once_the_real_ones_are_in():
+    """Independent simulator, dead zone + asymmetry + leakage: the load-pressure law explains
+    most of the first residual, then leakage, dead zone and asymmetry take over and the
+    backward check drops it."""
+    r = stepwise(independent("deadzone+asymmetry+leakage", 1001))
+    assert r.verdict == "adequate", r.summary
+    assert {e.name for e in r.model.effects} == {"deadzone", "asymmetry", "leakage"}, r.summary
+    p = r.model.params()
+    assert p["deadzone.width"] == pytest.approx(1.0, rel=0.05)
+    assert p["leakage.rate"] == pytest.approx(0.1, rel=0.05)
+    # the simulator's retract gain 0.8 is (1 - a)/(1 + a) in the catalogue's form
+    assert (1 - p["asymmetry.ratio"]) / (1 + p["asymmetry.ratio"]) == pytest.approx(0.8, abs=0.01)
+    gone = [n for n in r.needed if not n.kept]
+    if gone:   # picked first and dropped again (the path depends on the noise draw)
+        assert [n.effect for n in gone] == ["load_pressure"] and "dropped" in gone[0].text()
+
+
+def test_what_the_catalogue_cannot_explain_stays_unexplained_after_what_it_can():
+    r = stepwise(independent("osc+asymmetry", 1005))
+    assert r.verdict == "unexplained" and r.model.spec == "base+asymmetry", r.summary
+    assert r.last.unexplained.dominant_frequency_hz == pytest.approx(3.0, abs=0.05)
+
+
+def test_nothing_missing_is_one_step():
+    r = stepwise(independent("none", 1006))
+    assert r.verdict == "adequate" and r.model.spec == "base" and len(r.steps) == 1
+
+
+def test_cli_stepwise_json_plot_and_saved_model(tmp_path, capsys):
+    truth = PlantModel.from_spec("base+reversal+deadzone",
+                                 {**BASE, "reversal.boost": 2.0, "reversal.decay": 0.15,
+                                  "deadzone.width": 1.5})
+    paths = []
+    for i, rec in enumerate(campaign(truth, seed=7)[:2]):
+        paths.append(tmp_path / f"run{i}.csv")
+        write_csv(rec, paths[-1])
+    saved = tmp_path / "found.toml"
+    code = main(["diagnose", *map(str, paths), "--stepwise", "--json", "--no-progress",
+                 "--save", str(saved), "--plots", str(tmp_path / "pl")])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and out["verdict"] == "adequate"
+    assert [s["added"] for s in out["steps"]] == ["reversal", "deadzone", None]
+    assert out["steps"][0]["diagnosis"]["verdict"] == "missing_effect"
+    model = load_model_file(saved)
+    assert model.spec == out["model"] and model.params()["deadzone.width"] == pytest.approx(1.5, rel=0.05)
+    assert (tmp_path / "pl" / "stepwise.png").read_bytes()[:4] == b"\x89PNG"
+    code = main(["diagnose", *map(str, paths), "--stepwise", "--no-progress", "--max-effects", "1"])
+    text = capsys.readouterr().out
+    assert code == 0 and text.startswith("verdict: MAX_EFFECTS")
+    assert "stopped after 1 added effects (--max-effects); next: deadzone" in text
