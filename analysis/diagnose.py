@@ -756,27 +756,18 @@ def _ambiguities(records: Sequence[Record], base_fit: F.FitResult, cands: Sequen
     single = len(ex.levels) == 1 and not ex.continuous
     if single:
         lv = f"{ex.levels[0]:g} %"
-        if "deadzone" in names:
-            out.append(Ambiguity(["deadzone", "gain"],
-                                 f"at a single command amplitude (|u| = {lv}) a dead zone d only "
-                                 f"lowers the slope to g·(|u| − d): it looks exactly like a lower gain g.",
-                                 separating_experiment("deadzone", "gain")))
-        if "flow_curve" in names:
-            out.append(Ambiguity(["flow_curve", "gain"],
-                                 f"at a single command amplitude (|u| = {lv}) a bent flow curve "
-                                 f"only changes the slope: it looks exactly like another gain g.",
-                                 separating_experiment("flow_curve", "gain")))
-        if "backlash" in names:
-            out.append(Ambiguity(["backlash", "gain"],
-                                 f"at a single command amplitude (|u| = {lv}) a play of width w "
-                                 f"lowers the slope to g·(|u| − w/2): it looks exactly like a "
-                                 f"lower gain g.",
-                                 separating_experiment("backlash", "gain")))
-        if "saturation" in names:
-            out.append(Ambiguity(["saturation", "gain"],
-                                 f"at a single command amplitude (|u| = {lv}) a flow limit below it "
-                                 f"looks exactly like a lower gain g.",
-                                 separating_experiment("saturation", "gain")))
+        like_gain = {
+            "deadzone": "a dead zone d only lowers the slope to g·(|u| − d)",
+            "flow_curve": "a bent flow curve only changes the slope",
+            "backlash": "a play of width w lowers the slope to g·(|u| − w/2)",
+            "saturation": "a flow limit below it caps the slope",
+        }
+        for name, how in like_gain.items():
+            if name in names:
+                out.append(Ambiguity([name, "gain"],
+                                     f"at a single command amplitude (|u| = {lv}) {how}: it looks "
+                                     f"exactly like another gain g.",
+                                     separating_experiment(name, "gain")))
         if "asymmetry" in names and not ex.has_zero_hold:
             d = base_fit.model.delta
             ramp = base_fit.model.g * ex.levels[0]

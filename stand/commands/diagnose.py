@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from pathlib import Path
 
@@ -59,37 +60,17 @@ def main(args: argparse.Namespace) -> int:
     if args.stepwise:
         return main_stepwise(args, records, model, effects)
     total = 1 + len(effects if effects is not None else diagnosable_effects(model))
-    bar = None if args.no_progress else tqdm(total=total, desc="diagnose", unit="model",
-                                             file=sys.stderr, leave=False)
-
-    def progress(msg: str) -> None:
-        if bar is not None and not msg.startswith("refitting"):
-            bar.set_postfix_str(msg)
-            bar.update(1)
-
-    try:
+    with progress_bar(args, "diagnose", total) as progress:
         d = diagnose(records, model, window_s=args.window_s, effects=effects, progress=progress)
-    finally:
-        if bar is not None:
-            bar.close()
     best = d.best_candidate
     saved = save_model(args, best.fit.model if best is not None else None,
                        f"stand diagnose: {d.summary}")
-    files = []
-    if args.plots is not None:
-        out = Path(args.plots) if args.plots else default_out(args.data, "diagnose")
-        out.mkdir(parents=True, exist_ok=True)
-        files.append(plots.plot_candidates(d, out / "candidates.png"))
-        files.append(plots.plot_overlay(d.base_eval, out / "overlay_start_model.png"))
-        files.append(plots.plot_regimes(d.base_eval, out / "regimes_start_model.png"))
-    if args.json:
-        out = d.to_dict()
-        out["plots"] = [str(f) for f in files]
-        print_json(out)
+    files = plots_and_head(args, d, {
+        "candidates.png": lambda p: plots.plot_candidates(d, p),
+        "overlay_start_model.png": lambda p: plots.plot_overlay(d.base_eval, p),
+        "regimes_start_model.png": lambda p: plots.plot_regimes(d.base_eval, p)})
+    if files is None:
         return 0
-    print(f"verdict: {d.verdict.upper()}")
-    print(f"  {d.summary}")
-    print()
     print(f"{'model':32s} {'RMSE kgf':>9s} {'change':>8s} {'of excess':>9s}  earns")
     print(f"{d.base_fit.model.spec:32s} {d.base_eval.rmse:9.4g} {'':>8s} {'':>9s}")
     for c in d.candidates:
@@ -109,11 +90,56 @@ def main(args: argparse.Namespace) -> int:
     print("what the residual of " + d.base_fit.model.spec + " shows:")
     for o in d.observations:
         print(f"  - {o}")
+    print_tail(d, files, saved, "what these data cannot tell:")
+    return 0
+
+
+def plots_and_head(args: argparse.Namespace, result, plotters: dict) -> list | None:
+    """--plots: write each plot (file name -> writer). --json: print the result with the plots'
+    paths and return None (nothing more to print); otherwise print the verdict and summary and
+    return the plots written."""
+    files = []
+    if args.plots is not None:
+        out = Path(args.plots) if args.plots else default_out(args.data, "diagnose")
+        out.mkdir(parents=True, exist_ok=True)
+        files = [write(out / name) for name, write in plotters.items()]
+    if args.json:
+        obj = result.to_dict()
+        obj["plots"] = [str(f) for f in files]
+        print_json(obj)
+        return None
+    print(f"verdict: {result.verdict.upper()}")
+    print(f"  {result.summary}")
+    print()
+    return files
+
+
+@contextlib.contextmanager
+def progress_bar(args: argparse.Namespace, desc: str, total: int | None = None):
+    """A progress bar on stderr counting the models fitted (none with --no-progress); yields the
+    ``progress(message)`` callback."""
+    bar = None if args.no_progress else tqdm(total=total, desc=desc, unit="model",
+                                             file=sys.stderr, leave=False)
+
+    def progress(msg: str) -> None:
+        if bar is not None and not msg.startswith("refitting"):
+            bar.set_postfix_str(msg)
+            bar.update(1)
+
+    try:
+        yield progress
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def print_tail(d, files: list, saved: Path | None, heading: str) -> None:
+    """What a diagnosis leaves unexplained or ambiguous, its notes, and the files written."""
     if d.unexplained:
         print(f"  - unexplained: {d.unexplained.description}")
     if d.ambiguities:
         print()
-        print("what these data cannot tell:")
+        print(heading)
         for a in d.ambiguities:
             print(f"  - {a.text()}")
     for w in d.warnings:
@@ -122,7 +148,6 @@ def main(args: argparse.Namespace) -> int:
         print("\nplots: " + ", ".join(str(f) for f in files))
     if saved:
         print(f"model saved: {saved}")
-    return 0
 
 
 def save_model(args: argparse.Namespace, model, summary: str) -> Path | None:
@@ -139,37 +164,17 @@ def save_model(args: argparse.Namespace, model, summary: str) -> Path | None:
 
 
 def main_stepwise(args: argparse.Namespace, records, model, effects) -> int:
-    bar = None if args.no_progress else tqdm(desc="diagnose --stepwise", unit="model",
-                                             file=sys.stderr, leave=False)
-
-    def progress(msg: str) -> None:
-        if bar is not None and not msg.startswith("refitting"):
-            bar.set_postfix_str(msg)
-            bar.update(1)
-
-    try:
+    with progress_bar(args, "diagnose --stepwise") as progress:
         r = stepwise(records, model, window_s=args.window_s, max_effects=args.max_effects,
                      effects=effects, progress=progress)
-    finally:
-        if bar is not None:
-            bar.close()
     saved = save_model(args, r.model if len(r.model.effects) or r.verdict == "adequate" else None,
                        f"stand diagnose --stepwise: {r.summary}")
-    files = []
-    if args.plots is not None:
-        out = Path(args.plots) if args.plots else default_out(args.data, "diagnose")
-        out.mkdir(parents=True, exist_ok=True)
-        files.append(plots.plot_stepwise(r, out / "stepwise.png"))
-        files.append(plots.plot_candidates(r.last, out / "candidates_last_step.png"))
-        files.append(plots.plot_overlay(r.last.base_eval, out / "overlay_final_model.png"))
-    if args.json:
-        out = r.to_dict()
-        out["plots"] = [str(f) for f in files]
-        print_json(out)
+    files = plots_and_head(args, r, {
+        "stepwise.png": lambda p: plots.plot_stepwise(r, p),
+        "candidates_last_step.png": lambda p: plots.plot_candidates(r.last, p),
+        "overlay_final_model.png": lambda p: plots.plot_overlay(r.last.base_eval, p)})
+    if files is None:
         return 0
-    print(f"verdict: {r.verdict.upper()}")
-    print(f"  {r.summary}")
-    print()
     print(f"{'step':>4s}  {'model':40s} {'RMSE kgf':>9s} {'× floor':>8s}  next")
     for i, s in enumerate(r.steps):
         nxt = f"+{s.added}: {s.why}" if s.added else s.why
@@ -183,18 +188,5 @@ def main_stepwise(args: argparse.Namespace, records, model, effects) -> int:
             print(f"  - {n.text()}")
     print()
     print(f"fitted {r.model.spec}: " + ", ".join(f"{k} = {v:.4g}" for k, v in r.model.params().items()))
-    last = r.last
-    if last.unexplained:
-        print(f"  - unexplained: {last.unexplained.description}")
-    if last.ambiguities:
-        print()
-        print("what these data cannot tell (last step):")
-        for a in last.ambiguities:
-            print(f"  - {a.text()}")
-    for w in last.warnings:
-        print(f"note: {w}")
-    if files:
-        print("\nplots: " + ", ".join(str(f) for f in files))
-    if saved:
-        print(f"model saved: {saved}")
+    print_tail(r.last, files, saved, "what these data cannot tell (last step):")
     return 0
