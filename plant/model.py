@@ -127,6 +127,11 @@ class PlantModel:
         m = int(math.floor(steps + 1e-12))
         return m, steps - m
 
+    def delay_steps(self, dt: float) -> int:
+        """Whole steps of ``dt`` in the delay: the command of step k first acts in step k + m,
+        so the force over the next m steps does not depend on commands not yet given."""
+        return self._delay_split(dt)[0]
+
     def new_state(self, n: int, dt: float, y0: float | np.ndarray = 0.0,
                   u0: float | np.ndarray = 0.0, t0: float | np.ndarray = 0.0) -> PlantState:
         """Initial state of ``n`` trajectories at force ``y0``, with the command ``u0`` held

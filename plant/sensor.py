@@ -1,11 +1,15 @@
 """The dynamometer as a measuring device: noise, resolution and range."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from .params import ModelError, Param
+
+#: noise values drawn at a time
+_NOISE_BLOCK = 1024
 
 SENSOR_PARAMS: tuple[Param, ...] = (
     Param("noise_kgf", 2.0, 0.0, 1000.0, "kgf", "standard deviation of white measurement noise"),
@@ -27,16 +31,50 @@ class Dynamometer:
         for p in SENSOR_PARAMS:
             setattr(self, p.name, p.validate(getattr(self, p.name), "sensor"))
         self._rng = np.random.default_rng(self.seed)
+        self._noise = np.empty(0)
+        self._next = 0
+
+    def _draw(self, n: int) -> np.ndarray:
+        """The next ``n`` values of the noise stream. Drawn ahead in blocks: a block of draws is
+        the same sequence as single draws, so the readings do not depend on how they are asked
+        for (one at a time by the emulator, whole records by the analysis)."""
+        if self._next + n > len(self._noise):
+            fresh = self._rng.normal(0.0, self.noise_kgf, max(n, _NOISE_BLOCK))
+            self._noise = np.concatenate([self._noise[self._next:], fresh])
+            self._next = 0
+        out = self._noise[self._next:self._next + n]
+        self._next += n
+        return out
 
     def measure(self, y: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """Return ``(reading_kgf, over_range)`` for true force(s) ``y``."""
         y = np.asarray(y, float)
         if self.noise_kgf:
-            y = y + self._rng.normal(0.0, self.noise_kgf, y.shape)
+            y = y + self._draw(y.size).reshape(y.shape)
         if self.resolution_kgf:
             y = np.round(y / self.resolution_kgf) * self.resolution_kgf
         over = np.abs(y) > self.range_kgf
         return np.clip(y, -self.range_kgf, self.range_kgf), over
+
+    def read(self, y: float) -> tuple[float, bool]:
+        """One reading, the same law and noise stream as :meth:`measure` in plain floats (the
+        emulator reads once per SYNC; numpy's per-call overhead was most of the cost)."""
+        v = float(y)
+        if not math.isfinite(v):
+            reading, over = self.measure(v)
+            return float(reading), bool(over)
+        if self.noise_kgf:
+            if self._next >= len(self._noise):
+                self._noise = self._rng.normal(0.0, self.noise_kgf, _NOISE_BLOCK)
+                self._next = 0
+            v += float(self._noise[self._next])
+            self._next += 1
+        res = self.resolution_kgf
+        if res:
+            v = round(v / res) * res   # half to even, like np.round
+        r = self.range_kgf
+        over = v > r or v < -r
+        return (min(max(v, -r), r), over)
 
     @classmethod
     def from_mapping(cls, values: dict, seed: int | None = None) -> "Dynamometer":

@@ -5,6 +5,8 @@ Time:
 * **lockstep** — the plant advances exactly one communication cycle period (0x1006, written by
   the master) per SYNC, in sub-steps of at most ``step_s``; the command received after SYNC k
   acts over [t_k, t_k+1]. A run is as fast as the bus and reproducible bit for bit with a seed.
+  The periods within the transport delay are computed ahead in one block
+  (:mod:`plant_emulator.lockstep_plant`).
 * **real time** — the plant integrates on the wall clock in steps of ``step_s``; a command acts
   from the moment it is received; each SYNC samples the force at that instant.
 
@@ -30,6 +32,7 @@ from plant.config import PlantConfig
 from standbus import LOCKSTEP_BUSY_POLL_S, prefer_busy_poll
 
 from .dynamometer import DynamometerNode
+from .lockstep_plant import LockstepPlant
 from .node import slave_frame_filter
 from .valve import ServoValveNode
 
@@ -79,6 +82,8 @@ class EmulatedStand:
         self.network.subscribe(0x80, self._on_sync)
         self._plant_dt = options.step_s
         self._plant = self.model.new_state(1, self._plant_dt, y0=config.initial_force_kgf)
+        #: lockstep: the plant one period per SYNC, computed ahead in blocks
+        self.lockstep_plant = LockstepPlant(self.model, config.initial_force_kgf, options.step_s)
         self._command = 0.0
         self._t_plant = time.monotonic()
         self._syncs = 0
@@ -115,17 +120,16 @@ class EmulatedStand:
 
     @property
     def force_kgf(self) -> float:
+        if self.options.lockstep:
+            return self.lockstep_plant.force
         return float(self._plant.y[0])
 
     # -- plant time ------------------------------------------------------------------------------
-    def _advance(self, steps: int, dt: float) -> None:
-        if dt != self._plant_dt:  # the period changed: keep the state, re-grid the delay line
-            self._plant = self.model.new_state(1, dt, y0=self._plant.y, u0=self._command,
-                                               t0=self._plant.t)
-            self._plant_dt = dt
+    def _advance(self, steps: int) -> None:
+        """Real time: ``steps`` plant steps with the command held."""
         while steps > 0:
             k = min(steps, _MAX_BLOCK)
-            self.model.advance(self._plant, np.full((1, k), self._command), dt)
+            self.model.advance(self._plant, np.full((1, k), self._command), self._plant_dt)
             steps -= k
 
     def _catch_up(self) -> None:
@@ -135,7 +139,7 @@ class EmulatedStand:
         now = time.monotonic()
         steps = int((now - self._t_plant) / self._plant_dt)
         if steps > 0:
-            self._advance(steps, self._plant_dt)
+            self._advance(steps)
             self._t_plant += steps * self._plant_dt
 
     def _lockstep_cycle(self) -> None:
@@ -146,8 +150,7 @@ class EmulatedStand:
         period = int(self.valve.value(P.COMM_CYCLE_PERIOD)) * 1e-6
         if not (period > 0 and math.isfinite(period)):
             return
-        sub = max(1, math.ceil(period / self.options.step_s - 1e-9))
-        self._advance(sub, period / sub)
+        self.lockstep_plant.step(period, self._command)
 
     # -- bus events ------------------------------------------------------------------------------
     def _on_sync(self, can_id: int, data: bytes, timestamp: float) -> None:
@@ -179,8 +182,7 @@ class EmulatedStand:
 
     def measure_force(self) -> tuple[float, bool]:
         """The dynamometer's reading (kgf) at this SYNC and whether it is over range."""
-        reading, over = self.sensor.measure(self._plant.y[0])
-        return float(reading), bool(over)
+        return self.sensor.read(self.force_kgf)
 
     def command_changed(self) -> None:
         """Called by the valve after its effective command may have changed."""

@@ -158,6 +158,11 @@ def test_small_delay_in_lockstep_changes_nothing(channel, start_emulator, tmp_pa
 
 
 # -- garbage on the bus ---------------------------------------------------------------------------------
+#: stand time of the flooded run: long enough in lockstep (2,500 cycles, a few tenths of a second
+#: at 10-20 k cycles/s) that hundreds of the 4,000 garbage frames/s arrive during it
+FLOODED_S = 5.0
+
+
 def test_a_flood_of_garbage_changes_nothing(channel, start_emulator, tmp_path):
     """A separate process floods the bus with random frames (error/remote/extended/FD frames,
     random ids, and the stand's own ids with wrong lengths) at ~4,000 frames/s during a lockstep
@@ -166,7 +171,7 @@ def test_a_flood_of_garbage_changes_nothing(channel, start_emulator, tmp_path):
     bus = f"udp_loopback:{channel}"
     quiet_emu = start_emulator(plant(BASE), lockstep=True, seed=9)
     with Gateway(GatewayConfig(bus=bus, lockstep=True)) as gw:
-        quiet = gw.run(Const(5.0, 1.0), tmp_path / "quiet", progress=False)
+        quiet = gw.run(Const(5.0, FLOODED_S), tmp_path / "quiet", progress=False)
     quiet_emu.stop()
     emu = start_emulator(plant(BASE), lockstep=True, seed=9)
     flood = subprocess.Popen([sys.executable, "-m", "standbus.faults", "--bus", bus, "--rate", "4000",
@@ -176,7 +181,7 @@ def test_a_flood_of_garbage_changes_nothing(channel, start_emulator, tmp_path):
         assert flood.stdout.readline().strip() == "flooding"
         time.sleep(0.3)
         with Gateway(GatewayConfig(bus=bus, lockstep=True)) as gw:
-            noisy = gw.run(Const(5.0, 1.0), tmp_path / "noisy", progress=False)
+            noisy = gw.run(Const(5.0, FLOODED_S), tmp_path / "noisy", progress=False)
     finally:
         flood.send_signal(signal.SIGTERM)
         flood.wait(10)

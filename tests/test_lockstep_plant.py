@@ -1,0 +1,63 @@
+"""The emulator's lockstep plant computes the periods within the transport delay ahead in one
+block; it must give what advancing period by period gives, and the dynamometer's per-SYNC
+reading must be what the array path gives."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from plant import Dynamometer, PlantModel
+from plant_emulator.lockstep_plant import LockstepPlant
+
+STEP = 0.0005
+
+
+def period_by_period(model: PlantModel, commands, periods, y0: float) -> np.ndarray:
+    state, dt, out = model.new_state(1, STEP, y0=y0), STEP, []
+    for c, p in zip(commands, periods):
+        sub = max(1, math.ceil(p / STEP - 1e-9))
+        if p / sub != dt:
+            state, dt = model.new_state(1, p / sub, y0=state.y, u0=c, t0=state.t), p / sub
+        out.append(model.advance(state, np.full((1, sub), c), dt)[0, -1])
+    return np.array(out)
+
+
+@pytest.mark.parametrize("spec", ["base", "base+reversal", "base+lag+deadzone+backlash",
+                                  "base+load_pressure+reversal+leakage+oscillation",
+                                  "base+saturation+asymmetry+flow_curve"])
+@pytest.mark.parametrize("tau", [0.0, 0.001, 0.0031, 0.05, 0.0777])
+def test_blocks_ahead_equal_period_by_period_even_across_a_period_change(spec, tau):
+    rng = np.random.default_rng(int(tau * 1e4))
+    model = PlantModel.from_spec(spec, {"tau": tau, "g": 110.0})
+    commands = np.repeat(rng.normal(0, 10, 400), rng.integers(1, 8, 400))[:1500]
+    periods = [0.002] * 700 + [0.001] * 101 + [0.002] * 699   # changes inside a block
+    plant = LockstepPlant(model, 50.0, STEP)
+    got = np.array([plant.step(p, c) for c, p in zip(commands, periods)])
+    want = period_by_period(model, commands, periods, 50.0)
+    assert np.max(np.abs(got - want)) < 1e-9 * max(1.0, np.abs(want).max())
+    m = model.delay_steps(STEP)
+    if m >= 4:   # τ spans several 2 ms periods: they were computed together
+        assert plant.periods_per_block > 0.8 * (m // 4 + 1)
+
+
+def test_one_reading_at_a_time_is_the_array_path():
+    rng = np.random.default_rng(3)
+    y = rng.normal(0, 3000, 5000)
+    y[::97] = 12000.0                       # over range
+    whole, whole_over = Dynamometer(seed=4).measure(y)
+    one = Dynamometer(seed=4)
+    single = [one.read(v) for v in y]
+    assert np.array_equal(whole, [r for r, _ in single])
+    assert np.array_equal(whole_over, [o for _, o in single])
+    mixed, i, out = Dynamometer(seed=4), 0, []   # the noise stream does not depend on the calls
+    while i < len(y):
+        if i % 3 == 0:
+            r, _ = mixed.measure(y[i:i + 7])
+            out += r.tolist()
+            i += 7
+        else:
+            out.append(mixed.read(y[i])[0])
+            i += 1
+    assert np.array_equal(whole, out)
