@@ -118,9 +118,12 @@ SEPARATING_EXPERIMENT = {
                                        "as |u|^p instead of in proportion to |u|",
     frozenset({"backlash", "gain"}): "the meander at several amplitudes, or P-feedback with a "
                                      "harmonic reference",
-    frozenset({"lag", "sensor lag"}): "nothing on the command side: only a second force "
-                                      "measurement, or the dynamometer's own filter setting "
-                                      "from its configuration or data sheet",
+    frozenset({"lag", "sensor_lag"}): "the dynamometer's own filter setting (its configuration "
+                                      "or data sheet) or a second force measurement; in a "
+                                      "linear plant nothing on the command side separates "
+                                      "them, behind a valve nonlinearity (dead zone, flow "
+                                      "limit, reversal boost) meanders at amplitudes near it "
+                                      "can",
 }
 
 
@@ -791,12 +794,16 @@ def _ambiguities(records: Sequence[Record], base_fit: F.FitResult, cands: Sequen
                              f"extra delay, so mainly τ + T is determined (fitted τ = "
                              f"{base_fit.model.tau * 1e3:.1f} ms may include a lag).",
                              separating_experiment("lag", "delay")))
-    if best is not None and best.effect == "lag":
-        out.append(Ambiguity(["lag", "sensor lag"],
-                             "a first-order filter in the dynamometer acts on the measured force "
-                             "exactly like a valve lag on an integrating plant (the two commute), "
-                             "in open and closed loop alike: the data cannot tell where the lag is.",
-                             separating_experiment("lag", "sensor lag")))
+    if best is not None and best.effect in ("lag", "sensor_lag"):
+        other = "sensor_lag" if best.effect == "lag" else "lag"
+        alt = next((c for c in cands if c.effect == other), None)
+        if alt is None or alt.objective_rmse <= AMBIGUITY_RATIO * best.objective_rmse:
+            out.append(Ambiguity(
+                [best.effect, other],
+                "a first-order filter in the dynamometer acts on the measured force exactly "
+                "like a valve lag on an integrating plant (the two commute), in open and closed "
+                "loop alike, unless a valve nonlinearity sits between them: these data cannot "
+                "tell where the lag is.", separating_experiment("lag", "sensor_lag")))
     if "saturation" in names and best is None:
         top = max((abs(r.u).max() for r in records), default=0.0)
         if top < 100.0:

@@ -207,9 +207,10 @@ def subset_pieces(full: Sequence[Piece], max_windows: int = 150, chunk_windows: 
     return (out, True) if out else (full, False)
 
 
-def _cut_windows(model: PlantModel, piece: Piece) -> tuple[Drive, np.ndarray]:
+def _cut_windows(model: PlantModel, piece: Piece) -> tuple[Drive, np.ndarray, list[dict] | None]:
     """The piece's drive (delay, valve, flow preparation over the whole piece, so the command
-    history runs through) cut into its evaluated windows, and the measured starts."""
+    history runs through) cut into its evaluated windows, the measured starts, and the sensor
+    filters' states at the starts (None without SENSOR effects)."""
     u, y, dt, W, a = piece.u, piece.y, piece.dt, piece.window, piece.warmup
     state = model.new_state(1, dt, 0.0, u[0], piece.t0)
     drv = model.drive(u[None, :], dt, state)
@@ -226,7 +227,9 @@ def _cut_windows(model: PlantModel, piece: Piece) -> tuple[Drive, np.ndarray]:
         return arr.reshape(nw, W)
 
     wdrv = Drive(q=cut(drv.q), aux=[cut(x) for x in drv.aux], dist=cut(drv.dist))
-    return wdrv, y[a + np.arange(nw) * W]
+    steps = a + np.arange(nw) * W
+    sensor = model.window_filter_states(drv, y, dt, steps) if model.has_sensor_effects else None
+    return wdrv, y[steps], sensor
 
 
 def simulate_pieces(model: PlantModel, pieces: Sequence[Piece]) -> list[np.ndarray]:
@@ -241,7 +244,7 @@ def simulate_pieces(model: PlantModel, pieces: Sequence[Piece]) -> list[np.ndarr
     for (dt, W), idx in groups.items():
         cuts = [_cut_windows(model, pieces[i]) for i in idx]
         if len(cuts) == 1:
-            drv, starts = cuts[0]
+            drv, starts, sensor = cuts[0]
         else:
             def cat(arrs):
                 return None if arrs[0] is None else np.concatenate(arrs, axis=0)
@@ -249,9 +252,17 @@ def simulate_pieces(model: PlantModel, pieces: Sequence[Piece]) -> list[np.ndarr
                         aux=[cat([c[0].aux[j] for c in cuts]) for j in range(len(cuts[0][0].aux))],
                         dist=cat([c[0].dist for c in cuts]))
             starts = np.concatenate([c[1] for c in cuts])
-        yy = model.integrate(drv, starts, dt)[:, :-1]
+            sensor = None if cuts[0][2] is None else [
+                {k: np.concatenate([c[2][j][k] for c in cuts]) for k in cuts[0][2][j]}
+                for j in range(len(cuts[0][2]))]
+        if sensor is not None:   # windows start from the force under the reading
+            yy = model.sense(model.integrate(drv, model.force_at(starts, sensor), dt), dt, starts,
+                             sensor)
+        else:
+            yy = model.integrate(drv, starts, dt)
+        yy = yy[:, :-1]
         row = 0
-        for i, (d, _) in zip(idx, cuts):
+        for i, (d, _, _) in zip(idx, cuts):
             k = d.q.shape[0]
             out[i] = yy[row:row + k].reshape(-1)[:pieces[i].n_eval]
             row += k
@@ -484,6 +495,12 @@ def _lag_starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
     return out
 
 
+def _sensor_lag_starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
+    """Those of a valve lag (the same filter, on the reading)."""
+    return [{("sensor_lag.time_constant" if k == "lag.time_constant" else k): v
+             for k, v in start.items()} for start in _lag_starts(s, base)]
+
+
 def _deadzone_starts(s: DataSummary, base) -> list[dict]:
     ref = float(np.median(s.u_abs_levels))
     return [{"deadzone.width": min(29.0, f * ref)} for f in (0.0, 0.05, 0.15, 0.3, 0.5, 0.8)]
@@ -524,6 +541,7 @@ START_GRIDS: dict[str, Callable[[DataSummary, Mapping[str, float]], list[dict]]]
     "reversal": _reversal_starts,
     "load_pressure": _load_pressure_starts,
     "leakage": _leakage_starts,
+    "sensor_lag": _sensor_lag_starts,
 }
 
 

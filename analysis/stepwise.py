@@ -169,7 +169,7 @@ def backward_check(records: Sequence[Record], full: F.FitResult, added: Sequence
         checks = []
         for name in [a for a in added if full.model.effect(a) is not None]:
             reduced = F.fit_model(pieces, without(full.model, name), starts="given",
-                                  delay_search=False)
+                                  delay_search=False, covariance=False, tol=F.REFIT_TOL)
             w_red, rmse_red = F.errors(reduced.model, pieces)
             obj_red = math.sqrt(w_red.sum() / n)
             # judged as a candidate added to the reduced model, like in the diagnosis

@@ -84,7 +84,7 @@ def closed_loop(model: PlantModel, law: Law, duration_s: float, dt: float = 0.00
             trial = copy.deepcopy(state)
             ahead = model.advance(trial, np.zeros((1, K)), dt)[0]
             truth[k + 1:k + K] = ahead[:K - 1]
-        truth[k] = state.y[0]
+        truth[k] = state.reading[0]     # the force as the dynamometer sees it
         meas, _ = sensor.measure(truth[k:k + K])
         y[k:k + K] = meas + offset_kgf
         for j in range(K):

@@ -6,9 +6,9 @@ The base model (paper, eq. 1, with the constant trend of eq. 2) is
 
 with the force ``y`` in kgf, the valve command ``u`` in % (±100 % = ±10 V), the gain ``g`` in
 kgf/(%·s), the transport delay ``τ`` in s and the trend ``Δ`` in kgf/s. Effects refine it at one of
-four places of the signal path, applied in this order::
+five places of the signal path, applied in this order::
 
-    u(t-τ) ─▶ VALVE (spool/flow command q) ─▶ FLOW (gain factors on g·q) ─▶ Σ ─▶ ∫ ─▶ y
+    u(t-τ) ─▶ VALVE (spool/flow command q) ─▶ FLOW (gain factors on g·q) ─▶ Σ ─▶ ∫ ─▶ y ─▶ SENSOR ─▶ y_m
                                                    DISTURBANCE, FORCE (rate terms) ─┘
 
 so the complete rate law is
@@ -40,6 +40,7 @@ class Stage(enum.IntEnum):
     FLOW = 2         #: multiplies the flow-driven force rate g·q by a factor
     DISTURBANCE = 3  #: adds a force rate that depends on time only
     FORCE = 4        #: adds a force rate that depends on the force itself
+    SENSOR = 5       #: filters what the dynamometer reports (the force rate it sees)
 
 
 CATALOGUE: dict[str, type["Effect"]] = {}
@@ -121,10 +122,43 @@ class Effect:
         integration); otherwise None."""
         return None
 
+    def filter_rate(self, rate: np.ndarray, dt: float, state: dict) -> np.ndarray:
+        """SENSOR stage: the rate of the reading over each step, from the force rate ``rate``
+        (n, K); ``state`` carries the filter between blocks (empty: start settled on the first
+        step's rate)."""
+        raise NotImplementedError
+
+    def filter_states(self, rate: np.ndarray, dt: float, steps: np.ndarray) -> dict:
+        """SENSOR stage: the filter's state (for :meth:`filter_rate`) at the start of the given
+        ``steps`` of one continuous rate record ``rate`` (1, K), started settled: the state of
+        each window cut from it."""
+        raise NotImplementedError
+
+    def force_minus_reading(self, state: dict) -> np.ndarray:
+        """SENSOR stage: the force minus the reading for the filter's ``state`` (what a window
+        starting from a reading must add to start from the force)."""
+        raise NotImplementedError
+
 
 # ------------------------------------------------------------------------------------------
 # VALVE stage
 # ------------------------------------------------------------------------------------------
+def first_order_step_average(v: np.ndarray, dt: float, T: float, state: dict) -> np.ndarray:
+    """A first-order lag ``T·ẋ = v − x`` driven by ``v`` (n, K) held over each step: the step
+    average of ``x`` (exact for an integrator that follows). ``state["x"]`` (n,) is ``x`` at the
+    block's start, and is advanced to its end; without it ``x`` starts settled on ``v[:, 0]``."""
+    a = float(np.exp(-dt / T))
+    c = T / dt * (1.0 - a)  # step-average weight of the initial deviation
+    x0 = state.get("x")
+    if x0 is None:
+        x0 = v[:, 0].copy()
+    # x_{k+1} = a x_k + (1-a) v_k  (x_k is the state at the step start)
+    x_next, _ = lfilter([1.0 - a], [1.0, -a], v, axis=1, zi=(a * x0)[:, None])
+    x_start = np.concatenate([x0[:, None], x_next[:, :-1]], axis=1)
+    state["x"] = x_next[:, -1].copy()
+    return v + (x_start - v) * c
+
+
 @register
 class Lag(Effect):
     r"""First-order lag of the spool/actuator, in series with the transport delay.
@@ -150,15 +184,7 @@ class Lag(Effect):
         return {"x": np.array(u0, float)}
 
     def shape(self, q, dt, state):
-        T = self.time_constant
-        a = float(np.exp(-dt / T))
-        c = T / dt * (1.0 - a)  # step-average weight of the initial deviation
-        x0 = state["x"]
-        # x_{k+1} = a x_k + (1-a) u_k  (x_k is the spool position at the step start)
-        x_next, _ = lfilter([1.0 - a], [1.0, -a], q, axis=1, zi=(a * x0)[:, None])
-        x_start = np.concatenate([x0[:, None], x_next[:, :-1]], axis=1)
-        state["x"] = x_next[:, -1].copy()
-        return q + (x_start - q) * c
+        return first_order_step_average(q, dt, self.time_constant, state)
 
 
 @register
@@ -463,6 +489,44 @@ class Leakage(Effect):
 
     def decay_rate(self):
         return self.rate
+
+
+# ------------------------------------------------------------------------------------------
+# SENSOR stage
+# ------------------------------------------------------------------------------------------
+@register
+class SensorLag(Effect):
+    r"""A first-order filter in the dynamometer: its reading lags the force.
+
+    Physics: a strain-gauge amplifier's anti-aliasing or noise filter (CiA 404 devices have a
+    configurable digital filter) reports
+
+    .. math::  T_s\,\dot y_m = y - y_m ,
+
+    computed here on the rate (``ẏ_m`` is ``ẏ`` through the same filter), so the force itself,
+    which force-dependent effects see, is unfiltered. For a linear plant it acts like a valve
+    :class:`Lag` (the two commute on an integrator); behind a valve nonlinearity (dead zone, flow
+    limit, reversal boost) it does not: the filter smooths what the nonlinearity made. A window
+    of the analysis starts from a reading: the filter's state there is taken from the rate along
+    the measured force, and the force under the reading is ``y_m + T_s·ẏ_m``.
+    """
+
+    name = "sensor_lag"
+    stage = Stage.SENSOR
+    summary = "dynamometer filter: the reading lags the force by T_s (first order)"
+    params = (Param("time_constant", 0.01, 1e-4, 1.0, "s", "filter time constant T_s", log=True),)
+
+    def filter_rate(self, rate, dt, state):
+        return first_order_step_average(rate, dt, self.time_constant, state)
+
+    def filter_states(self, rate, dt, steps):
+        a = float(np.exp(-dt / self.time_constant))
+        x_next, _ = lfilter([1.0 - a], [1.0, -a], rate, axis=1, zi=(a * rate[:, 0])[:, None])
+        x_start = np.concatenate([rate[:, :1], x_next[:, :-1]], axis=1)
+        return {"x": x_start[0, steps]}
+
+    def force_minus_reading(self, state):
+        return self.time_constant * state["x"]      # y − y_m = T_s·ẏ_m
 
 
 def effect_class(name: str) -> type[Effect]:

@@ -37,6 +37,7 @@ class PlantState:
     t: np.ndarray                 #: time, s, shape (n,)
     history: np.ndarray           #: past commands for the delay line, shape (n, H)
     effects: list[dict] = field(default_factory=list)
+    reading: np.ndarray | None = None  #: what the dynamometer reports (y through SENSOR effects)
 
 
 @dataclass
@@ -66,6 +67,7 @@ class PlantModel:
         self._flow = [e for e in self.effects if e.stage is Stage.FLOW]
         self._force = [e for e in self.effects if e.stage is Stage.FORCE]
         self._has_disturbance = any(e.stage is Stage.DISTURBANCE for e in self.effects)
+        self._sensor = [i for i, e in enumerate(self.effects) if e.stage is Stage.SENSOR]
 
     # -- description --------------------------------------------------------------------------
     @property
@@ -139,11 +141,13 @@ class PlantModel:
         m, _ = self._delay_split(dt)
         u_init = np.broadcast_to(np.asarray(u0, float), (n,)).copy()
         hist = np.repeat(u_init[:, None], m + 1, axis=1)
+        y = np.broadcast_to(np.asarray(y0, float), (n,)).copy()
         return PlantState(
-            y=np.broadcast_to(np.asarray(y0, float), (n,)).copy(),
+            y=y,
             t=np.broadcast_to(np.asarray(t0, float), (n,)).copy(),
             history=hist,
             effects=[e.init_state(n, u_init) for e in self.effects],
+            reading=y.copy(),
         )
 
     def drive(self, u: np.ndarray, dt: float, state: PlantState) -> Drive:
@@ -221,11 +225,31 @@ class PlantModel:
             out[:, k + 1] = y
         return out
 
+    def sense(self, y: np.ndarray, dt: float, start: np.ndarray,
+              states: list[dict] | None = None) -> np.ndarray:
+        """What the dynamometer reports along force trajectories ``y`` (n, K+1): ``y`` itself,
+        or through the SENSOR effects, from the reading ``start`` (n,). ``states``: the effects'
+        states, aligned with :attr:`effects` (None: each filter starts settled)."""
+        if not self._sensor:
+            return y
+        rate = np.diff(y, axis=1) / dt
+        for i in self._sensor:
+            rate = self.effects[i].filter_rate(rate, dt, states[i] if states is not None else {})
+        out = np.empty_like(y)
+        out[:, 0] = start
+        np.cumsum(rate * dt, axis=1, out=out[:, 1:])
+        out[:, 1:] += np.asarray(start, float)[:, None]
+        return out
+
     def advance(self, state: PlantState, u: np.ndarray, dt: float) -> np.ndarray:
-        """Advance ``state`` by the command block ``u`` (n, K); returns the force after each
-        step, shape (n, K). This is what the emulator calls every control period."""
+        """Advance ``state`` by the command block ``u`` (n, K); returns the dynamometer's
+        reading after each step (the force, unless a SENSOR effect filters it), shape (n, K).
+        This is what the emulator calls every control period."""
         y = self.integrate(self.drive(u, dt, state), state.y, dt)
         state.y = y[:, -1].copy()
+        if self._sensor:
+            y = self.sense(y, dt, state.reading, state.effects)
+        state.reading = y[:, -1].copy()
         return y[:, 1:]
 
     def simulate(self, u: np.ndarray, dt: float, y0: float = 0.0, u_before: float | None = None,
@@ -235,7 +259,7 @@ class PlantModel:
         u = np.asarray(u, float)
         state = self.new_state(1, dt, y0, u[0] if u_before is None else u_before, t0)
         y = self.integrate(self.drive(u[None, :], dt, state), state.y, dt)
-        return y[0, :-1]
+        return self.sense(y, dt, state.reading, state.effects)[0, :-1]
 
     def simulate_windows(self, u: np.ndarray, y: np.ndarray, dt: float, window: int,
                          t0: float = 0.0, u_before: float | None = None) -> np.ndarray:
@@ -261,5 +285,48 @@ class PlantModel:
 
         wdrv = Drive(q=cut(drv.q), aux=[cut(a) for a in drv.aux], dist=cut(drv.dist))
         starts = y[np.arange(nw) * window]
-        yy = self.integrate(wdrv, starts, dt)[:, :-1]
-        return yy.reshape(-1)[:N]
+        if self._sensor:
+            sensor = self.window_filter_states(drv, y, dt, np.arange(nw) * window)
+            yy = self.sense(self.integrate(wdrv, self.force_at(starts, sensor), dt), dt, starts,
+                            sensor)
+        else:
+            yy = self.integrate(wdrv, starts, dt)
+        return yy[:, :-1].reshape(-1)[:N]
+
+    def force_at(self, readings: np.ndarray, states: list[dict]) -> np.ndarray:
+        """The force under ``readings`` (n,), given the SENSOR filters' ``states``."""
+        y = np.asarray(readings, float)
+        for i in self._sensor:
+            y = y + self.effects[i].force_minus_reading(states[i])
+        return y
+
+    @property
+    def has_sensor_effects(self) -> bool:
+        return bool(self._sensor)
+
+    def rate_along(self, drv: Drive, y: np.ndarray) -> np.ndarray:
+        """The force rate over each step of the drive (n, K) if the force were ``y`` (n, K) at
+        the steps' starts: all steps at once, no integration."""
+        r = self.g * drv.q
+        for eff, aux in zip(self._flow, drv.aux):
+            r = r * eff.gain(drv.q, aux, y)
+        r = r + self.delta
+        if drv.dist is not None:
+            r = r + drv.dist
+        for eff in self._force:
+            r = r + eff.force_rate(y)
+        return r
+
+    def window_filter_states(self, drv: Drive, y: np.ndarray, dt: float,
+                             steps: np.ndarray) -> list[dict]:
+        """The SENSOR filters' states at the window starts ``steps`` of one record (continuous
+        drive ``drv``, shape (1, K)), run over the rate along the measured force ``y`` (K,)
+        (exact when the rate does not depend on the force). Aligned with :attr:`effects`, for
+        :meth:`sense`."""
+        rate = self.rate_along(drv, np.asarray(y, float)[None, :drv.q.shape[1]])
+        states: list[dict] = [{} for _ in self.effects]
+        for i in self._sensor:
+            eff = self.effects[i]
+            states[i] = eff.filter_states(rate, dt, steps)
+            rate = eff.filter_rate(rate, dt, {})
+        return states

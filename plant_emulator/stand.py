@@ -122,7 +122,7 @@ class EmulatedStand:
     def force_kgf(self) -> float:
         if self.options.lockstep:
             return self.lockstep_plant.force
-        return float(self._plant.y[0])
+        return float(self._plant.reading[0])
 
     # -- plant time ------------------------------------------------------------------------------
     def _advance(self, steps: int) -> None:

@@ -40,7 +40,7 @@ def test_delay_is_exact_even_between_samples(tau):
 
 @pytest.mark.parametrize("spec", ["base", "base+reversal", "base+lag+deadzone", "base+saturation+asymmetry",
                                   "base+leakage", "base+load_pressure+reversal+lag+oscillation",
-                                  "base+backlash+flow_curve"])
+                                  "base+backlash+flow_curve", "base+sensor_lag+deadzone+reversal"])
 def test_emulator_blocks_and_analysis_windows_run_the_same_model(spec):
     """Stepping in small blocks (the emulator), whole records and windows (the analysis) agree."""
     m = PlantModel.from_spec(spec, {"g": 110, "tau": 0.031})
@@ -77,6 +77,25 @@ def test_backlash_is_a_play_the_command_must_cross_after_turning_back():
     held = np.flatnonzero(q == top)
     assert len(held) == pytest.approx(0.2 / DT, abs=2)
     assert np.max(np.abs(q[300:] - (ramp[300:] + 1.0).clip(max=top))) < 1e-12
+
+
+def test_sensor_lag_filters_the_reading_not_the_force():
+    """Linear plant: a dynamometer filter gives the reading a valve lag gives (they commute on
+    an integrator). Behind a dead zone they differ; the force itself stays unfiltered."""
+    u = np.repeat(np.random.default_rng(1).normal(0, 10, 100), 25)
+    vals = {"g": 100, "tau": 0.02}
+    valve = PlantModel.from_spec("base+lag", {**vals, "lag.time_constant": 0.03})
+    sensor = PlantModel.from_spec("base+sensor_lag", {**vals, "sensor_lag.time_constant": 0.03})
+    a, b = valve.simulate(u, DT, u_before=0.0), sensor.simulate(u, DT, u_before=0.0)
+    assert np.max(np.abs(a - b)) < 1e-9 * np.abs(a).max()
+    dz = {"deadzone.width": 4.0}
+    a = PlantModel.from_spec("base+lag+deadzone", {**vals, **dz, "lag.time_constant": 0.03}).simulate(u, DT)
+    b = PlantModel.from_spec("base+sensor_lag+deadzone", {**vals, **dz, "sensor_lag.time_constant": 0.03}).simulate(u, DT)
+    assert np.max(np.abs(a - b)) > 5.0
+    state = sensor.new_state(1, DT, y0=0.0, u0=0.0)
+    reading = sensor.advance(state, np.full((1, 500), 10.0), DT)[0]
+    # a ramp of 1000 kgf/s read through 30 ms: the reading trails the force by 30 kgf
+    assert state.y[0] - reading[-1] == pytest.approx(1000 * 0.03, rel=1e-3)
 
 
 def test_flow_curve_bends_the_slopes_as_a_power_of_the_command():

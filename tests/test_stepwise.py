@@ -64,6 +64,16 @@ def test_an_effect_picked_early_is_dropped_once_the_real_ones_are_in():
         assert [n.effect for n in gone] == ["load_pressure"] and "dropped" in gone[0].text()
 
 
+def test_a_sensor_filter_behind_a_flow_limit_is_not_a_valve_lag():
+    """Independent simulator, 12 % flow limit + 10 ms dynamometer filter: a valve lag sits before
+    the limit and cannot mimic it; the sensor lag is found, with its time constant."""
+    r = stepwise(independent("saturation+sensorlag", 1004))
+    assert r.verdict == "adequate" and r.model.spec == "base+saturation+sensor_lag", r.summary
+    p = r.model.params()
+    assert p["sensor_lag.time_constant"] == pytest.approx(0.010, rel=0.15)
+    assert p["saturation.limit"] == pytest.approx(12.0, rel=0.02)
+
+
 def test_what_the_catalogue_cannot_explain_stays_unexplained_after_what_it_can():
     r = stepwise(independent("osc+asymmetry", 1005))
     assert r.verdict == "unexplained" and r.model.spec == "base+asymmetry", r.summary
