@@ -834,7 +834,8 @@ def _result(model: PlantModel, par: Parameterization, pieces: Sequence[Piece], r
         if at_bound[i]:
             est[name] = ParamEstimate(name, v, math.nan, math.nan, math.nan, p.unit, at_bound=True)
             shown = p.lower if abs(v - p.lower) <= abs(v - p.upper) else p.upper   # not 1.7e-16
-            warnings.append(f"{name} = {shown:g} {p.unit} sits at its bound [{p.lower:g}, {p.upper:g}]")
+            unit = "" if p.unit == "1" else f" {p.unit}"       # "1": dimensionless
+            warnings.append(f"{name} = {shown:g}{unit} sits at its bound [{p.lower:g}, {p.upper:g}]")
             continue
         sd = math.sqrt(cov_x[i, i]) if cov_x is not None and np.isfinite(cov_x[i, i]) and cov_x[i, i] >= 0 \
             else math.nan
