@@ -255,12 +255,7 @@ def simulate_pieces(model: PlantModel, pieces: Sequence[Piece]) -> list[np.ndarr
             sensor = None if cuts[0][2] is None else [
                 {k: np.concatenate([c[2][j][k] for c in cuts]) for k in cuts[0][2][j]}
                 for j in range(len(cuts[0][2]))]
-        if sensor is not None:   # windows start from the force under the reading
-            yy = model.sense(model.integrate(drv, model.force_at(starts, sensor), dt), dt, starts,
-                             sensor)
-        else:
-            yy = model.integrate(drv, starts, dt)
-        yy = yy[:, :-1]
+        yy = model.integrate_from_readings(drv, starts, dt, sensor)[:, :-1]
         row = 0
         for i, (d, _, _) in zip(idx, cuts):
             k = d.q.shape[0]

@@ -184,19 +184,13 @@ class PlantModel:
 
     def integrate(self, drv: Drive, y0: np.ndarray, dt: float) -> np.ndarray:
         """Force trajectory (n, K+1) from ``y0`` (n,) under the block's drive."""
-        flow = self._flow
         force = self._force
         y0 = np.asarray(y0, float)
         n, K = drv.q.shape
-        needs_y = any(e.depends_on_force for e in flow) or any(
+        needs_y = any(e.depends_on_force for e in self._flow) or any(
             e.decay_rate() is None for e in force)
-        if not needs_y:
-            rate = self.g * drv.q
-            for eff, aux in zip(flow, drv.aux):
-                rate = rate * eff.gain(drv.q, aux, None)
-            rate = rate + self.delta
-            if drv.dist is not None:
-                rate = rate + drv.dist
+        if not needs_y:   # the force terms are -λ·y: integrated exactly below
+            rate = self._rate(drv.q, drv.aux, drv.dist, None, force_terms=False)
             lam = sum(e.decay_rate() for e in force)
             out = np.empty((n, K + 1))
             out[:, 0] = y0
@@ -210,18 +204,9 @@ class PlantModel:
         # general case: step by step, all trajectories at once
         out = np.empty((n, K + 1))
         out[:, 0] = y = y0.copy()
-        base = self.g * drv.q
         for k in range(K):
-            r = base[:, k]
-            qk = drv.q[:, k]
-            for eff, aux in zip(flow, drv.aux):
-                r = r * eff.gain(qk, None if aux is None else aux[:, k], y)
-            r = r + self.delta
-            if drv.dist is not None:
-                r = r + drv.dist[:, k]
-            for eff in force:
-                r = r + eff.force_rate(y)
-            y = y + dt * r
+            aux = [None if a is None else a[:, k] for a in drv.aux]
+            y = y + dt * self._rate(drv.q[:, k], aux, None if drv.dist is None else drv.dist[:, k], y)
             out[:, k + 1] = y
         return out
 
@@ -285,37 +270,47 @@ class PlantModel:
 
         wdrv = Drive(q=cut(drv.q), aux=[cut(a) for a in drv.aux], dist=cut(drv.dist))
         starts = y[np.arange(nw) * window]
-        if self._sensor:
-            sensor = self.window_filter_states(drv, y, dt, np.arange(nw) * window)
-            yy = self.sense(self.integrate(wdrv, self.force_at(starts, sensor), dt), dt, starts,
-                            sensor)
-        else:
-            yy = self.integrate(wdrv, starts, dt)
-        return yy[:, :-1].reshape(-1)[:N]
+        sensor = (self.window_filter_states(drv, y, dt, np.arange(nw) * window)
+                  if self._sensor else None)
+        yy = self.integrate_from_readings(wdrv, starts, dt, sensor)[:, :-1]
+        return yy.reshape(-1)[:N]
 
-    def force_at(self, readings: np.ndarray, states: list[dict]) -> np.ndarray:
-        """The force under ``readings`` (n,), given the SENSOR filters' ``states``."""
-        y = np.asarray(readings, float)
+    def integrate_from_readings(self, drv: Drive, readings: np.ndarray, dt: float,
+                                sensor: list[dict] | None) -> np.ndarray:
+        """Readings along windows (n, K+1) that start from measured ``readings`` (n,): the force
+        trajectories from the force under each reading, through the SENSOR filters whose states
+        at the starts are ``sensor`` (None: no SENSOR effect)."""
+        if sensor is None:
+            return self.integrate(drv, readings, dt)
+        y0 = np.asarray(readings, float)
         for i in self._sensor:
-            y = y + self.effects[i].force_minus_reading(states[i])
-        return y
+            y0 = y0 + self.effects[i].force_minus_reading(sensor[i])
+        return self.sense(self.integrate(drv, y0, dt), dt, readings, sensor)
 
     @property
     def has_sensor_effects(self) -> bool:
         return bool(self._sensor)
 
+    def _rate(self, q: np.ndarray, aux: list, dist: np.ndarray | None, y: np.ndarray | None,
+              force_terms: bool = True) -> np.ndarray:
+        """The force rate for flow command ``q``, the FLOW effects' ``aux``, the disturbance
+        rate ``dist`` and the force ``y`` (all the same shape: one step, or many at once);
+        ``force_terms=False`` leaves out the FORCE effects' terms."""
+        r = self.g * q
+        for eff, a in zip(self._flow, aux):
+            r = r * eff.gain(q, a, y)
+        r = r + self.delta
+        if dist is not None:
+            r = r + dist
+        if force_terms:
+            for eff in self._force:
+                r = r + eff.force_rate(y)
+        return r
+
     def rate_along(self, drv: Drive, y: np.ndarray) -> np.ndarray:
         """The force rate over each step of the drive (n, K) if the force were ``y`` (n, K) at
         the steps' starts: all steps at once, no integration."""
-        r = self.g * drv.q
-        for eff, aux in zip(self._flow, drv.aux):
-            r = r * eff.gain(drv.q, aux, y)
-        r = r + self.delta
-        if drv.dist is not None:
-            r = r + drv.dist
-        for eff in self._force:
-            r = r + eff.force_rate(y)
-        return r
+        return self._rate(drv.q, drv.aux, drv.dist, y)
 
     def window_filter_states(self, drv: Drive, y: np.ndarray, dt: float,
                              steps: np.ndarray) -> list[dict]:
