@@ -101,6 +101,10 @@ SEPARATING_EXPERIMENT = {
                                                "levels: the load-pressure effect swaps "
                                                "extend/retract with the sign of the force",
     frozenset({"reversal", "lag"}): "the meander at several amplitudes and periods",
+    frozenset({"reversal", "command_reversal"}): "the meander with a delay comparable to the "
+                                                 "boost's decay: a boost timed from the command "
+                                                 "already pushes the old direction during the "
+                                                 "delay, one timed from the rod starts after it",
     frozenset({"deadzone", "backlash"}): "P-feedback with a harmonic reference (a command that "
                                          "turns smoothly): a play delays the valve at every "
                                          "turning point of the command, a dead zone only cuts "

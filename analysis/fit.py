@@ -537,6 +537,9 @@ START_GRIDS: dict[str, Callable[[DataSummary, Mapping[str, float]], list[dict]]]
     "load_pressure": _load_pressure_starts,
     "leakage": _leakage_starts,
     "sensor_lag": _sensor_lag_starts,
+    "command_reversal": lambda s, base: [{k.replace("reversal.", "command_reversal."): v
+                                          for k, v in start.items()}
+                                         for start in _reversal_starts(s, base)],
 }
 
 
@@ -738,8 +741,12 @@ def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
         key = tuple(np.round(par.to_x(vals), 6))
         if key in seen:
             continue
-        if seen and sse0 > 1.05 * candidates[0][0]:
-            break  # further starts are clearly worse: one polish is enough
+        if seen and sse0 > 1.05 * candidates[0][0] and not (grid_effects and len(seen) < 2):
+            # further starts are clearly worse: one polish is enough. Except for an effect added
+            # to a fitted model: its best start is often the effect switched off (the model as
+            # it was), a point the polish may not leave while the model's other effects hold
+            # the error it would explain (a dead zone after a flow curve): polish one more
+            break
         budget = max_nfev if not seen else min(max_nfev or 10 ** 9, 15 * (len(free) + 1))
         seen.append(key)
         x, res = _polish(par, search, vals, budget, (FTOL if tol is None else tol)

@@ -69,7 +69,7 @@ def closed_loop(model: PlantModel, law: Law, duration_s: float, dt: float = 0.00
     block unknown), then the law gives the block's commands, then the real state advances."""
     n = int(round(duration_s / dt))
     sensor = _sensor(noise_kgf, resolution_kgf, range_kgf, seed)
-    m = int(math.floor(model.tau / dt + 1e-12))
+    m = model.delay_steps(dt)
     block = m + 1
     state = model.new_state(1, dt, y0=y0, u0=0.0)
     t = np.arange(n) * dt

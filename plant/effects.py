@@ -67,6 +67,9 @@ class Effect:
     #: False for effects that are not plant physics (disturbances): ``stand diagnose`` does not
     #: offer them as explanations, so structure they would absorb is reported as unexplained.
     diagnosable: ClassVar[bool] = True
+    #: True if :meth:`prepare` reads the undelayed command (``command=`` keyword): the force then
+    #: depends on a command before the delay has passed (no look-ahead over the delay)
+    reads_command: ClassVar[bool] = False
 
     def __init__(self, **values: float) -> None:
         known = {p.name: p for p in self.params}
@@ -99,9 +102,10 @@ class Effect:
         """VALVE stage: map the command block ``q`` (n, K) to the new flow command."""
         raise NotImplementedError
 
-    def prepare(self, q: np.ndarray, dt: float, state: dict) -> Any:
+    def prepare(self, q: np.ndarray, dt: float, state: dict, command: np.ndarray | None = None) -> Any:
         """FLOW stage, input side: anything that depends only on the flow-command history
-        (returned as ``aux`` of shape (n, K) and handed to :meth:`gain`)."""
+        (returned as ``aux`` of shape (n, K) and handed to :meth:`gain`). Effects that declare
+        ``reads_command`` also get the undelayed ``command`` of the same steps."""
         return None
 
     def gain(self, q: np.ndarray, aux: Any, y: np.ndarray) -> np.ndarray:
@@ -373,7 +377,11 @@ class Reversal(Effect):
         # direction of the last motion (0: at rest) and time since the last reversal
         return {"direction": np.sign(u0).astype(float), "since": np.full(n, np.inf)}
 
-    def prepare(self, q, dt, state):
+    def prepare(self, q, dt, state, command=None):
+        return self._since_reversal(q, dt, state)
+
+    def _since_reversal(self, q, dt, state):
+        """exp(−s/T_r), s the time since the sign of ``q`` last changed (a zero keeps it)."""
         n, K = q.shape
         steps = np.arange(K)
         sgn = np.sign(q)
@@ -401,6 +409,31 @@ class Reversal(Effect):
     def gain(self, q, aux, y):
         scale = (self.U_REF / np.maximum(np.abs(q), 0.5)) ** self.exponent
         return 1.0 + self.boost * scale * aux
+
+
+@register
+class CommandReversal(Reversal):
+    r"""The reversal boost timed from the valve command's reversal, not the rod's.
+
+    Physics: as :class:`Reversal`, but the stored energy is released when the *spool* reverses
+    (the chambers swap pressure at the valve), which leads the rod's reversal by the transport
+    delay when the delay sits downstream of the valve (lines, loading chain). ``s`` is the time
+    since the undelayed command changed sign; the boost acts on the flow that is still arriving
+    from before, then on the new one:
+
+    .. math::  G = 1 + b\,\left(rac{u_{ref}}{\max(|q|,\ 0.5\,\%)}ight)^{p}
+               e^{-s_u/T_r}.
+
+    With a decay much longer than the delay it looks like :class:`Reversal`; the difference is
+    the push in the old direction during the delay after each command reversal.
+    """
+
+    name = "command_reversal"
+    summary = "reversal boost timed from the command's sign change (before the delay)"
+    reads_command = True
+
+    def prepare(self, q, dt, state, command=None):
+        return self._since_reversal(q if command is None else command, dt, state)
 
 
 @register

@@ -131,7 +131,10 @@ class PlantModel:
 
     def delay_steps(self, dt: float) -> int:
         """Whole steps of ``dt`` in the delay: the command of step k first acts in step k + m,
-        so the force over the next m steps does not depend on commands not yet given."""
+        so the force over the next m steps does not depend on commands not yet given (0 when
+        an effect reads the undelayed command)."""
+        if any(e.reads_command for e in self.effects):
+            return 0
         return self._delay_split(dt)[0]
 
     def new_state(self, n: int, dt: float, y0: float | np.ndarray = 0.0,
@@ -175,7 +178,8 @@ class PlantModel:
             if eff.stage is Stage.VALVE:
                 q = eff.shape(q, dt, est)
             elif eff.stage is Stage.FLOW:
-                aux.append(eff.prepare(q, dt, est))
+                aux.append(eff.prepare(q, dt, est, command=u) if eff.reads_command
+                           else eff.prepare(q, dt, est))
             elif eff.stage is Stage.DISTURBANCE:
                 d = eff.disturbance(t, dt)
                 dist = d if dist is None else dist + d

@@ -40,7 +40,8 @@ def test_delay_is_exact_even_between_samples(tau):
 
 @pytest.mark.parametrize("spec", ["base", "base+reversal", "base+lag+deadzone", "base+saturation+asymmetry",
                                   "base+leakage", "base+load_pressure+reversal+lag+oscillation",
-                                  "base+backlash+flow_curve", "base+sensor_lag+deadzone+reversal"])
+                                  "base+backlash+flow_curve", "base+sensor_lag+deadzone+reversal",
+                                  "base+command_reversal+lag"])
 def test_emulator_blocks_and_analysis_windows_run_the_same_model(spec):
     """Stepping in small blocks (the emulator), whole records and windows (the analysis) agree."""
     m = PlantModel.from_spec(spec, {"g": 110, "tau": 0.031})
@@ -168,6 +169,23 @@ def test_reversal_boost_starts_at_each_direction_change_and_decays():
         base = PlantModel(g=100, tau=0).simulate(ua, DT)
         extra.append((ya - base)[int(1.9 / DT)] - (ya - base)[int(0.99 / DT)])
     assert extra[0] == pytest.approx(extra[1], rel=0.01)
+
+
+def test_command_reversal_boost_starts_when_the_command_turns_not_the_rod():
+    """τ = 100 ms: the command turns at t = 1 s, the rod at 1.1 s. The command-timed boost
+    already pushes the old direction during the delay; the rod-timed one starts at 1.1 s."""
+    t = np.arange(0, 2, DT)
+    u = np.where(t < 1.0, 10.0, -10.0)
+    vals = {"g": 100, "tau": 0.1, "boost": 1.0, "decay": 0.2, "exponent": 0.0}
+    cmd = PlantModel.from_spec("base+command_reversal", {k if k in ("g", "tau") else f"command_reversal.{k}": v
+                                                         for k, v in vals.items()})
+    rod = PlantModel.from_spec("base+reversal", {k if k in ("g", "tau") else f"reversal.{k}": v
+                                                 for k, v in vals.items()})
+    yc, yr = cmd.simulate(u, DT, u_before=10.0), rod.simulate(u, DT, u_before=10.0)
+    before = (t > 1.0) & (t < 1.1)            # still rising: boosted only when timed from the command
+    assert np.allclose(np.diff(yr)[before[1:]], 100 * 10 * DT)
+    assert np.all(np.diff(yc)[before[1:]] > 1.3 * 100 * 10 * DT)
+    assert cmd.delay_steps(DT) == 0 and rod.delay_steps(DT) == 50
 
 
 def test_oscillation_adds_a_sinusoid():
