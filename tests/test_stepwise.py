@@ -106,7 +106,7 @@ def test_cli_stepwise_json_plot_and_saved_model(tmp_path, capsys):
         write_csv(rec, paths[-1])
     saved = tmp_path / "found.toml"
     code = main(["diagnose", *map(str, paths), "--stepwise", "--json", "--no-progress",
-                 "--save", str(saved), "--plots", str(tmp_path / "pl")])
+                 "--save", str(saved), "--plots", str(tmp_path / "pl"), "--report", str(tmp_path / "rep")])
     out = json.loads(capsys.readouterr().out)
     assert code == 0 and out["verdict"] == "adequate"
     assert [s["added"] for s in out["steps"]] == ["reversal", "deadzone", None]
@@ -114,6 +114,11 @@ def test_cli_stepwise_json_plot_and_saved_model(tmp_path, capsys):
     model = load_model_file(saved)
     assert model.spec == out["model"] and model.params()["deadzone.width"] == pytest.approx(1.5, rel=0.05)
     assert (tmp_path / "pl" / "stepwise.png").read_bytes()[:4] == b"\x89PNG"
+    # the report keeps every step as a version: the error falling as effects are added
+    history = json.loads((tmp_path / "rep" / "history.json").read_text())
+    assert [v["model"] for v in history["versions"]] == [s["model"] for s in out["steps"]]
+    rmse = [v["metrics"]["rmse"] for v in history["versions"]]
+    assert rmse == sorted(rmse, reverse=True) and "<img" in (tmp_path / "rep" / "report.html").read_text()
     code = main(["diagnose", *map(str, paths), "--stepwise", "--no-progress", "--max-effects", "1"])
     text = capsys.readouterr().out
     assert code == 0 and text.startswith("verdict: MAX_EFFECTS")

@@ -12,6 +12,7 @@ from analysis import plots
 from analysis.compare import resolve_model
 from analysis.data import load_all
 from analysis.diagnose import diagnosable_effects, diagnose
+from analysis.report import write_report
 from analysis.stepwise import MAX_EFFECTS, stepwise
 
 from plant import model_to_toml
@@ -45,6 +46,10 @@ def register(sub) -> None:
     p.add_argument("--save", metavar="FILE.toml",
                    help="write the model it arrives at as a model file (the best candidate, or with "
                         "--stepwise the final model; nothing is written when there is none)")
+    p.add_argument("--report", metavar="DIR",
+                   help="with --stepwise: add each step's model as a version of DIR/history.json "
+                        "and write DIR/report.html (the error falling as effects are added; "
+                        "see `stand report`)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=main)
 
@@ -59,6 +64,9 @@ def main(args: argparse.Namespace) -> int:
     effects = [e.strip() for e in args.effects.split(",") if e.strip()] if args.effects else None
     if args.stepwise:
         return main_stepwise(args, records, model, effects)
+    if args.report:
+        from gateway.errors import ParameterError
+        raise ParameterError("--report goes with --stepwise (for one model, use `stand report`)")
     total = 1 + len(effects if effects is not None else diagnosable_effects(model))
     with progress_bar(args, "diagnose", total) as progress:
         d = diagnose(records, model, window_s=args.window_s, effects=effects, progress=progress)
@@ -169,6 +177,15 @@ def main_stepwise(args: argparse.Namespace, records, model, effects) -> int:
                      effects=effects, progress=progress)
     saved = save_model(args, r.model if len(r.model.effects) or r.verdict == "adequate" else None,
                        f"stand diagnose --stepwise: {r.summary}")
+    report = None
+    if args.report:
+        models = [s.diagnosis.base_fit.model for s in r.steps]
+        if models[-1].spec != r.model.spec:      # the backward check dropped an effect
+            models.append(r.model)
+        for i, m in enumerate(models):
+            last = i == len(models) - 1
+            report = write_report(records, m, args.report, fit=False, window_s=args.window_s,
+                                  diagnosis=r.last if last else None).path
     files = plots_and_head(args, r, {
         "stepwise.png": lambda p: plots.plot_stepwise(r, p),
         "candidates_last_step.png": lambda p: plots.plot_candidates(r.last, p),
@@ -189,4 +206,6 @@ def main_stepwise(args: argparse.Namespace, records, model, effects) -> int:
     print()
     print(f"fitted {r.model.spec}: " + ", ".join(f"{k} = {v:.4g}" for k, v in r.model.params().items()))
     print_tail(r.last, files, saved, "what these data cannot tell (last step):")
+    if report:
+        print(f"report: {report}")
     return 0
