@@ -1,7 +1,7 @@
 """A sweep of `stand diagnose --stepwise` over random pairs of the independent simulator's
 effects (tests/independent_stand.py): does it arrive at the true pair, or its exact equivalent?
 
-    .venv/bin/python -m tests.independent_sweep SEED N      # N random pairs, 10-70 s each
+    .venv/bin/python -m tests.independent_sweep SEED N [--k 3]   # N random pairs (or triples)
 
 Not a test (too slow for CI, and the pairs are random): a probe to run after changing the
 diagnosis; docs/analysis.md keeps the latest figures."""
@@ -24,37 +24,42 @@ EQUIVALENT = {"rev_flow": {"reversal"}, "rev_cmd": {"command_reversal"},
               "flownl": {"flow_curve"}, "friction": {"deadzone"}}
 
 
-def random_pairs(seed: int, n: int) -> list[tuple[str, str]]:
+def random_sets(seed: int, n: int, k: int = 2) -> list[tuple[str, ...]]:
+    """``n`` different random sets of ``k`` simulator effects that no catalogue effect names
+    twice (and not both reversal timings)."""
     rng = np.random.default_rng(seed)
     names = sorted(EQUIVALENT)
-    pairs: set[tuple[str, str]] = set()
-    while len(pairs) < n:
-        a, b = sorted(rng.choice(names, 2, replace=False))
-        if not EQUIVALENT[a] & EQUIVALENT[b] and {a, b} != {"rev_flow", "rev_cmd"}:
-            pairs.add((a, b))
-    return sorted(pairs)
+    sets: set[tuple[str, ...]] = set()
+    while len(sets) < n:
+        pick = tuple(sorted(rng.choice(names, k, replace=False)))
+        named = [EQUIVALENT[x] for x in pick]
+        clash = any(named[i] & named[j] for i in range(k) for j in range(i + 1, k))
+        if not clash and not {"rev_flow", "rev_cmd"} <= set(pick):
+            sets.add(pick)
+    return sorted(sets)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("seed", type=int)
     ap.add_argument("n", type=int)
+    ap.add_argument("--k", type=int, default=2, help="effects per data set (default 2)")
     args = ap.parse_args()
     ok = 0
-    pairs = random_pairs(args.seed, args.n)
-    for i, (a, b) in enumerate(pairs):
-        runs = sim.make_dataset(f"{a}+{b}", 5000 + i)
+    sets = random_sets(args.seed, args.n, args.k)
+    for i, combo in enumerate(sets):
+        runs = sim.make_dataset("+".join(combo), 5000 + i)
         recs = [make_record(t, u, y, r if np.isfinite(r).any() else None, source=name)
                 for name, _, t, u, y, r, _ in runs]
         t0 = time.perf_counter()
         res = stepwise(recs)
         got = {e.name for e in res.model.effects}
-        good = len(got) == 2 and all(got & EQUIVALENT[x] for x in (a, b))
+        good = len(got) == len(combo) and all(got & EQUIVALENT[x] for x in combo)
         ok += good
         values = {k: round(v, 4) for k, v in res.model.params().items() if "." in k}
-        print(f"{a}+{b}: {'OK ' if good else 'BAD'} {res.verdict} {res.model.spec} "
+        print(f"{'+'.join(combo)}: {'OK ' if good else 'BAD'} {res.verdict} {res.model.spec} "
               f"{res.steps[-1].over_floor:.2f}x {time.perf_counter() - t0:.0f}s {values}", flush=True)
-    print(f"{ok}/{len(pairs)}")
+    print(f"{ok}/{len(sets)}")
 
 
 if __name__ == "__main__":
