@@ -31,7 +31,7 @@ def random_sets(seed: int, n: int, k: int = 2) -> list[tuple[str, ...]]:
     names = sorted(EQUIVALENT)
     sets: set[tuple[str, ...]] = set()
     while len(sets) < n:
-        pick = tuple(sorted(rng.choice(names, k, replace=False)))
+        pick = tuple(sorted(str(x) for x in rng.choice(names, k, replace=False)))
         named = [EQUIVALENT[x] for x in pick]
         clash = any(named[i] & named[j] for i in range(k) for j in range(i + 1, k))
         if not clash and not {"rev_flow", "rev_cmd"} <= set(pick):
