@@ -421,7 +421,7 @@ class CommandReversal(Reversal):
     since the undelayed command changed sign; the boost acts on the flow that is still arriving
     from before, then on the new one:
 
-    .. math::  G = 1 + b\,\left(rac{u_{ref}}{\max(|q|,\ 0.5\,\%)}ight)^{p}
+    .. math::  G = 1 + b\,\left(\frac{u_{ref}}{\max(|q|,\ 0.5\,\%)}\right)^{p}
                e^{-s_u/T_r}.
 
     With a decay much longer than the delay it looks like :class:`Reversal`; the difference is
