@@ -25,6 +25,7 @@ block per control period) and the analysis (whole records, windows side by side)
 from __future__ import annotations
 
 import enum
+import math
 from typing import Any, ClassVar
 
 import numpy as np
@@ -151,16 +152,21 @@ def first_order_step_average(v: np.ndarray, dt: float, T: float, state: dict) ->
     """A first-order lag ``T·ẋ = v − x`` driven by ``v`` (n, K) held over each step: the step
     average of ``x`` (exact for an integrator that follows). ``state["x"]`` (n,) is ``x`` at the
     block's start, and is advanced to its end; without it ``x`` starts settled on ``v[:, 0]``."""
-    a = float(np.exp(-dt / T))
-    c = T / dt * (1.0 - a)  # step-average weight of the initial deviation
     x0 = state.get("x")
-    if x0 is None:
-        x0 = v[:, 0].copy()
+    x_start, x_end = first_order_states(v, dt, T, v[:, 0].copy() if x0 is None else x0)
+    state["x"] = x_end
+    c = T / dt * (1.0 - math.exp(-dt / T))  # step-average weight of the initial deviation
+    return v + (x_start - v) * c
+
+
+def first_order_states(v: np.ndarray, dt: float, T: float,
+                       x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The state of ``T·ẋ = v − x`` at the start of each step (n, K), from ``x0`` (n,), with
+    ``v`` held over each step; and the state at the end of the last step (n,)."""
+    a = math.exp(-dt / T)
     # x_{k+1} = a x_k + (1-a) v_k  (x_k is the state at the step start)
     x_next, _ = lfilter([1.0 - a], [1.0, -a], v, axis=1, zi=(a * x0)[:, None])
-    x_start = np.concatenate([x0[:, None], x_next[:, :-1]], axis=1)
-    state["x"] = x_next[:, -1].copy()
-    return v + (x_start - v) * c
+    return np.concatenate([x0[:, None], x_next[:, :-1]], axis=1), x_next[:, -1].copy()
 
 
 @register
@@ -553,9 +559,7 @@ class SensorLag(Effect):
         return first_order_step_average(rate, dt, self.time_constant, state)
 
     def filter_states(self, rate, dt, steps):
-        a = float(np.exp(-dt / self.time_constant))
-        x_next, _ = lfilter([1.0 - a], [1.0, -a], rate, axis=1, zi=(a * rate[:, 0])[:, None])
-        x_start = np.concatenate([rate[:, :1], x_next[:, :-1]], axis=1)
+        x_start, _ = first_order_states(rate, dt, self.time_constant, rate[:, 0].copy())
         return {"x": x_start[0, steps]}
 
     def force_minus_reading(self, state):
