@@ -34,14 +34,18 @@ class Dynamometer:
         self._noise = np.empty(0)
         self._next = 0
 
-    def _draw(self, n: int) -> np.ndarray:
-        """The next ``n`` values of the noise stream. Drawn ahead in blocks: a block of draws is
-        the same sequence as single draws, so the readings do not depend on how they are asked
-        for (one at a time by the emulator, whole records by the analysis)."""
+    def _ensure(self, n: int) -> None:
+        """At least ``n`` values of the noise stream ready from ``_next``. Drawn ahead in blocks:
+        a block of draws is the same sequence as single draws, so the readings do not depend on
+        how they are asked for (one at a time by the emulator, whole records by the analysis)."""
         if self._next + n > len(self._noise):
             fresh = self._rng.normal(0.0, self.noise_kgf, max(n, _NOISE_BLOCK))
             self._noise = np.concatenate([self._noise[self._next:], fresh])
             self._next = 0
+
+    def _draw(self, n: int) -> np.ndarray:
+        """The next ``n`` values of the noise stream."""
+        self._ensure(n)
         out = self._noise[self._next:self._next + n]
         self._next += n
         return out
@@ -64,9 +68,7 @@ class Dynamometer:
             reading, over = self.measure(v)
             return float(reading), bool(over)
         if self.noise_kgf:
-            if self._next >= len(self._noise):
-                self._noise = self._rng.normal(0.0, self.noise_kgf, _NOISE_BLOCK)
-                self._next = 0
+            self._ensure(1)
             v += float(self._noise[self._next])
             self._next += 1
         res = self.resolution_kgf
