@@ -490,10 +490,13 @@ def _lag_starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
     return out
 
 
-def _sensor_lag_starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
-    """Those of a valve lag (the same filter, on the reading)."""
-    return [{("sensor_lag.time_constant" if k == "lag.time_constant" else k): v
-             for k, v in start.items()} for start in _lag_starts(s, base)]
+def _same_starts(grid: Callable, effect: str, twin: str) -> Callable:
+    """The start grid of ``effect`` for ``twin``, an effect with the same parameters (a sensor
+    lag starts like a valve lag, a command-timed reversal like a rod-timed one)."""
+    def starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
+        return [{(twin + k[len(effect):] if k.startswith(effect + ".") else k): v
+                 for k, v in start.items()} for start in grid(s, base)]
+    return starts
 
 
 def _deadzone_starts(s: DataSummary, base) -> list[dict]:
@@ -536,10 +539,8 @@ START_GRIDS: dict[str, Callable[[DataSummary, Mapping[str, float]], list[dict]]]
     "reversal": _reversal_starts,
     "load_pressure": _load_pressure_starts,
     "leakage": _leakage_starts,
-    "sensor_lag": _sensor_lag_starts,
-    "command_reversal": lambda s, base: [{k.replace("reversal.", "command_reversal."): v
-                                          for k, v in start.items()}
-                                         for start in _reversal_starts(s, base)],
+    "sensor_lag": _same_starts(_lag_starts, "lag", "sensor_lag"),
+    "command_reversal": _same_starts(_reversal_starts, "reversal", "command_reversal"),
 }
 
 
