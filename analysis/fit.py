@@ -525,6 +525,13 @@ def _load_pressure_starts(s: DataSummary, base) -> list[dict]:
             for f in (1.3, 2.0, 5.0, 20.0, 1000.0)]
 
 
+def _stiffness_starts(s: DataSummary, base) -> list[dict]:
+    """Gain changes of 0, ±20 % and +60 % at the largest force of the data."""
+    r = 1e4 / max(s.y_abs_max, 100.0)
+    return [{"stiffness.k_abs": min(50.0, a * r), "stiffness.k_sgn": max(-20.0, min(20.0, b * r))}
+            for a in (-0.2, 0.0, 0.2, 0.6) for b in (-0.2, 0.0, 0.2)]
+
+
 def _leakage_starts(s: DataSummary, base) -> list[dict]:
     return [{"leakage.rate": lam} for lam in (0.0, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0)]
 
@@ -539,6 +546,7 @@ START_GRIDS: dict[str, Callable[[DataSummary, Mapping[str, float]], list[dict]]]
     "reversal": _reversal_starts,
     "load_pressure": _load_pressure_starts,
     "leakage": _leakage_starts,
+    "stiffness": _stiffness_starts,
     "sensor_lag": _same_starts(_lag_starts, "lag", "sensor_lag"),
     "command_reversal": _same_starts(_reversal_starts, "reversal", "command_reversal"),
 }

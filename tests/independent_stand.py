@@ -29,6 +29,9 @@ One hidden effect per simulation (or "none"), or several joined by "+":
   flownl     q = sign(u) * 10 * (|u|/10)^0.8
   osc        20 kgf * sin(2*pi*3 Hz*t + phase) added to the measurement
   friction   |dy/dt| from the flow reduced by 100 kgf/s (never reversing it) when |q| > 0
+  stiffening specimen stiffness rising with the load: rate x (1 + k*|y|/1e4), k = 1.5
+  valve2nd   second-order valve after the delay: natural frequency 25 Hz, damping 0.5
+  gaindrift  flow gain drifting over each run (oil warming): g x (1 + a*t), a = 0.01 1/s
 """
 from __future__ import annotations
 
@@ -57,6 +60,9 @@ EFFECT_PARAMS = {
     "flownl": dict(ref=10.0, p=0.8),
     "osc": dict(A=20.0, f=3.0),
     "friction": dict(F=100.0),
+    "stiffening": dict(k=1.5),
+    "valve2nd": dict(f=25.0, zeta=0.5),
+    "gaindrift": dict(a=0.01),
 }
 
 
@@ -109,6 +115,7 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
     y = float(y0)
     ys = float(y0)                         # sensor state
     qv = 0.0                               # valve lag state
+    qd = 0.0                               # second-order valve: rate of the spool
     bl = 0.0                               # backlash output
     cmd_rev = _Reversals()                 # of the undelayed command
     flow_rev = _Reversals()                # of the delayed flow
@@ -154,6 +161,11 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
             if "lag" in es:
                 qv += H / P["lag"]["T"] * (v - qv)
                 q = qv
+            elif "valve2nd" in es:
+                wn = 2 * math.pi * P["valve2nd"]["f"]
+                qd += H * (wn * wn * (v - qv) - 2 * P["valve2nd"]["zeta"] * wn * qd)
+                qv += H * qd
+                q = qv
             else:
                 q = v
             if "saturation" in es:
@@ -170,6 +182,10 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
                 flow_rev.see(q, t)
                 q *= 1.0 + rp["boost"] * math.exp(-(t - flow_rev.at) / rp["decay"])
             rate = g * q
+            if "stiffening" in es:
+                rate *= 1.0 + P["stiffening"]["k"] * abs(y) / 1e4
+            if "gaindrift" in es:
+                rate *= 1.0 + P["gaindrift"]["a"] * t
             if "friction" in es and q != 0.0:
                 m = abs(rate) - P["friction"]["F"]
                 rate = math.copysign(m, rate) if m > 0 else 0.0

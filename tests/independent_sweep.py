@@ -21,7 +21,8 @@ EQUIVALENT = {"rev_flow": {"reversal"}, "rev_cmd": {"command_reversal"},
               "lag": {"lag", "sensor_lag"}, "sensorlag": {"lag", "sensor_lag"},
               "deadzone": {"deadzone"}, "saturation": {"saturation"}, "asymmetry": {"asymmetry"},
               "loadpress": {"load_pressure"}, "leakage": {"leakage"}, "backlash": {"backlash"},
-              "flownl": {"flow_curve"}, "friction": {"deadzone"}}
+              "flownl": {"flow_curve"}, "friction": {"deadzone"},
+              "stiffening": {"stiffness"}}
 
 
 def random_sets(seed: int, n: int, k: int = 2) -> list[tuple[str, ...]]:

@@ -22,7 +22,8 @@ NAMED = {"rev_cmd": "command_reversal", "rev_flow": "reversal", "lag": "lag", "d
          "saturation": "saturation", "asymmetry": "asymmetry", "loadpress": "load_pressure",
          "leakage": "leakage", "sensorlag": "lag",   # on an integrator: the same (both named)
          "friction": "deadzone",                     # Coulomb friction on the rate = a dead zone
-         "backlash": "backlash", "flownl": "flow_curve"}
+         "backlash": "backlash", "flownl": "flow_curve",
+         "stiffening": "stiffness"}
 
 
 def dataset(effect: str) -> list:
@@ -53,6 +54,21 @@ def test_independent_simulator(effect):
         if effect == "flownl":     # the same power law (its reference level only rescales g)
             want = sim.EFFECT_PARAMS["flownl"]["p"]
             assert d.best_candidate.params["flow_curve.exponent"] == pytest.approx(want, abs=0.03)
+        if effect == "stiffening":  # the simulator's law is the catalogue's with k_sgn = 0
+            p = d.best_candidate.params
+            assert p["stiffness.k_abs"] == pytest.approx(sim.EFFECT_PARAMS["stiffening"]["k"], rel=0.05)
+            assert abs(p["stiffness.k_sgn"]) < 0.05
+    elif effect == "valve2nd":
+        # a 25 Hz valve is, at 2 ms samples, a delay of 2ζ/ωn more: nothing else to see
+        assert d.verdict == "adequate", d.summary
+        v = sim.EFFECT_PARAMS["valve2nd"]
+        want = sim.DEFAULTS["tau"] + 2 * v["zeta"] / (2 * np.pi * v["f"])
+        assert d.base_fit.model.tau == pytest.approx(want, abs=0.002)
+    elif effect == "gaindrift":
+        # outside the catalogue: not pinned on an effect, and the drift is said in words
+        assert d.verdict == "unexplained", d.summary
+        said = [o for o in d.observations if "first quarter of the records" in o]
+        assert said and "grows during a run" in said[0], d.observations
     else:
         assert effect == "osc", effect
         assert d.verdict == "unexplained", d.summary

@@ -41,10 +41,11 @@ def test_delay_is_exact_even_between_samples(tau):
 @pytest.mark.parametrize("spec", ["base", "base+reversal", "base+lag+deadzone", "base+saturation+asymmetry",
                                   "base+leakage", "base+load_pressure+reversal+lag+oscillation",
                                   "base+backlash+flow_curve", "base+sensor_lag+deadzone+reversal",
-                                  "base+command_reversal+lag"])
+                                  "base+command_reversal+lag", "base+stiffness+reversal"])
 def test_emulator_blocks_and_analysis_windows_run_the_same_model(spec):
     """Stepping in small blocks (the emulator), whole records and windows (the analysis) agree."""
-    m = PlantModel.from_spec(spec, {"g": 110, "tau": 0.031})
+    extra = {"stiffness.k_abs": 2.0, "stiffness.k_sgn": -0.5} if "stiffness" in spec else {}
+    m = PlantModel.from_spec(spec, {"g": 110, "tau": 0.031, **extra})
     t, u = square(12.0, 1.0, 6.0)
     whole = m.simulate(u, DT, y0=100.0)
     state = m.new_state(1, DT, y0=100.0, u0=u[0])
@@ -148,6 +149,20 @@ def test_load_pressure_slows_pushing_against_the_load():
     pull = slope(t, m.simulate(np.full_like(t, -10.0), DT, y0=5000, u_before=-10.0), 0, 0.2)
     assert push == pytest.approx(1000 * math.sqrt(1 - 0.25), rel=0.01)
     assert pull == pytest.approx(-1000 * math.sqrt(1 + 0.25), rel=0.01)
+
+
+def test_stiffness_scales_the_gain_with_the_load_as_in_closed_form():
+    """dy/dt = g·u·(1 + b·y) from y = 0 (y > 0, b = (k_abs + k_sgn)/10⁴) is
+    y = (exp(g·u·b·t) − 1)/b; pulling back from a negative force sees (k_abs − k_sgn)."""
+    m = PlantModel.from_spec("base+stiffness", {"g": 100, "tau": 0, "stiffness.k_abs": 3.0,
+                                                "stiffness.k_sgn": 1.0})
+    t = np.arange(0, 2, DT)
+    y = m.simulate(np.full_like(t, 10.0), DT, u_before=10.0)
+    b = 4.0 / 1e4
+    exact = (np.exp(1000 * b * t) - 1) / b
+    assert np.max(np.abs(y[1:] - exact[1:]) / exact[1:]) < 1e-3   # Euler steps of 2 ms
+    down = m.simulate(np.full_like(t, -10.0), DT, u_before=-10.0)
+    assert down[-1] == pytest.approx(-(np.exp(1000 * 2e-4 * t[-1]) - 1) / 2e-4, rel=1e-3)
 
 
 def test_reversal_boost_starts_at_each_direction_change_and_decays():
