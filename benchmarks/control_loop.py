@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import tempfile
 
+import can
 import numpy as np
 
 from gateway import Gateway, GatewayConfig, load_run
@@ -16,15 +17,40 @@ from .table import Row
 
 ORDER = 10
 PERIOD_S = 0.002
+SYNC_ID = 0x80
 
 
-def lockstep_cycles_per_s(cycles: int) -> tuple[float, float]:
+def lockstep_cycles_per_s(cycles: int) -> tuple[float, float, dict[str, float]]:
+    """Lockstep cycles per second, the cycles run, and where a cycle's time goes."""
     bus = f"udp_loopback:bench-ls-{os.getpid()}"
     with tempfile.TemporaryDirectory() as tmp, EmulatorProcess(bus, load_plant_config(), lockstep=True):
         with Gateway(GatewayConfig(bus=bus, lockstep=True)) as gw:
             res = gw.run(Meander(5, 4, max(1, round(cycles * PERIOD_S / 4))), f"{tmp}/run", progress=False)
+        parts = cycle_breakdown(f"{tmp}/run/capture.log")
     s = res.outcome.stats
-    return s.cycles / s.wall_s, s.cycles
+    return s.cycles / s.wall_s, s.cycles, parts
+
+
+#: the four legs of a lockstep cycle, between the send stamps of its frames (in bus order)
+LEGS = ("SYNC→1st TPDO", "1st→2nd TPDO", "2nd TPDO→RPDO", "RPDO→next SYNC")
+
+
+def cycle_breakdown(capture: str) -> dict[str, float]:
+    """Median µs of each leg of the cycles of a lockstep capture (python-can's LogReader).
+    Every frame carries its sender's wall-clock send time (udp_loopback), so the legs are:
+    the emulator answering a SYNC (after the RPDO before it), the emulator's second send, the
+    transit and the gateway's decision, and the gateway's bookkeeping up to the next SYNC."""
+    frames = [(m.timestamp, m.arbitration_id) for m in can.LogReader(capture)]
+    stamps = np.array([f[0] for f in frames])
+    ids = np.array([f[1] for f in frames])
+    syncs = np.flatnonzero(ids == SYNC_ID)
+    legs: list[list[float]] = [[] for _ in LEGS]
+    for a, b in zip(syncs[:-1], syncs[1:]):
+        tpdos, rpdo = ids[a + 1:a + 3], ids[a + 3]
+        if b - a == 4 and np.all((tpdos >= 0x180) & (tpdos < 0x200)) and 0x200 <= rpdo < 0x280:
+            for i in range(4):
+                legs[i].append(stamps[a + i + 1] - stamps[a + i])
+    return {name: float(np.median(v) * 1e6) if v else float("nan") for name, v in zip(LEGS, legs)}
 
 
 def realtime_jitter(duration_s: float) -> dict:
@@ -49,12 +75,18 @@ def realtime_jitter(duration_s: float) -> dict:
 
 
 def run(quick: bool) -> list[Row]:
-    rate, n = lockstep_cycles_per_s(4000 if quick else 30000)
+    rate, n, parts = lockstep_cycles_per_s(4000 if quick else 30000)
     rt = realtime_jitter(4.0 if quick else 60.0)
     return [
         Row("lockstep HIL loop (loopback bus, 2 processes)", f"{rate:,.0f} cycles/s",
             f"real time: {1 / PERIOD_S:,.0f} cycles/s", f"{rate * PERIOD_S:.1f}x real time",
             f"{n:,} cycles, SYNC+2 TPDO+RPDO each"),
+        Row("lockstep cycle: where the time goes (medians)",
+            " / ".join(f"{k} {v:.0f}" for k, v in parts.items()) + " µs",
+            f"100x real time: {PERIOD_S / 100 * 1e6:.0f} µs per cycle in all",
+            f"{sum(parts.values()) / (PERIOD_S / 100 * 1e6):.1f}x over",
+            f"mean cycle {1e6 / rate:.0f} µs; from the frames' send stamps in the run's capture: "
+            "emulator answer, its 2nd send, transit + gateway decision, gateway bookkeeping"),
         Row("real-time loop 2 ms: SYNC jitter", f"p50 {rt['p50']:.3f} / p99 {rt['p99']:.3f} / max {rt['max']:.2f} ms",
             "target p99 < 0.5 ms, no missed cycle", "",
             f"{rt['cycles']:,} cycles, {rt['overruns']} missed, {rt['stale']} stale; SYNC send time vs "
