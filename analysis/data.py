@@ -19,6 +19,8 @@ import numpy as np
 from gateway.errors import DataError
 from gateway.runs import is_run_dir, load_run
 
+from .glitches import remove_glitches
+
 #: relative spread of sample intervals above which a record is resampled to a uniform grid
 JITTER_TOLERANCE = 0.05
 
@@ -61,7 +63,8 @@ def make_record(t, u, y, r=None, source: str = "<arrays>", experiment: str | Non
 
     Rejects (with :class:`DataError`) too few samples, non-finite time, time that does not
     increase; drops rows with non-finite u or y (counted in ``notes``); resamples to a uniform
-    grid if the sampling jitters by more than 5 %."""
+    grid if the sampling jitters by more than 5 %; replaces glitches in the force (1-3 samples
+    far off the trend, :mod:`analysis.glitches`), noted too."""
     t = np.asarray(t, float)
     u = np.asarray(u, float)
     y = np.asarray(y, float)
@@ -99,6 +102,9 @@ def make_record(t, u, y, r=None, source: str = "<arrays>", experiment: str | Non
         y = np.interp(grid, t, y)
         t = grid
         notes.append(f"sampling was irregular: resampled to a uniform {med * 1e3:.3g} ms grid")
+    y, glitches = remove_glitches(y)
+    if glitches.count:
+        notes.append(glitches.note())
     return Record(t, u, y, r, source, experiment, dict(meta or {}), notes)
 
 

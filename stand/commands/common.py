@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from dbc import profile as P
 from gateway import GatewayConfig, SafetyLimits
@@ -115,3 +116,14 @@ def parse_assignments(items: list[str] | None, what: str = "--set") -> dict[str,
         except ValueError:
             raise ParameterError(f"{what} {item!r}: {value!r} is not a number") from None
     return out
+
+
+def load_records(paths) -> list:
+    """The data sets of ``paths`` (CSV, run directories, captures), each one's notes (rows
+    dropped, resampling, glitches replaced) printed to stderr: what was changed is said."""
+    from analysis.data import load_all
+    records = load_all(paths)
+    for rec in records:
+        for note in rec.notes:
+            print(f"note: {rec.source}: {note}", file=sys.stderr)
+    return records

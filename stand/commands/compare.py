@@ -5,9 +5,9 @@ import argparse
 from pathlib import Path
 
 from analysis.compare import compare, metrics_table, params_table
-from analysis.data import load_all
 from analysis import plots
 
+from .common import load_records
 from .fit import add_data_args, check_window, print_json
 
 
@@ -36,7 +36,7 @@ def default_out(data: list[str], prefix: str) -> Path:
 
 def main(args: argparse.Namespace) -> int:
     check_window(args)
-    records = load_all(args.data)
+    records = load_records(args.data)
     c = compare(records, args.model, window_s=args.window_s, fit=not args.as_given)
     files = []
     if not args.no_plots:

@@ -10,13 +10,13 @@ from tqdm import tqdm
 
 from analysis import plots
 from analysis.compare import resolve_model
-from analysis.data import load_all
 from analysis.diagnose import diagnosable_effects, diagnose
 from analysis.report import write_report
 from analysis.stepwise import MAX_EFFECTS, stepwise
 
 from plant import model_to_toml
 
+from .common import load_records
 from .compare import default_out
 from .fit import add_data_args, check_window, print_json
 
@@ -59,7 +59,7 @@ def main(args: argparse.Namespace) -> int:
     if args.max_effects < 1:
         from gateway.errors import ParameterError
         raise ParameterError(f"--max-effects {args.max_effects} is out of range: give 1 or more")
-    records = load_all(args.data)
+    records = load_records(args.data)
     model, _ = resolve_model(args.model)
     effects = [e.strip() for e in args.effects.split(",") if e.strip()] if args.effects else None
     if args.stepwise:

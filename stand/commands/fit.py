@@ -7,10 +7,11 @@ import sys
 from pathlib import Path
 
 from analysis.compare import Comparison, jsonable, metrics_table, params_table, resolve_model
-from analysis.data import load_all
 from analysis.fit import WINDOW_S, fit_model
 from analysis.metrics import evaluate
 from plant import model_to_toml
+
+from .common import load_records
 
 
 def add_data_args(p: argparse.ArgumentParser, model_required: bool = True) -> None:
@@ -55,7 +56,7 @@ def register(sub) -> None:
 
 def main(args: argparse.Namespace) -> int:
     check_window(args)
-    records = load_all(args.data)
+    records = load_records(args.data)
     model, path = resolve_model(args.model)
     result = fit_model(records, model, window_s=args.window_s, fixed=args.fix)
     ev = evaluate(result.model, records, args.window_s)

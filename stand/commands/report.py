@@ -3,11 +3,11 @@ from __future__ import annotations
 
 import argparse
 
-from analysis.data import load_all
 from analysis.diagnose import diagnose
 from analysis.report import write_report
 
 from .compare import default_out
+from .common import load_records
 from .fit import add_data_args, check_window
 
 
@@ -31,7 +31,7 @@ def register(sub) -> None:
 
 def main(args: argparse.Namespace) -> int:
     check_window(args)
-    records = load_all(args.data)
+    records = load_records(args.data)
     out = args.out or default_out(args.data, "report")
     d = None
     res = write_report(records, args.model, out, fit=not args.as_given, window_s=args.window_s,
