@@ -597,25 +597,20 @@ def drift_observation(sims: Sequence[RecordSimulation]) -> list[str]:
         speed.append(np.abs(dyh)[steady])
         span = max(s.record.duration_s, s.record.dt)
         into.append(((s.t - s.record.t[0]) / span)[steady])
-    if not along:
-        return []
-    along, speed = np.concatenate(along), np.concatenate(speed)
-    into = np.concatenate(into)
-    out = []
+    along, speed, into = np.concatenate(along), np.concatenate(speed), np.concatenate(into)
 
     def rel(sel: np.ndarray) -> float:
         v = float(speed[sel].sum())
         return float(along[sel].sum()) / v if v > 1e-9 and sel.sum() > 50 else math.nan
 
     first, last = rel(into < 0.25), rel(into >= 0.75)
-    if abs(first - last) >= GAIN_CHANGE_MIN:
-        out.append(
-            f"the model's slope is {_signed_pct(first)} in the first quarter of the records and "
+    if not abs(first - last) >= GAIN_CHANGE_MIN:     # NaN (too little motion) says nothing
+        return []
+    return [f"the model's slope is {_signed_pct(first)} in the first quarter of the records and "
             f"{_signed_pct(last)} in the last: the gain {'grows' if last < first else 'falls'} "
             f"during a run (oil warming up, supply pressure changing); no catalogue effect "
             f"depends on time, so fit the runs apart and compare g, or let the stand warm up "
-            f"before measuring")
-    return out
+            f"before measuring"]
 
 
 def _signed_pct(x: float) -> str:

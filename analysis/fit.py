@@ -526,7 +526,8 @@ def _load_pressure_starts(s: DataSummary, base) -> list[dict]:
 
 
 def _stiffness_starts(s: DataSummary, base) -> list[dict]:
-    """Gain changes of 0, ±20 % and +60 % at the largest force of the data."""
+    """Gain changes at the data's largest force: −20, 0, +20, +60 % for both signs of force,
+    −20, 0, +20 % between tension and compression."""
     r = 1e4 / max(s.y_abs_max, 100.0)
     return [{"stiffness.k_abs": min(50.0, a * r), "stiffness.k_sgn": max(-20.0, min(20.0, b * r))}
             for a in (-0.2, 0.0, 0.2, 0.6) for b in (-0.2, 0.0, 0.2)]
