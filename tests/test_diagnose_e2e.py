@@ -28,8 +28,8 @@ def _config(bus_spec: str) -> GatewayConfig:
     return GatewayConfig(bus=bus_spec, lockstep=True, limits=SafetyLimits(heartbeat_timeout_s=10.0))
 
 
-def _runs(bus_spec, start_emulator, tmp_path, model):
-    start_emulator(plant(BASE, model=model), lockstep=True, seed=5)
+def _runs(bus_spec, start_emulator, tmp_path, model, values: dict | None = None):
+    start_emulator(plant({**BASE, **(values or {})}, model=model), lockstep=True, seed=5)
     paths = []
     with Gateway(_config(bus_spec)) as gw:
         for amp in (5.0, 20.0):
@@ -62,3 +62,17 @@ def test_the_emulator_without_the_effect_is_adequate(bus_spec, start_emulator, t
     paths = _runs(bus_spec, start_emulator, tmp_path, "base")
     d = diagnose([read_run(p) for p in paths])
     assert d.verdict == "adequate", d.summary
+
+
+def test_a_specimen_that_stiffens_with_the_load_is_found_on_emulator_runs(bus_spec, start_emulator,
+                                                                          tmp_path):
+    """A catalogue effect that depends on the force, behind CANopen: the emulator steps it in
+    0.5 ms sub-steps period by period, the analysis in 2 ms windows."""
+    truth = {"stiffness.k_abs": 2.0, "stiffness.k_sgn": -0.5}
+    paths = _runs(bus_spec, start_emulator, tmp_path, "base+stiffness", truth)
+    d = diagnose([read_run(p) for p in paths])
+    assert d.verdict == "missing_effect" and d.best == "stiffness", d.summary
+    p = d.best_candidate.params
+    assert p["stiffness.k_abs"] == pytest.approx(2.0, rel=0.1)
+    assert p["stiffness.k_sgn"] == pytest.approx(-0.5, abs=0.15)
+    assert d.best_candidate.rmse_reduction >= 0.7
