@@ -2,6 +2,7 @@
 steps, oscillations and quantized plateaus are left alone."""
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
@@ -80,3 +81,9 @@ def test_glitches_no_longer_hide_the_missing_effect_and_are_noted(tmp_path):
                           "--model", "base"], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     assert "note: " in res.stderr and "replaced 5 glitch(es)" in res.stderr, res.stderr
+    res = subprocess.run([sys.executable, "-m", "stand", "diagnose", str(tmp_path / "g.csv"),
+                          "--json", "--no-progress", "--effects", "deadzone"],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    notes = json.loads(res.stdout)["data_notes"]
+    assert list(notes) == [str(tmp_path / "g.csv")] and "replaced 5 glitch(es)" in notes[str(tmp_path / "g.csv")][0]

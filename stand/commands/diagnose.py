@@ -73,7 +73,7 @@ def main(args: argparse.Namespace) -> int:
     best = d.best_candidate
     saved = save_model(args, best.fit.model if best is not None else None,
                        f"stand diagnose: {d.summary}")
-    files = plots_and_head(args, d, {
+    files = plots_and_head(args, d, records, {
         "candidates.png": lambda p: plots.plot_candidates(d, p),
         "overlay_start_model.png": lambda p: plots.plot_overlay(d.base_eval, p),
         "regimes_start_model.png": lambda p: plots.plot_regimes(d.base_eval, p)})
@@ -102,10 +102,11 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-def plots_and_head(args: argparse.Namespace, result, plotters: dict) -> list | None:
+def plots_and_head(args: argparse.Namespace, result, records, plotters: dict) -> list | None:
     """--plots: write each plot (file name -> writer). --json: print the result with the plots'
-    paths and return None (nothing more to print); otherwise print the verdict and summary and
-    return the plots written."""
+    paths and what loading changed in the data (``data_notes``, per source) and return None
+    (nothing more to print); otherwise print the verdict and summary and return the plots
+    written."""
     files = []
     if args.plots is not None:
         out = Path(args.plots) if args.plots else default_out(args.data, "diagnose")
@@ -114,6 +115,7 @@ def plots_and_head(args: argparse.Namespace, result, plotters: dict) -> list | N
     if args.json:
         obj = result.to_dict()
         obj["plots"] = [str(f) for f in files]
+        obj["data_notes"] = {rec.source: list(rec.notes) for rec in records if rec.notes}
         print_json(obj)
         return None
     print(f"verdict: {result.verdict.upper()}")
@@ -186,7 +188,7 @@ def main_stepwise(args: argparse.Namespace, records, model, effects) -> int:
             last = i == len(models) - 1
             report = write_report(records, m, args.report, fit=False, window_s=args.window_s,
                                   diagnosis=r.last if last else None).path
-    files = plots_and_head(args, r, {
+    files = plots_and_head(args, r, records, {
         "stepwise.png": lambda p: plots.plot_stepwise(r, p),
         "candidates_last_step.png": lambda p: plots.plot_candidates(r.last, p),
         "overlay_final_model.png": lambda p: plots.plot_overlay(r.last.base_eval, p)})
