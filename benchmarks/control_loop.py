@@ -13,6 +13,7 @@ from gateway.experiments import Meander
 from plant.config import load_plant_config
 from plant_emulator.process import EmulatorProcess
 
+from . import wakeup
 from .table import Row
 
 ORDER = 10
@@ -55,13 +56,22 @@ def cycle_breakdown(capture: str) -> dict[str, float]:
 
 def realtime_jitter(duration_s: float) -> dict:
     """SYNC timing of a real-time run: each SYNC's wall-clock send time (recorded per cycle)
-    against the ideal grid t0 + k·T, k counting the period slots (a missed cycle skips one)."""
+    against the ideal grid t0 + k·T, k counting the period slots (a missed cycle skips one).
+    Bare real-time threads in other processes, one pinned to each CPU (:mod:`benchmarks.wakeup`),
+    sleep on their own 2 ms grids meanwhile: a late cycle at a moment one of them woke late too
+    is the host's doing."""
     bus = f"udp_loopback:bench-rt-{os.getpid()}"
     with tempfile.TemporaryDirectory() as tmp, EmulatorProcess(bus, load_plant_config(), lockstep=False):
         with Gateway(GatewayConfig(bus=bus, lockstep=False)) as gw:
+            floors = wakeup.start_on_every_cpu(duration_s + 3.0)
             res = gw.run(Meander(5, 2, max(1, round(duration_s / 2))), f"{tmp}/run", progress=False)
+            host = [stall for f in floors for stall in wakeup.result(f)["stalls"]]
         run = load_run(f"{tmp}/run")
     s = res.outcome.stats
+    n = min(len(s.sync_jitter_s), len(run.sync_time))
+    late = np.asarray(s.sync_jitter_s[:n])      # each cycle's start minus its scheduled time, s
+    sel = late >= wakeup.STALL_S
+    stalls = list(zip((run.sync_time[:n][sel] - late[sel]).tolist(), late[sel].tolist()))
     slots = np.round(run.t / PERIOD_S)
     dev = (run.sync_time - run.sync_time[0]) - slots * PERIOD_S
     dev -= np.median(dev)                       # the grid's phase
@@ -71,7 +81,9 @@ def realtime_jitter(duration_s: float) -> dict:
               else f"ordinary scheduling: {sched.get('note', '?')}")
     return {"p50": float(np.percentile(j, 50)), "p99": float(np.percentile(j, 99)), "max": float(j.max()),
             "overruns": s.overruns, "stale": s.stale_cycles, "cycles": s.cycles, "status": res.status,
-            "policy": policy}
+            "policy": policy, "late_cycles": len(stalls),
+            "at_host_stall": wakeup.at_host_stalls(stalls, host),
+            "host_stalls": len(host)}
 
 
 def run(quick: bool) -> list[Row]:
@@ -90,5 +102,7 @@ def run(quick: bool) -> list[Row]:
         Row("real-time loop 2 ms: SYNC jitter", f"p50 {rt['p50']:.3f} / p99 {rt['p99']:.3f} / max {rt['max']:.2f} ms",
             "target p99 < 0.5 ms, no missed cycle", "",
             f"{rt['cycles']:,} cycles, {rt['overruns']} missed, {rt['stale']} stale; SYNC send time vs "
-            f"ideal grid; loop at {rt['policy']}"),
+            f"ideal grid; loop at {rt['policy']}; {rt['late_cycles']} cycles started ≥ "
+            f"{wakeup.STALL_S * 1e3:g} ms late, {rt['at_host_stall']} of them while a bare thread in "
+            f"another process (one per CPU) woke late too ({rt['host_stalls']} such stalls in the run)"),
     ]

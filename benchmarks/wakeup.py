@@ -8,6 +8,7 @@ jitter and missed cycles.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
@@ -18,29 +19,68 @@ ORDER = 11
 PERIOD_S = 0.002
 
 
-def _measure_here(duration_s: float) -> dict:
+#: a wake-up at least this late is a stall worth its time stamp (``stalls``), s
+STALL_S = 0.0005
+
+
+def _measure_here(duration_s: float, cpu: int | None = None) -> dict:
     from standbus.realtime import DEFAULT_PRIORITY, make_realtime
+    if cpu is not None:
+        os.sched_setaffinity(0, {cpu})
     sched = make_realtime(DEFAULT_PRIORITY)
     n = max(1, int(duration_s / PERIOD_S))
     late = []
+    stalls = []
     target = time.perf_counter()
     for _ in range(n):
         target += PERIOD_S
         remaining = target - time.perf_counter()
         if remaining > 0:
             time.sleep(remaining)
-        late.append(time.perf_counter() - target)
+        lateness = time.perf_counter() - target
+        late.append(lateness)
+        if lateness >= STALL_S:
+            stalls.append((time.time() - lateness, lateness))
     late.sort()
     return {"wakeups": n, "max_ms": late[-1] * 1e3, "p99_ms": late[int(0.99 * (n - 1))] * 1e3,
             "over_period": sum(1 for x in late if x > PERIOD_S),
-            "policy": "SCHED_FIFO" if not isinstance(sched, str) else f"normal ({sched})"}
+            "policy": "SCHED_FIFO" if not isinstance(sched, str) else f"normal ({sched})",
+            "stalls": stalls}
+
+
+def start(duration_s: float, cpu: int | None = None) -> subprocess.Popen:
+    """The measurement in a fresh process (no other thread, no GIL to share), on one ``cpu``
+    if given, running beside whatever the caller does meanwhile; :func:`result` collects it."""
+    return subprocess.Popen([sys.executable, "-m", "benchmarks.wakeup", str(duration_s)]
+                            + ([str(cpu)] if cpu is not None else []),
+                            stdout=subprocess.PIPE, text=True)
+
+
+def start_on_every_cpu(duration_s: float) -> list[subprocess.Popen]:
+    """One measurement pinned to each CPU this process may use: a host that stops one virtual
+    CPU only stalls the thread on it, so one floor thread alone could miss it."""
+    cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else [None]
+    return [start(duration_s, cpu) for cpu in cpus]
+
+
+def result(proc: subprocess.Popen) -> dict:
+    out, _ = proc.communicate()
+    if proc.returncode:
+        raise RuntimeError(f"the host-floor measurement failed (exit code {proc.returncode})")
+    return json.loads(out)
 
 
 def measure(duration_s: float) -> dict:
-    """Run the measurement in a fresh process (no other thread, no GIL to share)."""
-    out = subprocess.run([sys.executable, "-m", "benchmarks.wakeup", str(duration_s)],
-                         capture_output=True, text=True, check=True)
-    return json.loads(out.stdout)
+    return result(start(duration_s))
+
+
+def at_host_stalls(stalls: list[tuple[float, float]], host: list[tuple[float, float]],
+                   within_s: float = 0.002) -> int:
+    """How many of ``stalls`` overlap (to ``within_s``) one of the ``host`` stalls, both as
+    ``(scheduled wall-clock time, lateness)``, s: a loop late while a bare thread elsewhere on
+    the host was late too."""
+    return sum(1 for m, d in stalls
+               if any(s - within_s <= m + d and m <= s + late + within_s for s, late in host))
 
 
 def run(quick: bool) -> list[Row]:
@@ -52,4 +92,4 @@ def run(quick: bool) -> list[Row]:
 
 
 if __name__ == "__main__":
-    print(json.dumps(_measure_here(float(sys.argv[1]))))
+    print(json.dumps(_measure_here(float(sys.argv[1]), int(sys.argv[2]) if len(sys.argv) > 2 else None)))

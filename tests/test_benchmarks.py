@@ -25,3 +25,15 @@ def test_every_benchmark_runs_in_quick_mode_and_prints_its_rows():
     for figure in ("cycles/s", "x real time", "frames/s", "round trips/s", "% bus load",
                    "stand diagnose", "SYNC jitter", "host floor", "where the time goes"):
         assert figure in table, figure
+
+
+def test_a_late_cycle_is_put_on_the_host_only_when_a_bare_thread_was_late_then_too():
+    from benchmarks.wakeup import at_host_stalls
+    host = [(100.000, 0.004), (200.0, 0.001)]          # (scheduled wall time, lateness), s
+    loop = [(100.002, 0.006),                          # inside the first host stall
+            (99.990, 0.009),                           # ran into it
+            (100.0055, 0.001),                         # 1.5 ms after it ended: within 2 ms
+            (150.0, 0.010),                            # the host was on time: ours
+            (200.0035, 0.001)]                         # 2.5 ms after the second ended
+    assert at_host_stalls(loop, host) == 3
+    assert at_host_stalls(loop, []) == 0
