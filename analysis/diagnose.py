@@ -634,7 +634,8 @@ def describe_unexplained(ev: Evaluation, floor: float, ratio: float,
                    ", unrelated to the command — like an external disturbance (a neighbouring "
                    "actuator, a structural resonance, pump ripple)"))
     else:
-        where = max((r for r in ev.regimes if r.group in ("reversal", "direction")),
+        where = max((r for r in ev.regimes if r.group in ("reversal", "direction")
+                     and r.time_share >= 0.01),      # not a regime of a few samples
                     key=lambda r: r.sse_share / max(r.time_share, 1e-9), default=None)
         desc = "the residual is broadband (no dominant frequency)"
         if f is not None:

@@ -533,6 +533,21 @@ def _stiffness_starts(s: DataSummary, base) -> list[dict]:
             for a in (-0.2, 0.0, 0.2, 0.6) for b in (-0.2, 0.0, 0.2)]
 
 
+def _stiction_starts(s: DataSummary, base) -> list[dict]:
+    """Plays of 0-30 % of the force span (in flow units: divided by g); a hold after each
+    reversal looks like more delay, so each also starts with τ shortened by the hold."""
+    g = abs(base.get("g", 100.0)) or 100.0
+    tau = base.get("tau", 0.05)
+    ref = float(np.median(s.u_abs_levels))
+    out = []
+    for f in (0.0, 0.01, 0.03, 0.1, 0.3):
+        c = min(50.0, f * max(s.y_span, 100.0) / g)
+        out.append({"stiction.play": c})
+        if c > 0 and tau > 0:
+            out.append({"stiction.play": c, "tau": max(0.0, tau - c / max(ref, 1e-3))})
+    return out
+
+
 def _leakage_starts(s: DataSummary, base) -> list[dict]:
     return [{"leakage.rate": lam} for lam in (0.0, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0)]
 
@@ -548,6 +563,7 @@ START_GRIDS: dict[str, Callable[[DataSummary, Mapping[str, float]], list[dict]]]
     "load_pressure": _load_pressure_starts,
     "leakage": _leakage_starts,
     "stiffness": _stiffness_starts,
+    "stiction": _stiction_starts,
     "sensor_lag": _same_starts(_lag_starts, "lag", "sensor_lag"),
     "command_reversal": _same_starts(_reversal_starts, "reversal", "command_reversal"),
 }

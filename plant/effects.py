@@ -443,6 +443,78 @@ class CommandReversal(Reversal):
 
 
 @register
+class Stiction(Effect):
+    r"""Seal friction sticks the rod after each reversal: the force holds, then moves on.
+
+    Physics: the rod seals' friction ``F_c`` opposes the rod's motion. When the valve reverses
+    the flow, the rod stops and stays stuck until the chamber pressures have changed by
+    ``2F_c``; meanwhile the force on the specimen (what the dynamometer reads) stays where it
+    was. The measured force is a *play* on the hydraulic force: it follows only once the
+    hydraulic force has crossed the play, in either direction. The play is counted here in the
+    flow that closes it, ``c = 2F_c/g`` in %·s (``g·c`` is the play in kgf), so the rod moves
+    again once ``∫|q| dt`` since the reversal has reached it; the hold lasts ``c/|q|``, longer at
+    small commands:
+
+    .. math::  G = \begin{cases} 0 & \text{while } \int_{reversal}^{t} |q|\,dt < c \\
+                                 1 & \text{after} \end{cases}
+
+    (a reversal before the play was crossed needs only what it had crossed). Seen as a dead
+    time after each reversal that shrinks as ``1/|u|``: at one amplitude like more delay, at
+    several not, and unlike :class:`Backlash` (a play on the command, which a square wave
+    jumps at once) it holds a meander too.
+    """
+
+    name = "stiction"
+    stage = Stage.FLOW
+    summary = "rod sticks after each reversal until the flow has crossed a play c (%·s): force holds c/|u|"
+    params = (Param("play", 1.0, 0.0, 50.0, "%·s",
+                    "flow integral c that crosses the play (the play in kgf is g·c)"),)
+
+    def init_state(self, n, u0):
+        # where the hydraulic force sits in the play, in flow units: −c/2 … +c/2 (+c/2: engaged
+        # pushing up); a moving rod is engaged its way, one at rest sits in the middle
+        return {"offset": np.sign(u0) * self.play / 2, "direction": np.sign(u0).astype(float)}
+
+    def prepare(self, q, dt, state, command=None):
+        """The engaged fraction of each step (0 while the play is being crossed)."""
+        half = self.play / 2
+        n, K = q.shape
+        engaged = np.ones((n, K))
+        if half <= 0:
+            return engaged
+        offset, direction = state["offset"].copy(), state["direction"].copy()
+        flow = np.abs(q) * dt
+        sgn = np.sign(q)
+        for i in range(n):
+            moving = np.flatnonzero(sgn[i])
+            if not len(moving):
+                continue
+            signs = sgn[i, moving]
+            before = np.concatenate([[direction[i]], signs[:-1]])
+            starts = moving[signs != before]            # steps where a new direction begins
+            bounds = np.concatenate([[0], starts, [K]]) if not len(starts) or starts[0] else \
+                np.concatenate([starts, [K]])
+            for a, b in zip(bounds[:-1], bounds[1:]):
+                d = sgn[i, a] if sgn[i, a] else direction[i]
+                if d == 0:
+                    continue
+                room = half - d * offset[i]              # flow still needed to reach the edge
+                if room <= 0:                            # engaged already: the whole stretch moves
+                    continue
+                crossed = np.cumsum(flow[i, a:b])
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    part = np.where(flow[i, a:b] > 0, (crossed - room) / flow[i, a:b], 1.0)
+                engaged[i, a:b] = np.clip(part, 0.0, 1.0)
+                offset[i] = d * half if crossed[-1] >= room else offset[i] + d * crossed[-1]
+            direction[i] = signs[-1]
+        state["offset"], state["direction"] = offset, direction
+        return engaged
+
+    def gain(self, q, aux, y):
+        return aux
+
+
+@register
 class LoadPressure(Effect):
     r"""Load pressure reduces the flow the valve can push against the load (orifice law).
 

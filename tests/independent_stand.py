@@ -32,6 +32,9 @@ One hidden effect per simulation (or "none"), or several joined by "+":
   stiffening specimen stiffness rising with the load: rate x (1 + k*|y|/1e4), k = 1.5
   valve2nd   second-order valve after the delay: natural frequency 25 Hz, damping 0.5
   gaindrift  flow gain drifting over each run (oil warming): g x (1 + a*t), a = 0.01 1/s
+  stiction   rod seal friction: the specimen's force is a play of total width w = 200 kgf on the
+             hydraulic force (the rod sticks after each reversal until the pressure has
+             changed by w); the dynamometer measures the specimen's force
 """
 from __future__ import annotations
 
@@ -63,6 +66,7 @@ EFFECT_PARAMS = {
     "stiffening": dict(k=1.5),
     "valve2nd": dict(f=25.0, zeta=0.5),
     "gaindrift": dict(a=0.01),
+    "stiction": dict(w=200.0),
 }
 
 
@@ -113,6 +117,7 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
     ucmd = [0.0] * n                       # command after command-side effects (before delay)
 
     y = float(y0)
+    yp = float(y0)                         # stiction: the specimen's force (a play on y)
     ys = float(y0)                         # sensor state
     qv = 0.0                               # valve lag state
     qd = 0.0                               # second-order valve: rate of the spool
@@ -124,7 +129,7 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
     for k in range(n):
         tk = k * TS
         # --- measurement at t_k
-        meas = ys if "sensorlag" in es else y
+        meas = ys if "sensorlag" in es else (yp if "stiction" in es else y)
         if "osc" in es:
             meas += P["osc"]["A"] * math.sin(two_pi_f * tk + osc_phase)
         meas += noise[k]
@@ -193,6 +198,9 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
             if "leakage" in es:
                 rate -= P["leakage"]["lam"] * y
             y += H * rate
+            if "stiction" in es:
+                half = P["stiction"]["w"] / 2
+                yp = min(max(yp, y - half), y + half)
             if "sensorlag" in es:
                 ys += H / P["sensorlag"]["T"] * (y - ys)
     return t_out, u_out, ym_out, r_out, yt_out

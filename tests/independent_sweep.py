@@ -22,7 +22,7 @@ EQUIVALENT = {"rev_flow": {"reversal"}, "rev_cmd": {"command_reversal"},
               "deadzone": {"deadzone"}, "saturation": {"saturation"}, "asymmetry": {"asymmetry"},
               "loadpress": {"load_pressure"}, "leakage": {"leakage"}, "backlash": {"backlash"},
               "flownl": {"flow_curve"}, "friction": {"deadzone"},
-              "stiffening": {"stiffness"}}
+              "stiffening": {"stiffness"}, "stiction": {"stiction"}}
 
 
 def random_sets(seed: int, n: int, k: int = 2) -> list[tuple[str, ...]]:

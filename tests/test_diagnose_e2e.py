@@ -76,3 +76,15 @@ def test_a_specimen_that_stiffens_with_the_load_is_found_on_emulator_runs(bus_sp
     assert p["stiffness.k_abs"] == pytest.approx(2.0, rel=0.1)
     assert p["stiffness.k_sgn"] == pytest.approx(-0.5, abs=0.15)
     assert d.best_candidate.rmse_reduction >= 0.7
+
+
+def test_rod_stiction_is_found_on_emulator_runs(bus_spec, start_emulator, tmp_path):
+    """The force holds after each reversal until the flow has crossed the play (0.2 s at 5 %,
+    0.05 s at 20 %): a state the emulator carries from period to period."""
+    paths = _runs(bus_spec, start_emulator, tmp_path, "base+stiction", {"stiction.play": 1.0})
+    d = diagnose([read_run(p) for p in paths])
+    assert d.verdict == "missing_effect" and d.best == "stiction", d.summary
+    p = d.best_candidate.params
+    assert p["stiction.play"] == pytest.approx(1.0, rel=0.05)
+    assert p["tau"] == pytest.approx(BASE["tau"], abs=0.003)
+    assert d.best_candidate.rmse_reduction >= 0.7

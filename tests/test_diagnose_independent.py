@@ -23,7 +23,7 @@ NAMED = {"rev_cmd": "command_reversal", "rev_flow": "reversal", "lag": "lag", "d
          "leakage": "leakage", "sensorlag": "lag",   # on an integrator: the same (both named)
          "friction": "deadzone",                     # Coulomb friction on the rate = a dead zone
          "backlash": "backlash", "flownl": "flow_curve",
-         "stiffening": "stiffness"}
+         "stiffening": "stiffness", "stiction": "stiction"}
 
 
 def dataset(effect: str) -> list:
@@ -58,6 +58,9 @@ def test_independent_simulator(effect):
             p = d.best_candidate.params
             assert p["stiffness.k_abs"] == pytest.approx(sim.EFFECT_PARAMS["stiffening"]["k"], rel=0.05)
             assert abs(p["stiffness.k_sgn"]) < 0.05
+        if effect == "stiction":    # the simulator's play in kgf is g × the catalogue's in %·s
+            p = d.best_candidate.params
+            assert p["stiction.play"] * p["g"] == pytest.approx(sim.EFFECT_PARAMS["stiction"]["w"], rel=0.05)
     elif effect == "valve2nd":
         # a 25 Hz valve is, at 2 ms samples, a delay of 2ζ/ωn more: nothing else to see
         assert d.verdict == "adequate", d.summary

@@ -41,10 +41,12 @@ def test_delay_is_exact_even_between_samples(tau):
 @pytest.mark.parametrize("spec", ["base", "base+reversal", "base+lag+deadzone", "base+saturation+asymmetry",
                                   "base+leakage", "base+load_pressure+reversal+lag+oscillation",
                                   "base+backlash+flow_curve", "base+sensor_lag+deadzone+reversal",
-                                  "base+command_reversal+lag", "base+stiffness+reversal"])
+                                  "base+command_reversal+lag", "base+stiffness+reversal",
+                                  "base+deadzone+stiction"])
 def test_emulator_blocks_and_analysis_windows_run_the_same_model(spec):
     """Stepping in small blocks (the emulator), whole records and windows (the analysis) agree."""
     extra = {"stiffness.k_abs": 2.0, "stiffness.k_sgn": -0.5} if "stiffness" in spec else {}
+    extra.update({"stiction.play": 1.3} if "stiction" in spec else {})
     m = PlantModel.from_spec(spec, {"g": 110, "tau": 0.031, **extra})
     t, u = square(12.0, 1.0, 6.0)
     whole = m.simulate(u, DT, y0=100.0)
@@ -163,6 +165,25 @@ def test_stiffness_scales_the_gain_with_the_load_as_in_closed_form():
     assert np.max(np.abs(y[1:] - exact[1:]) / exact[1:]) < 1e-3   # Euler steps of 2 ms
     down = m.simulate(np.full_like(t, -10.0), DT, u_before=-10.0)
     assert down[-1] == pytest.approx(-(np.exp(1000 * 2e-4 * t[-1]) - 1) / 2e-4, rel=1e-3)
+
+
+def test_stiction_holds_the_force_after_each_reversal_for_play_over_command():
+    """A play of c = 2 %·s: at |u| = 10 % the force holds 0.2 s after each reversal, at 5 %
+    0.4 s; a reversal before the play was crossed holds only as long as it had crossed."""
+    m = PlantModel.from_spec("base+stiction", {"g": 100, "tau": 0, "stiction.play": 2.0})
+    for amp, hold in ((10.0, 0.2), (5.0, 0.4)):
+        t, u = square(amp, 2.0, 4.0)
+        y = m.simulate(u, DT, u_before=amp)
+        k = int(round(1.0 / DT))                       # the first reversal, at t = 1 s
+        flat = np.flatnonzero(np.abs(np.diff(y[k:k + 400])) < 1e-9)
+        assert len(flat) == int(round(hold / DT)) and flat[0] == 0
+        assert slope(t, y, 1.0 + hold + 0.05, 2.0) == pytest.approx(-100 * amp, rel=1e-9)
+    # +10 % for 0.1 s crosses only half the play: back to -10 % holds 0.1 s, not 0.2 s
+    u = np.concatenate([np.full(500, -10.0), np.full(50, 10.0), np.full(300, -10.0)])
+    y = m.simulate(u, DT, u_before=-10.0)
+    assert np.ptp(y[500:551]) < 1e-9                   # +10 % never got through the play
+    back = np.flatnonzero(np.abs(np.diff(y[550:700])) < 1e-9)
+    assert len(back) == 50
 
 
 def test_reversal_boost_starts_at_each_direction_change_and_decays():
