@@ -122,6 +122,12 @@ SEPARATING_EXPERIMENT = {
                                        "as |u|^p instead of in proportion to |u|",
     frozenset({"backlash", "gain"}): "the meander at several amplitudes, or P-feedback with a "
                                      "harmonic reference",
+    frozenset({"stiction", "delay"}): "the meander at two or more amplitudes (e.g. 5 and 20 %): a "
+                                      "rod stuck after each reversal holds the force c/|u|, longer "
+                                      "at small amplitudes; a delay is the same at every amplitude",
+    frozenset({"stiction", "backlash"}): "the meander (square waves): a play on the command is "
+                                         "jumped at once by a step, a stuck rod still holds the "
+                                         "force after each reversal",
     frozenset({"lag", "sensor_lag"}): "the dynamometer's own filter setting (its configuration "
                                       "or data sheet) or a second force measurement; in a "
                                       "linear plant nothing on the command side separates "
@@ -823,6 +829,13 @@ def _ambiguities(records: Sequence[Record], base_fit: F.FitResult, cands: Sequen
                                      f"at a single command amplitude (|u| = {lv}) {how}: it looks "
                                      f"exactly like another gain g.",
                                      separating_experiment(name, "gain")))
+        if "stiction" in names:
+            out.append(Ambiguity(["stiction", "delay"],
+                                 f"at a single command amplitude (|u| = {lv}) a rod that sticks "
+                                 f"after each reversal holds the force the same c/|u| every time: "
+                                 f"it looks like more delay (the fitted τ = "
+                                 f"{base_fit.model.tau * 1e3:.1f} ms may include such a hold).",
+                                 separating_experiment("stiction", "delay")))
         if "asymmetry" in names and not ex.has_zero_hold:
             d = base_fit.model.delta
             ramp = base_fit.model.g * ex.levels[0]
