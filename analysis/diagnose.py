@@ -123,7 +123,7 @@ SEPARATING_EXPERIMENT = {
     frozenset({"backlash", "gain"}): "the meander at several amplitudes, or P-feedback with a "
                                      "harmonic reference",
     frozenset({"stiction", "delay"}): "the meander at two or more amplitudes (e.g. 5 and 20 %): a "
-                                      "rod stuck after each reversal holds the force c/|u|, longer "
+                                      "rod stuck after each reversal holds the force w/(g·|u|), longer "
                                       "at small amplitudes; a delay is the same at every amplitude",
     frozenset({"stiction", "backlash"}): "the meander (square waves): a play on the command is "
                                          "jumped at once by a step, a stuck rod still holds the "
@@ -832,7 +832,7 @@ def _ambiguities(records: Sequence[Record], base_fit: F.FitResult, cands: Sequen
         if "stiction" in names:
             out.append(Ambiguity(["stiction", "delay"],
                                  f"at a single command amplitude (|u| = {lv}) a rod that sticks "
-                                 f"after each reversal holds the force the same c/|u| every time: "
+                                 f"after each reversal holds the force the same w/(g·|u|) every time: "
                                  f"it looks like more delay (the fitted τ = "
                                  f"{base_fit.model.tau * 1e3:.1f} ms may include such a hold).",
                                  separating_experiment("stiction", "delay")))

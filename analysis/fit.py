@@ -399,7 +399,7 @@ def _linear_in_gain_and_trend(spec: str) -> bool:
     from plant.effects import Stage, effect_class
     for name in spec.split("+")[1:]:
         c = effect_class(name)
-        if c.depends_on_force or c.stage in (Stage.FORCE, Stage.DISTURBANCE):
+        if c.depends_on_force or not c.linear_in_gain or c.stage in (Stage.FORCE, Stage.DISTURBANCE):
             return False
     return True
 
@@ -411,19 +411,25 @@ def project_gain_trend(spec: str, values: Mapping[str, float], pieces: Sequence[
     With window starts re-estimated the objective residual is ``demean(g·A + Δ·B − y)`` (A: the
     windowed response to the flow at unit gain, B: time since the window start), exactly, when
     no effect makes the rate depend on the force and there is no disturbance: one simulation
-    gives it. Otherwise ``ŷ = F + g·A + Δ·B`` is taken from three simulations (exact for
-    ``leakage``, a first-order approximation for ``load_pressure``). Returns the updated values
-    and the sum of squared errors."""
+    gives it. Otherwise ``ŷ ≈ F + g·A + Δ·B`` is taken from three simulations around the current
+    g and Δ, one Gauss-Newton step (exact for ``leakage``, first order for ``load_pressure``,
+    ``stiffness`` and ``stiction``, whose play is crossed at a speed set by g). Returns the
+    updated values and the sum of squared errors."""
     vals = dict(values)
     specs = dict(PlantModel.from_spec(spec, vals).param_specs())
     if not (fit_g or fit_delta):
         r = residual(PlantModel.from_spec(spec, vals), pieces)
         return vals, float(r @ r)
-    g0 = 1.0 if fit_g else vals["g"]
-    d0 = 0.0 if fit_delta else vals["delta"]
+    linear = _linear_in_gain_and_trend(spec)
+    if linear or not fit_g:
+        g0 = 1.0 if fit_g else vals["g"]
+    else:   # linearize where the model is: a play crossed at g = 1 is crossed at no other g
+        g = vals.get("g", math.nan)
+        g0 = g if math.isfinite(g) and abs(g) > 1e-6 else 1.0
+    d0 = (0.0 if linear else vals["delta"]) if fit_delta else vals["delta"]
     s1 = residual(PlantModel.from_spec(spec, {**vals, "g": g0, "delta": d0}), pieces)
     cols = []
-    if _linear_in_gain_and_trend(spec):
+    if linear:
         dy = np.concatenate([demean_windows(p.y[p.warmup:], p.window) for p in pieces])
         if fit_g:  # s1 = demean(g0·A + d0·B − y)
             cols.append((s1 + dy - d0 * _trend_basis(pieces)) / g0)
@@ -431,8 +437,8 @@ def project_gain_trend(spec: str, values: Mapping[str, float], pieces: Sequence[
             cols.append(_trend_basis(pieces))
     else:
         if fit_g:
-            s2 = residual(PlantModel.from_spec(spec, {**vals, "g": 2.0 * g0, "delta": d0}), pieces)
-            cols.append((s2 - s1) / g0)
+            s2 = residual(PlantModel.from_spec(spec, {**vals, "g": 1.1 * g0, "delta": d0}), pieces)
+            cols.append((s2 - s1) / (0.1 * g0))
         if fit_delta:
             s3 = residual(PlantModel.from_spec(spec, {**vals, "g": g0, "delta": d0 + 1.0}), pieces)
             cols.append(s3 - s1)
@@ -534,17 +540,17 @@ def _stiffness_starts(s: DataSummary, base) -> list[dict]:
 
 
 def _stiction_starts(s: DataSummary, base) -> list[dict]:
-    """Plays of 0-30 % of the force span (in flow units: divided by g); a hold after each
-    reversal looks like more delay, so each also starts with τ shortened by the hold."""
+    """Plays of 0-30 % of the force span; a hold after each reversal looks like more delay, so
+    each also starts with τ shortened by the hold at the middle command level."""
     g = abs(base.get("g", 100.0)) or 100.0
     tau = base.get("tau", 0.05)
-    ref = float(np.median(s.u_abs_levels))
+    ref = max(float(np.median(s.u_abs_levels)), 1e-3)
     out = []
     for f in (0.0, 0.01, 0.03, 0.1, 0.3):
-        c = min(50.0, f * max(s.y_span, 100.0) / g)
-        out.append({"stiction.play": c})
-        if c > 0 and tau > 0:
-            out.append({"stiction.play": c, "tau": max(0.0, tau - c / max(ref, 1e-3))})
+        w = min(5000.0, f * max(s.y_span, 100.0))
+        out.append({"stiction.width": w})
+        if w > 0 and tau > 0:
+            out.append({"stiction.width": w, "tau": max(0.0, tau - w / (g * ref))})
     return out
 
 

@@ -71,6 +71,9 @@ class Effect:
     #: True if :meth:`prepare` reads the undelayed command (``command=`` keyword): the force then
     #: depends on a command before the delay has passed (no look-ahead over the delay)
     reads_command: ClassVar[bool] = False
+    #: False if the reading is not affine in g and Δ with the other parameters fixed (a play),
+    #: so the fit cannot solve g and Δ from one simulation
+    linear_in_gain: ClassVar[bool] = True
 
     def __init__(self, **values: float) -> None:
         known = {p.name: p for p in self.params}
@@ -443,78 +446,6 @@ class CommandReversal(Reversal):
 
 
 @register
-class Stiction(Effect):
-    r"""Seal friction sticks the rod after each reversal: the force holds, then moves on.
-
-    Physics: the rod seals' friction ``F_c`` opposes the rod's motion. When the valve reverses
-    the flow, the rod stops and stays stuck until the chamber pressures have changed by
-    ``2F_c``; meanwhile the force on the specimen (what the dynamometer reads) stays where it
-    was. The measured force is a *play* on the hydraulic force: it follows only once the
-    hydraulic force has crossed the play, in either direction. The play is counted here in the
-    flow that closes it, ``c = 2F_c/g`` in %·s (``g·c`` is the play in kgf), so the rod moves
-    again once ``∫|q| dt`` since the reversal has reached it; the hold lasts ``c/|q|``, longer at
-    small commands:
-
-    .. math::  G = \begin{cases} 0 & \text{while } \int_{reversal}^{t} |q|\,dt < c \\
-                                 1 & \text{after} \end{cases}
-
-    (a reversal before the play was crossed needs only what it had crossed). Seen as a dead
-    time after each reversal that shrinks as ``1/|u|``: at one amplitude like more delay, at
-    several not, and unlike :class:`Backlash` (a play on the command, which a square wave
-    jumps at once) it holds a meander too.
-    """
-
-    name = "stiction"
-    stage = Stage.FLOW
-    summary = "rod sticks after each reversal until the flow has crossed a play c (%·s): force holds c/|u|"
-    params = (Param("play", 1.0, 0.0, 50.0, "%·s",
-                    "flow integral c that crosses the play (the play in kgf is g·c)"),)
-
-    def init_state(self, n, u0):
-        # where the hydraulic force sits in the play, in flow units: −c/2 … +c/2 (+c/2: engaged
-        # pushing up); a moving rod is engaged its way, one at rest sits in the middle
-        return {"offset": np.sign(u0) * self.play / 2, "direction": np.sign(u0).astype(float)}
-
-    def prepare(self, q, dt, state, command=None):
-        """The engaged fraction of each step (0 while the play is being crossed)."""
-        half = self.play / 2
-        n, K = q.shape
-        engaged = np.ones((n, K))
-        if half <= 0:
-            return engaged
-        offset, direction = state["offset"].copy(), state["direction"].copy()
-        flow = np.abs(q) * dt
-        sgn = np.sign(q)
-        for i in range(n):
-            moving = np.flatnonzero(sgn[i])
-            if not len(moving):
-                continue
-            signs = sgn[i, moving]
-            before = np.concatenate([[direction[i]], signs[:-1]])
-            starts = moving[signs != before]            # steps where a new direction begins
-            bounds = np.concatenate([[0], starts, [K]]) if not len(starts) or starts[0] else \
-                np.concatenate([starts, [K]])
-            for a, b in zip(bounds[:-1], bounds[1:]):
-                d = sgn[i, a] if sgn[i, a] else direction[i]
-                if d == 0:
-                    continue
-                room = half - d * offset[i]              # flow still needed to reach the edge
-                if room <= 0:                            # engaged already: the whole stretch moves
-                    continue
-                crossed = np.cumsum(flow[i, a:b])
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    part = np.where(flow[i, a:b] > 0, (crossed - room) / flow[i, a:b], 1.0)
-                engaged[i, a:b] = np.clip(part, 0.0, 1.0)
-                offset[i] = d * half if crossed[-1] >= room else offset[i] + d * crossed[-1]
-            direction[i] = signs[-1]
-        state["offset"], state["direction"] = offset, direction
-        return engaged
-
-    def gain(self, q, aux, y):
-        return aux
-
-
-@register
 class LoadPressure(Effect):
     r"""Load pressure reduces the flow the valve can push against the load (orifice law).
 
@@ -671,6 +602,95 @@ class SensorLag(Effect):
 
     def force_minus_reading(self, state):
         return self.time_constant * state["x"]      # y − y_m = T_s·ẏ_m
+
+
+@register
+class Stiction(Effect):
+    r"""Seal friction sticks the rod after each reversal: the measured force holds, then moves on.
+
+    Physics: the rod seals' friction ``F_c`` opposes the rod's motion. When the force's trend
+    reverses, the rod stops and stays stuck until the hydraulic force has changed by ``2F_c``;
+    meanwhile the force on the specimen, which the dynamometer reads, stays where it was. The
+    reading is a *play* of width ``w = 2F_c`` on the hydraulic force ``y``:
+
+    .. math::  y_m(t) = \operatorname{clip}\big(y_m(t^-),\ y(t) - w/2,\ y(t) + w/2\big)
+
+    so after each reversal the reading holds for ``w/|ẏ|`` (longer at small commands) and then
+    follows. Force-dependent effects (leakage, load pressure) act on the hydraulic force, as the
+    oil does. Seen as a dead time after each reversal that shrinks as ``1/|u|``: at one amplitude
+    like more delay, at several not; unlike :class:`Backlash` (a play on the command, which a
+    square wave jumps at once) it holds after a meander's reversals too. A window of the
+    analysis starts from a reading; where the force sits in the play there comes from running
+    the play along the measured force.
+    """
+
+    name = "stiction"
+    stage = Stage.SENSOR
+    summary = "rod sticks after each reversal: the reading is a play of width w on the force"
+    linear_in_gain = False
+    params = (Param("width", 100.0, 0.0, 5000.0, "kgf",
+                    "play w = 2F_c: the change of hydraulic force that moves a stuck rod"),)
+
+    def filter_rate(self, rate, dt, state):
+        if "offset" not in state:
+            state.update(self._at_rest(rate.shape[0]))
+        engaged, _ = self._play(rate, dt, state)
+        return rate * engaged
+
+    def filter_states(self, rate, dt, steps):
+        state = self._at_rest(rate.shape[0])
+        _, offsets = self._play(rate, dt, state, track=True)
+        direction = np.sign(offsets[0, steps])
+        return {"offset": offsets[0, steps].copy(),
+                "direction": np.where(direction == 0, np.sign(rate[0, steps]), direction)}
+
+    def force_minus_reading(self, state):
+        return state["offset"]
+
+    @staticmethod
+    def _at_rest(n: int) -> dict:
+        """A stand at rest: the rod stuck with the force in the middle of the play (which side
+        it last moved is not known), so the first motion either way crosses half of it."""
+        return {"offset": np.zeros(n), "direction": np.zeros(n)}
+
+    def _play(self, rate, dt, state, track=False):
+        """Engaged fraction of each step (0 while the play is being crossed), advancing
+        ``state`` (``offset``: force minus reading, in [−w/2, w/2]; ``direction``: of the last
+        motion); with ``track``, also the offset at each step's start."""
+        half = self.width / 2
+        n, K = rate.shape
+        engaged = np.ones((n, K))
+        offsets = np.empty((n, K)) if track else None
+        offset, direction = state["offset"].astype(float), state["direction"].astype(float)
+        move = np.abs(rate) * dt
+        sgn = np.sign(rate)
+        for i in range(n):
+            moving = np.flatnonzero(sgn[i])
+            starts = np.empty(0, int)
+            if len(moving) and half > 0:
+                signs = sgn[i, moving]
+                before = np.concatenate([[direction[i]], signs[:-1]])
+                starts = moving[signs != before]      # steps where a new direction begins
+            bounds = np.unique(np.concatenate([[0], starts, [K]]))
+            for a, b in zip(bounds[:-1], bounds[1:]):
+                d = sgn[i, a] if sgn[i, a] else direction[i]
+                room = half - d * offset[i] if d else 0.0   # force change still to cross
+                if room <= 0 or half <= 0:                   # engaged: the reading follows
+                    if track:
+                        offsets[i, a:b] = offset[i]
+                    continue
+                crossed = np.cumsum(move[i, a:b])
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    part = np.where(move[i, a:b] > 0, (crossed - room) / move[i, a:b], 1.0)
+                engaged[i, a:b] = np.clip(part, 0.0, 1.0)
+                if track:
+                    before_step = np.concatenate([[0.0], crossed[:-1]])
+                    offsets[i, a:b] = offset[i] + d * np.minimum(before_step, room)
+                offset[i] += d * min(crossed[-1], room)
+            if len(moving):
+                direction[i] = sgn[i, moving[-1]]
+        state["offset"], state["direction"] = offset, direction
+        return engaged, offsets
 
 
 def effect_class(name: str) -> type[Effect]:

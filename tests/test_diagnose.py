@@ -183,13 +183,13 @@ def test_dead_zone_from_one_amplitude_is_a_warned_ambiguity_and_more_amplitudes_
 
 
 def test_stiction_from_one_amplitude_is_more_delay_and_two_amplitudes_resolve_it():
-    truth = plant("stiction", stiction__play=1.0)          # holds 0.1 s at 10 %
+    truth = plant("stiction", stiction__width=120.0)       # holds 0.1 s at 10 %
     one = diagnose([S.meander(truth, (10.0,), period_s=2.0, cycles=8, seed=12)])
     amb = [a for a in one.ambiguities if set(a.effects) == {"stiction", "delay"}]
     assert amb and "two or more amplitudes" in amb[0].experiment, one.ambiguities
     two = diagnose([S.meander(truth, (5.0, 20.0), period_s=2.0, cycles=3, seed=12)])
     assert_found(two, "stiction")
-    assert two.best_candidate.params["stiction.play"] == pytest.approx(1.0, rel=0.05)
+    assert two.best_candidate.params["stiction.width"] == pytest.approx(120.0, rel=0.05)
 
 
 def test_dead_zone_and_flow_curve_from_two_amplitudes_are_a_warned_tie():

@@ -79,12 +79,12 @@ def test_a_specimen_that_stiffens_with_the_load_is_found_on_emulator_runs(bus_sp
 
 
 def test_rod_stiction_is_found_on_emulator_runs(bus_spec, start_emulator, tmp_path):
-    """The force holds after each reversal until the flow has crossed the play (0.2 s at 5 %,
+    """The reading holds after each reversal until the force has crossed the play (0.2 s at 5 %,
     0.05 s at 20 %): a state the emulator carries from period to period."""
-    paths = _runs(bus_spec, start_emulator, tmp_path, "base+stiction", {"stiction.play": 1.0})
+    paths = _runs(bus_spec, start_emulator, tmp_path, "base+stiction", {"stiction.width": 120.0})
     d = diagnose([read_run(p) for p in paths])
     assert d.verdict == "missing_effect" and d.best == "stiction", d.summary
     p = d.best_candidate.params
-    assert p["stiction.play"] == pytest.approx(1.0, rel=0.05)
+    assert p["stiction.width"] == pytest.approx(120.0, rel=0.05)
     assert p["tau"] == pytest.approx(BASE["tau"], abs=0.003)
     assert d.best_candidate.rmse_reduction >= 0.7

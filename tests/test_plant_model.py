@@ -46,7 +46,7 @@ def test_delay_is_exact_even_between_samples(tau):
 def test_emulator_blocks_and_analysis_windows_run_the_same_model(spec):
     """Stepping in small blocks (the emulator), whole records and windows (the analysis) agree."""
     extra = {"stiffness.k_abs": 2.0, "stiffness.k_sgn": -0.5} if "stiffness" in spec else {}
-    extra.update({"stiction.play": 1.3} if "stiction" in spec else {})
+    extra.update({"stiction.width": 130.0} if "stiction" in spec else {})
     m = PlantModel.from_spec(spec, {"g": 110, "tau": 0.031, **extra})
     t, u = square(12.0, 1.0, 6.0)
     whole = m.simulate(u, DT, y0=100.0)
@@ -167,10 +167,11 @@ def test_stiffness_scales_the_gain_with_the_load_as_in_closed_form():
     assert down[-1] == pytest.approx(-(np.exp(1000 * 2e-4 * t[-1]) - 1) / 2e-4, rel=1e-3)
 
 
-def test_stiction_holds_the_force_after_each_reversal_for_play_over_command():
-    """A play of c = 2 %·s: at |u| = 10 % the force holds 0.2 s after each reversal, at 5 %
-    0.4 s; a reversal before the play was crossed holds only as long as it had crossed."""
-    m = PlantModel.from_spec("base+stiction", {"g": 100, "tau": 0, "stiction.play": 2.0})
+def test_stiction_holds_the_reading_after_each_reversal_for_width_over_rate():
+    """A play of w = 200 kgf at g = 100: at |u| = 10 % the reading holds w/(g|u|) = 0.2 s after
+    each reversal, at 5 % 0.4 s; a reversal before the play was crossed holds only as long as
+    it had crossed."""
+    m = PlantModel.from_spec("base+stiction", {"g": 100, "tau": 0, "stiction.width": 200.0})
     for amp, hold in ((10.0, 0.2), (5.0, 0.4)):
         t, u = square(amp, 2.0, 4.0)
         y = m.simulate(u, DT, u_before=amp)
