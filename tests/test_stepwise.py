@@ -44,7 +44,11 @@ def test_three_effects_no_single_one_explains_are_found_one_after_another():
     assert all(b < a for a, b in zip(rmse, rmse[1:])), rmse          # the error falls each step
     assert r.steps[-1].over_floor < 1.1
     assert "part of the missing behaviour" in r.steps[0].why
-    assert all(n.kept and n.factor > 2 for n in r.needed), r.needed
+    # each true effect is needed; one picked on the way (here load pressure, for the leak it
+    # partly mimics) is dropped by the backward check
+    true = {"reversal", "leakage", "backlash"}
+    assert all(n.kept and n.factor > 2 for n in r.needed if n.effect in true), r.needed
+    assert {n.effect for n in r.needed if n.kept} == true, r.needed
 
 
 def test_an_effect_picked_early_is_dropped_once_the_real_ones_are_in():
