@@ -633,49 +633,49 @@ class Stiction(Effect):
 
     def filter_rate(self, rate, dt, state):
         if "offset" not in state:
-            state.update(self._at_rest(rate.shape[0]))
+            state["offset"] = self._at_rest(rate.shape[0])
         engaged, _ = self._play(rate, dt, state)
         return rate * engaged
 
     def filter_states(self, rate, dt, steps):
-        state = self._at_rest(rate.shape[0])
+        state = {"offset": self._at_rest(rate.shape[0])}
         _, offsets = self._play(rate, dt, state, track=True)
-        direction = np.sign(offsets[0, steps])
-        return {"offset": offsets[0, steps].copy(),
-                "direction": np.where(direction == 0, np.sign(rate[0, steps]), direction)}
+        return {"offset": offsets[0, steps].copy()}
 
     def force_minus_reading(self, state):
         return state["offset"]
 
     @staticmethod
-    def _at_rest(n: int) -> dict:
+    def _at_rest(n: int) -> np.ndarray:
         """A stand at rest: the rod stuck with the force in the middle of the play (which side
         it last moved is not known), so the first motion either way crosses half of it."""
-        return {"offset": np.zeros(n), "direction": np.zeros(n)}
+        return np.zeros(n)
 
     def _play(self, rate, dt, state, track=False):
         """Engaged fraction of each step (0 while the play is being crossed), advancing
-        ``state`` (``offset``: force minus reading, in [−w/2, w/2]; ``direction``: of the last
-        motion); with ``track``, also the offset at each step's start."""
+        ``state["offset"]`` (force minus reading, in [−w/2, w/2]); with ``track``, also the
+        offset at each step's start. The direction of a stretch is that of its motion; where
+        the offset sits says how much of the play a motion that way still has to cross."""
         half = self.width / 2
         n, K = rate.shape
         engaged = np.ones((n, K))
-        offsets = np.empty((n, K)) if track else None
-        offset, direction = state["offset"].astype(float), state["direction"].astype(float)
+        offset = state["offset"].astype(float)
+        offsets = np.repeat(offset[:, None], K, axis=1) if track else None
+        if half <= 0:
+            return engaged, offsets
         move = np.abs(rate) * dt
         sgn = np.sign(rate)
         for i in range(n):
             moving = np.flatnonzero(sgn[i])
-            starts = np.empty(0, int)
-            if len(moving) and half > 0:
-                signs = sgn[i, moving]
-                before = np.concatenate([[direction[i]], signs[:-1]])
-                starts = moving[signs != before]      # steps where a new direction begins
-            bounds = np.unique(np.concatenate([[0], starts, [K]]))
+            if not len(moving):
+                continue
+            signs = sgn[i, moving]
+            turns = moving[1:][signs[1:] != signs[:-1]]   # steps where the motion turns
+            bounds = np.concatenate([[0], turns, [K]])
             for a, b in zip(bounds[:-1], bounds[1:]):
-                d = sgn[i, a] if sgn[i, a] else direction[i]
-                room = half - d * offset[i] if d else 0.0   # force change still to cross
-                if room <= 0 or half <= 0:                   # engaged: the reading follows
+                d = sgn[i, moving[np.searchsorted(moving, a)]]   # this stretch's direction
+                room = half - d * offset[i]                     # force change still to cross
+                if room <= 0:                                    # engaged: the reading follows
                     if track:
                         offsets[i, a:b] = offset[i]
                     continue
@@ -687,9 +687,7 @@ class Stiction(Effect):
                     before_step = np.concatenate([[0.0], crossed[:-1]])
                     offsets[i, a:b] = offset[i] + d * np.minimum(before_step, room)
                 offset[i] += d * min(crossed[-1], room)
-            if len(moving):
-                direction[i] = sgn[i, moving[-1]]
-        state["offset"], state["direction"] = offset, direction
+        state["offset"] = offset
         return engaged, offsets
 
 
