@@ -40,7 +40,7 @@ from . import fit as F
 from .data import Record
 from .metrics import (AFTER_REVERSAL_S, Evaluation, RecordSimulation, command_levels,
                       demeaned_residual, evaluate, input_correlation_test, is_closed_loop,
-                      reversal_mask, simulate_records)
+                      reversal_mask, simulate_records, window_increments)
 
 #: candidates refitted on all the data after screening (the best; the runner-up too when the
 #: data are short enough to be screened whole)
@@ -593,17 +593,17 @@ def drift_observation(sims: Sequence[RecordSimulation]) -> list[str]:
     between records |force| goes with the command level and the experiment, so a dead zone, a
     leak or a reversal boost made it speak of a stiffness; the ``stiffness`` candidate's fit
     tells it apart instead.)"""
-    along, speed, into = [], [], []
+    dr, dyh, _ = window_increments(sims)
+    steady, sgn, into = [], [], []
     for s in sims:
         _, after = reversal_mask(s.q, s.record.dt)
-        dr = np.diff(s.r, prepend=s.r[0])
-        dyh = np.diff(s.yhat, prepend=s.yhat[0])
-        steady = ~after & (s.q != 0) & (s.horizon > 0)
-        along.append((dr * np.sign(s.q))[steady])
-        speed.append(np.abs(dyh)[steady])
-        span = max(s.record.duration_s, s.record.dt)
-        into.append(((s.t - s.record.t[0]) / span)[steady])
-    along, speed, into = np.concatenate(along), np.concatenate(speed), np.concatenate(into)
+        steady.append(~after & (s.q != 0) & (s.horizon > 0))
+        sgn.append(np.sign(s.q))
+        into.append((s.t - s.record.t[0]) / max(s.record.duration_s, s.record.dt))
+    steady = np.concatenate(steady)
+    along = (dr * np.concatenate(sgn))[steady]
+    speed = np.abs(dyh)[steady]
+    into = np.concatenate(into)[steady]
 
     def rel(sel: np.ndarray) -> float:
         v = float(speed[sel].sum())

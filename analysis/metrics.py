@@ -368,7 +368,7 @@ def regime_labels(sims: Sequence[RecordSimulation], tau: float) -> dict[str, tup
     }
 
 
-def _increments(sims: Sequence[RecordSimulation]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def window_increments(sims: Sequence[RecordSimulation]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Residual and model increments per sample (0 at window starts) and the sample time."""
     dr, dyh, dts = [], [], []
     for s in sims:
@@ -385,7 +385,7 @@ def _increments(sims: Sequence[RecordSimulation]) -> tuple[np.ndarray, np.ndarra
 
 def regime_stats(sims: Sequence[RecordSimulation], tau: float) -> list[RegimeStat]:
     r = np.concatenate([s.r for s in sims])
-    dr, dyh, dts = _increments(sims)
+    dr, dyh, dts = window_increments(sims)
     sgn = np.sign(np.concatenate([s.q for s in sims]))
     total = float(np.sum(r ** 2)) or 1.0
     out = []
