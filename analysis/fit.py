@@ -421,12 +421,14 @@ def project_gain_trend(spec: str, values: Mapping[str, float], pieces: Sequence[
         r = residual(PlantModel.from_spec(spec, vals), pieces)
         return vals, float(r @ r)
     linear = _linear_in_gain_and_trend(spec)
-    if linear or not fit_g:
-        g0 = 1.0 if fit_g else vals["g"]
+    if not fit_g:
+        g0 = vals["g"]
+    elif linear:
+        g0 = 1.0
     else:   # linearize where the model is: a play crossed at g = 1 is crossed at no other g
         g = vals.get("g", math.nan)
         g0 = g if math.isfinite(g) and abs(g) > 1e-6 else 1.0
-    d0 = (0.0 if linear else vals["delta"]) if fit_delta else vals["delta"]
+    d0 = 0.0 if linear and fit_delta else vals["delta"]
     s1 = residual(PlantModel.from_spec(spec, {**vals, "g": g0, "delta": d0}), pieces)
     cols = []
     if linear:
