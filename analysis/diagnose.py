@@ -128,6 +128,13 @@ SEPARATING_EXPERIMENT = {
     frozenset({"stiction", "backlash"}): "the meander (square waves): a play on the command is "
                                          "jumped at once by a step, a stuck rod still holds the "
                                          "force after each reversal",
+    frozenset({"unloading", "asymmetry"}): "runs at both positive and negative force levels: "
+                                           "an asymmetry keeps its fast direction, a specimen "
+                                           "stiffer unloading swaps it with the sign of the force",
+    frozenset({"unloading", "load_pressure"}): "runs at two force levels of the same sign (e.g. "
+                                               "meanders centred at 2000 and 6000 kgf): the "
+                                               "load-pressure effect grows with the force, the "
+                                               "unloading stiffness only switches at zero force",
     frozenset({"lag", "sensor_lag"}): "the dynamometer's own filter setting (its configuration "
                                       "or data sheet) or a second force measurement; in a "
                                       "linear plant nothing on the command side separates "

@@ -541,6 +541,10 @@ def _stiffness_starts(s: DataSummary, base) -> list[dict]:
             for a in (-0.2, 0.0, 0.2, 0.6) for b in (-0.2, 0.0, 0.2)]
 
 
+def _unloading_starts(s: DataSummary, base) -> list[dict]:
+    return [{"unloading.ratio": h} for h in (-0.3, -0.1, 0.0, 0.1, 0.3)]
+
+
 def _stiction_starts(s: DataSummary, base) -> list[dict]:
     """Plays of 0-30 % of the force span; a hold after each reversal looks like more delay, so
     each also starts with τ shortened by the hold at the middle command level."""
@@ -572,6 +576,7 @@ START_GRIDS: dict[str, Callable[[DataSummary, Mapping[str, float]], list[dict]]]
     "leakage": _leakage_starts,
     "stiffness": _stiffness_starts,
     "stiction": _stiction_starts,
+    "unloading": _unloading_starts,
     "sensor_lag": _same_starts(_lag_starts, "lag", "sensor_lag"),
     "command_reversal": _same_starts(_reversal_starts, "reversal", "command_reversal"),
 }

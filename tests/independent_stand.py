@@ -32,6 +32,8 @@ One hidden effect per simulation (or "none"), or several joined by "+":
   stiffening specimen stiffness rising with the load: rate x (1 + k*|y|/1e4), k = 1.5
   valve2nd   second-order valve after the delay: natural frequency 25 Hz, damping 0.5
   gaindrift  flow gain drifting over each run (oil warming): g x (1 + a*t), a = 0.01 1/s
+  softload   a specimen 15 % softer while loading (the flow drives |y| up) than unloading, switching at
+             zero force: rate x 0.85 when sign(q) = sign(y)
   stiction   rod seal friction: the specimen's force is a play of total width w = 200 kgf on the
              hydraulic force (the rod sticks after each reversal until the pressure has
              changed by w); the dynamometer measures the specimen's force
@@ -67,6 +69,7 @@ EFFECT_PARAMS = {
     "valve2nd": dict(f=25.0, zeta=0.5),
     "gaindrift": dict(a=0.01),
     "stiction": dict(w=200.0),
+    "softload": dict(soft=0.15),
 }
 
 
@@ -189,6 +192,8 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
             rate = g * q
             if "stiffening" in es:
                 rate *= 1.0 + P["stiffening"]["k"] * abs(y) / 1e4
+            if "softload" in es and q != 0.0 and _sgn(q) == _sgn(y):
+                rate *= 1.0 - P["softload"]["soft"]
             if "gaindrift" in es:
                 rate *= 1.0 + P["gaindrift"]["a"] * t
             if "friction" in es and q != 0.0:

@@ -23,7 +23,7 @@ NAMED = {"rev_cmd": "command_reversal", "rev_flow": "reversal", "lag": "lag", "d
          "leakage": "leakage", "sensorlag": "lag",   # on an integrator: the same (both named)
          "friction": "deadzone",                     # Coulomb friction on the rate = a dead zone
          "backlash": "backlash", "flownl": "flow_curve",
-         "stiffening": "stiffness", "stiction": "stiction"}
+         "stiffening": "stiffness", "stiction": "stiction", "softload": "unloading"}
 
 
 def dataset(effect: str) -> list:
@@ -58,6 +58,10 @@ def test_independent_simulator(effect):
             p = d.best_candidate.params
             assert p["stiffness.k_abs"] == pytest.approx(sim.EFFECT_PARAMS["stiffening"]["k"], rel=0.05)
             assert abs(p["stiffness.k_sgn"]) < 0.05
+        if effect == "softload":    # loading at 1 − s, unloading at 1: g·(1 − h), g·(1 + h)
+            soft = sim.EFFECT_PARAMS["softload"]["soft"]
+            assert d.best_candidate.params["unloading.ratio"] == pytest.approx(soft / (2 - soft), rel=0.05)
+            assert d.best_candidate.params["g"] == pytest.approx(sim.DEFAULTS["g"] * (1 - soft / 2), rel=0.02)
         if effect == "stiction":    # the same play on the force
             want = sim.EFFECT_PARAMS["stiction"]["w"]
             assert d.best_candidate.params["stiction.width"] == pytest.approx(want, rel=0.05)

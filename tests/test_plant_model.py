@@ -42,11 +42,12 @@ def test_delay_is_exact_even_between_samples(tau):
                                   "base+leakage", "base+load_pressure+reversal+lag+oscillation",
                                   "base+backlash+flow_curve", "base+sensor_lag+deadzone+reversal",
                                   "base+command_reversal+lag", "base+stiffness+reversal",
-                                  "base+deadzone+stiction"])
+                                  "base+deadzone+stiction", "base+unloading+asymmetry"])
 def test_emulator_blocks_and_analysis_windows_run_the_same_model(spec):
     """Stepping in small blocks (the emulator), whole records and windows (the analysis) agree."""
     extra = {"stiffness.k_abs": 2.0, "stiffness.k_sgn": -0.5} if "stiffness" in spec else {}
     extra.update({"stiction.width": 130.0} if "stiction" in spec else {})
+    extra.update({"unloading.ratio": 0.2} if "unloading" in spec else {})
     m = PlantModel.from_spec(spec, {"g": 110, "tau": 0.031, **extra})
     t, u = square(12.0, 1.0, 6.0)
     whole = m.simulate(u, DT, y0=100.0)
@@ -165,6 +166,20 @@ def test_stiffness_scales_the_gain_with_the_load_as_in_closed_form():
     assert np.max(np.abs(y[1:] - exact[1:]) / exact[1:]) < 1e-3   # Euler steps of 2 ms
     down = m.simulate(np.full_like(t, -10.0), DT, u_before=-10.0)
     assert down[-1] == pytest.approx(-(np.exp(1000 * 2e-4 * t[-1]) - 1) / 2e-4, rel=1e-3)
+
+
+def test_unloading_is_faster_toward_zero_force_than_away_from_it():
+    """h = 0.25 at g = 100, |u| = 10 %: 750 kgf/s while the force grows away from zero (either
+    sign), 1250 kgf/s on the way back; the switch is at zero force, not at the reversal."""
+    m = PlantModel.from_spec("base+unloading", {"g": 100, "tau": 0, "unloading.ratio": 0.25})
+    t = np.arange(0, 1, DT)
+    up = m.simulate(np.full_like(t, 10.0), DT, u_before=10.0, y0=0.0)
+    assert slope(t, up, 0.1, 1.0) == pytest.approx(750.0)
+    back = m.simulate(np.full_like(t, -10.0), DT, u_before=-10.0, y0=1000.0)
+    assert slope(t, back, 0.1, 0.7) == pytest.approx(-1250.0)     # unloading: 1000 → 0 in 0.8 s
+    assert slope(t, back, 0.85, 1.0) == pytest.approx(-750.0)     # through zero: loading again
+    pull = m.simulate(np.full_like(t, 10.0), DT, u_before=10.0, y0=-5000.0)
+    assert slope(t, pull, 0.1, 1.0) == pytest.approx(1250.0)      # a negative force unloading
 
 
 def test_stiction_holds_the_reading_after_each_reversal_for_width_over_rate():

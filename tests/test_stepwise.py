@@ -33,8 +33,11 @@ def independent(combo: str, seed: int) -> list:
 def test_three_effects_no_single_one_explains_are_found_one_after_another():
     truth = PlantModel.from_spec("base+reversal+leakage+backlash", {**BASE, **THREE})
     r = stepwise(campaign(truth, seed=5))
-    # alone, no effect removes most of the error: the plain diagnosis calls it unexplained
-    assert r.steps[0].diagnosis.verdict == "unexplained"
+    # alone, no effect explains it: the plain diagnosis calls it unexplained, or names the
+    # effect that removes most of the excess (here `unloading`: faster toward zero force, like
+    # the leak) and says the error is still many times the floor
+    d0 = r.steps[0].diagnosis
+    assert d0.verdict == "unexplained" or any("still" in w for w in d0.warnings), d0.summary
     assert r.verdict == "adequate", r.summary
     assert {e.name for e in r.model.effects} == {"reversal", "leakage", "backlash"}
     for name, want in {**BASE, **THREE}.items():
@@ -43,8 +46,8 @@ def test_three_effects_no_single_one_explains_are_found_one_after_another():
     rmse = [s.rmse for s in r.steps]
     assert all(b < a for a, b in zip(rmse, rmse[1:])), rmse          # the error falls each step
     assert r.steps[-1].over_floor < 1.1
-    assert "part of the missing behaviour" in r.steps[0].why
-    # each true effect is needed; one picked on the way (here load pressure, for the leak it
+    assert r.steps[0].why.startswith(("part of the missing behaviour", "earns its parameters"))
+    # each true effect is needed; one picked on the way (here unloading, for the leak it
     # partly mimics) is dropped by the backward check
     true = {"reversal", "leakage", "backlash"}
     assert all(n.kept and n.factor > 2 for n in r.needed if n.effect in true), r.needed
