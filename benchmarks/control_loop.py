@@ -2,8 +2,11 @@
 SYNC jitter at the default 2 ms period (the emulator is a separate process in both)."""
 from __future__ import annotations
 
+import multiprocessing as mp
 import os
+import socket
 import tempfile
+import time
 
 import can
 import numpy as np
@@ -54,6 +57,51 @@ def cycle_breakdown(capture: str) -> dict[str, float]:
     return {name: float(np.median(v) * 1e6) if v else float("nan") for name, v in zip(LEGS, legs)}
 
 
+def _echo_datagrams(sock, peer, n: int, spin: bool) -> None:
+    for _ in range(n):
+        sock.sendto(_wait_datagram(sock, spin), peer)
+
+
+def _wait_datagram(sock, spin: bool) -> bytes:
+    if not spin:
+        return sock.recv(64)
+    while True:
+        try:
+            return sock.recv(64)
+        except BlockingIOError:
+            os.sched_yield()
+
+
+def bare_round_trips(n: int) -> tuple[float, str]:
+    """The floor under any two-process Python loop here: round trips per second of a bare UDP
+    ping-pong between two processes on 127.0.0.1 (one 34-byte datagram each way, no CAN, no
+    CANopen, no work), the better of sleeping and polling receivers, and which it was. A
+    lockstep cycle needs at least one round trip: the command of cycle k needs its force."""
+    best = (0.0, "")
+    for spin in (False, True):
+        a = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        b = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        a.bind(("127.0.0.1", 0))
+        b.bind(("127.0.0.1", 0))
+        a.setblocking(not spin)
+        b.setblocking(not spin)
+        echo = mp.get_context("fork").Process(target=_echo_datagrams, args=(b, a.getsockname(), n + 100, spin))
+        echo.start()
+        frame = bytes(34)
+        for i in range(n + 100):
+            if i == 100:          # after a warm-up
+                t0 = time.perf_counter()
+            a.sendto(frame, b.getsockname())
+            _wait_datagram(a, spin)
+        rate = n / (time.perf_counter() - t0)
+        echo.join(10)
+        a.close()
+        b.close()
+        if rate > best[0]:
+            best = (rate, "polling" if spin else "sleeping")
+    return best
+
+
 def realtime_jitter(duration_s: float) -> dict:
     """SYNC timing of a real-time run: each SYNC's wall-clock send time (recorded per cycle)
     against the ideal grid t0 + k·T, k counting the period slots (a missed cycle skips one).
@@ -88,6 +136,7 @@ def realtime_jitter(duration_s: float) -> dict:
 
 def run(quick: bool) -> list[Row]:
     rate, n, parts = lockstep_cycles_per_s(4000 if quick else 30000)
+    floor, how = bare_round_trips(2000 if quick else 50000)
     rt = realtime_jitter(4.0 if quick else 60.0)
     return [
         Row("lockstep HIL loop (loopback bus, 2 processes)", f"{rate:,.0f} cycles/s",
@@ -99,6 +148,12 @@ def run(quick: bool) -> list[Row]:
             f"{sum(parts.values()) / (PERIOD_S / 100 * 1e6):.1f}x over",
             f"mean cycle {1e6 / rate:.0f} µs; from the frames' send stamps in the run's capture: "
             "emulator answer, its 2nd send, transit + gateway decision, gateway bookkeeping"),
+        Row("floor: bare UDP round trip, 2 Python processes", f"{floor:,.0f} round trips/s",
+            f"100x real time: {100 / PERIOD_S:,.0f} cycles/s, one round trip each at least",
+            f"{floor * PERIOD_S:.0f}x real time with no work",
+            f"{1e6 / floor:.1f} µs per round trip ({how} receivers), no CAN, no CANopen, no plant: "
+            f"a lockstep cycle (4 frames, both stacks, plant, supervisor, recorder) takes "
+            f"{floor / rate:.1f} of these"),
         Row("real-time loop 2 ms: SYNC jitter", f"p50 {rt['p50']:.3f} / p99 {rt['p99']:.3f} / max {rt['max']:.2f} ms",
             "target p99 < 0.5 ms, no missed cycle", "",
             f"{rt['cycles']:,} cycles, {rt['overruns']} missed, {rt['stale']} stale; SYNC send time vs "

@@ -23,7 +23,8 @@ def test_every_benchmark_runs_in_quick_mode_and_prints_its_rows():
     for name in discover():
         assert f"running {name}" in res.stderr
     for figure in ("cycles/s", "x real time", "frames/s", "round trips/s", "% bus load",
-                   "stand diagnose", "SYNC jitter", "host floor", "where the time goes"):
+                   "stand diagnose", "SYNC jitter", "host floor", "where the time goes",
+                   "bare UDP round trip"):
         assert figure in table, figure
 
 
