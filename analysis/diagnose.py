@@ -128,6 +128,10 @@ SEPARATING_EXPERIMENT = {
     frozenset({"stiction", "backlash"}): "the meander (square waves): a play on the command is "
                                          "jumped at once by a step, a stuck rod still holds the "
                                          "force after each reversal",
+    frozenset({"direction_delay", "trend"}): "meanders at two periods (e.g. 4 and 12 s): a "
+                                             "trend Δ is the same at both, the flow's extra "
+                                             "time at one command each period shrinks with a "
+                                             "longer period",
     frozenset({"unloading", "asymmetry"}): "runs at both positive and negative force levels: "
                                            "an asymmetry keeps its fast direction, a specimen "
                                            "stiffer unloading swaps it with the sign of the force",

@@ -541,6 +541,18 @@ def _stiffness_starts(s: DataSummary, base) -> list[dict]:
             for a in (-0.2, 0.0, 0.2, 0.6) for b in (-0.2, 0.0, 0.2)]
 
 
+def _direction_delay_starts(s: DataSummary, base) -> list[dict]:
+    """Either direction late by 10-80 ms; the base fit's τ is about the mean of the two
+    delays, so each also starts with τ shortened by half the difference."""
+    tau = base.get("tau", 0.05)
+    out = []
+    for d in (-0.08, -0.03, -0.01, 0.01, 0.03, 0.08):
+        out.append({"direction_delay.extra": d})
+        if tau > 0:
+            out.append({"direction_delay.extra": d, "tau": max(0.0, tau - abs(d) / 2)})
+    return out
+
+
 def _unloading_starts(s: DataSummary, base) -> list[dict]:
     return [{"unloading.ratio": h} for h in (-0.3, -0.1, 0.0, 0.1, 0.3)]
 
@@ -577,6 +589,7 @@ START_GRIDS: dict[str, Callable[[DataSummary, Mapping[str, float]], list[dict]]]
     "stiffness": _stiffness_starts,
     "stiction": _stiction_starts,
     "unloading": _unloading_starts,
+    "direction_delay": _direction_delay_starts,
     "sensor_lag": _same_starts(_lag_starts, "lag", "sensor_lag"),
     "command_reversal": _same_starts(_reversal_starts, "reversal", "command_reversal"),
 }

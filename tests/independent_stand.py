@@ -34,6 +34,8 @@ One hidden effect per simulation (or "none"), or several joined by "+":
   gaindrift  flow gain drifting over each run (oil warming): g x (1 + a*t), a = 0.01 1/s
   softload   a specimen 15 % softer while loading (the flow drives |y| up) than unloading, switching at
              zero force: rate x 0.85 when sign(q) = sign(y)
+  dirdelay   the command reaches the valve 35 ms after it steps up and 70 ms after it steps down
+             (each change of the held command is applied after its own delay, in order; replaces tau)
   stiction   rod seal friction: the specimen's force is a play of total width w = 200 kgf on the
              hydraulic force (the rod sticks after each reversal until the pressure has
              changed by w); the dynamometer measures the specimen's force
@@ -70,6 +72,7 @@ EFFECT_PARAMS = {
     "gaindrift": dict(a=0.01),
     "stiction": dict(w=200.0),
     "softload": dict(soft=0.15),
+    "dirdelay": dict(up=0.035, down=0.070),
 }
 
 
@@ -118,6 +121,9 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
     ym_out = np.zeros(n)
     yt_out = np.zeros(n)
     ucmd = [0.0] * n                       # command after command-side effects (before delay)
+    applied = []                           # dirdelay: (fine step it reaches the valve, value)
+    last_apply = 0
+    valve_in = 0.0
 
     y = float(y0)
     yp = float(y0)                         # stiction: the specimen's force (a play on y)
@@ -149,6 +155,13 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
             b = P["backlash"]["band"]
             bl = min(max(bl, uc - b), uc + b)
             uc = bl
+        if "dirdelay" in es:
+            prev = ucmd[k - 1] if k else 0.0
+            if uc != prev:
+                dly = P["dirdelay"]["up"] if uc > prev else P["dirdelay"]["down"]
+                at = max(k * SUB + int(round(dly / H)), last_apply)
+                applied.append((at, uc))
+                last_apply = at
         ucmd[k] = uc
         if "rev_cmd" in es:
             cmd_rev.see(u, tk)
@@ -159,6 +172,10 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
             t = i * H
             di = i - D
             v = ucmd[di // SUB] if di >= 0 else 0.0
+            if "dirdelay" in es:
+                while applied and applied[0][0] <= i:
+                    valve_in = applied.pop(0)[1]
+                v = valve_in
             # valve chain
             if "deadzone" in es:
                 a = abs(v) - P["deadzone"]["d"]

@@ -42,12 +42,14 @@ def test_delay_is_exact_even_between_samples(tau):
                                   "base+leakage", "base+load_pressure+reversal+lag+oscillation",
                                   "base+backlash+flow_curve", "base+sensor_lag+deadzone+reversal",
                                   "base+command_reversal+lag", "base+stiffness+reversal",
-                                  "base+deadzone+stiction", "base+unloading+asymmetry"])
+                                  "base+deadzone+stiction", "base+unloading+asymmetry",
+                                  "base+direction_delay+lag"])
 def test_emulator_blocks_and_analysis_windows_run_the_same_model(spec):
     """Stepping in small blocks (the emulator), whole records and windows (the analysis) agree."""
     extra = {"stiffness.k_abs": 2.0, "stiffness.k_sgn": -0.5} if "stiffness" in spec else {}
     extra.update({"stiction.width": 130.0} if "stiction" in spec else {})
     extra.update({"unloading.ratio": 0.2} if "unloading" in spec else {})
+    extra.update({"direction_delay.extra": -0.0173} if "direction_delay" in spec else {})
     m = PlantModel.from_spec(spec, {"g": 110, "tau": 0.031, **extra})
     t, u = square(12.0, 1.0, 6.0)
     whole = m.simulate(u, DT, y0=100.0)
@@ -180,6 +182,23 @@ def test_unloading_is_faster_toward_zero_force_than_away_from_it():
     assert slope(t, back, 0.85, 1.0) == pytest.approx(-750.0)     # through zero: loading again
     pull = m.simulate(np.full_like(t, 10.0), DT, u_before=10.0, y0=-5000.0)
     assert slope(t, pull, 0.1, 1.0) == pytest.approx(1250.0)      # a negative force unloading
+
+
+@pytest.mark.parametrize("extra", [0.0301, -0.0301])
+def test_direction_delay_makes_one_direction_of_command_step_late(extra):
+    """τ = 10 ms, δ = ±30.1 ms at 2 ms steps: the late direction's ramp starts at t_step + τ + |δ|
+    (0.05 of a step into its 16th step: the step's mean rate is 95 % of the ramp's), the other
+    at t_step + τ."""
+    m = PlantModel.from_spec("base+direction_delay", {"g": 100, "tau": 0.01, "direction_delay.extra": extra})
+    u = np.r_[np.full(100, -10.0), np.full(100, 10.0), np.full(100, -10.0)]
+    rate = np.diff(m.simulate(u, DT, u_before=-10.0)) / DT
+    up, down = (0.2 + 0.01 + abs(extra), 0.4 + 0.01) if extra > 0 else (0.2 + 0.01, 0.4 + 0.01 + abs(extra))
+    for at, new in ((up, 1000.0), (down, -1000.0)):
+        k = int(at / DT + 1e-9)
+        assert rate[k - 1] == pytest.approx(-new)
+        late = at / DT - k                    # the part of step k still at the old command
+        assert rate[k] == pytest.approx(new * (1 - 2 * late), abs=1e-6)
+        assert rate[k + 1] == pytest.approx(new)
 
 
 def test_stiction_holds_the_reading_after_each_reversal_for_width_over_rate():
