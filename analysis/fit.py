@@ -487,14 +487,21 @@ class DataSummary:
                    y_span=float(np.ptp(y)))
 
 
+def _and_less_delay(start: dict, base: Mapping[str, float], extra_s: float) -> list[dict]:
+    """``start``, and the same with τ shortened by ``extra_s``: an effect that holds the
+    response back (a lag, a stuck rod, a late direction) looks like more delay, which the base
+    fit has put into τ."""
+    tau = base.get("tau", 0.05)
+    if extra_s > 0 and tau > 0:
+        return [start, {**start, "tau": max(0.0, tau - extra_s)}]
+    return [start]
+
+
 def _lag_starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
     out = []
-    tau = base.get("tau", 0.05)
     for T in (1e-4, 2 * s.dt, 0.01, 0.03, 0.1, 0.3):
         T = max(T, 1.1e-4)
-        out.append({"lag.time_constant": T})
-        if tau > 0:  # a lag looks like extra delay: take it out of τ
-            out.append({"lag.time_constant": T, "tau": max(0.0, tau - T)})
+        out += _and_less_delay({"lag.time_constant": T}, base, T)
     return out
 
 
@@ -544,12 +551,9 @@ def _stiffness_starts(s: DataSummary, base) -> list[dict]:
 def _direction_delay_starts(s: DataSummary, base) -> list[dict]:
     """Either direction late by 10-80 ms; the base fit's τ is about the mean of the two
     delays, so each also starts with τ shortened by half the difference."""
-    tau = base.get("tau", 0.05)
     out = []
     for d in (-0.08, -0.03, -0.01, 0.01, 0.03, 0.08):
-        out.append({"direction_delay.extra": d})
-        if tau > 0:
-            out.append({"direction_delay.extra": d, "tau": max(0.0, tau - abs(d) / 2)})
+        out += _and_less_delay({"direction_delay.extra": d}, base, abs(d) / 2)
     return out
 
 
@@ -561,14 +565,11 @@ def _stiction_starts(s: DataSummary, base) -> list[dict]:
     """Plays of 0-30 % of the force span; a hold after each reversal looks like more delay, so
     each also starts with τ shortened by the hold at the middle command level."""
     g = abs(base.get("g", 100.0)) or 100.0
-    tau = base.get("tau", 0.05)
     ref = max(float(np.median(s.u_abs_levels)), 1e-3)
     out = []
     for f in (0.0, 0.01, 0.03, 0.1, 0.3):
         w = min(5000.0, f * max(s.y_span, 100.0))
-        out.append({"stiction.width": w})
-        if w > 0 and tau > 0:
-            out.append({"stiction.width": w, "tau": max(0.0, tau - w / (g * ref))})
+        out += _and_less_delay({"stiction.width": w}, base, w / (g * ref))
     return out
 
 
