@@ -38,3 +38,13 @@ def test_a_late_cycle_is_put_on_the_host_only_when_a_bare_thread_was_late_then_t
             (200.0035, 0.001)]                         # 2.5 ms after the second ended
     assert at_host_stalls(loop, host) == 3
     assert at_host_stalls(loop, []) == 0
+
+
+def test_the_round_trip_floor_gives_up_with_a_reason_when_the_echo_process_does_not_answer(monkeypatch):
+    from benchmarks import control_loop
+    monkeypatch.setattr(control_loop, "_echo_datagrams", lambda *args: None)   # exits at once
+    with pytest.raises(RuntimeError, match="answered only 0 of 110 round trips in 0.5 s"):
+        control_loop.bare_round_trips(10, timeout_s=0.5)
+    monkeypatch.undo()
+    rate, how = control_loop.bare_round_trips(300, timeout_s=60)   # and works with one that does
+    assert rate > 0 and how in ("polling", "sleeping")
