@@ -82,6 +82,27 @@ SEPARATING_EXPERIMENT = {
     frozenset({"lag", "delay"}): "a meander (step commands) or P-feedback at several reference "
                                  "frequencies: a lag rounds the corners and its phase grows less "
                                  "than linearly with frequency; a delay only shifts",
+    frozenset({"resonance", "lag"}): "a meander (command steps) at a small amplitude, or "
+                                      "P-feedback at reference frequencies up to the suspected "
+                                      "f_n: a lag never overshoots, a resonance rings after "
+                                      "each step and peaks near f_n",
+    frozenset({"resonance", "delay"}): "P-feedback at several reference frequencies, up to a "
+                                       "third of the sample rate: far below f_n a resonance "
+                                       "only adds the delay 2ζ/ω_n, near it the phase and gain "
+                                       "change fast",
+    frozenset({"slew", "lag"}): "the meander at several amplitudes (e.g. 5 and 20 %): a speed "
+                                "limit rounds a step for |Δu|/R, four times as long at four "
+                                "times the step, a lag for the same time constant at every step",
+    frozenset({"slew", "delay"}): "the meander at several amplitudes: a speed-limited spool "
+                                  "reaches the flow |Δu|/(2R) late, later for larger steps; a "
+                                  "delay is the same at every amplitude",
+    frozenset({"supply", "flow_curve"}): "a large command held for several seconds after a hold "
+                                         "at zero: a sagging supply starts at the full slope and "
+                                         "bends it down over its time constant, a flow curve "
+                                         "has the lower slope from the first instant",
+    frozenset({"supply", "saturation"}): "a large command held for several seconds after a "
+                                         "hold at zero: a flow limit caps the slope at once, a "
+                                         "sagging supply lowers it over its time constant",
     frozenset({"deadzone", "gain"}): "the meander at several amplitudes (e.g. 5, 10, 15, 20 %): "
                                      "a dead zone lowers the slope by g·d at every amplitude, "
                                      "a lower gain in proportion to |u|",

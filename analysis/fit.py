@@ -505,6 +505,37 @@ def _lag_starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
     return out
 
 
+def _resonance_starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
+    """Natural frequencies of 2-30 Hz (below Nyquist), lightly to well damped; the step
+    response's mean lag 2ζ/ω has gone into the base fit's τ, so each also starts without it."""
+    out = []
+    nyquist = 0.5 / s.dt
+    for f in (2.0, 6.0, 15.0, 30.0):
+        for zeta in (0.15, 0.4, 1.0):
+            if f < nyquist:
+                out += _and_less_delay({"resonance.frequency": f, "resonance.damping": zeta},
+                                       base, 2 * zeta / (2 * math.pi * f))
+    return out
+
+
+def _slew_starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
+    """Spool speeds from a reversal of the middle command level in 5 ms to one in 200 ms; a
+    ramped step reaches the flow about |Δu|/(2R) late, which the base fit put into τ."""
+    swing = 2 * max(float(np.median(s.u_abs_levels)), 1e-3)     # a reversal ±u
+    out = []
+    for t_ramp in (0.005, 0.02, 0.06, 0.2):
+        R = min(1e5, max(1.0, swing / t_ramp))
+        out += _and_less_delay({"slew.rate": R}, base, t_ramp / 2)
+    return out
+
+
+def _supply_starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
+    """Sags of 5-40 % at the largest command in the data, settling in 0.1-3 s."""
+    top = max(s.u_abs_max, 1e-3) / 100.0
+    return [{"supply.sag": min(5.0, f / top), "supply.time_constant": T}
+            for f in (0.05, 0.15, 0.4) for T in (0.1, 0.5, 3.0)]
+
+
 def _same_starts(grid: Callable, effect: str, twin: str) -> Callable:
     """The start grid of ``effect`` for ``twin``, an effect with the same parameters (a sensor
     lag starts like a valve lag, a command-timed reversal like a rod-timed one)."""
@@ -581,6 +612,9 @@ def _leakage_starts(s: DataSummary, base) -> list[dict]:
 #: An effect without an entry gets :func:`generic_starts` (a grid from its parameter bounds).
 START_GRIDS: dict[str, Callable[[DataSummary, Mapping[str, float]], list[dict]]] = {
     "lag": _lag_starts,
+    "resonance": _resonance_starts,
+    "slew": _slew_starts,
+    "supply": _supply_starts,
     "deadzone": _deadzone_starts,
     "saturation": _saturation_starts,
     "asymmetry": _asymmetry_starts,

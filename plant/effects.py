@@ -30,7 +30,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
-from scipy.signal import lfilter
+from scipy.linalg import expm
+from scipy.signal import lfilter, ss2tf
 
 from .params import ModelError, Param
 
@@ -199,6 +200,135 @@ class Lag(Effect):
 
     def shape(self, q, dt, state):
         return first_order_step_average(q, dt, self.time_constant, state)
+
+
+def second_order_step_average_filter(frequency: float, damping: float,
+                                     dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(b, a)`` of the discrete filter from a command held over each step to the step
+    average of ``x`` in ``ẍ + 2ζω ẋ + ω² x = ω² v`` (ω = 2π·frequency): the exact zero-order
+    hold discretization, with the running integral of ``x`` as a third state (Van Loan)."""
+    w = 2 * math.pi * frequency
+    m = np.zeros((4, 4))
+    m[0, 1] = 1.0
+    m[1, 0], m[1, 1], m[1, 3] = -w * w, -2 * damping * w, w * w
+    m[2, 0] = 1.0                            # the integral of x
+    e = expm(m * dt)
+    phi, gam = e[:2, :2], e[:2, 3]
+    c, d = e[2, :2] / dt, e[2, 3] / dt       # step average = (∫ over the step) / dt
+    b, a = ss2tf(phi, gam[:, None], c[None, :], np.array([[d]]))
+    return np.ravel(b), np.ravel(a)
+
+
+@register
+class Resonance(Effect):
+    r"""A second-order valve/actuator: the flow rings after a command step.
+
+    Physics: the oil column in the cylinder is a spring (bulk modulus over the chamber volume)
+    that carries the piston, rod and fixture; with the servo-valve's own spool dynamics it makes
+    the hydraulic natural frequency ``f_n`` (a few Hz to some tens of Hz on a loading stand),
+    lightly damped by leakage and friction. A servo-valve data sheet gives its response the
+    same way (the frequency at 90° phase, and a damping). The flow command follows the delayed
+    command through
+
+    .. math::  \ddot q + 2\zeta\omega_n \dot q + \omega_n^2 q = \omega_n^2\,u(t-\tau),
+               \qquad \omega_n = 2\pi f_n,
+
+    discretized exactly for a command held over each step (the flow used over a step is its
+    step average). Seen in data as a force rate that overshoots after each command step and
+    rings at about ``f_n·√(1−ζ²)`` (a relay loop oscillates faster and with bumps, a harmonic
+    reference shows a resonant peak); a lag cannot overshoot. Well damped (ζ ≳ 1) it is a lag
+    of ``2ζ/ω_n``, and far above the excitation only a delay of ``2ζ/ω_n``. The valve starts
+    settled on the command held before.
+    """
+
+    name = "resonance"
+    stage = Stage.VALVE
+    summary = "second-order valve/actuator: natural frequency f_n, damping ζ (the flow rings)"
+    params = (Param("frequency", 10.0, 0.3, 200.0, "Hz", "natural frequency f_n", log=True),
+              Param("damping", 0.5, 0.02, 5.0, "1", "damping ratio ζ", log=True))
+
+    def init_state(self, n, u0):
+        past = np.repeat(np.array(u0, float)[:, None], 2, axis=1)
+        return {"v": past, "q": past.copy()}       # the last two inputs and outputs, oldest first
+
+    def shape(self, q, dt, state):
+        b, a = second_order_step_average_filter(self.frequency, self.damping, dt)
+        v1, v2 = state["v"][:, 1], state["v"][:, 0]   # x[-1], x[-2]
+        y1, y2 = state["q"][:, 1], state["q"][:, 0]
+        zi = np.stack([b[1] * v1 + b[2] * v2 - a[1] * y1 - a[2] * y2,
+                       b[2] * v1 - a[2] * y1], axis=1)       # scipy.signal.lfiltic, per row
+        out, _ = lfilter(b, a, q, axis=1, zi=zi)
+        state["v"] = np.concatenate([state["v"], q], axis=1)[:, -2:].copy()
+        state["q"] = np.concatenate([state["q"], out], axis=1)[:, -2:].copy()
+        return out
+
+
+@register
+class Slew(Effect):
+    r"""The spool cannot move faster than a largest speed: large command steps become ramps.
+
+    Physics: the first stage of a two-stage servo-valve drives the spool with a limited flow
+    (and a drive amplifier with a limited current or a set ramp), so the spool's speed has a
+    ceiling ``R``; a data sheet shows it as a large-signal step response that takes longer than
+    the small-signal one (e.g. 0 → 100 % in 25 ms: R = 4000 %/s). The spool position ``x`` is
+    the command passed through a rate limit,
+
+    .. math::  \dot x = \operatorname{clip}\big(\ldots,\ -R,\ R\big):\quad
+               x \text{ follows } u(t-\tau) \text{ at once, at most at speed } R,
+
+    and the flow over a step is its step average (exact: the ramp ends inside the step where it
+    reaches the command). Seen in data as a corner after each large command step that is
+    rounded for ``|Δu|/R``, longer for larger steps (a lag rounds every step in the same time
+    constant, a delay shifts it): a meander's ramp starts late by ``|Δu|/(2R)``, twice as late at
+    twice the amplitude. A command that changes by less than ``R·dt`` a step is reached
+    within each step. The spool starts on the command held before.
+    """
+
+    name = "slew"
+    stage = Stage.VALVE
+    summary = "spool speed limit R: a command step of Δu becomes a ramp lasting |Δu|/R"
+    params = (Param("rate", 500.0, 1.0, 1e5, "%/s", "largest spool speed R", log=True),)
+
+    def init_state(self, n, u0):
+        return {"x": np.array(u0, float)}
+
+    def shape(self, q, dt, state):
+        s = self.rate * dt                     # the largest move in one step
+        out = np.empty_like(q)
+        x_end = state["x"].astype(float)
+        for i in range(q.shape[0]):
+            x_end[i] = _slew_row(q[i], float(x_end[i]), s, out[i])
+        state["x"] = x_end
+        return out
+
+
+def _slew_row(v: np.ndarray, x: float, s: float, out: np.ndarray) -> float:
+    """Step averages of the rate-limited spool (moves of at most ``s`` a step) along the held
+    commands ``v``, from position ``x``, into ``out``; returns the end position. Where the spool
+    sits on the command and no step exceeds ``s`` it tracks (vectorized); a step from off the
+    command is walked one by one until the spool is on it again."""
+    K = v.shape[0]
+    d_all = np.diff(v)
+    jumps = np.flatnonzero(np.abs(d_all) > s) + 1     # steps a tracking spool cannot follow
+    vals = v.tolist()
+    k = 0
+    while k < K:
+        d = vals[k] - x
+        if -s <= d <= s:                      # reaches the command within this step
+            out[k] = vals[k] - d * abs(d) / (2 * s)
+            k += 1
+            j = int(jumps[np.searchsorted(jumps, k)]) if len(jumps) and jumps[-1] >= k else K
+            if j > k:                          # tracking until the next jump
+                dd = d_all[k - 1:j - 1]
+                out[k:j] = v[k:j] - dd * np.abs(dd) / (2 * s)
+            x = vals[j - 1]
+            k = j
+        else:
+            step = s if d > 0 else -s
+            out[k] = x + step / 2
+            x += step
+            k += 1
+    return x
 
 
 @register
@@ -401,6 +531,42 @@ class Asymmetry(Effect):
 
     def gain(self, q, aux, y):
         return 1.0 + self.ratio * np.sign(q)
+
+
+@register
+class Supply(Effect):
+    r"""The supply pressure sags while the valve draws much flow, and recovers.
+
+    Physics: the pump (and its accumulator) deliver a limited flow through a supply line with
+    its own losses; a large valve opening draws more than that, so the supply pressure ``P_s``
+    falls, over the accumulator's time constant, and recovers at small openings. The flow
+    through the valve goes as the square root of its pressure drop, so the gain falls with it.
+    With ``s`` the relative sag of ``P_s``, ``k`` the sag a full opening would settle at and
+    ``T`` its time constant:
+
+    .. math::  T\,\dot s = k\,\frac{|q|}{100\,\%} - s,\qquad G = \sqrt{\max(1 - s,\ 0)}.
+
+    Seen in data as ramps that start at the full slope after a quiet stretch and bend down
+    over ``T`` while the command stays large, more at larger amplitudes (a flow curve or limit
+    bends the slopes at every instant alike, without a memory). The sag starts settled on the
+    command held before.
+    """
+
+    name = "supply"
+    stage = Stage.FLOW
+    summary = "supply pressure sags with the flow drawn (k at full opening, time constant T)"
+    params = (Param("sag", 0.3, 0.0, 5.0, "1", "relative supply-pressure sag k a full opening settles at"),
+              Param("time_constant", 1.0, 1e-3, 100.0, "s", "time constant T of the sag", log=True))
+
+    def init_state(self, n, u0):
+        return {"x": self.sag * np.abs(np.array(u0, float)) / 100.0}
+
+    def prepare(self, q, dt, state, command=None):
+        sag = first_order_step_average(self.sag * np.abs(q) / 100.0, dt, self.time_constant, state)
+        return np.sqrt(np.maximum(1.0 - sag, 0.0))
+
+    def gain(self, q, aux, y):
+        return aux
 
 
 @register

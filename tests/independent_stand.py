@@ -36,6 +36,11 @@ One hidden effect per simulation (or "none"), or several joined by "+":
              zero force: rate x 0.85 when sign(q) = sign(y)
   dirdelay   the command reaches the valve 35 ms after it steps up and 70 ms after it steps down
              (each change of the held command is applied after its own delay, in order; replaces tau)
+  slew       the spool moves at most 400 %/s (a rate limit after the delay, instead of a lag)
+  res        second-order valve/actuator after the delay: 6 Hz, damping 0.2 (rings)
+  supply     supply pressure sags with the flow drawn: dps/dt = (1 - ps)/T - c*|q|/100, flow x
+             sqrt(ps), T = 1 s, c = 1.5 (ps relative, 1 at rest)
+  jitter     the delay varies at random, 0-4 ms more at each 2 ms sample (controller/bus timing)
   stiction   rod seal friction: the specimen's force is a play of total width w = 200 kgf on the
              hydraulic force (the rod sticks after each reversal until the pressure has
              changed by w); the dynamometer measures the specimen's force
@@ -73,6 +78,10 @@ EFFECT_PARAMS = {
     "stiction": dict(w=200.0),
     "softload": dict(soft=0.15),
     "dirdelay": dict(up=0.035, down=0.070),
+    "slew": dict(rate=400.0),
+    "res": dict(f=6.0, zeta=0.2),
+    "supply": dict(T=1.0, c=1.5),
+    "jitter": dict(j=0.004),
 }
 
 
@@ -124,6 +133,9 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
     applied = []                           # dirdelay: (fine step it reaches the valve, value)
     last_apply = 0
     valve_in = 0.0
+    xs = 0.0                               # slew: spool position
+    ps = 1.0                               # supply: relative supply pressure
+    jit = rng.integers(0, int(round(P.get("jitter", {}).get("j", 0.0) / H)) + 1, n)
 
     y = float(y0)
     yp = float(y0)                         # stiction: the specimen's force (a play on y)
@@ -170,7 +182,7 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
         for j in range(SUB):
             i = base_i + j
             t = i * H
-            di = i - D
+            di = i - D - (int(jit[k]) if "jitter" in es else 0)
             v = ucmd[di // SUB] if di >= 0 else 0.0
             if "dirdelay" in es:
                 while applied and applied[0][0] <= i:
@@ -186,15 +198,24 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
             if "lag" in es:
                 qv += H / P["lag"]["T"] * (v - qv)
                 q = qv
-            elif "valve2nd" in es:
-                wn = 2 * math.pi * P["valve2nd"]["f"]
-                qd += H * (wn * wn * (v - qv) - 2 * P["valve2nd"]["zeta"] * wn * qd)
+            elif "valve2nd" in es or "res" in es:
+                v2 = P["valve2nd"] if "valve2nd" in es else P["res"]
+                wn = 2 * math.pi * v2["f"]
+                qd += H * (wn * wn * (v - qv) - 2 * v2["zeta"] * wn * qd)
                 qv += H * qd
                 q = qv
+            elif "slew" in es:
+                st = P["slew"]["rate"] * H
+                xs += min(max(v - xs, -st), st)
+                q = xs
             else:
                 q = v
             if "saturation" in es:
                 q = max(-P["saturation"]["qmax"], min(P["saturation"]["qmax"], q))
+            if "supply" in es:
+                sp = P["supply"]
+                ps += H * ((1.0 - ps) / sp["T"] - sp["c"] * abs(q) / 100.0)
+                q *= math.sqrt(max(ps, 0.0))
             if "asymmetry" in es and q < 0:
                 q *= P["asymmetry"]["neg"]
             if "loadpress" in es:

@@ -24,7 +24,9 @@ NAMED = {"rev_cmd": "command_reversal", "rev_flow": "reversal", "lag": "lag", "d
          "friction": "deadzone",                     # Coulomb friction on the rate = a dead zone
          "backlash": "backlash", "flownl": "flow_curve",
          "stiffening": "stiffness", "stiction": "stiction", "softload": "unloading",
-         "dirdelay": "direction_delay"}
+         "dirdelay": "direction_delay", "res": "resonance",
+         "valve2nd": "resonance",                    # the same law at 25 Hz, ζ = 0.5
+         "slew": "slew", "supply": "supply"}
 
 
 def dataset(effect: str) -> list:
@@ -43,7 +45,8 @@ def test_independent_simulator(effect):
         assert d.verdict == "missing_effect" and d.best in named, d.summary
         if NAMED[effect] == "lag":  # valve or sensor: the data cannot tell, and the report says so
             assert any(set(a.effects) == {"lag", "sensor_lag"} for a in d.ambiguities), d.ambiguities
-        assert d.best_candidate.rmse_reduction >= 0.10, d.summary
+        # a 25 Hz valve rings little at 2 ms samples: it is mostly the delay 2ζ/ωn (7 % cut)
+        assert d.best_candidate.rmse_reduction >= (0.05 if effect == "valve2nd" else 0.10), d.summary
         if effect != "dirdelay":
             assert not any("still" in w for w in d.warnings), d.warnings
         if effect.startswith("rev_"):  # boost and decay, timed from the command or the rod
@@ -72,15 +75,28 @@ def test_independent_simulator(effect):
             # what is left (3x the floor) is the simulator's queue: a rise right after a brief
             # dip waits for the dip's late fall there, the catalogue's valve rises at once
             assert d.best_candidate.rmse_reduction > 0.9
+        if NAMED[effect] == "resonance":   # the same second-order law
+            v = sim.EFFECT_PARAMS[effect]
+            p = d.best_candidate.params
+            assert p["resonance.frequency"] == pytest.approx(v["f"], rel=0.03)
+            assert p["resonance.damping"] == pytest.approx(v["zeta"], rel=0.05)
+            assert p["tau"] == pytest.approx(sim.DEFAULTS["tau"], abs=0.001)
+        if effect == "slew":        # the same rate limit on the spool
+            assert d.best_candidate.params["slew.rate"] == pytest.approx(sim.EFFECT_PARAMS["slew"]["rate"], rel=0.05)
+            assert d.best_candidate.params["tau"] == pytest.approx(sim.DEFAULTS["tau"], abs=0.001)
+        if effect == "supply":      # the simulator's sag: T·ṡ = c·T·|q| − s, i.e. k = c·T
+            v = sim.EFFECT_PARAMS["supply"]
+            p = d.best_candidate.params
+            assert p["supply.sag"] == pytest.approx(v["c"] * v["T"], rel=0.05)
+            assert p["supply.time_constant"] == pytest.approx(v["T"], rel=0.05)
         if effect == "stiction":    # the same play on the force
             want = sim.EFFECT_PARAMS["stiction"]["w"]
             assert d.best_candidate.params["stiction.width"] == pytest.approx(want, rel=0.05)
-    elif effect == "valve2nd":
-        # a 25 Hz valve is, at 2 ms samples, a delay of 2ζ/ωn more: nothing else to see
-        assert d.verdict == "adequate", d.summary
-        v = sim.EFFECT_PARAMS["valve2nd"]
-        want = sim.DEFAULTS["tau"] + 2 * v["zeta"] / (2 * np.pi * v["f"])
-        assert d.base_fit.model.tau == pytest.approx(want, abs=0.002)
+    elif effect == "jitter":
+        # a random delay of 0-4 ms at each sample: no deterministic law removes it; what is left
+        # is said to sit after the reversals, where a late or early step moves the force
+        assert d.verdict == "unexplained", d.summary
+        assert "after a reversal" in d.summary, d.summary
     elif effect == "gaindrift":
         # outside the catalogue: not pinned on an effect, and the drift is said in words
         assert d.verdict == "unexplained", d.summary

@@ -43,13 +43,16 @@ def test_delay_is_exact_even_between_samples(tau):
                                   "base+backlash+flow_curve", "base+sensor_lag+deadzone+reversal",
                                   "base+command_reversal+lag", "base+stiffness+reversal",
                                   "base+deadzone+stiction", "base+unloading+asymmetry",
-                                  "base+direction_delay+lag"])
+                                  "base+direction_delay+lag", "base+resonance+deadzone", "base+slew+backlash", "base+supply+asymmetry"])
 def test_emulator_blocks_and_analysis_windows_run_the_same_model(spec):
     """Stepping in small blocks (the emulator), whole records and windows (the analysis) agree."""
     extra = {"stiffness.k_abs": 2.0, "stiffness.k_sgn": -0.5} if "stiffness" in spec else {}
     extra.update({"stiction.width": 130.0} if "stiction" in spec else {})
     extra.update({"unloading.ratio": 0.2} if "unloading" in spec else {})
     extra.update({"direction_delay.extra": -0.0173} if "direction_delay" in spec else {})
+    extra.update({"resonance.frequency": 7.3, "resonance.damping": 0.15} if "resonance" in spec else {})
+    extra.update({"slew.rate": 333.0} if "slew" in spec else {})
+    extra.update({"supply.sag": 2.0, "supply.time_constant": 0.4} if "supply" in spec else {})
     m = PlantModel.from_spec(spec, {"g": 110, "tau": 0.031, **extra})
     t, u = square(12.0, 1.0, 6.0)
     whole = m.simulate(u, DT, y0=100.0)
@@ -199,6 +202,67 @@ def test_direction_delay_makes_one_direction_of_command_step_late(extra):
         late = at / DT - k                    # the part of step k still at the old command
         assert rate[k] == pytest.approx(new * (1 - 2 * late), abs=1e-6)
         assert rate[k + 1] == pytest.approx(new)
+
+
+@pytest.mark.parametrize("f_n,zeta", [(6.0, 0.2), (25.0, 0.5), (3.0, 2.0)])
+def test_resonance_is_the_exact_second_order_response_of_the_flow(f_n, zeta):
+    """A command step through ẍ + 2ζω ẋ + ω² x = ω² u: the force rate is g times the analytic
+    step response, averaged over each step (the force itself: g times its integral)."""
+    m = PlantModel.from_spec("base+resonance", {"g": 100, "tau": 0.0, "resonance.frequency": f_n,
+                                                "resonance.damping": zeta})
+    u = np.r_[np.zeros(10), np.full(400, 10.0)]
+    y = m.simulate(u, DT, u_before=0.0)
+    from scipy.signal import lti, step
+    w = 2 * np.pi * f_n
+    # the force is g·10·∫ step response: step response of ω²/(s(s² + 2ζωs + ω²))
+    t = (np.arange(len(u)) - 10) * DT
+    _, ramp = step(lti([w * w], [1.0, 2 * zeta * w, w * w, 0.0]), T=t[10:])
+    want = np.r_[np.zeros(10), 100 * 10.0 * ramp]
+    assert np.max(np.abs(y - want)) < 1e-6 * 100 * 10.0 * t[-1]
+    rate = np.diff(y) / DT
+    if zeta < 1:   # it overshoots by exp(−πζ/√(1−ζ²)), a lag never does
+        over = np.exp(-np.pi * zeta / np.sqrt(1 - zeta * zeta))
+        assert rate.max() / 1000.0 - 1 == pytest.approx(over, rel=0.05)
+    else:
+        assert rate.max() <= 1000.0 + 1e-9
+
+
+def test_slew_makes_a_step_a_ramp_late_by_half_its_length():
+    """R = 400 %/s, g = 100: 0 → 10 % takes 25 ms (12.5 steps: the ramp ends mid-step) and the
+    force then trails the unlimited valve's by g·Δu²/(2R) = 12.5 kgf; the reversal 10 → −10 %
+    takes 50 ms and leaves 50 kgf more (Δu/(2R) late each: twice as late for twice the step)."""
+    m = PlantModel.from_spec("base+slew", {"g": 100, "tau": 0.0, "slew.rate": 400.0})
+    u = np.r_[np.zeros(50), np.full(200, 10.0), np.full(200, -10.0)]
+    y = m.simulate(u, DT, u_before=0.0)
+    free = PlantModel(g=100, tau=0.0).simulate(u, DT, u_before=0.0)
+    t = np.arange(len(u)) * DT
+    ramp = (t > 0.1) & (t <= 0.1 + 0.025)                      # x = R·(t − 0.1): y = g·R·s²/2
+    assert np.allclose(y[ramp], 100 * 400 * (t[ramp] - 0.1) ** 2 / 2, atol=1e-9)
+    assert np.allclose((y - free)[(t > 0.13) & (t <= 0.5)], -12.5, atol=1e-9)
+    assert np.allclose((y - free)[t > 0.56], -12.5 + 50.0, atol=1e-9)
+    # a command that moves less than R·dt a step is reached within each step, |Δu|/R after
+    # the step starts: the force trails by less than g·|u|max·(|Δu|max/R)/2 (1.96 kgf here)
+    slow = np.sin(2 * np.pi * 0.5 * np.arange(2000) * DT) * 50.0   # at most 157 %/s
+    ys = m.simulate(slow, DT, u_before=0.0)
+    gap = np.abs(ys - PlantModel(g=100, tau=0.0).simulate(slow, DT, u_before=0.0))
+    assert 0.5 < gap.max() < 100 * 50.0 * (np.abs(np.diff(slow)).max() / 400.0) / 2
+
+
+def test_supply_sag_bends_a_held_ramp_down_over_its_time_constant():
+    """k = 2 at full opening, T = 0.5 s: a 15 % command from rest starts at the full slope and
+    settles at g·u·√(1 − k·0.15) = √0.7 of it, 1 − 1/e of the way there after T."""
+    m = PlantModel.from_spec("base+supply", {"g": 100, "tau": 0.0, "supply.sag": 2.0,
+                                             "supply.time_constant": 0.5})
+    u = np.r_[np.zeros(10), np.full(3000, 15.0)]
+    rate = np.diff(m.simulate(u, DT, u_before=0.0)) / DT
+    full = 100 * 15.0
+    assert rate[10] == pytest.approx(full, rel=0.01)
+    assert rate[-1] == pytest.approx(full * np.sqrt(0.7), rel=1e-4)
+    k_T = 10 + int(0.5 / DT)
+    assert rate[k_T] == pytest.approx(full * np.sqrt(1 - 0.3 * (1 - np.exp(-1))), rel=1e-3)
+    # held at the command before the data, the sag has settled: the slope is low from the start
+    settled = np.diff(m.simulate(np.full(100, 15.0), DT, u_before=15.0)) / DT
+    assert settled[0] == pytest.approx(full * np.sqrt(0.7), rel=1e-9)
 
 
 def test_stiction_holds_the_reading_after_each_reversal_for_width_over_rate():
