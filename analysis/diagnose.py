@@ -41,6 +41,7 @@ from .data import Record
 from .metrics import (AFTER_REVERSAL_S, Evaluation, RecordSimulation, command_levels,
                       demeaned_residual, evaluate, input_correlation_test, is_closed_loop,
                       reversal_mask, simulate_records, window_increments)
+from .timing import jitter_observation
 
 #: candidates refitted on all the data after screening (the best; the runner-up too when the
 #: data are short enough to be screened whole)
@@ -493,6 +494,7 @@ def describe_residual(ev: Evaluation) -> list[str]:
     out += slope_observations(ev.sims)
     if ev.excess_ratio > 1.1:
         out += drift_observation(ev.sims)
+        out += jitter_observation(ev.sims, ev.model.g)
     conc = [r for r in ev.regimes if r.group == "reversal" and r.name.startswith("first")]
     if conc and ev.excess_ratio > 1.1:
         r = conc[0]

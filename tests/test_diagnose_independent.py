@@ -38,6 +38,8 @@ def dataset(effect: str) -> list:
 @pytest.mark.parametrize("effect", EFFECTS)
 def test_independent_simulator(effect):
     d = diagnose(dataset(effect))
+    if effect != "jitter":   # the steps' timing is exact: no jitter may be claimed
+        assert not any("timing jitter" in o for o in d.observations), d.observations
     if effect == "none":
         assert d.verdict == "adequate", d.summary
     elif effect in NAMED:
@@ -97,6 +99,12 @@ def test_independent_simulator(effect):
         # is said to sit after the reversals, where a late or early step moves the force
         assert d.verdict == "unexplained", d.summary
         assert "after a reversal" in d.summary, d.summary
+        # ... and the residual's jumps at the command steps say what it is: uniform 0-4 ms is
+        # 1.15 ms rms (read as 0.93: a step's delay changes again within its ramp)
+        said = [o for o in d.observations if "timing jitter" in o]
+        assert said, d.observations
+        ms = float(said[0].split("about ±")[1].split(" ms")[0])
+        assert 0.6 < ms < 1.6, said[0]
     elif effect == "gaindrift":
         # outside the catalogue: not pinned on an effect, and the drift is said in words
         assert d.verdict == "unexplained", d.summary
