@@ -16,13 +16,17 @@ from analysis.data import make_record
 from analysis.stepwise import stepwise
 from tests import independent_stand as sim
 
-#: simulator effect -> the catalogue effects that name it exactly or equivalently
+#: simulator effect -> the catalogue effects that name it exactly or equivalently (one effect,
+#: or both where the data cannot tell them apart); tests/test_diagnose_independent.py uses it too
 EQUIVALENT = {"rev_flow": {"reversal"}, "rev_cmd": {"command_reversal"},
               "lag": {"lag", "sensor_lag"}, "sensorlag": {"lag", "sensor_lag"},
               "deadzone": {"deadzone"}, "saturation": {"saturation"}, "asymmetry": {"asymmetry"},
               "loadpress": {"load_pressure"}, "leakage": {"leakage"}, "backlash": {"backlash"},
-              "flownl": {"flow_curve"}, "friction": {"deadzone"},
-              "stiffening": {"stiffness"}, "stiction": {"stiction"}}
+              "flownl": {"flow_curve"}, "friction": {"deadzone"},   # Coulomb friction on the rate
+              "stiffening": {"stiffness"}, "stiction": {"stiction"}, "softload": {"unloading"},
+              "dirdelay": {"direction_delay"}, "res": {"resonance"},
+              "valve2nd": {"resonance"},        # the same law at 25 Hz, ζ = 0.5
+              "slew": {"slew"}, "supply": {"supply"}}
 
 
 def random_sets(seed: int, n: int, k: int = 2) -> list[tuple[str, ...]]:

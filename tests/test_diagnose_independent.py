@@ -13,20 +13,10 @@ import pytest
 from analysis.data import make_record
 from analysis.diagnose import diagnose
 from tests import independent_stand as sim
+from tests.independent_sweep import EQUIVALENT
 
 SEED0 = 20240601
 EFFECTS = list(sim.EFFECT_PARAMS)
-
-#: what a correct diagnosis names (the catalogue's exact or equivalent effect)
-NAMED = {"rev_cmd": "command_reversal", "rev_flow": "reversal", "lag": "lag", "deadzone": "deadzone",
-         "saturation": "saturation", "asymmetry": "asymmetry", "loadpress": "load_pressure",
-         "leakage": "leakage", "sensorlag": "lag",   # on an integrator: the same (both named)
-         "friction": "deadzone",                     # Coulomb friction on the rate = a dead zone
-         "backlash": "backlash", "flownl": "flow_curve",
-         "stiffening": "stiffness", "stiction": "stiction", "softload": "unloading",
-         "dirdelay": "direction_delay", "res": "resonance",
-         "valve2nd": "resonance",                    # the same law at 25 Hz, ζ = 0.5
-         "slew": "slew", "supply": "supply"}
 
 
 def dataset(effect: str) -> list:
@@ -42,10 +32,10 @@ def test_independent_simulator(effect):
         assert not any("timing jitter" in o for o in d.observations), d.observations
     if effect == "none":
         assert d.verdict == "adequate", d.summary
-    elif effect in NAMED:
-        named = {"lag", "sensor_lag"} if NAMED[effect] == "lag" else {NAMED[effect]}
+    elif effect in EQUIVALENT:
+        named = EQUIVALENT[effect]
         assert d.verdict == "missing_effect" and d.best in named, d.summary
-        if NAMED[effect] == "lag":  # valve or sensor: the data cannot tell, and the report says so
+        if named == {"lag", "sensor_lag"}:  # valve or sensor: the data cannot tell, and the report says so
             assert any(set(a.effects) == {"lag", "sensor_lag"} for a in d.ambiguities), d.ambiguities
         # a 25 Hz valve rings little at 2 ms samples: it is mostly the delay 2ζ/ωn (7 % cut)
         assert d.best_candidate.rmse_reduction >= (0.05 if effect == "valve2nd" else 0.10), d.summary
@@ -53,8 +43,8 @@ def test_independent_simulator(effect):
             assert not any("still" in w for w in d.warnings), d.warnings
         if effect.startswith("rev_"):  # boost and decay, timed from the command or the rod
             p = d.best_candidate.params
-            assert p[f"{NAMED[effect]}.boost"] == pytest.approx(2.0, rel=0.05)
-            assert p[f"{NAMED[effect]}.decay"] == pytest.approx(0.15, rel=0.05)
+            assert p[f"{d.best}.boost"] == pytest.approx(2.0, rel=0.05)
+            assert p[f"{d.best}.decay"] == pytest.approx(0.15, rel=0.05)
         if effect == "backlash":   # the simulator's ±band play is a play of total width 2·band
             want = 2 * sim.EFFECT_PARAMS["backlash"]["band"]
             assert d.best_candidate.params["backlash.width"] == pytest.approx(want, rel=0.1)
@@ -77,7 +67,7 @@ def test_independent_simulator(effect):
             # what is left (3x the floor) is the simulator's queue: a rise right after a brief
             # dip waits for the dip's late fall there, the catalogue's valve rises at once
             assert d.best_candidate.rmse_reduction > 0.9
-        if NAMED[effect] == "resonance":   # the same second-order law
+        if d.best == "resonance":   # the same second-order law
             v = sim.EFFECT_PARAMS[effect]
             p = d.best_candidate.params
             assert p["resonance.frequency"] == pytest.approx(v["f"], rel=0.03)
