@@ -245,7 +245,8 @@ class Resonance(Effect):
     stage = Stage.VALVE
     summary = "second-order valve/actuator: natural frequency f_n, damping ζ (the flow rings)"
     params = (Param("frequency", 10.0, 0.3, 200.0, "Hz", "natural frequency f_n", log=True),
-              Param("damping", 0.5, 0.02, 5.0, "1", "damping ratio ζ", log=True))
+              Param("damping", 0.5, 0.05, 5.0, "1",
+                    "damping ratio ζ (a hydraulic actuator 0.05-0.3, a servo-valve 0.5-1)", log=True))
 
     def init_state(self, n, u0):
         past = np.repeat(np.array(u0, float)[:, None], 2, axis=1)
