@@ -903,6 +903,15 @@ def _ambiguities(records: Sequence[Record], base_fit: F.FitResult, cands: Sequen
                 "like a valve lag on an integrating plant (the two commute), in open and closed "
                 "loop alike, unless a valve nonlinearity sits between them: these data cannot "
                 "tell where the lag is.", separating_experiment("lag", "sensor_lag")))
+    if best is not None and best.effect == "supply":
+        T = best.params.get("supply.time_constant", math.nan)
+        out.append(Ambiguity(
+            ["supply", "flow_curve"],
+            f"at a held command the supply's sag settles at k·|u| and the gain at "
+            f"√(1 − k·|u|/100), a degressive flow characteristic of its own: only the sag's "
+            f"build-up over T (fitted {T:.3g} s) after |u| changes tells a sagging supply from a "
+            f"bent flow curve (or a dead zone with one).",
+            separating_experiment("supply", "flow_curve")))
     if "saturation" in names and best is None:
         top = max((abs(r.u).max() for r in records), default=0.0)
         if top < 100.0:
