@@ -97,10 +97,13 @@ class Stall(Const):
 
 
 def rpdos(run_dir: Path, node: int = 1) -> list[tuple[float, int, int]]:
-    """The valve commands in a run's capture: ``(time, control word, setpoint counts)``."""
+    """The valve commands in a run's capture: ``(time, control word, setpoint counts)``. Only
+    classic data frames with an 11-bit id are commands: a flood's extended-id frame 0x201 with
+    four bytes is not (the valve drops it), so it must not count as one."""
     out = []
     for f in read_capture(Path(run_dir) / "capture.log"):
-        if f.arbitration_id == 0x200 + node and len(f.data) == 4:
+        if (f.arbitration_id == 0x200 + node and len(f.data) == 4 and not f.is_extended_id
+                and not (f.is_remote_frame or f.is_error_frame or f.is_fd)):
             cw, sp = struct.unpack("<Hh", bytes(f.data))
             out.append((f.timestamp, cw, sp))
     return out
