@@ -104,6 +104,13 @@ SEPARATING_EXPERIMENT = {
     frozenset({"supply", "saturation"}): "a large command held for several seconds after a "
                                          "hold at zero: a flow limit caps the slope at once, a "
                                          "sagging supply lowers it over its time constant",
+    frozenset({"gain_drift", "supply"}): "a long run at one small command amplitude: a "
+                                         "warming oil changes the gain whatever the flow drawn, "
+                                         "a sagging supply hardly sags at small openings and "
+                                         "recovers in every pause",
+    frozenset({"gain_drift", "gain"}): "two runs, one after the other, or one long run: a "
+                                       "drifting gain differs between the starts and the ends "
+                                       "of the runs, a wrong gain is wrong everywhere alike",
     frozenset({"deadzone", "gain"}): "the meander at several amplitudes (e.g. 5, 10, 15, 20 %): "
                                      "a dead zone lowers the slope by g·d at every amplitude, "
                                      "a lower gain in proportion to |u|",
@@ -621,7 +628,8 @@ GAIN_CHANGE_MIN = 0.04
 def drift_observation(sims: Sequence[RecordSimulation]) -> list[str]:
     """Does the model's slope error along the motion (steady stretches, away from reversals)
     change from the start of the records to their end? That is a gain that drifts during a run
-    (oil warming up, supply pressure sagging), which no catalogue effect models.
+    (oil warming up, supply pressure sagging): what ``gain_drift`` models, said in words
+    because the records' clocks may not start with the runs.
 
     (The same comparison across |force| levels was tried for a specimen stiffness and dropped:
     between records |force| goes with the command level and the experiment, so a dead zone, a
@@ -648,9 +656,8 @@ def drift_observation(sims: Sequence[RecordSimulation]) -> list[str]:
         return []
     return [f"the model's slope is {_signed_pct(first)} in the first quarter of the records and "
             f"{_signed_pct(last)} in the last: the gain {'grows' if last < first else 'falls'} "
-            f"during a run (oil warming up, supply pressure changing); no catalogue effect "
-            f"depends on time, so fit the runs apart and compare g, or let the stand warm up "
-            f"before measuring"]
+            f"during a run (oil warming up, supply pressure changing): the `gain_drift` effect "
+            f"models that; or let the stand warm up before measuring"]
 
 
 def _signed_pct(x: float) -> str:

@@ -85,7 +85,7 @@ class Piece:
     warmup: int = 0
     record: int = 0           #: index of the record in the data set
     start: int = 0            #: index of u[0] in the record
-    t0: float = 0.0           #: time of u[0], s
+    t0: float = 0.0           #: time of u[0] since the record's first sample, s
 
     @property
     def n_eval(self) -> int:
@@ -152,7 +152,7 @@ def pieces_from_records(records: Sequence[Record], window_s: float = WINDOW_S,
         lead = lead_samples(n, rec.dt, w, lead_s)
         stretches = valid_stretches(rec, max(2, w // 4))
         if stretches == [(0, n)]:
-            out.append(Piece(rec.u, rec.y, rec.dt, max(2, min(w, n - lead)), lead, i, 0, float(rec.t[0])))
+            out.append(Piece(rec.u, rec.y, rec.dt, max(2, min(w, n - lead)), lead, i, 0, 0.0))
             continue
         for a, b in stretches:
             first = max(a, lead)
@@ -160,7 +160,7 @@ def pieces_from_records(records: Sequence[Record], window_s: float = WINDOW_S,
                 continue
             s0 = max(0, first - max(lead, int(round(lead_s / rec.dt))))
             out.append(Piece(rec.u[s0:b], rec.y[s0:b], rec.dt, max(2, min(w, b - first)),
-                             first - s0, i, s0, float(rec.t[s0])))
+                             first - s0, i, s0, float(rec.t[s0] - rec.t[0])))
     if not out:
         raise DataError("no usable data: every record is too short or its force reading is "
                         "clipped at the dynamometer's range throughout")
@@ -473,6 +473,7 @@ class DataSummary:
     u_abs_max: float
     y_abs_max: float
     y_span: float
+    duration_s: float = 0.0        #: the longest piece's end, s since its record began
 
     @classmethod
     def of(cls, pieces: Sequence[Piece]) -> "DataSummary":
@@ -484,7 +485,8 @@ class DataSummary:
             levels = np.quantile(ua, [0.25, 0.5, 0.75, 0.95])
         return cls(dt=min(p.dt for p in pieces), u_abs_levels=[float(v) for v in levels],
                    u_abs_max=float(ua.max()), y_abs_max=float(np.abs(y).max()),
-                   y_span=float(np.ptp(y)))
+                   y_span=float(np.ptp(y)),
+                   duration_s=max(p.t0 + len(p.u) * p.dt for p in pieces))
 
 
 def _and_less_delay(start: dict, base: Mapping[str, float], extra_s: float) -> list[dict]:
@@ -534,6 +536,21 @@ def _supply_starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
     top = max(s.u_abs_max, 1e-3) / 100.0
     return [{"supply.sag": min(5.0, f / top), "supply.time_constant": T}
             for f in (0.05, 0.15, 0.4) for T in (0.1, 0.5, 3.0)]
+
+
+def _gain_drift_starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
+    """The gain rising or falling by 5-50 % over the longest run, linearly (T far beyond the
+    run) or settling within it."""
+    D = max(s.duration_s, 1.0)
+
+    def rate(r: float) -> float:
+        return float(np.clip(r, -0.05, 0.05))
+    out = []
+    for change in (-0.3, -0.05, 0.05, 0.2, 0.5):
+        out += [{"gain_drift.rate": rate(change / D), "gain_drift.time_constant": 1e5},
+                {"gain_drift.rate": rate(3 * change / D),
+                 "gain_drift.time_constant": max(1.0, D / 3)}]
+    return out
 
 
 def _same_starts(grid: Callable, effect: str, twin: str) -> Callable:
@@ -615,6 +632,7 @@ START_GRIDS: dict[str, Callable[[DataSummary, Mapping[str, float]], list[dict]]]
     "resonance": _resonance_starts,
     "slew": _slew_starts,
     "supply": _supply_starts,
+    "gain_drift": _gain_drift_starts,
     "deadzone": _deadzone_starts,
     "saturation": _saturation_starts,
     "asymmetry": _asymmetry_starts,

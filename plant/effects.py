@@ -77,6 +77,9 @@ class Effect:
     #: False if the reading is not affine in g and Δ with the other parameters fixed (a play),
     #: so the fit cannot solve g and Δ from one simulation
     linear_in_gain: ClassVar[bool] = True
+    #: True if :meth:`prepare` reads the time since the run started (``t=`` keyword, (n, K):
+    #: the start of every step; a record's time counts from its first sample)
+    reads_time: ClassVar[bool] = False
 
     def __init__(self, **values: float) -> None:
         known = {p.name: p for p in self.params}
@@ -109,10 +112,12 @@ class Effect:
         """VALVE stage: map the command block ``q`` (n, K) to the new flow command."""
         raise NotImplementedError
 
-    def prepare(self, q: np.ndarray, dt: float, state: dict, command: np.ndarray | None = None) -> Any:
+    def prepare(self, q: np.ndarray, dt: float, state: dict, command: np.ndarray | None = None,
+                t: np.ndarray | None = None) -> Any:
         """FLOW stage, input side: anything that depends only on the flow-command history
         (returned as ``aux`` of shape (n, K) and handed to :meth:`gain`). Effects that declare
-        ``reads_command`` also get the undelayed ``command`` of the same steps."""
+        ``reads_command`` also get the undelayed ``command`` of the same steps, those that
+        declare ``reads_time`` the time ``t`` of the steps' starts since the run began."""
         return None
 
     def gain(self, q: np.ndarray, aux: Any, y: np.ndarray) -> np.ndarray:
@@ -566,9 +571,48 @@ class Supply(Effect):
     def init_state(self, n, u0):
         return {"x": self.sag * np.abs(np.array(u0, float)) / 100.0}
 
-    def prepare(self, q, dt, state, command=None):
+    def prepare(self, q, dt, state, command=None, t=None):
         sag = first_order_step_average(self.sag * np.abs(q) / 100.0, dt, self.time_constant, state)
         return np.sqrt(np.maximum(1.0 - sag, 0.0))
+
+    def gain(self, q, aux, y):
+        return aux
+
+
+@register
+class GainDrift(Effect):
+    r"""The gain drifts during a run: the oil warms up (or the supply settles after start-up).
+
+    Physics: the pump and the valve's throttling turn the hydraulic power into heat, so the oil
+    warms from the start of a run toward its running temperature, with the circuit's thermal
+    time constant ``T`` (minutes). Its viscosity falls, the spool's and the piston's leakages
+    rise and the pump's delivery changes, so the flow per % command (the gain) changes with the
+    temperature. With ``r`` the gain's relative rate of change at the start of the run and
+    ``t`` the time since the run began (a record's first sample):
+
+    .. math::  G(t) = \max\big(1 + r\,T\,(1 - e^{-t/T}),\ 0\big),
+
+    averaged exactly over each step. For ``T`` much longer than the run it is the linear drift
+    ``G = 1 + r·t``; ``g`` is the gain at the start of the run. Seen in data as a slope error
+    along the motion that grows with time (the model too slow at the end of every run and right
+    at its start, or the other way), the same in every run, at every command level and in both
+    directions. In the emulator the clock restarts when the master starts the nodes.
+    """
+
+    name = "gain_drift"
+    stage = Stage.FLOW
+    summary = "gain drifting during a run (oil warming): G = 1 + r·T·(1 − exp(−t/T))"
+    reads_time = True
+    params = (Param("rate", 0.002, -0.05, 0.05, "1/s",
+                    "relative rate of change r of the gain at the start of a run"),
+              Param("time_constant", 600.0, 1.0, 1e5, "s",
+                    "thermal time constant T (much longer than a run: a linear drift)", log=True))
+
+    def prepare(self, q, dt, state, command=None, t=None):
+        T = self.time_constant
+        # mean of exp(-s/T) over the step [t, t + dt]
+        mean_decay = np.exp(-t / T) * (-math.expm1(-dt / T) * T / dt)
+        return np.maximum(1.0 + self.rate * T * (1.0 - mean_decay), 0.0)
 
     def gain(self, q, aux, y):
         return aux
@@ -608,7 +652,7 @@ class Reversal(Effect):
         # direction of the last motion (0: at rest) and time since the last reversal
         return {"direction": np.sign(u0).astype(float), "since": np.full(n, np.inf)}
 
-    def prepare(self, q, dt, state, command=None):
+    def prepare(self, q, dt, state, command=None, t=None):
         return self._since_reversal(q, dt, state)
 
     def _since_reversal(self, q, dt, state):
@@ -663,7 +707,7 @@ class CommandReversal(Reversal):
     summary = "reversal boost timed from the command's sign change (before the delay)"
     reads_command = True
 
-    def prepare(self, q, dt, state, command=None):
+    def prepare(self, q, dt, state, command=None, t=None):
         return self._since_reversal(q if command is None else command, dt, state)
 
 

@@ -34,7 +34,7 @@ class PlantState:
     """Everything a simulation carries from one block to the next (``n`` trajectories)."""
 
     y: np.ndarray                 #: force, kgf, shape (n,)
-    t: np.ndarray                 #: time, s, shape (n,)
+    t: np.ndarray                 #: time since the run (record) began, s, shape (n,)
     history: np.ndarray           #: past commands for the delay line, shape (n, H)
     effects: list[dict] = field(default_factory=list)
     reading: np.ndarray | None = None  #: what the dynamometer reports (y through SENSOR effects)
@@ -66,7 +66,7 @@ class PlantModel:
         # per stage, once (the emulator steps a few samples per SYNC: this is its hot path)
         self._flow = [e for e in self.effects if e.stage is Stage.FLOW]
         self._force = [e for e in self.effects if e.stage is Stage.FORCE]
-        self._has_disturbance = any(e.stage is Stage.DISTURBANCE for e in self.effects)
+        self._needs_time = any(e.stage is Stage.DISTURBANCE or e.reads_time for e in self.effects)
         self._sensor = [i for i, e in enumerate(self.effects) if e.stage is Stage.SENSOR]
 
     # -- description --------------------------------------------------------------------------
@@ -172,14 +172,18 @@ class PlantModel:
         aux: list = []
         dist = None
         t = None
-        if self._has_disturbance:
+        if self._needs_time:
             t = state.t[:, None] + dt * np.arange(K)[None, :]
         for eff, est in zip(self.effects, state.effects):
             if eff.stage is Stage.VALVE:
                 q = eff.shape(q, dt, est)
             elif eff.stage is Stage.FLOW:
-                aux.append(eff.prepare(q, dt, est, command=u) if eff.reads_command
-                           else eff.prepare(q, dt, est))
+                extra = {}
+                if eff.reads_command:
+                    extra["command"] = u
+                if eff.reads_time:
+                    extra["t"] = t
+                aux.append(eff.prepare(q, dt, est, **extra))
             elif eff.stage is Stage.DISTURBANCE:
                 d = eff.disturbance(t, dt)
                 dist = d if dist is None else dist + d

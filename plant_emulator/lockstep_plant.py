@@ -57,6 +57,12 @@ class LockstepPlant:
             self.force = self._block(command)
         return self.force
 
+    def restart_clock(self) -> None:
+        """A run begins: the plant's time counts from zero again (the periods computed ahead
+        are dropped first, they carry the old time)."""
+        self._undo()
+        self.state.t[:] = 0.0
+
     # -- inside ---------------------------------------------------------------------------------
     def _regrid(self, period_s: float, command: float) -> None:
         self._undo()

@@ -171,7 +171,15 @@ class EmulatedStand:
     # -- overrides -------------------------------------------------------------------------------
     def run_started(self) -> None:
         """Hook: the master started the nodes (NMT OPERATIONAL), i.e. a run begins. The plant
-        just goes on; a different force source (a replayed capture) restarts here."""
+        goes on (force, spool, delay line) but its clock restarts, as the run's record does: an
+        effect of the time since a run began (``gain_drift``) counts from here. A different
+        force source (a replayed capture) restarts its replay here."""
+        with self.lock:
+            if self.options.lockstep:
+                self.lockstep_plant.restart_clock()
+            else:
+                self._catch_up()
+                self._plant.t[:] = 0.0
 
     def advance_plant(self) -> None:
         """Bring the plant to the time of this SYNC (lockstep: one period; real time: now)."""

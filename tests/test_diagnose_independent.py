@@ -27,7 +27,8 @@ def dataset(effect: str) -> list:
 
 @pytest.mark.parametrize("effect", EFFECTS)
 def test_independent_simulator(effect):
-    d = diagnose(dataset(effect))
+    recs = dataset(effect)
+    d = diagnose(recs)
     if effect != "jitter":   # the steps' timing is exact: no jitter may be claimed
         assert not any("timing jitter" in o for o in d.observations), d.observations
     if effect == "none":
@@ -76,6 +77,12 @@ def test_independent_simulator(effect):
         if effect == "slew":        # the same rate limit on the spool
             assert d.best_candidate.params["slew.rate"] == pytest.approx(sim.EFFECT_PARAMS["slew"]["rate"], rel=0.05)
             assert d.best_candidate.params["tau"] == pytest.approx(sim.DEFAULTS["tau"], abs=0.001)
+        if effect == "gaindrift":   # g·(1 + a·t): the linear drift, T far beyond the runs
+            p = d.best_candidate.params
+            a = sim.EFFECT_PARAMS["gaindrift"]["a"]
+            assert p["gain_drift.rate"] == pytest.approx(a, rel=0.05)
+            assert p["gain_drift.time_constant"] > 20 * max(r.duration_s for r in recs)
+            assert p["g"] == pytest.approx(sim.DEFAULTS["g"], rel=0.02)
         if effect == "supply":      # the simulator's sag: T·ṡ = c·T·|q| − s, i.e. k = c·T
             v = sim.EFFECT_PARAMS["supply"]
             p = d.best_candidate.params
@@ -95,11 +102,6 @@ def test_independent_simulator(effect):
         assert said, d.observations
         ms = float(said[0].split("about ±")[1].split(" ms")[0])
         assert 0.6 < ms < 1.6, said[0]
-    elif effect == "gaindrift":
-        # outside the catalogue: not pinned on an effect, and the drift is said in words
-        assert d.verdict == "unexplained", d.summary
-        said = [o for o in d.observations if "first quarter of the records" in o]
-        assert said and "grows during a run" in said[0], d.observations
     else:
         assert effect == "osc", effect
         assert d.verdict == "unexplained", d.summary

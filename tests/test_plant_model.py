@@ -43,7 +43,8 @@ def test_delay_is_exact_even_between_samples(tau):
                                   "base+backlash+flow_curve", "base+sensor_lag+deadzone+reversal",
                                   "base+command_reversal+lag", "base+stiffness+reversal",
                                   "base+deadzone+stiction", "base+unloading+asymmetry",
-                                  "base+direction_delay+lag", "base+resonance+deadzone", "base+slew+backlash", "base+supply+asymmetry"])
+                                  "base+direction_delay+lag", "base+resonance+deadzone", "base+slew+backlash", "base+supply+asymmetry",
+                                  "base+gain_drift+reversal"])
 def test_emulator_blocks_and_analysis_windows_run_the_same_model(spec):
     """Stepping in small blocks (the emulator), whole records and windows (the analysis) agree."""
     extra = {"stiffness.k_abs": 2.0, "stiffness.k_sgn": -0.5} if "stiffness" in spec else {}
@@ -53,6 +54,8 @@ def test_emulator_blocks_and_analysis_windows_run_the_same_model(spec):
     extra.update({"resonance.frequency": 7.3, "resonance.damping": 0.15} if "resonance" in spec else {})
     extra.update({"slew.rate": 333.0} if "slew" in spec else {})
     extra.update({"supply.sag": 2.0, "supply.time_constant": 0.4} if "supply" in spec else {})
+    extra.update({"gain_drift.rate": 0.03, "gain_drift.time_constant": 4.0}
+                 if "gain_drift" in spec else {})
     m = PlantModel.from_spec(spec, {"g": 110, "tau": 0.031, **extra})
     t, u = square(12.0, 1.0, 6.0)
     whole = m.simulate(u, DT, y0=100.0)
@@ -263,6 +266,27 @@ def test_supply_sag_bends_a_held_ramp_down_over_its_time_constant():
     # held at the command before the data, the sag has settled: the slope is low from the start
     settled = np.diff(m.simulate(np.full(100, 15.0), DT, u_before=15.0)) / DT
     assert settled[0] == pytest.approx(full * np.sqrt(0.7), rel=1e-9)
+
+
+def test_gain_drift_changes_the_slope_with_the_time_since_the_run_began():
+    """r = 1 %/s, T = 5 s: a held 10 % command ramps at g·u·(1 + r·T·(1 − e^(−t/T))), exactly
+    (the step averages sum to the integral); with T far beyond the run it is 1 + r·t."""
+    g, u0, r, T = 100.0, 10.0, 0.01, 5.0
+    m = PlantModel.from_spec("base+gain_drift", {"g": g, "tau": 0.0, "gain_drift.rate": r,
+                                                 "gain_drift.time_constant": T})
+    t = np.arange(0, 12.0, DT)
+    y = m.simulate(np.full_like(t, u0), DT, u_before=u0)
+    exact = g * u0 * (t + r * T * (t - T * (1 - np.exp(-t / T))))
+    assert np.max(np.abs(y - exact)) < 1e-6 * exact[-1]
+    linear = PlantModel.from_spec("base+gain_drift", {"g": g, "tau": 0.0, "gain_drift.rate": r,
+                                                      "gain_drift.time_constant": 1e5})
+    y = linear.simulate(np.full_like(t, u0), DT, u_before=u0)
+    assert y[-1] == pytest.approx(g * u0 * (t[-1] + r * t[-1] ** 2 / 2), rel=1e-3)
+    # the clock is the record's: a record started later (t0) continues the drift
+    state = m.new_state(1, DT, u0=u0, t0=6.0)
+    late = m.advance(state, np.full((1, 10), u0), DT)[0]
+    assert np.diff(late)[0] / DT == pytest.approx(g * u0 * (1 + r * T * (1 - np.exp(-6.0 / T))),
+                                                  rel=1e-3)
 
 
 def test_stiction_holds_the_reading_after_each_reversal_for_width_over_rate():
