@@ -108,6 +108,14 @@ SEPARATING_EXPERIMENT = {
                                          "warming oil changes the gain whatever the flow drawn, "
                                          "a sagging supply hardly sags at small openings and "
                                          "recovers in every pause",
+    frozenset({"null_drift", "gain_drift"}): "the meander at two amplitudes (e.g. 5 and 20 %), "
+                                              "or holds at zero command early and late in a "
+                                              "run: a drifting null adds the same kgf/s at "
+                                              "every command and at zero, a drifting gain "
+                                              "scales with |u|",
+    frozenset({"null_drift", "trend"}): "one long run, or holds at zero command at its start "
+                                        "and its end: the trend Δ is the same throughout, a "
+                                        "drifting null moves it during the run",
     frozenset({"gain_drift", "gain"}): "two runs, one after the other, or one long run: a "
                                        "drifting gain differs between the starts and the ends "
                                        "of the runs, a wrong gain is wrong everywhere alike",

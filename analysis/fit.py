@@ -538,19 +538,22 @@ def _supply_starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
             for f in (0.05, 0.15, 0.4) for T in (0.1, 0.5, 3.0)]
 
 
-def _gain_drift_starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
-    """The gain rising or falling by 5-50 % over the longest run, linearly (T far beyond the
-    run) or settling within it."""
-    D = max(s.duration_s, 1.0)
+def _warming_starts(effect: str, changes: Sequence[float], limit: float) -> Callable:
+    """Start grid of an effect that drifts from the start of each run (``rate``,
+    ``time_constant``): a total change of each of ``changes`` over the longest run, reached
+    linearly (T far beyond the run) or settling within it; rates within ±``limit``."""
+    def starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
+        D = max(s.duration_s, 1.0)
 
-    def rate(r: float) -> float:
-        return float(np.clip(r, -0.05, 0.05))
-    out = []
-    for change in (-0.3, -0.05, 0.05, 0.2, 0.5):
-        out += [{"gain_drift.rate": rate(change / D), "gain_drift.time_constant": 1e5},
-                {"gain_drift.rate": rate(3 * change / D),
-                 "gain_drift.time_constant": max(1.0, D / 3)}]
-    return out
+        def rate(r: float) -> float:
+            return float(np.clip(r, -limit, limit))
+        out = []
+        for change in changes:
+            out += [{f"{effect}.rate": rate(change / D), f"{effect}.time_constant": 1e5},
+                    {f"{effect}.rate": rate(3 * change / D),
+                     f"{effect}.time_constant": max(1.0, D / 3)}]
+        return out
+    return starts
 
 
 def _same_starts(grid: Callable, effect: str, twin: str) -> Callable:
@@ -632,7 +635,9 @@ START_GRIDS: dict[str, Callable[[DataSummary, Mapping[str, float]], list[dict]]]
     "resonance": _resonance_starts,
     "slew": _slew_starts,
     "supply": _supply_starts,
-    "gain_drift": _gain_drift_starts,
+    # the gain rising or falling by 5-50 % over a run; the null moving by 0.05-0.5 % command
+    "gain_drift": _warming_starts("gain_drift", (-0.3, -0.05, 0.05, 0.2, 0.5), 0.05),
+    "null_drift": _warming_starts("null_drift", (-0.5, -0.1, -0.03, 0.03, 0.1, 0.5), 0.1),
     "deadzone": _deadzone_starts,
     "saturation": _saturation_starts,
     "asymmetry": _asymmetry_starts,

@@ -77,8 +77,8 @@ class Effect:
     #: False if the reading is not affine in g and Δ with the other parameters fixed (a play),
     #: so the fit cannot solve g and Δ from one simulation
     linear_in_gain: ClassVar[bool] = True
-    #: True if :meth:`prepare` reads the time since the run started (``t=`` keyword, (n, K):
-    #: the start of every step; a record's time counts from its first sample)
+    #: True if :meth:`shape` or :meth:`prepare` reads the time since the run started (``t=``
+    #: keyword, (n, K): the start of every step; a record's time counts from its first sample)
     reads_time: ClassVar[bool] = False
 
     def __init__(self, **values: float) -> None:
@@ -108,8 +108,9 @@ class Effect:
         return {}
 
     # -- stage hooks (override the one for your stage) ----------------------------------------
-    def shape(self, q: np.ndarray, dt: float, state: dict) -> np.ndarray:
-        """VALVE stage: map the command block ``q`` (n, K) to the new flow command."""
+    def shape(self, q: np.ndarray, dt: float, state: dict, t: np.ndarray | None = None) -> np.ndarray:
+        """VALVE stage: map the command block ``q`` (n, K) to the new flow command (effects
+        that declare ``reads_time`` also get the steps' times ``t`` since the run began)."""
         raise NotImplementedError
 
     def prepare(self, q: np.ndarray, dt: float, state: dict, command: np.ndarray | None = None,
@@ -156,9 +157,50 @@ class Effect:
         raise NotImplementedError
 
 
+def warming(t: np.ndarray, dt: float, T: float) -> np.ndarray:
+    r"""The step average of :math:`W(t) = T\,(1 - e^{-t/T})` over ``[t, t + dt]``: how far a
+    first-order warm-up with time constant ``T`` has gone, in units of its initial rate (``t``
+    for ``T`` much longer than ``t``)."""
+    mean_decay = np.exp(-t / T) * (-math.expm1(-dt / T) * T / dt)
+    return T * (1.0 - mean_decay)
+
+
 # ------------------------------------------------------------------------------------------
 # VALVE stage
 # ------------------------------------------------------------------------------------------
+@register
+class NullDrift(Effect):
+    r"""The valve's null drifts during a run: the spool's zero-flow position moves as the valve
+    warms up.
+
+    Physics: a servo-valve's null (the command at which no oil flows) shifts with the
+    temperature of its torque motor and of the oil, and with the supply pressure; from the
+    start of a run it moves toward its warm value with the thermal time constant ``T``. The
+    constant part of the null offset is the base model's trend Δ; the drift adds to the spool
+    a command offset that grows from zero, with ``b`` its initial rate and ``t`` the time
+    since the run began (a record's first sample):
+
+    .. math::  q = u(t-\tau) + b\,T\,(1 - e^{-t/T}),
+
+    averaged exactly over each step (for ``T`` much longer than the run, ``b·t``). Seen in
+    data as a force trend that changes during every run the same way: the same extra kgf/s
+    at every command level, in both directions and at a held zero command (a drifting gain
+    scales with |u| and changes sign with the direction).
+    """
+
+    name = "null_drift"
+    stage = Stage.VALVE
+    summary = "valve null drifting during a run (warming): q = u + b·T·(1 − exp(−t/T))"
+    reads_time = True
+    params = (Param("rate", 0.002, -0.1, 0.1, "%/s",
+                    "initial rate b of the null's drift (command % per second)"),
+              Param("time_constant", 600.0, 1.0, 1e5, "s",
+                    "thermal time constant T (much longer than a run: a linear drift)", log=True))
+
+    def shape(self, q, dt, state, t=None):
+        return q + self.rate * warming(t, dt, self.time_constant)
+
+
 def first_order_step_average(v: np.ndarray, dt: float, T: float, state: dict) -> np.ndarray:
     """A first-order lag ``T·ẋ = v − x`` driven by ``v`` (n, K) held over each step: the step
     average of ``x`` (exact for an integrator that follows). ``state["x"]`` (n,) is ``x`` at the
@@ -609,10 +651,7 @@ class GainDrift(Effect):
                     "thermal time constant T (much longer than a run: a linear drift)", log=True))
 
     def prepare(self, q, dt, state, command=None, t=None):
-        T = self.time_constant
-        # mean of exp(-s/T) over the step [t, t + dt]
-        mean_decay = np.exp(-t / T) * (-math.expm1(-dt / T) * T / dt)
-        return np.maximum(1.0 + self.rate * T * (1.0 - mean_decay), 0.0)
+        return np.maximum(1.0 + self.rate * warming(t, dt, self.time_constant), 0.0)
 
     def gain(self, q, aux, y):
         return aux

@@ -176,7 +176,7 @@ class PlantModel:
             t = state.t[:, None] + dt * np.arange(K)[None, :]
         for eff, est in zip(self.effects, state.effects):
             if eff.stage is Stage.VALVE:
-                q = eff.shape(q, dt, est)
+                q = eff.shape(q, dt, est, t=t) if eff.reads_time else eff.shape(q, dt, est)
             elif eff.stage is Stage.FLOW:
                 extra = {}
                 if eff.reads_command:

@@ -41,6 +41,8 @@ One hidden effect per simulation (or "none"), or several joined by "+":
   supply     supply pressure sags with the flow drawn: dps/dt = (1 - ps)/T - c*|q|/100, flow x
              sqrt(ps), T = 1 s, c = 1.5 (ps relative, 1 at rest)
   jitter     the delay varies at random, 0-4 ms more at each 2 ms sample (controller/bus timing)
+  nulldrift  the valve's null drifts as it warms over each run: the spool sits b*t off the
+             command, b = 0.005 %/s (t since the run began)
   stiction   rod seal friction: the specimen's force is a play of total width w = 200 kgf on the
              hydraulic force (the rod sticks after each reversal until the pressure has
              changed by w); the dynamometer measures the specimen's force
@@ -82,6 +84,7 @@ EFFECT_PARAMS = {
     "res": dict(f=6.0, zeta=0.2),
     "supply": dict(T=1.0, c=1.5),
     "jitter": dict(j=0.004),
+    "nulldrift": dict(b=0.005),
 }
 
 
@@ -188,6 +191,8 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
                 while applied and applied[0][0] <= i:
                     valve_in = applied.pop(0)[1]
                 v = valve_in
+            if "nulldrift" in es:
+                v += P["nulldrift"]["b"] * t
             # valve chain
             if "deadzone" in es:
                 a = abs(v) - P["deadzone"]["d"]

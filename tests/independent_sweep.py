@@ -26,7 +26,8 @@ EQUIVALENT = {"rev_flow": {"reversal"}, "rev_cmd": {"command_reversal"},
               "stiffening": {"stiffness"}, "stiction": {"stiction"}, "softload": {"unloading"},
               "dirdelay": {"direction_delay"}, "res": {"resonance"},
               "valve2nd": {"resonance"},        # the same law at 25 Hz, ζ = 0.5
-              "slew": {"slew"}, "supply": {"supply"}, "gaindrift": {"gain_drift"}}
+              "slew": {"slew"}, "supply": {"supply"}, "gaindrift": {"gain_drift"},
+              "nulldrift": {"null_drift"}}
 
 
 def random_sets(seed: int, n: int, k: int = 2) -> list[tuple[str, ...]]:

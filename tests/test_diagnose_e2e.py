@@ -90,15 +90,18 @@ def test_rod_stiction_is_found_on_emulator_runs(bus_spec, start_emulator, tmp_pa
     assert d.best_candidate.rmse_reduction >= 0.7
 
 
-def test_a_gain_drifting_in_every_run_is_found_on_emulator_runs(bus_spec, start_emulator, tmp_path):
-    """The gain grows 3 %/s from the start of each run: the emulator's plant clock restarts
-    when the gateway starts the nodes for the next run, as the run's record does (one clock
-    over both runs would start the second 20 % fast and the fit could not match both)."""
-    truth = {"gain_drift.rate": 0.03, "gain_drift.time_constant": 1e5}
-    paths = _runs(bus_spec, start_emulator, tmp_path, "base+gain_drift", truth)
+@pytest.mark.parametrize("effect, rate", [("gain_drift", 0.03), ("null_drift", 0.06)])
+def test_a_drift_from_the_start_of_every_run_is_found_on_emulator_runs(bus_spec, start_emulator,
+                                                                       tmp_path, effect, rate):
+    """The gain grows 3 %/s, or the valve's null moves 0.06 %/s, from the start of each run:
+    the emulator's plant clock restarts when the gateway starts the nodes for the next run, as
+    the run's record does (one clock over both runs would start the second one drifted, and
+    the fit could not match both)."""
+    truth = {f"{effect}.rate": rate, f"{effect}.time_constant": 1e5}
+    paths = _runs(bus_spec, start_emulator, tmp_path, f"base+{effect}", truth)
     d = diagnose([read_run(p) for p in paths])
-    assert d.verdict == "missing_effect" and d.best == "gain_drift", d.summary
+    assert d.verdict == "missing_effect" and d.best == effect, d.summary
     p = d.best_candidate.params
-    assert p["gain_drift.rate"] == pytest.approx(0.03, rel=0.1)
+    assert p[f"{effect}.rate"] == pytest.approx(rate, rel=0.1)
     assert p["g"] == pytest.approx(BASE["g"], rel=0.03)
     assert d.best_candidate.rmse_reduction >= 0.7

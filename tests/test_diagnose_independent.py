@@ -83,6 +83,11 @@ def test_independent_simulator(effect):
             assert p["gain_drift.rate"] == pytest.approx(a, rel=0.05)
             assert p["gain_drift.time_constant"] > 20 * max(r.duration_s for r in recs)
             assert p["g"] == pytest.approx(sim.DEFAULTS["g"], rel=0.02)
+        if effect == "nulldrift":   # the spool b·t off the command: T far beyond the runs
+            p = d.best_candidate.params
+            assert p["null_drift.rate"] == pytest.approx(sim.EFFECT_PARAMS["nulldrift"]["b"], rel=0.05)
+            assert p["null_drift.time_constant"] > 20 * max(r.duration_s for r in recs)
+            assert p["delta"] == pytest.approx(sim.DEFAULTS["delta"], abs=0.5)
         if effect == "supply":      # the simulator's sag: T·ṡ = c·T·|q| − s, i.e. k = c·T
             v = sim.EFFECT_PARAMS["supply"]
             p = d.best_candidate.params

@@ -44,7 +44,7 @@ def test_delay_is_exact_even_between_samples(tau):
                                   "base+command_reversal+lag", "base+stiffness+reversal",
                                   "base+deadzone+stiction", "base+unloading+asymmetry",
                                   "base+direction_delay+lag", "base+resonance+deadzone", "base+slew+backlash", "base+supply+asymmetry",
-                                  "base+gain_drift+reversal"])
+                                  "base+gain_drift+reversal", "base+null_drift+lag+deadzone"])
 def test_emulator_blocks_and_analysis_windows_run_the_same_model(spec):
     """Stepping in small blocks (the emulator), whole records and windows (the analysis) agree."""
     extra = {"stiffness.k_abs": 2.0, "stiffness.k_sgn": -0.5} if "stiffness" in spec else {}
@@ -56,6 +56,8 @@ def test_emulator_blocks_and_analysis_windows_run_the_same_model(spec):
     extra.update({"supply.sag": 2.0, "supply.time_constant": 0.4} if "supply" in spec else {})
     extra.update({"gain_drift.rate": 0.03, "gain_drift.time_constant": 4.0}
                  if "gain_drift" in spec else {})
+    extra.update({"null_drift.rate": -0.08, "null_drift.time_constant": 5.0}
+                 if "null_drift" in spec else {})
     m = PlantModel.from_spec(spec, {"g": 110, "tau": 0.031, **extra})
     t, u = square(12.0, 1.0, 6.0)
     whole = m.simulate(u, DT, y0=100.0)
@@ -287,6 +289,19 @@ def test_gain_drift_changes_the_slope_with_the_time_since_the_run_began():
     late = m.advance(state, np.full((1, 10), u0), DT)[0]
     assert np.diff(late)[0] / DT == pytest.approx(g * u0 * (1 + r * T * (1 - np.exp(-6.0 / T))),
                                                   rel=1e-3)
+
+
+def test_null_drift_adds_the_same_trend_at_every_command_and_in_both_directions():
+    """b = 0.05 %/s, T = 4 s: at any held command, and at zero, the force rate differs from
+    g·u by g·b·T·(1 − e^(−t/T)) (exactly, step averages), the same amount for +u and −u."""
+    g, b, T = 100.0, 0.05, 4.0
+    m = PlantModel.from_spec("base+null_drift", {"g": g, "tau": 0.0, "null_drift.rate": b,
+                                                 "null_drift.time_constant": T})
+    t = np.arange(0, 10.0, DT)
+    extra = g * b * T * (t - T * (1 - np.exp(-t / T)))      # the integral of g·b·W(t)
+    for u0 in (-10.0, 0.0, 15.0):
+        y = m.simulate(np.full_like(t, u0), DT, u_before=u0)
+        assert np.max(np.abs(y - g * u0 * t - extra)) < 1e-6 * max(1.0, np.abs(y).max())
 
 
 def test_stiction_holds_the_reading_after_each_reversal_for_width_over_rate():
