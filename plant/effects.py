@@ -165,6 +165,12 @@ def warming(t: np.ndarray, dt: float, T: float) -> np.ndarray:
     return T * (1.0 - mean_decay)
 
 
+#: the thermal time constant of the effects that drift from the start of a run
+WARMING_TIME_CONSTANT = Param("time_constant", 600.0, 1.0, 1e5, "s",
+                              "thermal time constant T (much longer than a run: a linear drift)",
+                              log=True)
+
+
 # ------------------------------------------------------------------------------------------
 # VALVE stage
 # ------------------------------------------------------------------------------------------
@@ -194,8 +200,7 @@ class NullDrift(Effect):
     reads_time = True
     params = (Param("rate", 0.002, -0.1, 0.1, "%/s",
                     "initial rate b of the null's drift (command % per second)"),
-              Param("time_constant", 600.0, 1.0, 1e5, "s",
-                    "thermal time constant T (much longer than a run: a linear drift)", log=True))
+              WARMING_TIME_CONSTANT)
 
     def shape(self, q, dt, state, t=None):
         return q + self.rate * warming(t, dt, self.time_constant)
@@ -647,8 +652,7 @@ class GainDrift(Effect):
     reads_time = True
     params = (Param("rate", 0.002, -0.05, 0.05, "1/s",
                     "relative rate of change r of the gain at the start of a run"),
-              Param("time_constant", 600.0, 1.0, 1e5, "s",
-                    "thermal time constant T (much longer than a run: a linear drift)", log=True))
+              WARMING_TIME_CONSTANT)
 
     def prepare(self, q, dt, state, command=None, t=None):
         return np.maximum(1.0 + self.rate * warming(t, dt, self.time_constant), 0.0)
