@@ -473,7 +473,7 @@ class DataSummary:
     u_abs_max: float
     y_abs_max: float
     y_span: float
-    duration_s: float = 0.0        #: the longest piece's end, s since its record began
+    duration_s: float              #: the longest piece's end, s since its record began
 
     @classmethod
     def of(cls, pieces: Sequence[Piece]) -> "DataSummary":

@@ -175,14 +175,12 @@ class PlantModel:
         if self._needs_time:
             t = state.t[:, None] + dt * np.arange(K)[None, :]
         for eff, est in zip(self.effects, state.effects):
+            extra = {"t": t} if eff.reads_time else {}
             if eff.stage is Stage.VALVE:
-                q = eff.shape(q, dt, est, t=t) if eff.reads_time else eff.shape(q, dt, est)
+                q = eff.shape(q, dt, est, **extra)
             elif eff.stage is Stage.FLOW:
-                extra = {}
                 if eff.reads_command:
                     extra["command"] = u
-                if eff.reads_time:
-                    extra["t"] = t
                 aux.append(eff.prepare(q, dt, est, **extra))
             elif eff.stage is Stage.DISTURBANCE:
                 d = eff.disturbance(t, dt)

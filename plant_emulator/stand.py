@@ -172,7 +172,7 @@ class EmulatedStand:
     def run_started(self) -> None:
         """Hook: the master started the nodes (NMT OPERATIONAL), i.e. a run begins. The plant
         goes on (force, spool, delay line) but its clock restarts, as the run's record does: an
-        effect of the time since a run began (``gain_drift``) counts from here. A different
+        effect of the time since a run began (``gain_drift``, ``null_drift``) counts from here. A different
         force source (a replayed capture) restarts its replay here."""
         with self.lock:
             if self.options.lockstep:
