@@ -38,6 +38,9 @@ class PlantState:
     history: np.ndarray           #: past commands for the delay line, shape (n, H)
     effects: list[dict] = field(default_factory=list)
     reading: np.ndarray | None = None  #: what the dynamometer reports (y through SENSOR effects)
+    #: the valve stage's output of the last step (the fraction of the delay after the valve
+    #: reads it); None: not yet known, the valve's first output stands in (settled on ``u0``)
+    valve_last: np.ndarray | None = None
 
 
 @dataclass
@@ -165,17 +168,28 @@ class PlantModel:
             state.history = np.concatenate([pad, state.history], axis=1)
             H = m + 1
         ext = np.concatenate([state.history, u], axis=1)
-        # step k of the block reads ext[H + k − m] and ext[H + k − m − 1]: contiguous slices
+        # The delay is split: its whole steps m before the valve stage, its fraction f after.
+        # A time-invariant valve commutes with a delay, and so the valve effects see the held
+        # command exactly as it is (a step at a step boundary: a slew ramp starts where it
+        # should, a dead zone cuts the held value, not an average across the step), and the
+        # fraction shifts their output by interpolating its step averages (exact for outputs
+        # that are straight within two steps: held values and ramps). Step k reads ext[H+k−m].
         a = H - m
-        q = (1.0 - f) * ext[:, a:a + K] + f * ext[:, a - 1:a - 1 + K] if f else ext[:, a:a + K].copy()
+        q = ext[:, a:a + K].copy()
         state.history = ext[:, -H:].copy()
         aux: list = []
         dist = None
         t = None
         if self._needs_time:
             t = state.t[:, None] + dt * np.arange(K)[None, :]
+        # the valve runs f·dt ahead of the plant: what it does at t reaches the flow at t + f·dt
+        t_valve = t + f * dt if (t is not None and f) else t
+        valve_seen = False
         for eff, est in zip(self.effects, state.effects):
-            extra = {"t": t} if eff.reads_time else {}
+            if eff.stage is not Stage.VALVE and not valve_seen:
+                q = self._fractional_delay(q, f, state)
+                valve_seen = True
+            extra = {"t": t_valve if eff.stage is Stage.VALVE else t} if eff.reads_time else {}
             if eff.stage is Stage.VALVE:
                 q = eff.shape(q, dt, est, **extra)
             elif eff.stage is Stage.FLOW:
@@ -185,8 +199,22 @@ class PlantModel:
             elif eff.stage is Stage.DISTURBANCE:
                 d = eff.disturbance(t, dt)
                 dist = d if dist is None else dist + d
+        if not valve_seen:
+            q = self._fractional_delay(q, f, state)
         state.t = state.t + K * dt
         return Drive(q=q, aux=aux, dist=dist)
+
+    @staticmethod
+    def _fractional_delay(v: np.ndarray, f: float, state: PlantState) -> np.ndarray:
+        """The valve stage's output ``v`` (n, K) delayed by the fraction ``f`` of a step: each
+        step's average is ``(1 − f)·v[k] + f·v[k − 1]``, with ``v[−1]`` the last step of the
+        previous block (kept in ``state.valve_last``)."""
+        last = state.valve_last if state.valve_last is not None else v[:, 0]
+        state.valve_last = v[:, -1].copy()
+        if not f:
+            return v
+        prev = np.concatenate([last[:, None], v[:, :-1]], axis=1)
+        return (1.0 - f) * v + f * prev
 
     def integrate(self, drv: Drive, y0: np.ndarray, dt: float) -> np.ndarray:
         """Force trajectory (n, K+1) from ``y0`` (n,) under the block's drive."""

@@ -38,6 +38,29 @@ def test_delay_is_exact_even_between_samples(tau):
     assert np.max(np.abs(y - expected)) < 1e-9
 
 
+@pytest.mark.parametrize("spec, values, tol", [
+    ("base+slew", {"slew.rate": 400.0}, 0.05),
+    ("base+deadzone", {"deadzone.width": 2.0}, 1e-6),
+    ("base+backlash", {"backlash.width": 2.0}, 1e-6),
+    ("base+saturation", {"saturation.limit": 15.0}, 1e-6),
+    ("base+flow_curve", {"flow_curve.exponent": 0.7}, 1e-6),
+    ("base+null_drift", {"null_drift.rate": 0.05}, 1e-4),
+])
+def test_a_delay_between_samples_reaches_the_valve_effects_as_in_continuous_time(spec, values, tol):
+    """τ = 51.7 ms is 25.85 steps of 2 ms: the model on 2 ms steps must give the force of the
+    same model on 0.1 ms steps (τ a whole number of them: no fraction), sampled at 2 ms. The
+    valve effects see the held command (the fraction of the delay follows them): averaging
+    the command across a step first shifted a slew ramp by up to a step (3.5 kgf here) and bent
+    a dead zone, play, limit or flow curve at every command change (0.1-0.8 kgf)."""
+    t = np.arange(0, 4, DT)
+    u = np.where((t % 1.0) < 0.5, 20.0, -20.0) + 3 * np.sin(2 * np.pi * 1.3 * t)
+    u[t < 0.2] = 0.0
+    m = PlantModel.from_spec(spec, {"g": 100.0, "tau": 0.0517, **values})
+    coarse = m.simulate(u, DT)
+    fine = m.simulate(np.repeat(u, 20), DT / 20)[::20]
+    assert np.max(np.abs(coarse - fine)) < tol
+
+
 @pytest.mark.parametrize("spec", ["base", "base+reversal", "base+lag+deadzone", "base+saturation+asymmetry",
                                   "base+leakage", "base+load_pressure+reversal+lag+oscillation",
                                   "base+backlash+flow_curve", "base+sensor_lag+deadzone+reversal",
