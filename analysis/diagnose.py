@@ -142,6 +142,17 @@ SEPARATING_EXPERIMENT = {
                                                  "boost's decay: a boost timed from the command "
                                                  "already pushes the old direction during the "
                                                  "delay, one timed from the rod starts after it",
+    frozenset({"reversal", "travel_reversal"}): "the meander at several amplitudes (e.g. 5 and "
+                                                "20 %): a boost timed from the reversal lasts "
+                                                "T_r at every amplitude, one that dies out over "
+                                                "the travel lasts V_r/|u|, four times shorter at "
+                                                "four times the command",
+    frozenset({"command_reversal", "travel_reversal"}): "the meander at several amplitudes: a "
+                                                        "boost timed from the command lasts T_r "
+                                                        "at every amplitude and starts during "
+                                                        "the delay, one that dies out over the "
+                                                        "travel lasts V_r/|u| from the rod's "
+                                                        "reversal",
     frozenset({"deadzone", "backlash"}): "P-feedback with a harmonic reference (a command that "
                                          "turns smoothly): a play delays the valve at every "
                                          "turning point of the command, a dead zone only cuts "

@@ -585,6 +585,14 @@ def _reversal_starts(s: DataSummary, base) -> list[dict]:
         {"reversal.boost": 0.0, "reversal.decay": 0.1, "reversal.exponent": 0.5}]
 
 
+def _travel_reversal_starts(s: DataSummary, base) -> list[dict]:
+    """Boosts that die out within 0.03-0.3 s at the middle command level (travel = |u|·time)."""
+    ref = max(float(np.median(s.u_abs_levels)), 1e-3)
+    return [{"travel_reversal.boost": b, "travel_reversal.travel": min(50.0, max(0.005, ref * T))}
+            for b in (0.5, 2.0, 8.0) for T in (0.03, 0.1, 0.3)] + [
+        {"travel_reversal.boost": 0.0, "travel_reversal.travel": max(0.005, ref * 0.1)}]
+
+
 def _load_pressure_starts(s: DataSummary, base) -> list[dict]:
     ymax = max(s.y_abs_max, 100.0)
     return [{"load_pressure.stall_force": min(1e7, max(2000.0, f * ymax))}
@@ -650,6 +658,7 @@ START_GRIDS: dict[str, Callable[[DataSummary, Mapping[str, float]], list[dict]]]
     "direction_delay": _direction_delay_starts,
     "sensor_lag": _same_starts(_lag_starts, "lag", "sensor_lag"),
     "command_reversal": _same_starts(_reversal_starts, "reversal", "command_reversal"),
+    "travel_reversal": _travel_reversal_starts,
 }
 
 

@@ -18,6 +18,8 @@ One hidden effect per simulation (or "none"), or several joined by "+":
   rev_cmd    boost 1 + B*exp(-s/Tr) on the flow, s = time since the last sign change of the
              UNDELAYED command u(t) (sign change = new nonzero sign differs from last nonzero sign)
   rev_flow   same law, s = time since the last sign change of the delayed flow q
+  rev_force  boost 1 + B*exp(-|y - y_rev|/F) on the flow, decaying with the force travelled since
+             the last sign change of the delayed flow (y_rev: the force then), F = 150 kgf
   lag        first-order valve lag after the delay, T = 15 ms
   deadzone   command dead zone (shifted): u -> sign(u)*max(0, |u| - 1 %)
   saturation flow clipped at +-12 %
@@ -85,6 +87,7 @@ EFFECT_PARAMS = {
     "supply": dict(T=1.0, c=1.5),
     "jitter": dict(j=0.004),
     "nulldrift": dict(b=0.005),
+    "rev_force": dict(boost=2.0, F=150.0),
 }
 
 
@@ -148,6 +151,8 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
     bl = 0.0                               # backlash output
     cmd_rev = _Reversals()                 # of the undelayed command
     flow_rev = _Reversals()                # of the delayed flow
+    force_rev = _Reversals()               # rev_force: of the delayed flow, with the force then
+    y_rev = None
     two_pi_f = 2 * math.pi * P.get("osc", {}).get("f", 0.0)
 
     for k in range(n):
@@ -232,6 +237,14 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
                 rp = P["rev_flow"]
                 flow_rev.see(q, t)
                 q *= 1.0 + rp["boost"] * math.exp(-(t - flow_rev.at) / rp["decay"])
+            if "rev_force" in es:
+                at = force_rev.at
+                force_rev.see(q, t)
+                if force_rev.at != at:
+                    y_rev = y
+                if y_rev is not None:
+                    rp = P["rev_force"]
+                    q *= 1.0 + rp["boost"] * math.exp(-abs(y - y_rev) / rp["F"])
             rate = g * q
             if "stiffening" in es:
                 rate *= 1.0 + P["stiffening"]["k"] * abs(y) / 1e4

@@ -19,6 +19,7 @@ from tests import independent_stand as sim
 #: simulator effect -> the catalogue effects that name it exactly or equivalently (one effect,
 #: or both where the data cannot tell them apart); tests/test_diagnose_independent.py uses it too
 EQUIVALENT = {"rev_flow": {"reversal"}, "rev_cmd": {"command_reversal"},
+              "rev_force": {"travel_reversal"},
               "lag": {"lag", "sensor_lag"}, "sensorlag": {"lag", "sensor_lag"},
               "deadzone": {"deadzone"}, "saturation": {"saturation"}, "asymmetry": {"asymmetry"},
               "loadpress": {"load_pressure"}, "leakage": {"leakage"}, "backlash": {"backlash"},
@@ -30,9 +31,14 @@ EQUIVALENT = {"rev_flow": {"reversal"}, "rev_cmd": {"command_reversal"},
               "nulldrift": {"null_drift"}}
 
 
+#: the simulator's reversal boosts (timed from the rod, the command, or over the force travelled):
+#: at most one per data set
+REVERSAL_LAWS = {"rev_flow", "rev_cmd", "rev_force"}
+
+
 def random_sets(seed: int, n: int, k: int = 2) -> list[tuple[str, ...]]:
     """``n`` different random sets of ``k`` simulator effects that no catalogue effect names
-    twice (and not both reversal timings)."""
+    twice (and at most one reversal law)."""
     rng = np.random.default_rng(seed)
     names = sorted(EQUIVALENT)
     sets: set[tuple[str, ...]] = set()
@@ -40,7 +46,7 @@ def random_sets(seed: int, n: int, k: int = 2) -> list[tuple[str, ...]]:
         pick = tuple(sorted(str(x) for x in rng.choice(names, k, replace=False)))
         named = [EQUIVALENT[x] for x in pick]
         clash = any(named[i] & named[j] for i in range(k) for j in range(i + 1, k))
-        if not clash and not {"rev_flow", "rev_cmd"} <= set(pick):
+        if not clash and len(REVERSAL_LAWS & set(pick)) < 2:
             sets.add(pick)
     return sorted(sets)
 

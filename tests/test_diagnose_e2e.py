@@ -56,6 +56,21 @@ def test_reversal_effect_is_found_on_emulator_runs(bus_spec, start_emulator, tmp
     assert doc["verdict"] == "missing_effect" and doc["candidates"][0]["effect"] == "reversal"
 
 
+def test_a_boost_that_dies_out_over_the_travel_is_told_from_a_timed_one_on_emulator_runs(
+        bus_spec, start_emulator, tmp_path):
+    """travel_reversal behind CANopen, at 5 and 20 %: its transition is four times shorter at
+    20 % (the timed `reversal` lasts the same at both), which is how the two are told apart."""
+    truth = {"travel_reversal.boost": 2.5, "travel_reversal.travel": 1.2}
+    paths = _runs(bus_spec, start_emulator, tmp_path, "base+travel_reversal", truth)
+    d = diagnose([read_run(p) for p in paths])
+    assert d.verdict == "missing_effect" and d.best == "travel_reversal", d.summary
+    p = d.best_candidate.params
+    assert p["travel_reversal.boost"] == pytest.approx(2.5, rel=0.1)
+    assert p["travel_reversal.travel"] == pytest.approx(1.2, rel=0.1)
+    timed = next(c for c in d.candidates if c.effect == "reversal")
+    assert timed.objective_rmse > 1.5 * d.best_candidate.objective_rmse
+
+
 def test_the_emulator_without_the_effect_is_adequate(bus_spec, start_emulator, tmp_path):
     """The emulator integrates in 0.5 ms sub-steps behind CANopen, the analysis at the 2 ms
     control period: the base model must still be adequate (no false alarm)."""

@@ -42,10 +42,15 @@ def test_independent_simulator(effect):
         assert d.best_candidate.rmse_reduction >= (0.05 if effect == "valve2nd" else 0.10), d.summary
         if effect != "dirdelay":
             assert not any("still" in w for w in d.warnings), d.warnings
-        if effect.startswith("rev_"):  # boost and decay, timed from the command or the rod
+        if effect in ("rev_flow", "rev_cmd"):  # boost and decay, timed from the command or the rod
             p = d.best_candidate.params
             assert p[f"{d.best}.boost"] == pytest.approx(2.0, rel=0.05)
             assert p[f"{d.best}.decay"] == pytest.approx(0.15, rel=0.05)
+        if effect == "rev_force":  # the boost dies out over the force travelled: F = g·V_r
+            p = d.best_candidate.params
+            assert p["travel_reversal.boost"] == pytest.approx(2.0, rel=0.05)
+            assert p["g"] * p["travel_reversal.travel"] == pytest.approx(
+                sim.EFFECT_PARAMS["rev_force"]["F"], rel=0.05)
         if effect == "backlash":   # the simulator's ±band play is a play of total width 2·band
             want = 2 * sim.EFFECT_PARAMS["backlash"]["band"]
             assert d.best_candidate.params["backlash.width"] == pytest.approx(want, rel=0.1)

@@ -67,7 +67,8 @@ def test_a_delay_between_samples_reaches_the_valve_effects_as_in_continuous_time
                                   "base+command_reversal+lag", "base+stiffness+reversal",
                                   "base+deadzone+stiction", "base+unloading+asymmetry",
                                   "base+direction_delay+lag", "base+resonance+deadzone", "base+slew+backlash", "base+supply+asymmetry",
-                                  "base+gain_drift+reversal", "base+null_drift+lag+deadzone"])
+                                  "base+gain_drift+reversal", "base+null_drift+lag+deadzone",
+                                  "base+travel_reversal+slew"])
 def test_emulator_blocks_and_analysis_windows_run_the_same_model(spec):
     """Stepping in small blocks (the emulator), whole records and windows (the analysis) agree."""
     extra = {"stiffness.k_abs": 2.0, "stiffness.k_sgn": -0.5} if "stiffness" in spec else {}
@@ -76,6 +77,8 @@ def test_emulator_blocks_and_analysis_windows_run_the_same_model(spec):
     extra.update({"direction_delay.extra": -0.0173} if "direction_delay" in spec else {})
     extra.update({"resonance.frequency": 7.3, "resonance.damping": 0.15} if "resonance" in spec else {})
     extra.update({"slew.rate": 333.0} if "slew" in spec else {})
+    extra.update({"travel_reversal.boost": 3.0, "travel_reversal.travel": 0.7}
+                 if "travel_reversal" in spec else {})
     extra.update({"supply.sag": 2.0, "supply.time_constant": 0.4} if "supply" in spec else {})
     extra.update({"gain_drift.rate": 0.03, "gain_drift.time_constant": 4.0}
                  if "gain_drift" in spec else {})
@@ -366,6 +369,30 @@ def test_reversal_boost_starts_at_each_direction_change_and_decays():
         base = PlantModel(g=100, tau=0).simulate(ua, DT)
         extra.append((ya - base)[int(1.9 / DT)] - (ya - base)[int(0.99 / DT)])
     assert extra[0] == pytest.approx(extra[1], rel=0.01)
+
+
+def test_travel_reversal_dies_out_over_the_force_travelled_as_in_closed_form():
+    """dy/dt = g·q·(1 + b·e^(−|y − y_r|/F)) solved along the travel: after the reversal at
+    force y_r the force is y_r − F·ln((1 + b)·e^(|u|(t − t_r)/V_r) − b), F = g·V_r; the extra
+    force per reversal is F·ln(1 + b) at any amplitude, over a time V_r/|u|."""
+    g, b, vr = 100.0, 2.0, 1.5
+    m = PlantModel.from_spec("base+travel_reversal", {"g": g, "tau": 0.0, "travel_reversal.boost": b,
+                                                      "travel_reversal.travel": vr})
+    extra = []
+    for amp in (5.0, 20.0):
+        t, u = square(amp, 2.0, 4.0)
+        y = m.simulate(u, DT)
+        k, end = int(round(1.0 / DT)), int(round(1.9 / DT))     # the reversal at t = 1 s
+        s = t[k:end] - t[k]
+        want = y[k] - g * vr * np.log((1 + b) * np.exp(amp * s / vr) - b)
+        assert np.max(np.abs(y[k:end] - want)) < 1e-6 * np.ptp(y)
+        assert (y[:k + 1] == pytest.approx(g * amp * t[:k + 1]))      # no boost from rest
+        base = PlantModel(g=g, tau=0).simulate(u, DT)
+        extra.append((base - y)[end] - (base - y)[k])
+        travelled = g * amp * 0.9                      # the base model's force change, kgf
+        assert extra[-1] == pytest.approx(g * vr * math.log(1 + b - b * math.exp(-travelled / (g * vr))),
+                                          rel=1e-6)
+    assert extra[1] == pytest.approx(g * vr * math.log(1 + b), rel=1e-4)    # long completed
 
 
 def test_command_reversal_boost_starts_when_the_command_turns_not_the_rod():
