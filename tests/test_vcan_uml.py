@@ -32,11 +32,15 @@ def uml_unavailable() -> str | None:
         return "user-mode Linux needs a Linux host"
     if os.geteuid() != 0:
         return "user-mode Linux with a hostfs root needs root"
-    for tool in ("linux.uml", "candump"):
-        if shutil.which(tool) is None:
-            return f"{tool} not installed (bash scripts/setup as root installs user-mode-linux, kmod, can-utils)"
-    if not any(Path("/usr/lib/uml/modules").glob("*/kernel/drivers/net/can/vcan.ko")):
-        return "the UML kernel's vcan module is missing"
+    if shutil.which("candump") is None:
+        return "candump not installed (bash scripts/setup as root installs can-utils)"
+    found = subprocess.run([str(ROOT / "scripts" / "uml-kernel")], capture_output=True, text=True,
+                           timeout=600)
+    if found.returncode != 0:
+        return f"no user-mode Linux kernel boots here: {found.stdout.strip()}"
+    modules = Path(found.stdout.split()[1])
+    if not any(modules.glob("*/kernel/drivers/net/can/vcan.ko*")):
+        return f"the UML kernel's vcan module is missing under {modules}"
     return None
 
 
