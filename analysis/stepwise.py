@@ -21,7 +21,7 @@ The steps keep their whole diagnoses (observations, ambiguities, warnings of eac
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
 from plant import PlantModel
@@ -108,20 +108,60 @@ def pick(d: Diagnosis) -> tuple[Candidate | None, str]:
                f"consistent over the windows")
 
 
+#: a runner-up that lowers the error at least this fraction as much as the effect picked on a
+#: "part of the missing behaviour" step is tried in its place when the build-up does not end
+#: adequate (greedy selection can take a look-alike first, then stall)
+ALTERNATIVE_RATIO = 0.8
+
+
 def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
              window_s: float = F.WINDOW_S, max_effects: int = MAX_EFFECTS,
              effects: Sequence[str] | None = None,
              progress: Callable[[str], None] | None = None) -> Stepwise:
-    """Add effects to ``model`` one at a time until it explains ``records`` (module docstring)."""
+    """Add effects to ``model`` one at a time until it explains ``records`` (module docstring).
+    If the build-up does not end adequate and one of its partial picks had a close runner-up,
+    the build-up is run once more from there with the runner-up, and the better end is kept."""
     say = progress or (lambda msg: None)
-    current = PlantModel.from_spec(model) if isinstance(model, str) else model
-    steps: list[Step] = []
-    added: list[str] = []
+    start = PlantModel.from_spec(model) if isinstance(model, str) else model
+    steps, added, verdict = _forward(records, start, [], [], window_s, max_effects, effects, say)
+    tried = ""
+    if verdict != "adequate":
+        branch = _alternative(steps)
+        if branch is not None:
+            i, alt = branch
+            chosen = steps[i].added
+            say(f"trying +{alt.effect} instead of +{chosen} at step {i + 1}")
+            first = replace(steps[i], added=alt.effect,
+                            why=f"runner-up to +{chosen}, tried in its place: {100 * alt.rmse_reduction:.0f} % "
+                                f"lower error")
+            alt_steps, alt_added, alt_verdict = _forward(
+                records, alt.fit.model, steps[:i] + [first], added[:i] + [alt.effect], window_s,
+                max_effects, effects, say)
+            better = (alt_verdict == "adequate") or (alt_steps[-1].over_floor < steps[-1].over_floor)
+            tried = (f"; +{alt.effect} tried in place of +{chosen} at step {i + 1}: "
+                     + ("kept, it ends closer to the noise" if better else "dropped, it ends no closer"))
+            if better:
+                steps, added, verdict = alt_steps, alt_added, alt_verdict
+    last = steps[-1].diagnosis
+    final_fit = last.base_fit
+    needed: list[Needed] = []
+    if len(added) >= 2:
+        say("checking each added effect with the others in place")
+        final_fit, needed = backward_check(records, final_fit, added, last.objective_floor, window_s)
+    summary = _summary(steps, verdict, final_fit, needed, last) + tried
+    return Stepwise(steps=steps, model=final_fit.model, fit=final_fit, verdict=verdict,
+                    needed=needed, summary=summary)
+
+
+def _forward(records, current: PlantModel, steps: list[Step], added: list[str], window_s: float,
+             max_effects: int, effects, say) -> tuple[list[Step], list[str], str]:
+    """The build-up from ``current`` (reached by ``steps``, having ``added``) to its end."""
+    steps, added = list(steps), list(added)
     verdict = "max_effects"
     while True:
         say(f"diagnosing {current.spec}")
         todo = None if effects is None else [e for e in effects if current.effect(e) is None]
-        d = diagnose(records, current, window_s=window_s, effects=todo, progress=progress)
+        d = diagnose(records, current, window_s=window_s, effects=todo, progress=say)
         floor = d.objective_floor
         step = Step(model=d.base_fit.model.spec, rmse=d.base_eval.rmse,
                     over_floor=d.base_fit.objective_rmse / floor if floor > 0 else math.inf,
@@ -138,15 +178,21 @@ def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
         step.added = c.effect
         added.append(c.effect)
         current = c.fit.model
-    last = steps[-1].diagnosis
-    final_fit = last.base_fit
-    needed: list[Needed] = []
-    if len(added) >= 2:
-        say("checking each added effect with the others in place")
-        final_fit, needed = backward_check(records, final_fit, added, last.objective_floor, window_s)
-    summary = _summary(steps, verdict, final_fit, needed, last)
-    return Stepwise(steps=steps, model=final_fit.model, fit=final_fit, verdict=verdict,
-                    needed=needed, summary=summary)
+    return steps, added, verdict
+
+
+def _alternative(steps: Sequence[Step]) -> tuple[int, Candidate] | None:
+    """The first step that added a partial explanation (none earned) with a runner-up that
+    helps nearly as much: (its index, the runner-up)."""
+    for i, st in enumerate(steps):
+        d = st.diagnosis
+        if st.added is None or d.best_candidate is not None:
+            continue
+        helping = [c for c in d.candidates if c.helps]
+        if len(helping) >= 2 and helping[0].effect == st.added and \
+                helping[1].improvement >= ALTERNATIVE_RATIO * helping[0].improvement:
+            return i, helping[1]
+    return None
 
 
 def without(model: PlantModel, effect: str) -> PlantModel:
