@@ -692,8 +692,7 @@ class Reversal(Effect):
     )
 
     def init_state(self, n, u0):
-        # direction of the last motion (0: at rest) and time since the last reversal
-        return {"direction": np.sign(u0).astype(float), "since": np.full(n, np.inf)}
+        return reversal_state(n, u0)
 
     def prepare(self, q, dt, state, command=None, t=None):
         return np.exp(-since_reversal(q, dt, state) / self.decay)
@@ -759,7 +758,7 @@ class TravelReversal(Effect):
     )
 
     def init_state(self, n, u0):
-        return {"direction": np.sign(u0).astype(float), "since": np.full(n, np.inf)}
+        return reversal_state(n, u0)
 
     def prepare(self, q, dt, state, command=None, t=None):
         move = np.abs(q) * dt
@@ -775,6 +774,12 @@ class TravelReversal(Effect):
 
     def gain(self, q, aux, y):
         return 1.0 + aux
+
+
+def reversal_state(n: int, u0: np.ndarray) -> dict[str, np.ndarray]:
+    """The state :func:`since_reversal` carries, at rest on the command ``u0`` (n,): the
+    direction of the last motion (0: at rest) and no reversal yet."""
+    return {"direction": np.sign(u0).astype(float), "since": np.full(n, np.inf)}
 
 
 def since_reversal(q: np.ndarray, inc: float | np.ndarray, state: dict) -> np.ndarray:

@@ -67,6 +67,7 @@ class PlantModel:
         order = list(CATALOGUE)
         self.effects: list[Effect] = sorted(effects, key=lambda e: (e.stage, order.index(e.name)))
         # per stage, once (the emulator steps a few samples per SYNC: this is its hot path)
+        self._n_valve = sum(e.stage is Stage.VALVE for e in self.effects)   # the first ones
         self._flow = [e for e in self.effects if e.stage is Stage.FLOW]
         self._force = [e for e in self.effects if e.stage is Stage.FORCE]
         self._needs_time = any(e.stage is Stage.DISTURBANCE or e.reads_time for e in self.effects)
@@ -184,23 +185,20 @@ class PlantModel:
             t = state.t[:, None] + dt * np.arange(K)[None, :]
         # the valve runs f·dt ahead of the plant: what it does at t reaches the flow at t + f·dt
         t_valve = t + f * dt if (t is not None and f) else t
-        valve_seen = False
-        for eff, est in zip(self.effects, state.effects):
-            if eff.stage is not Stage.VALVE and not valve_seen:
-                q = self._fractional_delay(q, f, state)
-                valve_seen = True
-            extra = {"t": t_valve if eff.stage is Stage.VALVE else t} if eff.reads_time else {}
-            if eff.stage is Stage.VALVE:
-                q = eff.shape(q, dt, est, **extra)
-            elif eff.stage is Stage.FLOW:
+        effects = list(zip(self.effects, state.effects))     # sorted by stage: VALVE first
+        nv = self._n_valve
+        for eff, est in effects[:nv]:
+            q = eff.shape(q, dt, est, **({"t": t_valve} if eff.reads_time else {}))
+        q = self._fractional_delay(q, f, state)
+        for eff, est in effects[nv:]:
+            extra = {"t": t} if eff.reads_time else {}
+            if eff.stage is Stage.FLOW:
                 if eff.reads_command:
                     extra["command"] = u
                 aux.append(eff.prepare(q, dt, est, **extra))
             elif eff.stage is Stage.DISTURBANCE:
                 d = eff.disturbance(t, dt)
                 dist = d if dist is None else dist + d
-        if not valve_seen:
-            q = self._fractional_delay(q, f, state)
         state.t = state.t + K * dt
         return Drive(q=q, aux=aux, dist=dist)
 
