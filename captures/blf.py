@@ -16,7 +16,17 @@ a Python step happens per run, not per frame. Timestamps are python-can's: raw/1
 plus the start time, the same correctly rounded float64.
 
 Damage (bad signature, a container that does not inflate, a file cut short) stops the reader
-with the byte offset of the damaged container or object; everything before it is yielded.
+(``on_damage="stop"``, the default) with the byte offset of the damaged container or object;
+everything before it is yielded. With ``on_damage="skip"`` the reader goes on after it, as
+``candump`` logs do: a container that does not inflate is skipped whole (its outer header still
+says where the next one starts); a damaged outer header is passed by scanning for the next
+plausible container header; inside the inflated stream a damaged object is passed by scanning
+for the next plausible object header. After a skipped container the next one may begin inside
+an object that straddled them, so its stream is read from its first plausible object header.
+A *plausible* header is the ``LOBJ`` signature with a header size, version, object size and
+type a BLF writer produces (a frame's payload spelling ``LOBJ`` is not enough). Each skipped
+region counts in :attr:`ReadStats.damaged` (the first in ``first_damage``); frames lost with
+it are lost, everything else is read. A file cut short ends the reading either way.
 """
 from __future__ import annotations
 
@@ -36,6 +46,56 @@ from .frames import ERROR, EXTENDED, FD, REMOTE, TX, CaptureError, Damage, Frame
 DEFAULT_CHUNK_BYTES = 1 << 20
 _SIG = np.frombuffer(b"LOBJ", "<u4")[0]
 _DLC2LEN = np.array([dlc2len(i) for i in range(16)], np.uint8)
+#: the largest log container a resynchronizing reader believes (python-can writes ~128 KiB)
+_MAX_CONTAINER = 1 << 26
+#: the largest inner object it believes (a CAN FD frame with extended data is < 200 bytes)
+_MAX_OBJECT = 1 << 16
+_BASE = OBJ_HEADER_BASE_STRUCT.size
+
+
+def plausible_container(raw, p: int) -> bool:
+    """Whether a log container's header (as python-can and Vector write it) starts at ``p``."""
+    if p + _BASE > len(raw):
+        return False
+    sig, hsize, hver, osize, otype = OBJ_HEADER_BASE_STRUCT.unpack_from(raw, p)
+    return (sig == b"LOBJ" and hsize == _BASE and hver == 1 and otype == LOG_CONTAINER
+            and _BASE + LOG_CONTAINER_STRUCT.size <= osize <= _MAX_CONTAINER)
+
+
+def plausible_object(raw, p: int) -> bool:
+    """Whether an inner object's header (v1: 32 bytes, v2: 40) starts at ``p``."""
+    if p + _BASE > len(raw):
+        return False
+    sig, hsize, hver, osize, otype = OBJ_HEADER_BASE_STRUCT.unpack_from(raw, p)
+    return (sig == b"LOBJ" and (hver, hsize) in ((1, 32), (2, 40)) and hsize <= osize <= _MAX_OBJECT
+            and 0 < otype < 256 and otype != LOG_CONTAINER)
+
+
+def next_plausible(raw, start: int, test) -> int:
+    """Offset of the first header at or after ``start`` that ``test`` accepts, or -1."""
+    p = raw.find(b"LOBJ", start)
+    while p >= 0 and not test(raw, p):
+        p = raw.find(b"LOBJ", p + 1)
+    return p
+
+
+class _PushbackFile:
+    """A binary stream that takes back bytes read ahead (a resync reads past a header)."""
+
+    def __init__(self, fh) -> None:
+        self.fh = fh
+        self.back = b""
+
+    def read(self, n: int) -> bytes:
+        if not self.back:
+            return self.fh.read(n)
+        head, self.back = self.back[:n], self.back[n:]
+        if len(head) < n:
+            head += self.fh.read(n - len(head))
+        return head
+
+    def unread(self, data: bytes) -> None:
+        self.back = data + self.back
 
 
 class BlfReader:
@@ -44,17 +104,44 @@ class BlfReader:
     def __init__(self, path: str | Path, chunk_bytes: int = DEFAULT_CHUNK_BYTES,
                  on_damage: str = "stop") -> None:
         self.path = Path(path)
+        if on_damage not in ("stop", "skip"):
+            raise CaptureError(f"on_damage must be 'stop' or 'skip', not {on_damage!r}")
         self.chunk_bytes = max(int(chunk_bytes), 4096)
-        self.on_damage = on_damage        # BLF damage always stops: objects cannot be re-found reliably
+        self.on_damage = on_damage
         self.stats = ReadStats()
         self.start_timestamp = 0.0
 
     def _damage(self, byte: int, reason: str) -> None:
         self.stats.damage = Damage(str(self.path), byte, reason)
 
+    def _skipped(self, byte: int, reason: str) -> None:
+        """``on_damage="skip"``: count a damaged region passed over (the first one named)."""
+        self.stats.damaged += 1
+        if self.stats.first_damage is None:
+            self.stats.first_damage = Damage(str(self.path), byte, reason)
+
+    def _resync(self, fh: _PushbackFile, ahead: bytes, pos: int) -> int | None:
+        """Scan from the bytes ``ahead`` (read at file offset ``pos``) for the next plausible
+        log container; leave the stream at it and return its offset (None: none before EOF)."""
+        buf = ahead
+        origin = pos
+        while True:
+            p = next_plausible(buf, 0, plausible_container)
+            if p >= 0:
+                fh.unread(buf[p:])
+                return origin + p
+            more = fh.read(1 << 16)
+            if not more:
+                return None
+            keep = buf[-(_BASE - 1):]       # a header may straddle the reads
+            origin += len(buf) - len(keep)
+            buf = keep + more
+
     def __iter__(self) -> Iterator[FrameChunk]:
         stats = self.stats
-        with open_binary(self.path) as fh:
+        skip = self.on_damage == "skip"
+        with open_binary(self.path) as raw_fh:
+            fh = _PushbackFile(raw_fh)
             head = fh.read(FILE_HEADER_STRUCT.size)
             if len(head) < FILE_HEADER_STRUCT.size or head[:4] != b"LOGG":
                 raise CaptureError(f"{self.path}: not a BLF file (no 'LOGG' header)")
@@ -64,6 +151,7 @@ class BlfReader:
             pos = header[1]
             pending = bytearray()
             pending_origin = pos          # file offset of the container the pending bytes began in
+            resync_stream = False         # skip: the next container may begin inside an object
             while True:
                 base = fh.read(OBJ_HEADER_BASE_STRUCT.size)
                 if not base:
@@ -73,8 +161,18 @@ class BlfReader:
                     break
                 sig, _, _, obj_size, obj_type = OBJ_HEADER_BASE_STRUCT.unpack(base)
                 if sig != b"LOBJ" or obj_size < OBJ_HEADER_BASE_STRUCT.size:
-                    self._damage(pos, f"no object here (signature {sig!r}, size {obj_size}): corrupted file")
-                    break
+                    reason = f"no object here (signature {sig!r}, size {obj_size}): corrupted file"
+                    if not skip:
+                        self._damage(pos, reason)
+                        break
+                    self._skipped(pos, reason)
+                    yield from self._flush_broken(pending, pending_origin)
+                    resync_stream = True
+                    found = self._resync(fh, base, pos)
+                    if found is None:
+                        break
+                    pos = found
+                    continue
                 body = fh.read(obj_size - OBJ_HEADER_BASE_STRUCT.size)
                 if len(body) < obj_size - OBJ_HEADER_BASE_STRUCT.size:
                     self._damage(pos, f"the file ends inside a {obj_size}-byte object (truncated capture?)")
@@ -92,18 +190,31 @@ class BlfReader:
                     try:
                         data = zlib.decompress(payload)
                     except zlib.error as exc:
-                        self._damage(here, f"log container does not inflate ({exc}): corrupted file")
-                        break
+                        reason = f"log container does not inflate ({exc}): corrupted file"
+                        if not skip:
+                            self._damage(here, reason)
+                            break
+                        self._skipped(here, reason)
+                        yield from self._flush_broken(pending, pending_origin)
+                        resync_stream = True
+                        continue
                 elif method == NO_COMPRESSION:
                     data = bytes(payload)
                 else:
                     stats.non_can_objects += 1
                     continue
+                if resync_stream:
+                    first = next_plausible(data, 0, plausible_object)
+                    if first < 0:
+                        continue            # no object starts in this container: wait for one
+                    data = data[first:]
+                    resync_stream = False
                 if not pending:
                     pending_origin = here
                 pending += data
                 if len(pending) >= self.chunk_bytes:
-                    chunk, used, problem = parse_objects(pending, self.start_timestamp, stats)
+                    chunk, used, problem = parse_objects(pending, self.start_timestamp, stats,
+                                                         on_problem=self._inner(pending_origin))
                     if len(chunk):
                         stats.frames += len(chunk)
                         yield chunk
@@ -112,7 +223,8 @@ class BlfReader:
                         return
                     del pending[:used]
                     pending_origin = here
-            chunk, used, problem = parse_objects(pending, self.start_timestamp, stats, final=True)
+            chunk, used, problem = parse_objects(pending, self.start_timestamp, stats, final=True,
+                                                 on_problem=self._inner(pending_origin))
             if len(chunk):
                 stats.frames += len(chunk)
                 yield chunk
@@ -122,11 +234,28 @@ class BlfReader:
                 self._damage(pending_origin, f"the last {len(pending) - used} bytes are an incomplete "
                                              "object (truncated capture?)")
 
+    def _inner(self, origin: int):
+        """``on_damage="skip"``: what :func:`parse_objects` calls on a damaged inner object."""
+        if self.on_damage != "skip":
+            return None
+        return lambda problem: self._skipped(origin, f"{problem} (inside the log container at this byte)")
 
-def parse_objects(buf: bytearray, start_ts: float, stats: ReadStats,
-                  final: bool = False) -> tuple[FrameChunk, int, str | None]:
+    def _flush_broken(self, pending: bytearray, origin: int) -> Iterator[FrameChunk]:
+        """``on_damage="skip"``, before a skipped region: the complete objects still pending;
+        an object cut off by the damage is part of the damaged region. Empties ``pending``."""
+        chunk, _, _ = parse_objects(pending, self.start_timestamp, self.stats,
+                                    on_problem=self._inner(origin))
+        pending.clear()
+        if len(chunk):
+            self.stats.frames += len(chunk)
+            yield chunk
+
+
+def parse_objects(buf: bytearray, start_ts: float, stats: ReadStats, final: bool = False,
+                  on_problem=None) -> tuple[FrameChunk, int, str | None]:
     """Frames of the complete objects at the start of ``buf``; returns (frames, bytes used,
-    what is wrong if an object is damaged)."""
+    what is wrong if an object is damaged). With ``on_problem`` (skip mode) a damaged object is
+    reported to it and passed: reading goes on at the next plausible object header."""
     raw = bytes(buf)
     b = np.frombuffer(raw, np.uint8)
     n = len(raw)
@@ -141,13 +270,23 @@ def parse_objects(buf: bytearray, start_ts: float, stats: ReadStats,
                 pos = n
                 break
             problem = f"no object signature at stream offset {pos}"
+        elif p + OBJ_HEADER_BASE_STRUCT.size > n:
             break
-        if p + OBJ_HEADER_BASE_STRUCT.size > n:
-            break
-        _, hsize, hver, osize, otype = OBJ_HEADER_BASE_STRUCT.unpack_from(raw, p)
-        if osize < 32 or hsize < 16 or hsize > osize:
-            problem = f"object at stream offset {p} has an impossible size ({osize}, header {hsize})"
-            break
+        else:
+            _, hsize, hver, osize, otype = OBJ_HEADER_BASE_STRUCT.unpack_from(raw, p)
+            if osize < 32 or hsize < 16 or hsize > osize:
+                problem = f"object at stream offset {p} has an impossible size ({osize}, header {hsize})"
+        if problem is not None:
+            if on_problem is None:
+                break
+            on_problem(problem)
+            problem = None
+            nxt = next_plausible(raw, pos + 1, plausible_object)
+            if nxt < 0:                     # keep a tail a header may begin in, unless at the end
+                pos = n if final else max(pos, n - (_BASE - 1))
+                break
+            pos = nxt
+            continue
         if p + osize > n:
             break                           # continues in the next container
         # stride to the next object: its size plus padding

@@ -47,7 +47,8 @@ class DecodeOptions:
     download and the median SYNC interval); ``clock``: "lockstep" / "realtime" / None (auto);
     ``channel``: only frames of this channel (several buses in one file); ``run``: only this run
     (0-based) of a capture holding several; ``on_damage``: "stop" at the first damaged
-    line/object (everything before it is decoded) or "skip" damaged lines (candump only)."""
+    line/object (everything before it is decoded) or "skip" it and go on (candump lines,
+    BLF containers and objects)."""
 
     dbc: Any = None
     period_s: float | None = None

@@ -207,6 +207,88 @@ def test_truncated_and_corrupted_blf_name_the_byte_and_keep_what_came_before(tmp
     assert np.array_equal(part.data, full.data[: len(part)]) and len(part) > 0
 
 
+def _one_gap(part: FrameChunk, full: FrameChunk) -> tuple[int, int]:
+    """``part`` is ``full`` with one contiguous run of frames missing: its [a, b)."""
+    a = 0
+    while a < len(part) and part.ts[a] == full.ts[a] and np.array_equal(part.data[a], full.data[a]):
+        a += 1
+    b = len(full) - (len(part) - a)
+    assert np.array_equal(part.ts[a:], full.ts[b:]) and np.array_equal(part.data[a:], full.data[b:])
+    assert np.array_equal(part.can_id[a:], full.can_id[b:])
+    return a, b
+
+
+def _containers(data: bytes) -> list[int]:
+    """File offsets of the log containers of a BLF file we wrote (no other outer objects)."""
+    out, pos = [], 144
+    while pos < len(data):
+        out.append(pos)
+        size = int.from_bytes(data[pos + 8:pos + 12], "little")
+        pos += size + size % 4
+    return out
+
+
+@pytest.mark.parametrize("where", ["inside the compressed data", "on the outer header"])
+def test_skip_mode_reads_past_a_damaged_blf_container(tmp_path, stand_chunk, where):
+    """``on_damage="skip"``: frames after the damage are read too; only the damaged container's
+    frames (and one that straddled into it) are lost, and the damage is counted and named."""
+    path = tmp_path / "stand.blf"
+    write_blf(path, [stand_chunk])
+    data = path.read_bytes()
+    full = read_all(BlfReader(path))
+    boxes = _containers(data)
+    assert len(boxes) >= 5
+    third = boxes[2]
+    bad = bytearray(data)
+    if where == "inside the compressed data":
+        bad[third + 40:third + 60] = b"\xff" * 20
+    else:
+        bad[third:third + 16] = b"\x00JUNK\x00" + b"\xee" * 9
+    broken = tmp_path / "broken.blf"
+    broken.write_bytes(bytes(bad))
+    stopping = BlfReader(broken)
+    assert len(read_all(stopping)) < len(full) // 2 and stopping.stats.damage.byte == third
+    reader = BlfReader(broken, on_damage="skip", chunk_bytes=50_000)
+    part = read_all(reader)
+    a, b = _one_gap(part, full)
+    per_container = len(full) / len(boxes)
+    assert 0 < b - a <= per_container * 1.2 + 2, (a, b, per_container)
+    assert a > per_container and len(part) - a > per_container, "frames on both sides of it"
+    assert reader.stats.damage is None and reader.stats.damaged >= 1
+    assert reader.stats.first_damage.byte == third
+    assert reader.stats.frames == len(part)
+
+
+def test_skip_mode_passes_a_damaged_object_inside_a_container(tmp_path, stand_chunk):
+    """A container that inflates but holds a damaged object: skip passes that object alone."""
+    import zlib
+    from can.io.blf import LOG_CONTAINER_STRUCT, ZLIB_DEFLATE
+    path = tmp_path / "stand.blf"
+    write_blf(path, [stand_chunk])
+    data = path.read_bytes()
+    full = read_all(BlfReader(path))
+    second = _containers(data)[1]
+    size = int.from_bytes(data[second + 8:second + 12], "little")
+    head = second + 16 + LOG_CONTAINER_STRUCT.size
+    inner = bytearray(zlib.decompress(data[head:second + size]))
+    k = inner.find(b"LOBJ", 1000)
+    inner[k:k + 4] = b"XXXX"                       # one object's signature destroyed
+    payload = zlib.compress(bytes(inner))
+    body = LOG_CONTAINER_STRUCT.pack(ZLIB_DEFLATE, len(inner)) + payload
+    new_size = 16 + len(body)
+    obj = b"LOBJ" + (16).to_bytes(2, "little") + (1).to_bytes(2, "little") \
+        + new_size.to_bytes(4, "little") + (10).to_bytes(4, "little") + body + b"\x00" * (new_size % 4)
+    broken = tmp_path / "inner.blf"
+    broken.write_bytes(data[:second] + obj + data[second + size + size % 4:])
+    reader = BlfReader(broken, on_damage="skip")
+    part = read_all(reader)
+    a, b = _one_gap(part, full)
+    assert b - a == 1, "exactly the damaged object is lost"
+    assert reader.stats.damaged == 1 and "inside the log container" in reader.stats.first_damage.reason
+    stopping = BlfReader(broken)
+    assert len(read_all(stopping)) == a and stopping.stats.damage is not None
+
+
 def test_other_formats_go_through_python_can(tmp_path, stand_chunk):
     small = stand_chunk.take(slice(0, 500))
     path = tmp_path / "small.asc"
