@@ -23,6 +23,8 @@ from .glitches import remove_glitches
 
 #: relative spread of sample intervals above which a record is resampled to a uniform grid
 JITTER_TOLERANCE = 0.05
+#: an interval this many times the usual one is a gap in the data (samples missing), not jitter
+GAP_INTERVALS = 5
 
 
 @dataclass
@@ -37,6 +39,9 @@ class Record:
     experiment: str | None = None          #: "meander" | "pfeedback" | "relay" | None (unknown)
     meta: dict[str, Any] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    #: samples that fall inside a gap of the data, filled in by resampling (None: no gap);
+    #: :func:`split_at_gaps` cuts them out
+    bridged: np.ndarray | None = None
 
     @property
     def dt(self) -> float:
@@ -54,7 +59,8 @@ class Record:
 
     def slice(self, start: int, stop: int) -> "Record":
         return Record(self.t[start:stop], self.u[start:stop], self.y[start:stop],
-                      self.r[start:stop], self.source, self.experiment, self.meta, list(self.notes))
+                      self.r[start:stop], self.source, self.experiment, self.meta, list(self.notes),
+                      None if self.bridged is None else self.bridged[start:stop])
 
 
 def make_record(t, u, y, r=None, source: str = "<arrays>", experiment: str | None = None,
@@ -89,14 +95,17 @@ def make_record(t, u, y, r=None, source: str = "<arrays>", experiment: str | Non
         if len(t) < min_samples:
             raise DataError(f"{source}: only {len(t)} samples with distinct times")
     med = float(np.median(dts))
+    bridged = None
     if np.max(np.abs(dts - med)) > JITTER_TOLERANCE * med:
-        gaps = int((dts > 5 * med).sum())
-        if gaps:
-            notes.append(f"{gaps} gap(s) longer than 5 sample intervals were bridged by resampling")
+        gap = dts > GAP_INTERVALS * med
         n = int(round((t[-1] - t[0]) / med)) + 1
         grid = t[0] + med * np.arange(n)
         # the command is held (zero-order hold), the force interpolated
         idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 1)
+        if gap.any():
+            notes.append(f"{int(gap.sum())} gap(s) longer than {GAP_INTERVALS} sample intervals "
+                         "(samples missing) were bridged by resampling")
+            bridged = np.concatenate([gap, [False]])[idx] & (grid > t[idx])
         u = u[idx]
         r = r[idx]
         y = np.interp(grid, t, y)
@@ -105,7 +114,36 @@ def make_record(t, u, y, r=None, source: str = "<arrays>", experiment: str | Non
     y, glitches = remove_glitches(y)
     if glitches.count:
         notes.append(glitches.note())
-    return Record(t, u, y, r, source, experiment, dict(meta or {}), notes)
+    return Record(t, u, y, r, source, experiment, dict(meta or {}), notes, bridged)
+
+
+def split_at_gaps(rec: Record, min_samples: int = 20) -> list[Record]:
+    """The parts of ``rec`` between its gaps (samples missing, bridged by resampling), each a
+    record of its own: a model run across a gap would integrate a command nobody recorded
+    against a force that was only interpolated. Parts shorter than ``min_samples`` are dropped
+    (said in the notes of the first part kept). A record without gaps comes back alone."""
+    if rec.bridged is None or not rec.bridged.any():
+        return [rec]
+    z = np.concatenate([[1], rec.bridged.astype(int), [1]])
+    edges = np.flatnonzero(np.diff(z))
+    spans = list(zip(edges[::2].tolist(), edges[1::2].tolist()))
+    kept = [(a, b) for a, b in spans if b - a >= min_samples]
+    if not kept:
+        raise DataError(f"{rec.source}: no stretch between its gaps (samples missing) has "
+                        f"{min_samples} samples")
+    parts = []
+    for k, (a, b) in enumerate(kept):
+        part = rec.slice(a, b)
+        part.bridged = None
+        part.source = f"{rec.source} [part {k + 1} of {len(kept)}, from {rec.t[a] - rec.t[0]:.3f} s]"
+        part.notes = [n for n in part.notes if "bridged by resampling" not in n]
+        if k == 0:
+            part.notes.append(f"split at {len(spans) - 1} gap(s) in the data (samples missing) "
+                              f"into {len(kept)} part(s), each a record of its own"
+                              + (f"; {len(spans) - len(kept)} part(s) under {min_samples} samples dropped"
+                                 if len(kept) < len(spans) else ""))
+        parts.append(part)
+    return parts
 
 
 def read_csv(path: str | Path) -> Record:
@@ -248,7 +286,8 @@ def load(path: str | Path) -> Record:
 
 
 def load_all(paths: Iterable[str | Path]) -> list[Record]:
-    records = [load(p) for p in paths]
+    """Load every input as :func:`load` does, each split at its gaps (:func:`split_at_gaps`)."""
+    records = [part for p in paths for part in split_at_gaps(load(p))]
     if not records:
         raise DataError("no input given")
     return records

@@ -27,7 +27,7 @@ import numpy as np
 
 from gateway.errors import DataError
 
-from .data import Record, load
+from .data import Record, load, split_at_gaps
 from .meander import MeanderEstimate, estimate_meander, mean_ci
 from .pfeedback import PFeedbackEstimate, estimate_pfeedback, fit_harmonic, reference_frequency, sine_start
 from .relay import RelayEstimate, estimate_relay, relay_levels
@@ -157,8 +157,16 @@ def signal_features(rec: Record) -> dict[str, Any]:
 
 # -- estimation --------------------------------------------------------------------------------
 def estimate_record(rec: Record, options: EstimateOptions | None = None) -> Estimate:
-    """Detect the experiment (unless given) and run its estimator."""
+    """Detect the experiment (unless given) and run its estimator. A record with gaps (samples
+    missing) is estimated on its longest part between them (said in the notes): the paper's
+    estimators read slopes and cycles that a bridged gap would fake."""
     opt = options or EstimateOptions()
+    parts = split_at_gaps(rec)
+    if len(parts) > 1:
+        longest = max(parts, key=len)
+        longest.notes.append(f"the data has gaps: estimated on its longest part "
+                             f"({longest.duration_s:.1f} s of {rec.duration_s:.1f} s, {longest.source})")
+        rec = longest
     if opt.experiment:
         if opt.experiment not in EXPERIMENT_NAMES:
             raise DataError(f"unknown experiment {opt.experiment!r}; choose one of {', '.join(EXPERIMENT_NAMES)}")

@@ -152,3 +152,30 @@ def test_long_data_search_starts_on_a_subset_and_polish_on_all():
     assert f.params["g"] == pytest.approx(120.0, rel=0.002)
     r = residual(f.model, pieces_from_records([rec]))
     assert f.objective_rmse == pytest.approx(math.sqrt(r @ r / f.n))
+
+
+def test_a_gap_in_the_data_splits_the_record_instead_of_being_fitted_across(tmp_path):
+    """Samples missing for 1.6 s across a reversal (a logger dropout, a skipped damaged
+    capture block): bridged by resampling, a model would integrate a held command against an
+    interpolated force there; load_all gives the two parts as records of their own, and the
+    fit on them sees only the noise."""
+    from analysis.data import load, load_all, split_at_gaps
+    truth = PlantModel.from_spec("base", {"g": 120.0, "tau": 0.05, "delta": 0.0})
+    rec = S.meander(truth, amplitudes_pct=(5.0, 10.0), cycles=4, seed=3)
+    keep = (rec.t < 9.3) | (rec.t > 10.9)
+    path = tmp_path / "dropout.csv"
+    np.savetxt(path, np.column_stack([rec.t[keep], rec.u[keep], rec.y[keep]]), delimiter=",",
+               header="t,u,y", comments="")
+    whole = load(path)
+    assert whole.bridged is not None and 790 <= int(whole.bridged.sum()) <= 810
+    assert any("gap" in n and "bridged" in n for n in whole.notes)
+    parts = load_all([path])
+    assert len(parts) == 2 and [p.bridged for p in parts] == [None, None]
+    assert parts[0].t[-1] < 9.3 and parts[1].t[0] > 10.9
+    assert "part 2 of 2" in parts[1].source and any("split at 1 gap" in n for n in parts[0].notes)
+    assert not any("bridged" in n for p in parts for n in p.notes)
+    assert split_at_gaps(parts[0]) == [parts[0]]
+    split = fit_model(parts, "base")
+    across = fit_model([whole], "base")
+    assert abs(split.params["g"] - 120.0) < 1.0 and abs(split.params["tau"] - 0.05) < 0.002
+    assert split.objective_rmse < 3.0 < 3 * split.objective_rmse < across.objective_rmse
