@@ -165,8 +165,7 @@ class BlfReader:
                     if not skip:
                         self._damage(pos, reason)
                         break
-                    self._skipped(pos, reason)
-                    yield from self._flush_broken(pending, pending_origin)
+                    yield from self._skip_region(pos, reason, pending, pending_origin)
                     resync_stream = True
                     found = self._resync(fh, base, pos)
                     if found is None:
@@ -194,8 +193,7 @@ class BlfReader:
                         if not skip:
                             self._damage(here, reason)
                             break
-                        self._skipped(here, reason)
-                        yield from self._flush_broken(pending, pending_origin)
+                        yield from self._skip_region(here, reason, pending, pending_origin)
                         resync_stream = True
                         continue
                 elif method == NO_COMPRESSION:
@@ -240,9 +238,12 @@ class BlfReader:
             return None
         return lambda problem: self._skipped(origin, f"{problem} (inside the log container at this byte)")
 
-    def _flush_broken(self, pending: bytearray, origin: int) -> Iterator[FrameChunk]:
-        """``on_damage="skip"``, before a skipped region: the complete objects still pending;
-        an object cut off by the damage is part of the damaged region. Empties ``pending``."""
+    def _skip_region(self, byte: int, reason: str, pending: bytearray,
+                     origin: int) -> Iterator[FrameChunk]:
+        """``on_damage="skip"``: count the damaged region at ``byte`` and yield the complete
+        objects still pending before it; an object cut off by the damage is part of the damaged
+        region. Empties ``pending``."""
+        self._skipped(byte, reason)
         chunk, _, _ = parse_objects(pending, self.start_timestamp, self.stats,
                                     on_problem=self._inner(origin))
         pending.clear()
