@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 from dbc import profile as P
 from standbus import DEFAULT_BUS, BusSpec, BusSpecError, open_bus
-from standbus.realtime import DEFAULT_PRIORITY, process_threads, realtime_threads
+from standbus.realtime import DEFAULT_PRIORITY, process_threads, realtime_threads, short_gil_slices
 
 from .capture import BusCapture, TappedNetwork
 from .errors import ParameterError, StandError
@@ -202,7 +202,8 @@ class Gateway:
                     outcome = self.loop.run(experiment, recorder, tick)
                 else:
                     # every thread of the process, not only the loop's (see process_threads)
-                    with realtime_threads(self.config.rt_priority, process_threads()) as scheduling:
+                    with realtime_threads(self.config.rt_priority, process_threads()) as scheduling, \
+                            short_gil_slices():
                         outcome = self.loop.run(experiment, recorder, tick)
         except BaseException as exc:
             failure = exc

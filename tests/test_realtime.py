@@ -7,7 +7,8 @@ import threading
 
 import pytest
 
-from standbus.realtime import make_realtime, process_threads, realtime_allowed, realtime_threads
+from standbus.realtime import (GIL_SLICE_S, make_realtime, process_threads, realtime_allowed,
+                               realtime_threads, short_gil_slices)
 
 
 def _policy(tid: int = 0) -> int:
@@ -75,3 +76,16 @@ def test_a_thread_that_ended_meanwhile_is_skipped_and_every_thread_is_listed():
 def test_a_priority_out_of_range_is_refused_with_the_reason():
     assert make_realtime(0) == "priority 0 is not 1-99" or not sys.platform.startswith("linux")
     assert isinstance(make_realtime(100), str)
+
+
+def test_short_gil_slices_for_the_block_then_the_interval_before_even_after_an_error():
+    before = sys.getswitchinterval()
+    with short_gil_slices():
+        assert sys.getswitchinterval() == pytest.approx(GIL_SLICE_S)
+        assert GIL_SLICE_S < before
+    assert sys.getswitchinterval() == before
+    with pytest.raises(RuntimeError):
+        with short_gil_slices(0.001):
+            assert sys.getswitchinterval() == pytest.approx(0.001)
+            raise RuntimeError("the run failed")
+    assert sys.getswitchinterval() == before
