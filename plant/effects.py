@@ -810,8 +810,11 @@ def since_reversal(q: np.ndarray, inc: float | np.ndarray, state: dict) -> np.nd
     if reversal.any():
         # index of the last reversal at or before each step (-1: none in this block)
         last = np.maximum.accumulate(np.where(reversal, steps, -1), axis=1)
-        at_last = np.take_along_axis(np.broadcast_to(before, (n, K)), np.maximum(last, 0), axis=1)
-        since = np.where(last >= 0, before - at_last, carried)
+        if np.ndim(inc) == 0:                  # equal increments: no lookup needed
+            since = np.where(last >= 0, (steps - last) * float(inc), carried)
+        else:
+            at_last = np.take_along_axis(before, np.maximum(last, 0), axis=1)
+            since = np.where(last >= 0, before - at_last, carried)
     else:
         since = carried
     state["direction"] = held[:, -1].copy()
