@@ -35,7 +35,9 @@ def register(sub) -> None:
                    help="also write every decoded message as a Parquet dataset DIR/<message>/ "
                         "(works with any DBC, also one that does not describe the stand)")
     p.add_argument("--skip-damaged", action="store_true",
-                   help="skip damaged lines (candump logs) or containers and objects (BLF) and go on, instead of stopping at the first; what was skipped is counted and the first one named")
+                   help="skip damaged lines (candump logs) or containers and objects (BLF) and go "
+                        "on, instead of stopping at the first; what was skipped is counted and the "
+                        "first one named")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=main)
 
