@@ -106,7 +106,9 @@ class DecodeResult:
         if self.damage is not None:
             out.append(f"capture damaged at {self.damage}; everything before it was decoded")
         if self.read.damaged:
-            out.append(f"{self.read.damaged} damaged line(s) skipped (first at {self.read.first_damage.position})")
+            what = "region(s) (containers or objects)" if self.format == "blf" else "line(s)"
+            out.append(f"{self.read.damaged} damaged {what} skipped (first at "
+                       f"{self.read.first_damage.position}: {self.read.first_damage.reason})")
         if f.unknown:
             ids = ", ".join(list(f.unknown_ids)[:8])
             out.append(f"{f.unknown} frame(s) with ids not in the DBC skipped ({ids})")
