@@ -21,6 +21,8 @@ PERIOD_S = 0.002
 
 #: a wake-up at least this late is a stall worth its time stamp (``stalls``), s
 STALL_S = 0.0005
+#: what a measuring process prints once it is on its CPU at its priority, about to measure
+READY = "ready"
 
 
 def _measure_here(duration_s: float, cpu: int | None = None) -> dict:
@@ -28,6 +30,7 @@ def _measure_here(duration_s: float, cpu: int | None = None) -> dict:
     if cpu is not None:
         os.sched_setaffinity(0, {cpu})
     sched = make_realtime(DEFAULT_PRIORITY)
+    print(READY, flush=True)       # the caller may start what it measures beside this now
     n = max(1, int(duration_s / PERIOD_S))
     late = []
     stalls = []
@@ -58,16 +61,22 @@ def start(duration_s: float, cpu: int | None = None) -> subprocess.Popen:
 
 def start_on_every_cpu(duration_s: float) -> list[subprocess.Popen]:
     """One measurement pinned to each CPU this process may use: a host that stops one virtual
-    CPU only stalls the thread on it, so one floor thread alone could miss it."""
+    CPU only stalls the thread on it, so one floor thread alone could miss it. Returns once
+    every one of them is measuring: a Python process takes ~0.5 s to start, and a run started
+    at once had its first half second unwatched (late cycles there looked like the loop's own)."""
     cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else [None]
-    return [start(duration_s, cpu) for cpu in cpus]
+    procs = [start(duration_s, cpu) for cpu in cpus]
+    for proc in procs:
+        if proc.stdout.readline().strip() != READY:
+            raise RuntimeError(f"the host-floor measurement did not start (exit code {proc.wait()})")
+    return procs
 
 
 def result(proc: subprocess.Popen) -> dict:
     out, _ = proc.communicate()
     if proc.returncode:
         raise RuntimeError(f"the host-floor measurement failed (exit code {proc.returncode})")
-    return json.loads(out)
+    return json.loads(out.strip().splitlines()[-1])
 
 
 def measure(duration_s: float) -> dict:
