@@ -46,7 +46,8 @@ from .frames import ERROR, EXTENDED, FD, REMOTE, TX, CaptureError, Damage, Frame
 DEFAULT_CHUNK_BYTES = 1 << 20
 _SIG = np.frombuffer(b"LOBJ", "<u4")[0]
 _DLC2LEN = np.array([dlc2len(i) for i in range(16)], np.uint8)
-#: the largest log container a resynchronizing reader believes (python-can writes ~128 KiB)
+#: the largest outer object (log container) the reader believes, rather than reading a damaged
+#: size's gigabytes into memory (python-can writes ~128 KiB containers)
 _MAX_CONTAINER = 1 << 26
 #: the largest inner object it believes (a CAN FD frame with extended data is < 200 bytes)
 _MAX_OBJECT = 1 << 16
@@ -160,7 +161,7 @@ class BlfReader:
                     self._damage(pos, "the file ends inside an object header (truncated capture?)")
                     break
                 sig, _, _, obj_size, obj_type = OBJ_HEADER_BASE_STRUCT.unpack(base)
-                if sig != b"LOBJ" or obj_size < OBJ_HEADER_BASE_STRUCT.size:
+                if sig != b"LOBJ" or not OBJ_HEADER_BASE_STRUCT.size <= obj_size <= _MAX_CONTAINER:
                     reason = f"no object here (signature {sig!r}, size {obj_size}): corrupted file"
                     if not skip:
                         self._damage(pos, reason)

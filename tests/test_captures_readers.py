@@ -327,3 +327,22 @@ def test_unknown_suffix_and_missing_files_are_clear_errors(tmp_path):
         open_capture(tmp_path / "x.pcap")
     with pytest.raises(CaptureError, match="does not exist"):
         open_capture(tmp_path / "x.log")
+
+
+def test_an_absurd_outer_object_size_is_damage_not_a_gigabyte_read(tmp_path, stand_chunk):
+    path = tmp_path / "stand.blf"
+    write_blf(path, [stand_chunk])
+    data = bytearray(path.read_bytes())
+    full = read_all(BlfReader(path))
+    second = _containers(bytes(data))[1]
+    data[second + 8:second + 12] = (0xFFFFFFF0).to_bytes(4, "little")
+    broken = tmp_path / "huge.blf"
+    broken.write_bytes(bytes(data))
+    stopping = BlfReader(broken)
+    part = read_all(stopping)
+    assert stopping.stats.damage.byte == second and "size" in stopping.stats.damage.reason
+    assert 0 < len(part) < len(full)
+    skipping = BlfReader(broken, on_damage="skip")
+    a, b = _one_gap(read_all(skipping), full)
+    assert a == len(part) or a == len(part) - 1
+    assert b - a <= len(full) / len(_containers(path.read_bytes())) * 1.2 + 2
