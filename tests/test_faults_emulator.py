@@ -106,6 +106,11 @@ def test_malformed_nmt_and_sync_frames_are_ignored_and_counted(emulator):
 
 def test_rpdo_with_a_wrong_length_is_reported_and_not_applied(emulator):
     stand, master = emulator()
+    # The subject is the length error, not the watchdog: switch the RPDO event timer off
+    # (0x1400:05 = 0, as a master would by SDO) so a loaded machine's slow 100 ms cannot add
+    # an RPDO timeout EMCY to the frames collected below.
+    send(master, 0x601, b"\x2b\x00\x14\x05\x00\x00\x00\x00")
+    assert [bytes(f.data[:4]) for f in collect(master, 0.05) if f.arbitration_id == 0x581] == [b"\x60\x00\x14\x05"]
     send(master, 0x000, b"\x01\x01")
     send(master, 0x201, struct.pack("<Hh", int(P.CW_ACTIVE), 1000))
     time.sleep(0.05)
