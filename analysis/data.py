@@ -25,6 +25,9 @@ from .glitches import remove_glitches
 JITTER_TOLERANCE = 0.05
 #: an interval this many times the usual one is a gap in the data (samples missing), not jitter
 GAP_INTERVALS = 5
+#: the words of the note ``make_record`` leaves on a record whose gaps it bridged; the note
+#: ``split_at_gaps`` takes off the parts it cuts there
+BRIDGED_NOTE = "were bridged by resampling"
 
 
 @dataclass
@@ -104,7 +107,7 @@ def make_record(t, u, y, r=None, source: str = "<arrays>", experiment: str | Non
         idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 1)
         if gap.any():
             notes.append(f"{int(gap.sum())} gap(s) longer than {GAP_INTERVALS} sample intervals "
-                         "(samples missing) were bridged by resampling")
+                         f"(samples missing) {BRIDGED_NOTE}")
             bridged = np.concatenate([gap, [False]])[idx] & (grid > t[idx])
         u = u[idx]
         r = r[idx]
@@ -136,7 +139,7 @@ def split_at_gaps(rec: Record, min_samples: int = 20) -> list[Record]:
         part = rec.slice(a, b)
         part.bridged = None
         part.source = f"{rec.source} [part {k + 1} of {len(kept)}, from {rec.t[a] - rec.t[0]:.3f} s]"
-        part.notes = [n for n in part.notes if "bridged by resampling" not in n]
+        part.notes = [n for n in part.notes if BRIDGED_NOTE not in n]
         if k == 0:
             part.notes.append(f"split at {len(spans) - 1} gap(s) in the data (samples missing) "
                               f"into {len(kept)} part(s), each a record of its own"
