@@ -66,3 +66,16 @@ def test_existing_run_is_never_overwritten(bus_spec, start_emulator, tmp_path):
 def test_diagnose_max_effects_out_of_range(tmp_path):
     res = stand("diagnose", str(tmp_path / "none.csv"), "--stepwise", "--max-effects", "0")
     assert res.returncode == 2 and "--max-effects 0 is out of range: give 1 or more" in res.stderr
+
+
+def test_every_commands_help_prints_cleanly():
+    """Each subcommand's help renders (a stray ``%`` in a help string is an argparse crash) and
+    shows no escaped ``%%``: descriptions are not %-formatted, help strings are."""
+    import argparse
+
+    from stand.cli import build_parser
+    parser = build_parser()
+    subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    pages = {name: sub.format_help() for name, sub in subparsers.choices.items()}
+    assert {"fit", "compare", "diagnose", "estimate", "campaign", "run", "decode"} <= set(pages)
+    assert not [name for name, page in pages.items() if "%%" in page]

@@ -25,7 +25,7 @@ def register(sub) -> None:
         description="Run the paper's whole experimental program (open-loop meander, proportional "
                     "feedback with a harmonic reference, relay feedback) in one gateway session, one "
                     "run directory per experiment, then write the report: tables (CSV), figures (PNG) "
-                    "and a summary of g and τ with 95 %% intervals. By default the campaign starts its "
+                    "and a summary of g and τ with 95 % intervals. By default the campaign starts its "
                     "own emulator (lockstep, private loopback bus) and puts its truth beside the "
                     "estimates; with --bus it drives whatever stand is on that bus.")
     p.add_argument("--out", metavar="DIR", help="report directory (default campaigns/campaign-TIMESTAMP)")

@@ -15,7 +15,7 @@ def register(sub) -> None:
     p = sub.add_parser("compare", help="compare a model with measurements: error table and plots",
                        description="Fit the model (a spec, or a model file as the start; --as-given "
                                    "keeps the file's values), simulate it free-running over windows "
-                                   "started from the measured force, print RMSE and fit %% overall, "
+                                   "started from the measured force, print RMSE and fit % overall, "
                                    "per regime and per window, the residual tests, and write plots: "
                                    "measurement and model overlaid, residual below, worst windows "
                                    "and regimes marked.")

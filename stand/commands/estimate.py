@@ -17,7 +17,7 @@ def register(sub) -> None:
     p = sub.add_parser(
         "estimate", help="estimate g and τ from meander, P-feedback or relay runs / CSV files",
         description="Estimate the paper's model parameters from recorded runs, campaign directories "
-                    "or CSV files (t,u,y[,r]; s, %%, kgf). The experiment is read from the run's "
+                    "or tables of samples (t,u,y[,r]; s, %, kgf). The experiment is read from the run's "
                     "metadata or recognised from the signals. --json prints one object per input "
                     "(schema hydrostand-estimate/1, see docs/experiments.md); --out writes the "
                     "tables, figures and summary a campaign gets.")
