@@ -1,5 +1,5 @@
-"""Measurements in, whatever their source: a CSV ``t,u,y[,r]`` (s, %, kgf), a recorded run
-directory, or a bus capture (decoded with the stand's DBC).
+"""Measurements in, whatever their source: a table ``t,u,y[,r]`` (s, %, kgf; other column
+names and units are recognised, :mod:`analysis.columns`), a recorded run directory, or a bus capture (decoded with the stand's DBC).
 
 Everything downstream works on :class:`Record`: uniformly sampled arrays plus where they came
 from. Several files given together form one data set (a list of records, never concatenated
@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import gzip
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
@@ -19,6 +20,7 @@ import numpy as np
 from gateway.errors import DataError
 from gateway.runs import is_run_dir, load_run
 
+from .columns import ColumnError, map_header, positional
 from .glitches import remove_glitches
 
 #: relative spread of sample intervals above which a record is resampled to a uniform grid
@@ -149,83 +151,153 @@ def split_at_gaps(rec: Record, min_samples: int = 20) -> list[Record]:
     return parts
 
 
+#: a sampling interval (s) beyond which the time column is suspected to be in another unit
+SLOW_SAMPLING_S = 0.1
+#: suffixes read as a table of samples (optionally gzipped)
+TABLE_SUFFIXES = (".csv", ".tsv", ".txt", ".dat")
+_DELIMITERS = (",", ";", "\t")
+_DECIMAL_COMMA = re.compile(r"^[-+]?\d+,\d+(?:[eE][-+]?\d+)?$")
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """How a table file is written: its delimiter (None: runs of blanks), its decimal mark,
+    whether its first line is a header, and the first line's fields."""
+    delimiter: str | None
+    decimal: str
+    has_header: bool
+    first: list[str]
+
+
+def _open_text(path: Path):
+    return (gzip.open(path, "rt", newline="", encoding="utf-8-sig") if path.suffix.lower() == ".gz"
+            else path.open(newline="", encoding="utf-8-sig"))
+
+
+def _split(line: str, delimiter: str | None) -> list[str]:
+    return line.split() if delimiter is None else next(csv.reader([line], delimiter=delimiter))
+
+
+def _layout(path: Path) -> _Layout:
+    """Sniff the delimiter (comma, semicolon, tab, else blanks), a decimal comma (``1,5;2,25``)
+    and whether the first line is a header (it is unless every field is a number; a leading
+    ``#`` is taken off it). Later lines starting with ``#`` are comments."""
+    try:
+        with _open_text(path) as fh:
+            lines = [ln for ln in (fh.readline() for _ in range(3)) if ln.strip()]
+    except (OSError, UnicodeDecodeError, EOFError) as exc:
+        raise DataError(f"cannot read {path}: {exc}") from None
+    if not lines:
+        raise DataError(f"{path}: empty file")
+    counts = {d: lines[0].count(d) for d in _DELIMITERS}
+    delimiter = max(counts, key=counts.get) if max(counts.values()) else None
+    # numpy's savetxt writes its header as a comment: "# t,u,y"
+    first = [f.strip() for f in _split(lines[0].lstrip("#").rstrip("\r\n"), delimiter)]
+    data = _split(lines[-1].rstrip("\r\n"), delimiter)
+    decimal = "," if delimiter != "," and any(_DECIMAL_COMMA.match(f.strip()) for f in data) else "."
+
+    def number(text: str) -> bool:
+        try:
+            float(text.replace(",", ".") if decimal == "," else text)
+            return True
+        except ValueError:
+            return False
+    return _Layout(delimiter, decimal, not all(number(f) for f in first if f), first)
+
+
 def read_csv(path: str | Path) -> Record:
-    """CSV with a header naming at least ``t``, ``u``, ``y`` (optionally ``r``); s, %, kgf.
+    """A table of samples: time, valve command, force and optionally the force reference.
+
+    Comma, semicolon, tab or blank separated, a decimal comma recognised; the header names the
+    columns and may give their units (``time [ms]``, ``force_N``, ``u_V``: see
+    :mod:`analysis.columns`), which are converted to s, %, kgf with a note; a table without a
+    header is read as t,u,y[,r] in that order, also with a note.
 
     Read with pyarrow's multi-threaded CSV reader (an hour at 500 Hz in well under a second);
     a file it refuses is read again line by line, so the error names the line and the value."""
     path = Path(path)
-    header = _csv_header(path)
-    names = [h.strip().lower() for h in header]
-    missing = [c for c in ("t", "u", "y") if c not in names]
-    if missing:
-        raise DataError(f"{path}: the header must name columns t,u,y[,r] (s, %, kgf); "
-                        f"missing {', '.join(missing)} (header: {','.join(header)})")
-    wanted = {c: header[names.index(c)] for c in ("t", "u", "y", "r") if c in names}
+    layout = _layout(path)
     try:
-        import pyarrow as pa
-        import pyarrow.csv as pacsv
+        if layout.has_header:
+            columns, notes = map_header(layout.first)
+        else:
+            columns = positional(len(layout.first))
+            notes = [f"no header: the {len(columns)} columns read as {','.join(columns)} "
+                     "(s, % of the full valve command, kgf)"]
+    except ColumnError as exc:
+        raise DataError(f"{path}: {exc}") from None
+    cols = None
+    if layout.delimiter is not None:
+        cols = _read_table_arrow(path, layout, columns)
+    if cols is None:
+        cols = _read_table_lines(path, layout, columns)
+    cols = {c: v * columns[c].scale if columns[c].scale != 1.0 else v for c, v in cols.items()}
+    rec = make_record(cols["t"], cols["u"], cols["y"], cols.get("r"), source=str(path))
+    dt = rec.dt
+    if columns["t"].scale == 1.0 and dt > SLOW_SAMPLING_S:
+        notes.append(f"the samples are {dt:g} s apart: if the time column is not in seconds, "
+                     "give its unit in the header (e.g. 't_ms' or 'time [ms]')")
+    rec.notes = notes + rec.notes
+    return rec
+
+
+def _read_table_arrow(path: Path, layout: _Layout, columns: dict) -> dict | None:
+    """The wanted columns as float arrays, or None if pyarrow refuses the file."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+    names = [f"c{i}" for i in range(len(layout.first))]
+    wanted = {c: names[col.index] for c, col in columns.items()}
+    try:
         table = pacsv.read_csv(
-            path, read_options=pacsv.ReadOptions(column_names=[h for h in header], skip_rows=1),
+            path, read_options=pacsv.ReadOptions(column_names=names,
+                                                 skip_rows=1 if layout.has_header else 0),
+            parse_options=pacsv.ParseOptions(delimiter=layout.delimiter),
             convert_options=pacsv.ConvertOptions(
                 include_columns=list(wanted.values()),
                 column_types={name: pa.float64() for name in wanted.values()},
+                decimal_point=layout.decimal,
                 null_values=["", "nan", "NaN", "NAN", "na", "NA", "null", "NULL"],
                 strings_can_be_null=True))
     except Exception:   # pyarrow refused it: the line reader says exactly where and why
-        return _read_csv_lines(path, header)
+        return None
     if table.num_rows == 0:
-        raise DataError(f"{path}: no data rows after the header")
-    cols = {c: table.column(name).to_numpy(zero_copy_only=False).astype(float)
+        raise DataError(f"{path}: no data rows" + (" after the header" if layout.has_header else ""))
+    return {c: table.column(name).to_numpy(zero_copy_only=False).astype(float)
             for c, name in wanted.items()}
-    return make_record(cols["t"], cols["u"], cols["y"], cols.get("r"), source=str(path))
 
 
-def _csv_header(path: Path) -> list[str]:
-    try:
-        with (gzip.open(path, "rt", newline="") if path.suffix.lower() == ".gz"
-              else path.open(newline="")) as fh:
-            header = next(csv.reader(fh), None)
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"cannot read {path}: {exc}") from None
-    if header is None:
-        raise DataError(f"{path}: empty file")
-    return header
-
-
-def _read_csv_lines(path: Path, header: list[str]) -> Record:
-    names = [h.strip().lower() for h in header]
-    cols = {c: names.index(c) for c in ("t", "u", "y", "r") if c in names}
+def _read_table_lines(path: Path, layout: _Layout, columns: dict) -> dict:
+    order = list(columns)
     rows = []
     try:
-        with (gzip.open(path, "rt", newline="") if path.suffix.lower() == ".gz"
-              else path.open(newline="")) as fh:
-            reader = csv.reader(fh)
-            next(reader, None)
-            for lineno, row in enumerate(reader, start=2):
+        with _open_text(path) as fh:
+            for lineno, line in enumerate(fh, start=1):
+                if lineno == 1 and layout.has_header:
+                    continue
+                if line.lstrip().startswith("#"):
+                    continue
+                row = _split(line.rstrip("\r\n"), layout.delimiter)
                 if not row or all(not c.strip() for c in row):
                     continue
                 try:
-                    rows.append([_num(row[cols[c]]) if cols[c] < len(row) else math.nan
-                                 for c in ("t", "u", "y")] +
-                                [(_num(row[cols["r"]]) if cols["r"] < len(row) else math.nan)
-                                 if "r" in cols else math.nan])
+                    rows.append([_num(row[columns[c].index], layout.decimal)
+                                 if columns[c].index < len(row) else math.nan for c in order])
                 except ValueError as exc:
                     raise DataError(f"{path}:{lineno}: {exc}") from None
-    except (OSError, UnicodeDecodeError) as exc:
+    except (OSError, UnicodeDecodeError, EOFError) as exc:
         raise DataError(f"cannot read {path}: {exc}") from None
     if not rows:
-        raise DataError(f"{path}: no data rows after the header")
+        raise DataError(f"{path}: no data rows" + (" after the header" if layout.has_header else ""))
     a = np.array(rows, float)
-    return make_record(a[:, 0], a[:, 1], a[:, 2], a[:, 3], source=str(path))
+    return {c: a[:, k] for k, c in enumerate(order)}
 
 
-def _num(text: str) -> float:
+def _num(text: str, decimal: str = ".") -> float:
     text = text.strip()
     if text == "" or text.lower() in ("nan", "na", "null"):
         return math.nan
     try:
-        return float(text)
+        return float(text.replace(",", ".") if decimal == "," else text)
     except ValueError:
         raise ValueError(f"{text!r} is not a number") from None
 
@@ -282,10 +354,14 @@ def load(path: str | Path) -> Record:
     if _is_capture(path):
         from captures import load_capture
         return load_capture(path)
-    if path.suffix.lower() == ".csv":
+    suffixes = [x.lower() for x in path.suffixes]
+    if suffixes and suffixes[-1] == ".gz":
+        suffixes = suffixes[:-1]
+    if suffixes and suffixes[-1] in TABLE_SUFFIXES:
         return read_csv(path)
-    raise DataError(f"{path}: unknown input type; give a CSV (t,u,y[,r]), a run directory or a "
-                    "bus capture (.log, .asc, .blf, .trc, .mf4, optionally .gz)")
+    raise DataError(f"{path}: unknown input type; give a table of samples (.csv, .tsv, .txt, .dat: "
+                    "t,u,y[,r]), a run directory or a bus capture (.log, .asc, .blf, .trc, .mf4); "
+                    "each optionally .gz")
 
 
 def load_all(paths: Iterable[str | Path]) -> list[Record]:

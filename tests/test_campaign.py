@@ -115,8 +115,8 @@ def test_stand_estimate_reads_csv_files_and_prints_the_documented_json(tmp_path,
     assert e["g"] == pytest.approx(TRUTH_G, rel=0.03) and e["tau"] == pytest.approx(TRUTH_TAU, rel=0.04)
     assert e["g_eq4_peak"] == pytest.approx(DF_PEAK_BIAS * e["g"], rel=0.02)
     assert meander["estimates"]["tau_ci"] is None and meander["estimates"]["g_eq2_main"] == meander["estimates"]["g"]
-    assert "missing u" not in bad["error"] and "header must name" in bad["error"]
-    assert "header must name" in out.err
+    assert "no valve command column" not in bad["error"] and "no force column" in bad["error"]
+    assert "no force column" in out.err
     # text mode and forcing the experiment
     code = stand(["estimate", str(tmp_path / "relay.csv"), "--experiment", "relay", "--period-ms", "2"])
     text = capsys.readouterr().out

@@ -17,8 +17,9 @@ from .common import load_records
 def add_data_args(p: argparse.ArgumentParser, model_required: bool = True) -> None:
     """DATA, --model, --window-s: shared by fit, compare, diagnose and report."""
     p.add_argument("data", nargs="+", metavar="DATA",
-                   help="CSV files (t,u,y[,r] in s, %%, kgf), run directories or bus captures; "
-                        "several together are one data set")
+                   help="tables of samples (.csv/.tsv/.txt: t,u,y[,r] in s, %%, kgf, or other "
+                        "names and units in the header, e.g. 'time [ms]', 'force_N'), run "
+                        "directories or bus captures; several together are one data set")
     p.add_argument("--model", required=model_required, default=None if model_required else "base",
                    metavar="SPEC|FILE.toml",
                    help="a model spec like base+reversal+deadzone, or a TOML model file"
@@ -41,7 +42,7 @@ def print_json(obj) -> None:
 def register(sub) -> None:
     p = sub.add_parser("fit", help="fit a model to measurements (least squares, with intervals)",
                        description="Fit every parameter of a model (delay included) by least squares "
-                                   "on the windowed free-run simulation error, with 95 %% confidence "
+                                   "on the windowed free-run simulation error, with 95 % confidence "
                                    "intervals. A spec starts from grids of sensible values; a model "
                                    "file starts from its values.")
     add_data_args(p)

@@ -1,0 +1,92 @@
+"""Tables of samples as other loggers write them: column names and units, delimiters, a
+decimal comma, no header, numpy's commented header, gzip; and the errors when a table cannot
+be read (what was wrong, what to write instead)."""
+from __future__ import annotations
+
+import gzip
+
+import numpy as np
+import pytest
+
+from analysis.columns import G0, ColumnError, map_header
+from analysis.data import load, load_all
+from gateway.errors import DataError
+
+
+@pytest.fixture(scope="module")
+def samples():
+    """A meander's samples in the analysis's units: t s, u %, y kgf, r kgf."""
+    t = np.round(np.arange(0.0, 8.0, 0.002), 6)
+    u = np.where(np.sin(2 * np.pi * t / 2.0) >= 0, 10.0, -10.0)
+    y = 500.0 + np.cumsum(np.roll(u, 25)) * 120.0 * 0.002
+    r = 400.0 * np.sin(2 * np.pi * 0.5 * t)
+    return t, u, y, r
+
+
+def _write(path, header, columns, delimiter=",", decimal_comma=False, fmt="%.9g"):
+    lines = [] if header is None else [header]
+    for row in zip(*columns):
+        cells = [fmt % v for v in row]
+        if decimal_comma:
+            cells = [c.replace(".", ",") for c in cells]
+        lines.append(delimiter.join(cells))
+    text = "\n".join(lines) + "\n"
+    if str(path).endswith(".gz"):
+        with gzip.open(path, "wt") as fh:
+            fh.write(text)
+    else:
+        path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("name, header, scale, delimiter, decimal_comma", [
+    ("plain.csv", "t,u,y,r", (1, 1, 1, 1), ",", False),
+    ("units.csv", "time [ms],valve_command_pct,Force (kN),ref_N", (1e3, 1, 1e-3 * G0, G0), ",", False),
+    ("volts.csv", "Time_s,u_V,force in N,setpoint [daN]", (1, 0.1, G0, G0 / 10), ",", False),
+    ("excel.csv", "time [s];u [%];force [kgf];reference [kgf]", (1, 1, 1, 1), ";", True),
+    ("tabs.tsv", "t\tu\ty\tr", (1, 1, 1, 1), "\t", False),
+    ("blanks.txt", "# t u y r", (1, 1, 1, 1), " ", False),
+    ("packed.csv.gz", "y,r,u,t", (1, 1, 1, 1), ",", False),
+    ("noheader.dat", None, (1, 1, 1, 1), ",", False),
+])
+def test_a_table_in_any_common_layout_reads_as_the_same_samples(samples, tmp_path, name, header,
+                                                                 scale, delimiter, decimal_comma):
+    t, u, y, r = samples
+    cols = [t * scale[0], u * scale[1], y * scale[2], r * scale[3]]
+    if name == "packed.csv.gz":
+        cols = [cols[2], cols[3], cols[1], cols[0]]
+    rec = load(_write(tmp_path / name, header, cols, delimiter, decimal_comma))
+    assert np.allclose(rec.t, t, atol=1e-9) and np.allclose(rec.u, u, atol=1e-6)
+    assert np.allclose(rec.y, y, rtol=1e-7, atol=1e-6) and np.allclose(rec.r, r, rtol=1e-7, atol=1e-6)
+    converted = [n for n in rec.notes if n.startswith("column ")]
+    assert len(converted) == sum(s != 1 for s in scale), rec.notes
+    assert any(n.startswith("no header") for n in rec.notes) == (header is None)
+
+
+def test_columns_in_unknown_units_or_doubled_are_refused_with_what_to_write(tmp_path):
+    with pytest.raises(ColumnError, match=r"'force_lbf' is in a unit not known for the force \(known: kgf"):
+        map_header(["t", "u", "force_lbf"])
+    with pytest.raises(ColumnError, match=r"force is in 2 columns \(y, force\); keep one"):
+        map_header(["t", "u", "y", "force"])
+    with pytest.raises(ColumnError, match=r"no time column: name it 't' or 'time'"):
+        map_header(["x", "u", "y"])
+    # a logger's extra channels are ignored, even one that starts like a signal's name
+    columns, notes = map_header(["t", "u", "y", "y_counts", "spool", "temperature [C]"])
+    assert {s: c.index for s, c in columns.items()} == {"t": 0, "u": 1, "y": 2} and notes == []
+    _write(tmp_path / "five.csv", None, [np.arange(30.0)] * 5)
+    with pytest.raises(DataError, match="no header and 5 columns"):
+        load(tmp_path / "five.csv")
+    (tmp_path / "bad.csv").write_text("t;u;y\n0;1;2\n0,002;x;3\n")
+    with pytest.raises(DataError, match=r"bad.csv:3: 'x' is not a number"):
+        load(tmp_path / "bad.csv")
+    (tmp_path / "data.xlsx").write_text("")
+    with pytest.raises(DataError, match=r"unknown input type; give a table of samples"):
+        load(tmp_path / "data.xlsx")
+
+
+def test_a_time_column_that_looks_like_milliseconds_is_said(samples, tmp_path):
+    t, u, y, _ = samples
+    rec = load_all([_write(tmp_path / "ms.csv", "t,u,y", [t * 1e3, u, y])])[0]
+    assert any("2 s apart: if the time column is not in seconds" in n for n in rec.notes)
+    rec = load(_write(tmp_path / "s.csv", "t,u,y", [t, u, y]))
+    assert not any("apart" in n for n in rec.notes)
