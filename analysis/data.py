@@ -1,5 +1,6 @@
 """Measurements in, whatever their source: a table ``t,u,y[,r]`` (s, %, kgf; other column
-names and units are recognised, :mod:`analysis.columns`), a recorded run directory, or a bus capture (decoded with the stand's DBC).
+names and units are recognised, :mod:`analysis.columns`), a recorded run directory, or a bus
+capture (decoded with the stand's DBC).
 
 Everything downstream works on :class:`Record`: uniformly sampled arrays plus where they came
 from. Several files given together form one data set (a list of records, never concatenated
@@ -202,7 +203,15 @@ def _layout(path: Path) -> _Layout:
             return True
         except ValueError:
             return False
-    return _Layout(delimiter, decimal, not all(number(f) for f in first if f), first)
+
+    has_header = not all(number(f) for f in first if f)
+    if has_header and delimiter is None and len(lines) > 1 and len(first) != len(data):
+        # blank-separated with "time [s]" in the header: the names would slide onto the
+        # wrong columns
+        raise DataError(f"{path}: the header has {len(first)} fields ({', '.join(first)}) but the "
+                        f"rows have {len(data)}; in a blank-separated table write each name "
+                        "without blanks, e.g. 'time_ms' not 'time [ms]'")
+    return _Layout(delimiter, decimal, has_header, first)
 
 
 def read_csv(path: str | Path) -> Record:

@@ -79,6 +79,10 @@ def test_columns_in_unknown_units_or_doubled_are_refused_with_what_to_write(tmp_
     (tmp_path / "bad.csv").write_text("t;u;y\n0;1;2\n0,002;x;3\n")
     with pytest.raises(DataError, match=r"bad.csv:3: 'x' is not a number"):
         load(tmp_path / "bad.csv")
+    # blank-separated with blanks inside the names: they would slide onto the wrong columns
+    (tmp_path / "slid.txt").write_text("time [s] u [%] force [kN]\n0 1 2\n0.002 1 3\n")
+    with pytest.raises(DataError, match=r"header has 6 fields .* but the rows have 3"):
+        load(tmp_path / "slid.txt")
     (tmp_path / "data.xlsx").write_text("")
     with pytest.raises(DataError, match=r"unknown input type; give a table of samples"):
         load(tmp_path / "data.xlsx")
