@@ -41,6 +41,7 @@ from .data import Record
 from .metrics import (AFTER_REVERSAL_S, Evaluation, RecordSimulation, command_levels,
                       demeaned_residual, evaluate, input_correlation_test, is_closed_loop,
                       reversal_mask, simulate_records, window_increments)
+from .parallel import one_blas_thread, run_each, workers_for
 from .timing import jitter_observation
 
 #: candidates refitted on all the data after screening (the best; the runner-up too when the
@@ -306,11 +307,27 @@ def diagnosable_effects(model: PlantModel) -> list[str]:
     return [n for n, c in CATALOGUE.items() if c.diagnosable and n not in have]
 
 
+def _screen_candidate(shared: tuple, name: str) -> F.FitResult | None:
+    """``base + name`` fitted on the screening windows (a grid for the new effect, the rest
+    warm), or None if the effect cannot start from the base model's values."""
+    base_model, screen = shared
+    try:
+        m0 = PlantModel.from_spec(f"{base_model.spec}+{name}", base_model.params())
+    except Exception:  # noqa: BLE001 - an effect that cannot start from here is skipped
+        return None
+    return F.fit_model(screen, m0, grid_effects=[name], delay_search=False, covariance=False,
+                       tol=F.SCREEN_TOL)
+
+
+@one_blas_thread
 def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
              window_s: float = F.WINDOW_S, effects: Sequence[str] | None = None,
              max_screen_windows: int = 150, refit_top: int = REFIT_TOP,
-             progress: Callable[[str], None] | None = None) -> Diagnosis:
-    """Diagnose what ``model`` misses in ``records`` (one data set). See the module docstring."""
+             progress: Callable[[str], None] | None = None, jobs: int | None = None) -> Diagnosis:
+    """Diagnose what ``model`` misses in ``records`` (one data set). See the module docstring.
+
+    ``jobs``: worker processes for the candidates' screening fits (1: none; default: one per
+    CPU when the data are large enough to gain, :func:`analysis.parallel.workers_for`)."""
     say = progress or (lambda msg: None)
     start = PlantModel.from_spec(model) if isinstance(model, str) else model
     effects = list(effects) if effects is not None else diagnosable_effects(start)
@@ -338,16 +355,14 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
     base_obj = math.sqrt(base_w.sum() / _n_eval(full))
     warnings = list(base_fit.warnings)
     judged: list[tuple] = []
-    fits: dict[str, F.FitResult] = {}
-    for name in effects:
-        say(f"trying +{name}")
-        spec = f"{base_model.spec}+{name}"
-        try:
-            m0 = PlantModel.from_spec(spec, base_model.params())
-        except Exception:  # noqa: BLE001 - an effect that cannot start from here is skipped
-            continue
-        fits[name] = F.fit_model(screen, m0, grid_effects=[name], delay_search=False,
-                                 covariance=False, tol=F.SCREEN_TOL)
+    workers = workers_for(len(effects), _n_eval(screen) * len(effects), jobs)
+    screening["workers"] = workers
+    done: dict[str, F.FitResult | None] = {}
+    for name, fit in run_each(_screen_candidate, effects, (base_model, screen), workers):
+        say(f"tried +{name}" if workers > 1 else f"trying +{name}")
+        done[name] = fit
+    # in the catalogue's order, whatever order the workers finished in
+    fits: dict[str, F.FitResult] = {n: done[n] for n in effects if done[n] is not None}
     # rank on all windows with the screening parameters, refit the best on all data
     scored = []
     for name, f in fits.items():

@@ -48,6 +48,7 @@ from plant.model import Drive
 from plant.params import ModelError, Param
 
 from .data import Record
+from .parallel import one_blas_thread
 
 #: default window of the free-run error, s
 WINDOW_S = 2.0
@@ -793,6 +794,7 @@ def _as_model(model: PlantModel | str) -> PlantModel:
     return PlantModel.from_spec(model) if isinstance(model, str) else model
 
 
+@one_blas_thread
 def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
               window_s: float = WINDOW_S, fixed: Iterable[str] = (), starts: str = "auto",
               max_nfev: int | None = None, n_polish: int = 2,

@@ -29,6 +29,7 @@ from plant import PlantModel
 from . import fit as F
 from .data import Record
 from .diagnose import Candidate, Diagnosis, diagnose, judge
+from .parallel import one_blas_thread
 
 #: effects added at most (each step is one diagnosis: all candidates fitted)
 MAX_EFFECTS = 5
@@ -114,16 +115,19 @@ def pick(d: Diagnosis) -> tuple[Candidate | None, str]:
 ALTERNATIVE_RATIO = 0.8
 
 
+@one_blas_thread
 def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
              window_s: float = F.WINDOW_S, max_effects: int = MAX_EFFECTS,
              effects: Sequence[str] | None = None,
-             progress: Callable[[str], None] | None = None) -> Stepwise:
+             progress: Callable[[str], None] | None = None, jobs: int | None = None) -> Stepwise:
     """Add effects to ``model`` one at a time until it explains ``records`` (module docstring).
     If the build-up does not end adequate and one of its partial picks had a close runner-up,
-    the build-up is run once more from there with the runner-up, and the better end is kept."""
+    the build-up is run once more from there with the runner-up, and the better end is kept.
+    ``jobs``: worker processes for each diagnosis (see :func:`analysis.diagnose.diagnose`)."""
     say = progress or (lambda msg: None)
     start = PlantModel.from_spec(model) if isinstance(model, str) else model
-    steps, added, verdict = _forward(records, start, [], [], window_s, max_effects, effects, say)
+    steps, added, verdict = _forward(records, start, [], [], window_s, max_effects, effects, say,
+                                     jobs)
     tried = ""
     if verdict != "adequate":
         branch = _alternative(steps)
@@ -136,7 +140,7 @@ def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
                                 f"lower error")
             alt_steps, alt_added, alt_verdict = _forward(
                 records, alt.fit.model, steps[:i] + [first], added[:i] + [alt.effect], window_s,
-                max_effects, effects, say)
+                max_effects, effects, say, jobs)
             better = (alt_verdict == "adequate") or (alt_steps[-1].over_floor < steps[-1].over_floor)
             tried = (f"; +{alt.effect} tried in place of +{chosen} at step {i + 1}: "
                      + ("kept, it ends closer to the noise" if better else "dropped, it ends no closer"))
@@ -154,14 +158,15 @@ def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
 
 
 def _forward(records, current: PlantModel, steps: list[Step], added: list[str], window_s: float,
-             max_effects: int, effects, say) -> tuple[list[Step], list[str], str]:
+             max_effects: int, effects, say, jobs: int | None = None
+             ) -> tuple[list[Step], list[str], str]:
     """The build-up from ``current`` (reached by ``steps``, having ``added``) to its end."""
     steps, added = list(steps), list(added)
     verdict = "max_effects"
     while True:
         say(f"diagnosing {current.spec}")
         todo = None if effects is None else [e for e in effects if current.effect(e) is None]
-        d = diagnose(records, current, window_s=window_s, effects=todo, progress=say)
+        d = diagnose(records, current, window_s=window_s, effects=todo, progress=say, jobs=jobs)
         floor = d.objective_floor
         step = Step(model=d.base_fit.model.spec, rmse=d.base_eval.rmse,
                     over_floor=d.base_fit.objective_rmse / floor if floor > 0 else math.inf,

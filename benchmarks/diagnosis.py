@@ -56,7 +56,8 @@ def run(quick: bool) -> list[Row]:
     label = f"{n / 1e6:.2g} M samples ({duration / 60:.0f} min at 500 Hz)"
     note = (f"verdict {d.verdict}, best {d.best} ({'right' if found else 'WRONG'}); screened on "
             f"{d.screening['windows_screened']} of {d.screening['windows_total']} windows, refitted "
-            f"on all: {', '.join(d.screening['refit_on_all'])}")
+            f"on all: {', '.join(d.screening['refit_on_all'])}; candidates fitted in "
+            f"{d.screening['workers']} worker process(es), one BLAS thread each")
     return [
         Row(f"stand diagnose, {label}", f"{t_diag:.1f} s",
             f"target < {TARGET_S:.0f} s" + (" (for 1 h; quick run is 5 min)" if quick else ""),

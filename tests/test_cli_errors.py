@@ -66,6 +66,8 @@ def test_existing_run_is_never_overwritten(bus_spec, start_emulator, tmp_path):
 def test_diagnose_max_effects_out_of_range(tmp_path):
     res = stand("diagnose", str(tmp_path / "none.csv"), "--stepwise", "--max-effects", "0")
     assert res.returncode == 2 and "--max-effects 0 is out of range: give 1 or more" in res.stderr
+    res = stand("diagnose", str(tmp_path / "none.csv"), "--jobs", "0")
+    assert res.returncode == 2 and "--jobs 0 is out of range: give 1 or more" in res.stderr
 
 
 def test_every_commands_help_prints_cleanly():

@@ -261,6 +261,27 @@ def test_long_records_are_screened_on_a_subset_and_the_best_refitted_on_all():
     assert d.best_candidate.refit_on == "final"
 
 
+def test_candidates_fitted_in_worker_processes_give_the_same_diagnosis():
+    """--jobs: the candidates' screening fits in forked workers, finishing in any order, give
+    the diagnosis of the serial run (every fit is deterministic and alone)."""
+    rec = meander4(plant("deadzone"), seed=17)
+    effects = ["reversal", "deadzone", "lag", "leakage", "flow_curve"]
+    messages = []
+    serial = diagnose([rec], effects=effects, jobs=1)
+    forked = diagnose([rec], effects=effects, jobs=3, progress=messages.append)
+    assert [m for m in messages if m.startswith("tried +")], "the workers ran"
+    assert_found(forked, "deadzone")
+    key = [(c.effect, c.rmse, c.params) for c in serial.candidates]
+    assert [(c.effect, c.rmse, c.params) for c in forked.candidates] == key
+
+
+def test_the_number_of_workers_follows_the_work_and_the_request():
+    from analysis.parallel import AUTO_MIN_WORK, workers_for
+    assert workers_for(20, AUTO_MIN_WORK - 1) == 1                 # too little to gain
+    assert 1 <= workers_for(20, AUTO_MIN_WORK) <= 8
+    assert workers_for(3, 10, jobs=6) == 3 and workers_for(20, 10, jobs=1) == 1
+
+
 def test_diagnosis_json_has_the_stable_schema():
     import json
     from analysis.compare import jsonable

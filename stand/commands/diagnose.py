@@ -50,6 +50,9 @@ def register(sub) -> None:
                    help="with --stepwise: add each step's model as a version of DIR/history.json "
                         "and write DIR/report.html (the error falling as effects are added; "
                         "see `stand report`)")
+    p.add_argument("--jobs", type=int, default=None, metavar="N",
+                   help="worker processes for the candidates' fits (default: one per CPU, up to "
+                        "8, when the data are large enough to gain; 1: none)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=main)
 
@@ -59,6 +62,9 @@ def main(args: argparse.Namespace) -> int:
     if args.max_effects < 1:
         from gateway.errors import ParameterError
         raise ParameterError(f"--max-effects {args.max_effects} is out of range: give 1 or more")
+    if args.jobs is not None and args.jobs < 1:
+        from gateway.errors import ParameterError
+        raise ParameterError(f"--jobs {args.jobs} is out of range: give 1 or more")
     records = load_records(args.data)
     model, _ = resolve_model(args.model)
     effects = [e.strip() for e in args.effects.split(",") if e.strip()] if args.effects else None
@@ -69,7 +75,8 @@ def main(args: argparse.Namespace) -> int:
         raise ParameterError("--report goes with --stepwise (for one model, use `stand report`)")
     total = 1 + len(effects if effects is not None else diagnosable_effects(model))
     with progress_bar(args, "diagnose", total) as progress:
-        d = diagnose(records, model, window_s=args.window_s, effects=effects, progress=progress)
+        d = diagnose(records, model, window_s=args.window_s, effects=effects, progress=progress,
+                     jobs=args.jobs)
     best = d.best_candidate
     saved = save_model(args, best.fit.model if best is not None else None,
                        f"stand diagnose: {d.summary}")
@@ -176,7 +183,7 @@ def save_model(args: argparse.Namespace, model, summary: str) -> Path | None:
 def main_stepwise(args: argparse.Namespace, records, model, effects) -> int:
     with progress_bar(args, "diagnose --stepwise") as progress:
         r = stepwise(records, model, window_s=args.window_s, max_effects=args.max_effects,
-                     effects=effects, progress=progress)
+                     effects=effects, progress=progress, jobs=args.jobs)
     saved = save_model(args, r.model if len(r.model.effects) or r.verdict == "adequate" else None,
                        f"stand diagnose --stepwise: {r.summary}")
     report = None
