@@ -168,11 +168,29 @@ class _Layout:
     decimal: str
     has_header: bool
     first: list[str]
+    encoding: str = "utf-8-sig"
 
 
-def _open_text(path: Path):
-    return (gzip.open(path, "rt", newline="", encoding="utf-8-sig") if path.suffix.lower() == ".gz"
-            else path.open(newline="", encoding="utf-8-sig"))
+#: bytes read to tell the text encoding
+_SNIFF_BYTES = 1 << 20
+
+
+def _encoding(path: Path) -> str:
+    """UTF-8 (with or without a byte-order mark) if the file's start decodes as such, else
+    Latin-1: what Windows loggers write ('Kraft [kN]', 'Zeit [µs]' in cp1252/ISO 8859-1)."""
+    with (gzip.open(path, "rb") if path.suffix.lower() == ".gz" else path.open("rb")) as fh:
+        head = fh.read(_SNIFF_BYTES)
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        if exc.start < len(head) - 3:   # not a character cut at the sniffed length
+            return "latin-1"
+    return "utf-8-sig"
+
+
+def _open_text(path: Path, encoding: str = "utf-8-sig"):
+    return (gzip.open(path, "rt", newline="", encoding=encoding) if path.suffix.lower() == ".gz"
+            else path.open(newline="", encoding=encoding))
 
 
 def _split(line: str, delimiter: str | None) -> list[str]:
@@ -184,7 +202,8 @@ def _layout(path: Path) -> _Layout:
     and whether the first line is a header (it is unless every field is a number; a leading
     ``#`` is taken off it). Later lines starting with ``#`` are comments."""
     try:
-        with _open_text(path) as fh:
+        encoding = _encoding(path)
+        with _open_text(path, encoding) as fh:
             lines = [ln for ln in (fh.readline() for _ in range(3)) if ln.strip()]
     except (OSError, UnicodeDecodeError, EOFError) as exc:
         raise DataError(f"cannot read {path}: {exc}") from None
@@ -211,7 +230,7 @@ def _layout(path: Path) -> _Layout:
         raise DataError(f"{path}: the header has {len(first)} fields ({', '.join(first)}) but the "
                         f"rows have {len(data)}; in a blank-separated table write each name "
                         "without blanks, e.g. 'time_ms' not 'time [ms]'")
-    return _Layout(delimiter, decimal, has_header, first)
+    return _Layout(delimiter, decimal, has_header, first, encoding)
 
 
 def read_csv(path: str | Path) -> Record:
@@ -235,6 +254,8 @@ def read_csv(path: str | Path) -> Record:
                      "(s, % of the full valve command, kgf)"]
     except ColumnError as exc:
         raise DataError(f"{path}: {exc}") from None
+    if layout.encoding == "latin-1":
+        notes.append("the file is not UTF-8: read as Latin-1 (ISO 8859-1)")
     cols = None
     if layout.delimiter is not None:
         cols = _read_table_arrow(path, layout, columns)
@@ -259,7 +280,8 @@ def _read_table_arrow(path: Path, layout: _Layout, columns: dict) -> dict | None
     try:
         table = pacsv.read_csv(
             path, read_options=pacsv.ReadOptions(column_names=names,
-                                                 skip_rows=1 if layout.has_header else 0),
+                                                 skip_rows=1 if layout.has_header else 0,
+                                                 encoding=layout.encoding.replace("-sig", "")),
             parse_options=pacsv.ParseOptions(delimiter=layout.delimiter),
             convert_options=pacsv.ConvertOptions(
                 include_columns=list(wanted.values()),
@@ -279,7 +301,7 @@ def _read_table_lines(path: Path, layout: _Layout, columns: dict) -> dict:
     order = list(columns)
     rows = []
     try:
-        with _open_text(path) as fh:
+        with _open_text(path, layout.encoding) as fh:
             for lineno, line in enumerate(fh, start=1):
                 if lineno == 1 and layout.has_header:
                     continue
@@ -339,7 +361,8 @@ def _is_capture(path: Path) -> bool:
         return False
     if suffixes[-1] == ".csv":
         try:
-            with (gzip.open(path, "rt") if path.suffix.lower() == ".gz" else path.open()) as fh:
+            with (gzip.open(path, "rt", errors="replace") if path.suffix.lower() == ".gz"
+                  else path.open(errors="replace")) as fh:
                 header = fh.readline().lower()
         except OSError:
             return False

@@ -94,3 +94,25 @@ def test_a_time_column_that_looks_like_milliseconds_is_said(samples, tmp_path):
     assert any("2 s apart: if the time column is not in seconds" in n for n in rec.notes)
     rec = load(_write(tmp_path / "s.csv", "t,u,y", [t, u, y]))
     assert not any("apart" in n for n in rec.notes)
+
+
+@pytest.mark.parametrize("name,delimiter", [("latin1.csv", ","), ("latin1.txt.gz", " ")])
+def test_a_latin_1_table_from_a_windows_logger_is_read_with_a_note(tmp_path, samples, name, delimiter):
+    """'µs' written as the single byte 0xB5 (ISO 8859-1/cp1252), not UTF-8's two: it used to
+    be refused as 'cannot read'."""
+    t, u, y, _ = samples
+    text = "\n".join([f"time[µs]{delimiter}u{delimiter}force[kN]"]
+                     + [f"{a * 1e6:.0f}{delimiter}{b:g}{delimiter}{c * G0 * 1e-3:.12g}"
+                        for a, b, c in zip(t, u, y)]) + "\n"
+    raw = text.encode("latin-1")
+    assert b"\xb5" in raw and b"\xc2" not in raw
+    path = tmp_path / name
+    if name.endswith(".gz"):
+        with gzip.open(path, "wb") as fh:
+            fh.write(raw)
+    else:
+        path.write_bytes(raw)
+    rec = load(path)
+    assert np.allclose(rec.t, t) and np.allclose(rec.y, y, rtol=1e-7)
+    assert any("read as Latin-1" in n for n in rec.notes)
+    assert any("'time[µs]' read as time in µs" in n for n in rec.notes), rec.notes
