@@ -16,9 +16,12 @@ r"""Find what the model is missing: fit it, add each catalogue effect in turn, r
    * it *earns its parameters* if it removes at least half of the error above the noise floor,
      lowers the RMSE by at least :data:`MIN_IMPROVEMENT`, and does so consistently over the
      windows (paired z over the windows ≥ :data:`MIN_Z`);
-   * verdict ``missing_effect`` (the best earning candidate), ``unexplained`` (the error stays
-     clearly above the noise, :data:`UNEXPLAINED_RATIO`, and no effect removes it: the residual is
-     described — dominant frequency, amplitude, regimes), or ``adequate``;
+   * verdict ``missing_effect`` (the best earning candidate), ``varies_between_records`` (no
+     catalogue effect explains the error as well as a gain or a trend of its own for every
+     record does: the stand changed between the runs, :mod:`analysis.between_records`),
+     ``unexplained`` (the error stays clearly above the noise, :data:`UNEXPLAINED_RATIO`, and
+     nothing removes it: the residual is described — dominant frequency, amplitude, regimes),
+     or ``adequate``;
 
 4. describes the residual pattern of the starting model in plain words (reversal transients,
    extend/retract slopes, gain per command level, force dependence, periodic content) and warns
@@ -31,31 +34,23 @@ from dataclasses import asdict, dataclass, field
 from typing import Callable, Sequence
 
 import numpy as np
-from scipy import stats
 
 from plant import CATALOGUE, PlantModel
 from plant.effects import effect_class
 
 from . import fit as F
+from .between_records import BetweenRecords, between_records
 from .data import Record
 from .metrics import (AFTER_REVERSAL_S, Evaluation, RecordSimulation, command_levels,
                       demeaned_residual, evaluate, input_correlation_test, is_closed_loop,
                       reversal_mask, simulate_records, window_increments)
 from .parallel import one_blas_thread, run_each, workers_for
+from .significance import MIN_EXCESS_SHARE, MIN_IMPROVEMENT, MIN_Z, error_cut  # noqa: F401 (criteria)
 from .timing import jitter_observation
 
 #: candidates refitted on all the data after screening (the best; the runner-up too when the
 #: data are short enough to be screened whole)
 REFIT_TOP = 1
-#: a candidate must lower the (objective) RMSE by at least this fraction
-MIN_IMPROVEMENT = 0.05
-#: ... and remove at least this share of the error above the noise floor
-MIN_EXCESS_SHARE = 0.65
-#: ... beyond what fitting noise can do: likelihood-ratio statistic N·ΔMSE/floor² above the
-#: χ²(k) quantile of this tail probability (k = the effect's parameters)
-LR_ALPHA = 1e-6
-#: ... and consistently over windows: paired z of the per-window squared-error reduction
-MIN_Z = 2.0
 #: base RMSE this far above the noise floor, unexplained by any effect -> "unexplained"
 UNEXPLAINED_RATIO = 1.12
 #: below this ratio the model is within the noise: nothing to explain
@@ -74,6 +69,11 @@ NOISE_GROWTH_MAX = 2.0
 #: separable" from it (comparing what is left, not what is removed: 63 % and 93 % removed leave
 #: errors five times apart, which the data do separate)
 AMBIGUITY_RATIO = 1.1
+
+#: what separates a drift across the runs from an effect of the command level
+REPEAT_FIRST_RUN = ("the first run repeated at the end of the campaign (the same command, "
+                    "later): an effect of the command level gives it the first run's gain, a "
+                    "drift across the runs the last run's")
 
 #: BIC differences below this are a tie (Kass & Raftery: under 2 is "not worth more than a bare
 #: mention"); tied candidates are ranked in catalogue order
@@ -261,7 +261,8 @@ class Unexplained:
 
 @dataclass
 class Diagnosis:
-    verdict: str                  #: "adequate" | "missing_effect" | "unexplained"
+    #: "adequate" | "missing_effect" | "varies_between_records" | "unexplained"
+    verdict: str
     model: str                    #: the starting model
     best: str | None
     base_fit: F.FitResult = field(repr=False)
@@ -275,6 +276,9 @@ class Diagnosis:
     summary: str
     screening: dict
     warnings: list[str] = field(default_factory=list)
+    #: the starting model with a g and/or Δ of its own per record (None: one record, or the
+    #: error within the noise)
+    between: BetweenRecords | None = None
 
     @property
     def best_candidate(self) -> Candidate | None:
@@ -296,6 +300,7 @@ class Diagnosis:
                 "observations": self.observations,
                 "ambiguities": [{**asdict(a), "text": a.text()} for a in self.ambiguities],
                 "noise_sigma": self.noise_sigma, "screening": self.screening,
+                "between_records": self.between.to_dict() if self.between else None,
                 "warnings": self.warnings}
 
 
@@ -389,8 +394,7 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
                 ref_w, ref_rmse = screen_ref
             else:
                 ref_w, ref_rmse = base_w, base_eval.rmse
-            ref_obj = math.sqrt(ref_w.sum() / base_eval.n)
-            out.append(judge(name, f, w, rmse, ref_w, ref_obj, ref_rmse, fl, base_eval.n, refit))
+            out.append(judge(name, f, w, rmse, ref_w, ref_rmse, fl, base_eval.n, refit))
         return rank_candidates(out)
 
     cands = judge_all(floor)
@@ -417,7 +421,28 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
     observations = describe_residual(base_eval)
     ambiguities = _ambiguities(records, base_fit, cands, best)
     unexplained = None
-    if best is not None:
+    between = None
+    if ratio > UNEXPLAINED_RATIO:
+        say("freeing g and Δ per record")
+        between = between_records(base_model, full, records, floor)
+    if between is not None and between.stats.earns and between.follows == "order or level":
+        ambiguities.append(Ambiguity(
+            effects=[best.effect if best is not None else "a gain that depends on the command",
+                     f"a {between.varies} that changed between the runs"],
+            reason=(f"the records' own {between.varies}s would explain the error as well, and "
+                    f"these records cannot tell a drift across the runs from a dependence on "
+                    f"the command level (their levels rise with their order, or they are few)."),
+            experiment=REPEAT_FIRST_RUN))
+    if between is not None and between.stats.earns and between.between_runs and (
+            best is None or best.objective_rmse > AMBIGUITY_RATIO * between.stats.objective_rmse):
+        verdict = "varies_between_records"
+        summary = f"varies between records: {between.text}"
+        if best is not None:
+            observations.append(
+                f"+{best.effect} would lower the error by {100 * best.improvement:.0f} %, a "
+                f"{between.varies} per record by {100 * between.stats.improvement:.0f} %")
+        best = None
+    elif best is not None:
         verdict = "missing_effect"
         after = best.objective_rmse / floor if floor > 0 else math.inf
         summary = (f"missing effect: {best.effect} — adding it lowers the windowed RMSE from "
@@ -425,7 +450,14 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
         if after > UNEXPLAINED_RATIO:
             warnings.append(f"with {best.effect} the error is still {after:.2f}× the noise floor: "
                             f"diagnose again with --model {best.spec}")
+            left = between_records(best.fit.model, full, records, floor)
+            if left is not None and left.stats.helps and left.follows != "level":
+                observations.append(f"what {best.spec} leaves differs between records: "
+                                    f"{left.text}")
     elif ratio > UNEXPLAINED_RATIO:
+        if between is not None and between.stats.helps:
+            observations.append(between.text + ("" if between.stats.earns else
+                                                ": part of the missing behaviour, not all of it"))
         verdict = "unexplained"
         unexplained = describe_unexplained(base_eval, floor, ratio, base_fit)
         summary = (f"unexplained: the error is {ratio:.2f}× the noise floor and no catalogue "
@@ -449,7 +481,7 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
                      base_fit=base_fit, base_eval=base_eval, candidates=cands, noise_sigma=sigma,
                      objective_floor=floor, observations=observations, ambiguities=ambiguities,
                      unexplained=unexplained, summary=summary, screening=screening,
-                     warnings=warnings)
+                     warnings=warnings, between=between)
 
 
 def rank_candidates(cands: Sequence[Candidate]) -> list[Candidate]:
@@ -489,30 +521,15 @@ def objective_floor(pieces: Sequence[F.Piece], sigma: float) -> float:
 
 
 def judge(name: str, f: F.FitResult, w: np.ndarray, rmse: float, base_w: np.ndarray,
-           base_obj: float, base_rmse: float, floor: float, n: int, refit: str) -> Candidate:
+          base_rmse: float, floor: float, n: int, refit: str) -> Candidate:
     """Judge one candidate against its reference fit of the starting model (same windows)."""
-    obj = math.sqrt(w.sum() / n)
-    improvement = 1.0 - obj / base_obj if base_obj > 0 else 0.0
-    excess = base_obj ** 2 - floor ** 2
-    gain = base_obj ** 2 - obj ** 2
-    share = gain / excess if excess > 0 else 0.0
-    d = base_w - w
-    z = float(d.mean() / (d.std(ddof=1) / math.sqrt(len(d)))) if len(d) > 1 and d.std() > 0 else (
-        math.inf if d.mean() > 0 else 0.0)
-    warnings = list(f.warnings)
-    k = max(1, len(f.free) - 3)
-    lr = n * gain / floor ** 2 if floor > 0 else math.inf
-    significant = lr >= stats.chi2.isf(LR_ALPHA, k)
-    # the per-window z guards small gains against a few lucky windows; a large gain that the
-    # likelihood-ratio test calls significant needs no window-by-window consistency
-    consistent = z >= MIN_Z or improvement >= 0.2
-    helps = bool(improvement >= MIN_IMPROVEMENT and significant and consistent)
-    earns = helps and share >= MIN_EXCESS_SHARE
+    c = error_cut(w, base_w, floor, n, len(f.free) - 3)
     return Candidate(effect=name, spec=f.model.spec, params=f.model.params(), rmse=rmse,
-                     objective_rmse=obj, improvement=improvement,
+                     objective_rmse=c.objective_rmse, improvement=c.improvement,
                      rmse_reduction=1.0 - rmse / base_rmse if base_rmse > 0 else 0.0,
-                     excess_share=share, z=z, lr=lr, earns=earns, helps=helps,
-                     bic=n * math.log(max(obj, 1e-300) ** 2) + len(f.free) * math.log(n), refit_on=refit, warnings=warnings, fit=f)
+                     excess_share=c.excess_share, z=c.z, lr=c.lr, earns=c.earns, helps=c.helps,
+                     bic=n * math.log(max(c.objective_rmse, 1e-300) ** 2) + len(f.free) * math.log(n),
+                     refit_on=refit, warnings=list(f.warnings), fit=f)
 
 
 # ------------------------------------------------------------------------------------------

@@ -405,22 +405,20 @@ def _linear_in_gain_and_trend(spec: str) -> bool:
     return True
 
 
-def project_gain_trend(spec: str, values: Mapping[str, float], pieces: Sequence[Piece],
-                       fit_g: bool = True, fit_delta: bool = True) -> tuple[dict[str, float], float]:
-    """Solve g and Δ by linear least squares for the other parameters fixed.
+def gain_trend_columns(spec: str, values: Mapping[str, float], pieces: Sequence[Piece],
+                       fit_g: bool = True, fit_delta: bool = True
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The objective's residual as an affine function of g and Δ (the other parameters fixed):
+    ``residual(β) ≈ s1 + A·(β − β0)`` with β = (g, Δ) (only those fitted). Returns ``s1``
+    (the residual at ``β0``), ``A`` (one column per fitted parameter) and ``β0``.
 
-    With window starts re-estimated the objective residual is ``demean(g·A + Δ·B − y)`` (A: the
-    windowed response to the flow at unit gain, B: time since the window start), exactly, when
-    no effect makes the rate depend on the force and there is no disturbance: one simulation
-    gives it. Otherwise ``ŷ ≈ F + g·A + Δ·B`` is taken from three simulations around the current
-    g and Δ, one Gauss-Newton step (exact for ``leakage``, first order for ``load_pressure``,
-    ``stiffness`` and ``stiction``, whose play is crossed at a speed set by g). Returns the
-    updated values and the sum of squared errors."""
+    With window starts re-estimated the residual is ``demean(g·A + Δ·B − y)`` (A: the windowed
+    response to the flow at unit gain, B: time since the window start), exactly, when no effect
+    makes the rate depend on the force and there is no disturbance: one simulation gives it.
+    Otherwise ``ŷ ≈ F + g·A + Δ·B`` is taken from three simulations around the current g and Δ,
+    one Gauss-Newton step (exact for ``leakage``, first order for ``load_pressure``,
+    ``stiffness`` and ``stiction``, whose play is crossed at a speed set by g)."""
     vals = dict(values)
-    specs = dict(PlantModel.from_spec(spec, vals).param_specs())
-    if not (fit_g or fit_delta):
-        r = residual(PlantModel.from_spec(spec, vals), pieces)
-        return vals, float(r @ r)
     linear = _linear_in_gain_and_trend(spec)
     if not fit_g:
         g0 = vals["g"]
@@ -445,12 +443,23 @@ def project_gain_trend(spec: str, values: Mapping[str, float], pieces: Sequence[
         if fit_delta:
             s3 = residual(PlantModel.from_spec(spec, {**vals, "g": g0, "delta": d0 + 1.0}), pieces)
             cols.append(s3 - s1)
-    A = np.column_stack(cols)
-    # residual(β) ≈ s1 + A·(β − β0); minimize its norm
+    beta0 = np.array([g0] * fit_g + [d0] * fit_delta)
+    return s1, np.column_stack(cols), beta0
+
+
+def project_gain_trend(spec: str, values: Mapping[str, float], pieces: Sequence[Piece],
+                       fit_g: bool = True, fit_delta: bool = True) -> tuple[dict[str, float], float]:
+    """Solve g and Δ by linear least squares for the other parameters fixed (see
+    :func:`gain_trend_columns`). Returns the updated values and the sum of squared errors."""
+    vals = dict(values)
+    if not (fit_g or fit_delta):
+        r = residual(PlantModel.from_spec(spec, vals), pieces)
+        return vals, float(r @ r)
+    specs = dict(PlantModel.from_spec(spec, vals).param_specs())
+    s1, A, beta0 = gain_trend_columns(spec, vals, pieces, fit_g, fit_delta)
     step, *_ = np.linalg.lstsq(A, -s1, rcond=None)
     names = ["g"] * fit_g + ["delta"] * fit_delta
-    beta = np.array([g0] * fit_g + [d0] * fit_delta) + step
-    for n, b in zip(names, beta):
+    for n, b in zip(names, beta0 + step):
         p = specs[n]
         vals[n] = float(min(max(b, p.lower), p.upper)) if math.isfinite(b) else p.default
     r = residual(PlantModel.from_spec(spec, vals), pieces)

@@ -8,9 +8,11 @@ selection with a backward check, like stepwise regression):
 
 1. diagnoses the current model (start: the paper's base model);
 2. adds the best candidate that *earns its parameters*, or, when none does, the best one that
-   *helps* (lowers the error by at least :data:`~analysis.diagnose.MIN_IMPROVEMENT`,
+   *helps* (lowers the error by at least :data:`~analysis.significance.MIN_IMPROVEMENT`,
    significantly and consistently over the windows: part of the missing behaviour);
-3. stops when the diagnosis says *adequate*, when nothing helps, or after ``max_effects``;
+3. stops when the diagnosis says *adequate*, when a g or Δ of its own per record explains the
+   rest (*varies between records*: the stand changed between the runs), when nothing helps, or
+   after ``max_effects``;
 4. checks every added effect again with the others in place (an effect picked early can become
    redundant once a later one explains the same error): it is refitted without it, and dropped
    if it no longer helps. What stays is reported with how much worse the error would be
@@ -73,7 +75,8 @@ class Stepwise:
     steps: list[Step]
     model: PlantModel             #: the final model (after the backward check), fitted
     fit: F.FitResult = field(repr=False)
-    verdict: str                  #: "adequate" | "unexplained" | "max_effects"
+    #: "adequate" | "varies_between_records" | "unexplained" | "max_effects"
+    verdict: str
     needed: list[Needed]
     summary: str
 
@@ -100,6 +103,9 @@ def pick(d: Diagnosis) -> tuple[Candidate | None, str]:
                    f"{100 * max(c.excess_share, 0):.0f} % of the excess over the noise")
     if d.verdict == "adequate":
         return None, "adequate: the error is within the noise"
+    if d.verdict == "varies_between_records":
+        return None, (f"a {d.between.varies} of its own per record explains the error better "
+                      f"than any catalogue effect: the stand changed between the runs")
     helping = [c for c in d.candidates if c.helps]
     if not helping:
         return None, "no catalogue effect lowers the error significantly"
@@ -178,7 +184,8 @@ def _forward(records, current: PlantModel, steps: list[Step], added: list[str], 
             break
         step.why = why
         if c is None:
-            verdict = "adequate" if d.verdict == "adequate" else "unexplained"
+            verdict = d.verdict if d.verdict in ("adequate", "varies_between_records") \
+                else "unexplained"
             break
         step.added = c.effect
         added.append(c.effect)
@@ -224,7 +231,7 @@ def backward_check(records: Sequence[Record], full: F.FitResult, added: Sequence
             w_red, rmse_red = F.errors(reduced.model, pieces)
             obj_red = math.sqrt(w_red.sum() / n)
             # judged as a candidate added to the reduced model, like in the diagnosis
-            c = judge(name, full, w_full, rmse_full, w_red, obj_red, rmse_red, floor, n, "final")
+            c = judge(name, full, w_full, rmse_full, w_red, rmse_red, floor, n, "final")
             checks.append((c.helps, obj_red / obj_full if obj_full > 0 else math.inf, name,
                            reduced, obj_red))
         weakest = min(checks, key=lambda x: (x[0], x[1]), default=None)
@@ -247,6 +254,8 @@ def _summary(steps: list[Step], verdict: str, fit: F.FitResult, needed: list[Nee
     tail = f"; dropped again: {', '.join(dropped)}" if dropped else ""
     if verdict == "adequate":
         head = f"adequate with {fit.model.spec}"
+    elif verdict == "varies_between_records":
+        head = f"{fit.model.spec} explains each record, not all of them with one g and Δ ({last.between.text})"
     elif verdict == "unexplained":
         head = (f"{fit.model.spec} is the closest the catalogue gets; the rest is unexplained"
                 + (f" ({last.unexplained.description})" if last.unexplained else ""))

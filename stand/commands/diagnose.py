@@ -101,6 +101,8 @@ def main(args: argparse.Namespace) -> int:
     if best is not None:
         print()
         print(f"fitted {best.spec}: " + ", ".join(f"{k} = {v:.4g}" for k, v in best.params.items()))
+    if d.between is not None and d.between.stats.helps:
+        print_between(d.between)
     print()
     print("what the residual of " + d.base_fit.model.spec + " shows:")
     for o in d.observations:
@@ -129,6 +131,31 @@ def plots_and_head(args: argparse.Namespace, result, records, plotters: dict) ->
     print(f"  {result.summary}")
     print()
     return files
+
+
+#: records listed one by one at most; more are shown by their first and last ones
+BETWEEN_ROWS = 16
+
+
+def print_between(b) -> None:
+    """The records' own g and Δ (analysis.between_records), a line each."""
+    st = b.stats
+    print()
+    print(f"{b.model} with a {b.varies} of its own per record: objective error "
+          f"{-100 * st.improvement:+.1f}%, {100 * max(st.excess_share, 0):.0f}% of the excess "
+          f"({'earns' if st.earns else 'part of it'}; {b.extra_params} more parameters)")
+    rows = list(enumerate(b.records))
+    if len(rows) > BETWEEN_ROWS:
+        rows = rows[:BETWEEN_ROWS // 2] + [None] + rows[-BETWEEN_ROWS // 2:]
+    print(f"  {'#':>3s} {'record':32s} {'g kgf/s/%':>10s} {'× shared':>8s} {'Δ kgf/s':>8s} "
+          f"{'|u| %':>6s}")
+    for row in rows:
+        if row is None:
+            print(f"  {'...':>3s}")
+            continue
+        i, r = row
+        print(f"  {i + 1:3d} {r.source[-32:]:32s} {r.g:10.4g} {r.gain:8.3f} {r.delta:+8.3g} "
+              f"{r.level:6.3g}")
 
 
 @contextlib.contextmanager
