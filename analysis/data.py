@@ -175,10 +175,25 @@ class _Layout:
 _SNIFF_BYTES = 1 << 20
 
 
+def _open(path: Path, mode: str, **kwargs):
+    """``path`` opened in ``mode`` ("rb", "rt"), through gzip if it ends in ``.gz``."""
+    return (gzip.open(path, mode, **kwargs) if path.suffix.lower() == ".gz"
+            else path.open(mode, **kwargs))
+
+
+def _suffix(path: Path) -> str:
+    """The file's type suffix, lower case, ``.gz`` looked through (``"a.CSV.gz"`` -> ``.csv``;
+    ``""``: none)."""
+    suffixes = [s.lower() for s in path.suffixes]
+    if suffixes and suffixes[-1] == ".gz":
+        suffixes = suffixes[:-1]
+    return suffixes[-1] if suffixes else ""
+
+
 def _encoding(path: Path) -> str:
     """UTF-8 (with or without a byte-order mark) if the file's start decodes as such, else
     Latin-1: what Windows loggers write ('Kraft [kN]', 'Zeit [µs]' in cp1252/ISO 8859-1)."""
-    with (gzip.open(path, "rb") if path.suffix.lower() == ".gz" else path.open("rb")) as fh:
+    with _open(path, "rb") as fh:
         head = fh.read(_SNIFF_BYTES)
     try:
         head.decode("utf-8")
@@ -189,8 +204,7 @@ def _encoding(path: Path) -> str:
 
 
 def _open_text(path: Path, encoding: str = "utf-8-sig"):
-    return (gzip.open(path, "rt", newline="", encoding=encoding) if path.suffix.lower() == ".gz"
-            else path.open(newline="", encoding=encoding))
+    return _open(path, "rt", newline="", encoding=encoding)
 
 
 def _split(line: str, delimiter: str | None) -> list[str]:
@@ -354,15 +368,12 @@ def read_run(path: str | Path) -> Record:
 def _is_capture(path: Path) -> bool:
     """A bus capture by its suffixes (``.log``, ``.blf``, ``.asc.gz``, ...); a ``.csv`` is a
     capture only if its header is python-can's (``timestamp,arbitration_id,...``)."""
-    suffixes = [s.lower() for s in path.suffixes]
-    if suffixes and suffixes[-1] == ".gz":
-        suffixes = suffixes[:-1]
-    if not suffixes:
+    suffix = _suffix(path)
+    if not suffix:
         return False
-    if suffixes[-1] == ".csv":
+    if suffix == ".csv":
         try:
-            with (gzip.open(path, "rt", errors="replace") if path.suffix.lower() == ".gz"
-                  else path.open(errors="replace")) as fh:
+            with _open(path, "rt", errors="replace") as fh:
                 header = fh.readline().lower()
         except OSError:
             return False
@@ -371,7 +382,7 @@ def _is_capture(path: Path) -> bool:
         from captures import SUFFIXES
     except ImportError:  # pragma: no cover - captures ships with the project
         return False
-    return suffixes[-1] in SUFFIXES
+    return suffix in SUFFIXES
 
 
 def load(path: str | Path) -> Record:
@@ -386,10 +397,7 @@ def load(path: str | Path) -> Record:
     if _is_capture(path):
         from captures import load_capture
         return load_capture(path)
-    suffixes = [x.lower() for x in path.suffixes]
-    if suffixes and suffixes[-1] == ".gz":
-        suffixes = suffixes[:-1]
-    if suffixes and suffixes[-1] in TABLE_SUFFIXES:
+    if _suffix(path) in TABLE_SUFFIXES:
         return read_csv(path)
     raise DataError(f"{path}: unknown input type; give a table of samples (.csv, .tsv, .txt, .dat: "
                     "t,u,y[,r]), a run directory or a bus capture (.log, .asc, .blf, .trc, .mf4); "
