@@ -13,9 +13,9 @@ r"""Find what the model is missing: fit it, add each catalogue effect in turn, r
    starts re-estimated; its noise floor is ``σ²·(1 − 1/W)``, σ from the force's second
    differences):
 
-   * it *earns its parameters* if it removes at least half of the error above the noise floor,
-     lowers the RMSE by at least :data:`MIN_IMPROVEMENT`, and does so consistently over the
-     windows (paired z over the windows ≥ :data:`MIN_Z`);
+   * it *earns its parameters* if it removes at least :data:`MIN_EXCESS_SHARE` of the error
+     above the noise floor, lowers the RMSE by at least :data:`MIN_IMPROVEMENT`, and does so
+     consistently over the windows (paired z over the windows ≥ :data:`MIN_Z`);
    * verdict ``missing_effect`` (the best earning candidate), ``varies_between_records`` (no
      catalogue effect explains the error as well as a gain or a trend of its own for every
      record does: the stand changed between the runs, :mod:`analysis.between_records`),
@@ -45,7 +45,7 @@ from .metrics import (AFTER_REVERSAL_S, Evaluation, RecordSimulation, command_le
                       demeaned_residual, evaluate, input_correlation_test, is_closed_loop,
                       reversal_mask, simulate_records, window_increments)
 from .parallel import one_blas_thread, run_each, workers_for
-from .significance import MIN_EXCESS_SHARE, MIN_IMPROVEMENT, MIN_Z, error_cut  # noqa: F401 (criteria)
+from .significance import MIN_EXCESS_SHARE, MIN_IMPROVEMENT, MIN_Z, error_cut
 from .timing import jitter_observation
 
 #: candidates refitted on all the data after screening (the best; the runner-up too when the
