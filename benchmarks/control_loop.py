@@ -25,15 +25,17 @@ PERIOD_S = 0.002
 SYNC_ID = 0x80
 
 
-def lockstep_cycles_per_s(cycles: int) -> tuple[float, float, dict[str, float]]:
-    """Lockstep cycles per second, the cycles run, and where a cycle's time goes."""
+def lockstep_cycles_per_s(cycles: int) -> tuple[float, float, dict[str, float], dict[str, float]]:
+    """Lockstep cycles per second, the cycles run, where a cycle's time goes and how the
+    cycle times spread."""
     bus = f"udp_loopback:bench-ls-{os.getpid()}"
     with tempfile.TemporaryDirectory() as tmp, EmulatorProcess(bus, load_plant_config(), lockstep=True):
         with Gateway(GatewayConfig(bus=bus, lockstep=True)) as gw:
             res = gw.run(Meander(5, 4, max(1, round(cycles * PERIOD_S / 4))), f"{tmp}/run", progress=False)
         parts = cycle_breakdown(f"{tmp}/run/capture.log")
+        spread = cycle_spread(f"{tmp}/run/capture.log")
     s = res.outcome.stats
-    return s.cycles / s.wall_s, s.cycles, parts
+    return s.cycles / s.wall_s, s.cycles, parts, spread
 
 
 #: the four legs of a lockstep cycle, between the send stamps of its frames (in bus order)
@@ -56,6 +58,21 @@ def cycle_breakdown(capture: str) -> dict[str, float]:
             for i in range(4):
                 legs[i].append(stamps[a + i + 1] - stamps[a + i])
     return {name: float(np.median(v) * 1e6) if v else float("nan") for name, v in zip(LEGS, legs)}
+
+
+def cycle_spread(capture: str) -> dict[str, float]:
+    """How the lockstep cycle times (SYNC to SYNC send stamps, µs) spread: mean, p50, p90,
+    p99, and the share of the run's time spent in cycles longer than twice the median (the
+    tail: the emulator computing a plant block ahead, the capture thread holding the GIL,
+    the host)."""
+    stamps = np.array([m.timestamp for m in can.LogReader(capture) if m.arbitration_id == SYNC_ID])
+    d = np.diff(stamps) * 1e6
+    if d.size == 0:
+        return {"mean": float("nan"), "p50": float("nan"), "p90": float("nan"),
+                "p99": float("nan"), "tail_share": float("nan")}
+    p50 = float(np.median(d))
+    return {"mean": float(d.mean()), "p50": p50, "p90": float(np.percentile(d, 90)),
+            "p99": float(np.percentile(d, 99)), "tail_share": float(d[d > 2 * p50].sum() / d.sum())}
 
 
 def _echo_datagrams(sock, peer, n: int, spin: bool) -> None:
@@ -155,7 +172,7 @@ def realtime_jitter(duration_s: float) -> dict:
 
 
 def run(quick: bool) -> list[Row]:
-    rate, n, parts = lockstep_cycles_per_s(4000 if quick else 30000)
+    rate, n, parts, spread = lockstep_cycles_per_s(4000 if quick else 30000)
     floor, how = bare_round_trips(20000 if quick else 100000)   # short runs read low
     rt = realtime_jitter(4.0 if quick else 60.0)
     return [
@@ -168,6 +185,13 @@ def run(quick: bool) -> list[Row]:
             f"{sum(parts.values()) / (PERIOD_S / 100 * 1e6):.1f}x over",
             f"mean cycle {1e6 / rate:.0f} µs; from the frames' send stamps in the run's capture: "
             "emulator answer, its 2nd send, transit + gateway decision, gateway bookkeeping"),
+        Row("lockstep cycle times (SYNC to SYNC)",
+            f"mean {spread['mean']:.0f} / p50 {spread['p50']:.0f} / p90 {spread['p90']:.0f} / "
+            f"p99 {spread['p99']:.0f} µs",
+            f"100x real time: {PERIOD_S / 100 * 1e6:.0f} µs per cycle", "",
+            f"{spread['tail_share']:.0%} of the run's time in cycles over twice the median: at "
+            "the median the loop would run "
+            f"{PERIOD_S / (spread['p50'] * 1e-6):.0f}x real time"),
         Row("floor: bare UDP round trip, 2 Python processes", f"{floor:,.0f} round trips/s",
             f"100x real time: {100 / PERIOD_S:,.0f} cycles/s, one round trip each at least",
             f"{floor * PERIOD_S:.0f}x real time with no work",

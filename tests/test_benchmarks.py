@@ -23,7 +23,7 @@ def test_every_benchmark_runs_in_quick_mode_and_prints_its_rows():
     for name in discover():
         assert f"running {name}" in res.stderr
     for figure in ("cycles/s", "x real time", "frames/s", "round trips/s", "% bus load",
-                   "stand diagnose", "SYNC jitter", "host floor", "where the time goes",
+                   "stand diagnose", "SYNC jitter", "host floor", "where the time goes", "cycle times",
                    "bare UDP round trip"):
         assert figure in table, figure
 
@@ -48,3 +48,22 @@ def test_the_round_trip_floor_gives_up_with_a_reason_when_the_echo_process_does_
     monkeypatch.undo()
     rate, how = control_loop.bare_round_trips(300, timeout_s=60)   # and works with one that does
     assert rate > 0 and how in ("polling", "sleeping")
+
+
+def test_cycle_spread_reads_the_sync_intervals_of_a_capture_and_their_tail(tmp_path):
+    import can
+    from benchmarks.control_loop import SYNC_ID, cycle_spread
+    path = tmp_path / "capture.log"
+    gaps = [50e-6] * 9 + [200e-6]                     # nine cycles of 50 µs, one of 200 µs
+    t = 1_700_000_000.0
+    with can.Logger(str(path)) as log:
+        for gap in [0.0] + gaps:
+            t += gap
+            log.on_message_received(can.Message(timestamp=t, arbitration_id=SYNC_ID, data=b"",
+                                                is_extended_id=False))
+            log.on_message_received(can.Message(timestamp=t + 10e-6, arbitration_id=0x181,
+                                                data=bytes(4), is_extended_id=False))
+    spread = cycle_spread(str(path))
+    assert abs(spread["p50"] - 50) < 2
+    assert abs(spread["mean"] - 65) < 2
+    assert abs(spread["tail_share"] - 200 / 650) < 0.01
