@@ -3,8 +3,11 @@
 A recording from another logger rarely says ``t,u,y``: it says ``time [ms]``, ``force_N``,
 ``command (%)`` or nothing at all. :func:`map_header` finds the time, valve command, force
 and (optional) reference columns by name, reads a unit written after the name (``name [unit]``,
-``name (unit)``, ``name_unit``, ``name/unit``, ``name unit``) and gives the factor that
-converts it to the analysis's units: s, % of the valve's full command, kgf.
+``name (unit)``, ``name_unit``, ``name/unit``, ``name unit``, ``name, unit``) and gives the
+factor that converts it to the analysis's units: s, % of the valve's full command, kgf.
+Names and units are known in English, Russian (``Время, с``, ``Усилие, кгс``,
+``Управление, %``: the language of the stand's paper and its labs) and German (``Zeit [ms]``,
+``Kraft [kN]``).
 
 Columns it does not recognise are ignored (a logger's extra channels). A column that names
 a signal in a unit it does not know is not guessed at: if that signal has no other column,
@@ -19,26 +22,37 @@ from dataclasses import dataclass
 G0 = 9.80665
 
 _FORCE_UNITS = {"kgf": 1.0, "kp": 1.0, "N": 1.0 / G0, "daN": 10.0 / G0, "kN": 1000.0 / G0,
-                "tf": 1000.0}
+                "tf": 1000.0,
+                # as Russian logs write them (the stand's paper, its users)
+                "кгс": 1.0, "Н": 1.0 / G0, "даН": 10.0 / G0, "кН": 1000.0 / G0, "тс": 1000.0}
 
 #: signal -> (what it is, the names it goes by, unit -> factor to the analysis's unit);
 #: the first unit is the analysis's own
 SIGNALS: dict[str, tuple[str, tuple[str, ...], dict[str, float]]] = {
-    "t": ("time", ("t", "time", "time_s"),
-          {"s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "min": 60.0}),
+    "t": ("time", ("t", "time", "time_s", "время", "zeit"),
+          {"s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "min": 60.0,
+           "с": 1.0, "сек": 1.0, "мс": 1e-3, "мкс": 1e-6, "мин": 60.0}),
     "u": ("valve command", ("u", "cmd", "command", "valve", "valve_command", "valve_cmd",
-                            "valve_drive", "drive", "spool_command"),
+                            "valve_drive", "drive", "spool_command",
+                            "управление", "команда", "сигнал_управления", "управляющий_сигнал",
+                            "ventil", "stellsignal", "ventilsignal"),
           # the valve's command voltage: ±10 V is ±100 % of the full command
-          {"%": 1.0, "pct": 1.0, "percent": 1.0, "V": 10.0, "mV": 0.01}),
-    "y": ("force", ("y", "force", "load", "force_measured", "measured_force"), _FORCE_UNITS),
-    "r": ("force reference", ("r", "ref", "reference", "setpoint", "demand", "target"),
+          {"%": 1.0, "pct": 1.0, "percent": 1.0, "V": 10.0, "mV": 0.01, "В": 10.0, "мВ": 0.01}),
+    "y": ("force", ("y", "force", "load", "force_measured", "measured_force",
+                    "усилие", "сила", "нагрузка", "измеренное_усилие", "kraft"),
+          _FORCE_UNITS),
+    "r": ("force reference", ("r", "ref", "reference", "setpoint", "demand", "target",
+                              "задание", "уставка", "заданное_усилие", "программа",
+                              "sollwert", "sollkraft"),
           _FORCE_UNITS),
 }
 
 REQUIRED = ("t", "u", "y")
 
-_CELL = re.compile(r"^(?P<name>[a-zµ_ ]*?[a-z])\s*"
-                   r"(?:[\[(]\s*(?P<bracketed>[^\])]*?)\s*[\])]|(?:[_ /]+|\s+in\s+)(?P<suffix>[a-zµ%]+))?$")
+# a name of letters (any script), '_' and blanks; then a unit in brackets or after '_', '/',
+# ',', a blank or ' in ' ("Время, с" as Russian logs write it)
+_CELL = re.compile(r"^(?P<name>(?:[^\W\d]| )*?[^\W\d_])\s*"
+                   r"(?:[\[(]\s*(?P<bracketed>[^\])]*?)\s*[\])]|(?:[_ /,]+|\s+in\s+)(?P<suffix>(?:[^\W\d_]|%)+))?$")
 
 
 class ColumnError(ValueError):

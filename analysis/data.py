@@ -190,16 +190,28 @@ def _suffix(path: Path) -> str:
     return suffixes[-1] if suffixes else ""
 
 
+#: the encodings a table that is not UTF-8 is read in, and how the note names them
+_LEGACY_ENCODINGS = {"cp1251": "Windows-1251 (Cyrillic)", "latin-1": "Latin-1 (ISO 8859-1)"}
+# three or more bytes in a row from 0xC0-0xFF: a Cyrillic word in Windows-1251 ("Время" is
+# C2 F0 E5 EC FF); in Latin-1 they would be three accented letters in a row, which Western
+# words hardly have
+_CYRILLIC_RUN = re.compile(rb"[\xC0-\xFF]{3,}")
+
+
 def _encoding(path: Path) -> str:
-    """UTF-8 (with or without a byte-order mark) if the file's start decodes as such, else
-    Latin-1: what Windows loggers write ('Kraft [kN]', 'Zeit [µs]' in cp1252/ISO 8859-1)."""
+    """UTF-8 (with or without a byte-order mark) if the file's start decodes as such; else
+    Windows-1251 if its non-ASCII bytes are mostly runs of Cyrillic letters (a Russian
+    Windows logger: 'Время, с;Усилие, кгс'), else Latin-1 (a Western one: 'Kraft [kN]',
+    'Zeit [µs]' in cp1252/ISO 8859-1)."""
     with _open(path, "rb") as fh:
         head = fh.read(_SNIFF_BYTES)
     try:
         head.decode("utf-8")
     except UnicodeDecodeError as exc:
         if exc.start < len(head) - 3:   # not a character cut at the sniffed length
-            return "latin-1"
+            high = sum(b >= 0x80 for b in head)
+            in_words = sum(len(m) for m in _CYRILLIC_RUN.findall(head))
+            return "cp1251" if in_words * 2 > high else "latin-1"
     return "utf-8-sig"
 
 
@@ -224,6 +236,11 @@ def _layout(path: Path) -> _Layout:
     if not lines:
         raise DataError(f"{path}: empty file")
     counts = {d: lines[0].count(d) for d in _DELIMITERS}
+    # a delimiter that splits every sniffed line into the same number of fields wins over a
+    # more frequent one: 'Время, с;Усилие, кгс' has more commas than semicolons
+    same = {d: n for d, n in counts.items()
+            if n and len({len(_split(ln.rstrip("\r\n"), d)) for ln in lines}) == 1}
+    counts = same or counts
     delimiter = max(counts, key=counts.get) if max(counts.values()) else None
     # numpy's savetxt writes its header as a comment: "# t,u,y"
     first = [f.strip() for f in _split(lines[0].lstrip("#").rstrip("\r\n"), delimiter)]
@@ -268,8 +285,8 @@ def read_csv(path: str | Path) -> Record:
                      "(s, % of the full valve command, kgf)"]
     except ColumnError as exc:
         raise DataError(f"{path}: {exc}") from None
-    if layout.encoding == "latin-1":
-        notes.append("the file is not UTF-8: read as Latin-1 (ISO 8859-1)")
+    if layout.encoding in _LEGACY_ENCODINGS:
+        notes.append(f"the file is not UTF-8: read as {_LEGACY_ENCODINGS[layout.encoding]}")
     cols = None
     if layout.delimiter is not None:
         cols = _read_table_arrow(path, layout, columns)

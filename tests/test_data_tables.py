@@ -116,3 +116,39 @@ def test_a_latin_1_table_from_a_windows_logger_is_read_with_a_note(tmp_path, sam
     assert np.allclose(rec.t, t) and np.allclose(rec.y, y, rtol=1e-7)
     assert any("read as Latin-1" in n for n in rec.notes)
     assert any("'time[µs]' read as time in µs" in n for n in rec.notes), rec.notes
+
+
+@pytest.mark.parametrize("encoding", ["cp1251", "utf-8"])
+def test_a_russian_table_as_the_stands_labs_write_it_is_read(tmp_path, samples, encoding):
+    """'Время, с;Управление, %;Усилие, кН;Задание, кгс' with a decimal comma, from a Russian
+    Windows logger (Windows-1251) or a Linux one (UTF-8): the names and units are known."""
+    t, u, y, r = samples
+    header = "Время, мс;Управление, В;Усилие, кН;Задание, кгс"
+    rows = [f"{a * 1e3:.6g};{b / 10:g};{c * G0 * 1e-3:.12g};{d:.9g}".replace(".", ",")
+            for a, b, c, d in zip(t, u, y, r)]
+    raw = ("\r\n".join([header] + rows) + "\r\n").encode(encoding)
+    path = tmp_path / "испытание.csv"
+    path.write_bytes(raw)
+    rec = load(path)
+    assert np.allclose(rec.t, t) and np.allclose(rec.u, u)
+    assert np.allclose(rec.y, y, rtol=1e-7) and np.allclose(rec.r, r, rtol=1e-7)
+    assert any("'Усилие, кН' read as force in кН" in n for n in rec.notes), rec.notes
+    assert any("'Время, мс' read as time in мс" in n for n in rec.notes), rec.notes
+    legacy = [n for n in rec.notes if "not UTF-8" in n]
+    assert legacy == (["the file is not UTF-8: read as Windows-1251 (Cyrillic)"]
+                      if encoding == "cp1251" else [])
+
+
+def test_a_german_latin_1_table_is_not_taken_for_cyrillic(tmp_path, samples):
+    """Latin-1 letters in Western words ('Größe', 'Zeit [µs]') stay Latin-1, and the German
+    names are known."""
+    t, u, y, _ = samples
+    header = "Zeit [µs];Ventil [%];Kraft [kN];Größe"
+    rows = [f"{a * 1e6:.0f};{b:g};{c * G0 * 1e-3:.12g};1" for a, b, c in zip(t, u, y)]
+    path = tmp_path / "Prüfung.csv"
+    path.write_bytes(("\n".join([header] + rows) + "\n").encode("latin-1"))
+    rec = load(path)
+    assert np.allclose(rec.t, t) and np.allclose(rec.y, y, rtol=1e-7)
+    assert any("read as Latin-1" in n for n in rec.notes), rec.notes
+    with pytest.raises(ColumnError, match="no force column"):
+        map_header(["Время, с", "Управление, %", "Усилие, фунт"])
