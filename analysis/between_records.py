@@ -42,7 +42,7 @@ from plant import PlantModel
 
 from . import fit as F
 from .data import Record
-from .significance import ErrorCut, error_cut
+from .significance import UNEXPLAINED_RATIO, ErrorCut, error_cut
 
 #: |Spearman ρ| from which the records' gains (or trends) are said to follow their order or
 #: their command level
@@ -83,6 +83,9 @@ class BetweenRecords:
     #: "order or level" (both: these records cannot tell)
     follows: str
     extra_params: int = 0         #: parameters beyond the shared g and Δ
+    #: with the records' own values the error is down to UNEXPLAINED_RATIO of the noise floor
+    explains: bool = False
+    floor: float = math.nan       #: the noise floor it was judged on (objective RMSE, kgf)
     text: str = ""
 
     @property
@@ -95,7 +98,7 @@ class BetweenRecords:
                 "records": [vars(r) for r in self.records], **vars(self.stats),
                 "order_rho": self.order_rho, "level_rho": self.level_rho,
                 "follows": self.follows, "between_runs": self.between_runs,
-                "extra_params": self.extra_params, "text": self.text}
+                "extra_params": self.extra_params, "explains": self.explains, "text": self.text}
 
 
 def _solve(gram: np.ndarray, rhs: np.ndarray, free: tuple[bool, bool]) -> np.ndarray:
@@ -178,7 +181,9 @@ def between_records(model: PlantModel, pieces: Sequence[F.Piece], records: Seque
     order_rho, level_rho = _rho(range(len(values)), values), _rho(levels, values)
     out = BetweenRecords(model=model.spec, varies=varies, g=float(g0), delta=float(d0),
                          records=shifts, stats=st, order_rho=order_rho, level_rho=level_rho,
-                         follows=_follows(order_rho, level_rho, levels), extra_params=k)
+                         follows=_follows(order_rho, level_rho, levels), extra_params=k,
+                         explains=bool(st.objective_rmse <= UNEXPLAINED_RATIO * floor),
+                         floor=float(floor))
     out.text = describe(out)
     return out
 
@@ -220,6 +225,10 @@ def describe(b: BetweenRecords) -> str:
     cause = ("the stand changed between the runs (oil warming over the campaign, the supply "
              "pressure or the valve's zero set anew)" if what == "gain" else
              "the valve's null moved between the runs (drive re-zeroed, warming)")
+    if not b.explains:   # they leave much: a missing effect may weigh differently per record
+        cause = (f"{cause}, or a missing effect that weighs differently in each record (the "
+                 f"records' own values leave {b.stats.objective_rmse / b.floor:.2f}× the noise "
+                 f"floor)")
     if b.follows == "order":
         follows = (f", {'growing' if b.order_rho > 0 else 'falling'} with the records' order "
                    f"(Spearman ρ = {b.order_rho:.2f}): {cause}")

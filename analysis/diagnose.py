@@ -18,7 +18,8 @@ r"""Find what the model is missing: fit it, add each catalogue effect in turn, r
      consistently over the windows (paired z over the windows ≥ :data:`MIN_Z`);
    * verdict ``missing_effect`` (the best earning candidate), ``varies_between_records`` (no
      catalogue effect explains the error as well as a gain or a trend of its own for every
-     record does: the stand changed between the runs, :mod:`analysis.between_records`),
+     record does, and with them the error is down to :data:`UNEXPLAINED_RATIO` of the noise:
+     the stand changed between the runs, :mod:`analysis.between_records`),
      ``unexplained`` (the error stays clearly above the noise, :data:`UNEXPLAINED_RATIO`, and
      nothing removes it: the residual is described — dominant frequency, amplitude, regimes),
      or ``adequate``;
@@ -45,14 +46,12 @@ from .metrics import (AFTER_REVERSAL_S, Evaluation, RecordSimulation, command_le
                       demeaned_residual, evaluate, input_correlation_test, is_closed_loop,
                       reversal_mask, simulate_records, window_increments)
 from .parallel import one_blas_thread, run_each, workers_for
-from .significance import MIN_EXCESS_SHARE, MIN_IMPROVEMENT, MIN_Z, error_cut
+from .significance import MIN_EXCESS_SHARE, MIN_IMPROVEMENT, MIN_Z, UNEXPLAINED_RATIO, error_cut
 from .timing import jitter_observation
 
 #: candidates refitted on all the data after screening (the best; the runner-up too when the
 #: data are short enough to be screened whole)
 REFIT_TOP = 1
-#: base RMSE this far above the noise floor, unexplained by any effect -> "unexplained"
-UNEXPLAINED_RATIO = 1.12
 #: below this ratio the model is within the noise: nothing to explain
 ADEQUATE_RATIO = 1.03
 #: above this ratio to the white-noise floor, the residual is checked for being coloured noise
@@ -433,7 +432,13 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
                     f"these records cannot tell a drift across the runs from a dependence on "
                     f"the command level (their levels rise with their order, or they are few)."),
             experiment=REPEAT_FIRST_RUN))
-    if between is not None and between.stats.earns and between.between_runs and (
+    # the stand changed between the runs only if the records' own values explain the data (to
+    # the noise): per-record values that earn but leave much also soak up a missing effect
+    # whose share differs between records (a force-dependent unloading with each run at its
+    # own force level)
+    between_explains = (between is not None and between.stats.earns and between.between_runs
+                        and between.explains)
+    if between_explains and (
             best is None or best.objective_rmse > AMBIGUITY_RATIO * between.stats.objective_rmse):
         verdict = "varies_between_records"
         summary = f"varies between records: {between.text}"

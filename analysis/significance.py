@@ -25,6 +25,9 @@ MIN_EXCESS_SHARE = 0.65
 LR_ALPHA = 1e-6
 #: ... and consistently over windows: paired z of the per-window squared-error reduction
 MIN_Z = 2.0
+#: an error this far above the noise floor is unexplained (below it, within what the noise
+#: floor's estimate and a little model error allow)
+UNEXPLAINED_RATIO = 1.12
 
 
 @dataclass
