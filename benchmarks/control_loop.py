@@ -38,6 +38,13 @@ def lockstep_cycles_per_s(cycles: int) -> tuple[float, float, dict[str, float], 
     return s.cycles / s.wall_s, s.cycles, parts, spread
 
 
+def _send_stamps(capture: str) -> tuple[np.ndarray, np.ndarray]:
+    """The send stamps (s) and arbitration ids of a capture's frames, in bus order (python-can's
+    LogReader)."""
+    frames = [(m.timestamp, m.arbitration_id) for m in can.LogReader(capture)]
+    return np.array([f[0] for f in frames]), np.array([f[1] for f in frames], dtype=np.int64)
+
+
 #: the four legs of a lockstep cycle, between the send stamps of its frames (in bus order)
 LEGS = ("SYNC→1st TPDO", "1st→2nd TPDO", "2nd TPDO→RPDO", "RPDO→next SYNC")
 
@@ -47,9 +54,7 @@ def cycle_breakdown(capture: str) -> dict[str, float]:
     Every frame carries its sender's wall-clock send time (udp_loopback), so the legs are:
     the emulator answering a SYNC (after the RPDO before it), the emulator's second send, the
     transit and the gateway's decision, and the gateway's bookkeeping up to the next SYNC."""
-    frames = [(m.timestamp, m.arbitration_id) for m in can.LogReader(capture)]
-    stamps = np.array([f[0] for f in frames])
-    ids = np.array([f[1] for f in frames])
+    stamps, ids = _send_stamps(capture)
     syncs = np.flatnonzero(ids == SYNC_ID)
     legs: list[list[float]] = [[] for _ in LEGS]
     for a, b in zip(syncs[:-1], syncs[1:]):
@@ -65,8 +70,8 @@ def cycle_spread(capture: str) -> dict[str, float]:
     p99, and the share of the run's time spent in cycles longer than twice the median (the
     tail: the emulator computing a plant block ahead, the capture thread holding the GIL,
     the host)."""
-    stamps = np.array([m.timestamp for m in can.LogReader(capture) if m.arbitration_id == SYNC_ID])
-    d = np.diff(stamps) * 1e6
+    stamps, ids = _send_stamps(capture)
+    d = np.diff(stamps[ids == SYNC_ID]) * 1e6
     if d.size == 0:
         return {"mean": float("nan"), "p50": float("nan"), "p90": float("nan"),
                 "p99": float("nan"), "tail_share": float("nan")}
