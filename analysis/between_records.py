@@ -83,10 +83,14 @@ class BetweenRecords:
     #: "order or level" (both: these records cannot tell)
     follows: str
     extra_params: int = 0         #: parameters beyond the shared g and Δ
-    #: with the records' own values the error is down to UNEXPLAINED_RATIO of the noise floor
-    explains: bool = False
     floor: float = math.nan       #: the noise floor it was judged on (objective RMSE, kgf)
     text: str = ""
+
+    @property
+    def explains(self) -> bool:
+        """With the records' own values the error is down to UNEXPLAINED_RATIO of the noise
+        floor."""
+        return bool(self.stats.objective_rmse <= UNEXPLAINED_RATIO * self.floor)
 
     @property
     def between_runs(self) -> bool:
@@ -182,7 +186,6 @@ def between_records(model: PlantModel, pieces: Sequence[F.Piece], records: Seque
     out = BetweenRecords(model=model.spec, varies=varies, g=float(g0), delta=float(d0),
                          records=shifts, stats=st, order_rho=order_rho, level_rho=level_rho,
                          follows=_follows(order_rho, level_rho, levels), extra_params=k,
-                         explains=bool(st.objective_rmse <= UNEXPLAINED_RATIO * floor),
                          floor=float(floor))
     out.text = describe(out)
     return out

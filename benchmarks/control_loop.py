@@ -32,13 +32,14 @@ def lockstep_cycles_per_s(cycles: int) -> tuple[float, float, dict[str, float], 
     with tempfile.TemporaryDirectory() as tmp, EmulatorProcess(bus, load_plant_config(), lockstep=True):
         with Gateway(GatewayConfig(bus=bus, lockstep=True)) as gw:
             res = gw.run(Meander(5, 4, max(1, round(cycles * PERIOD_S / 4))), f"{tmp}/run", progress=False)
-        parts = cycle_breakdown(f"{tmp}/run/capture.log")
-        spread = cycle_spread(f"{tmp}/run/capture.log")
+        stamps, ids = send_stamps(f"{tmp}/run/capture.log")   # read once for both
+    parts = cycle_breakdown(stamps, ids)
+    spread = cycle_spread(stamps, ids)
     s = res.outcome.stats
     return s.cycles / s.wall_s, s.cycles, parts, spread
 
 
-def _send_stamps(capture: str) -> tuple[np.ndarray, np.ndarray]:
+def send_stamps(capture: str) -> tuple[np.ndarray, np.ndarray]:
     """The send stamps (s) and arbitration ids of a capture's frames, in bus order (python-can's
     LogReader)."""
     frames = [(m.timestamp, m.arbitration_id) for m in can.LogReader(capture)]
@@ -49,12 +50,11 @@ def _send_stamps(capture: str) -> tuple[np.ndarray, np.ndarray]:
 LEGS = ("SYNC→1st TPDO", "1st→2nd TPDO", "2nd TPDO→RPDO", "RPDO→next SYNC")
 
 
-def cycle_breakdown(capture: str) -> dict[str, float]:
-    """Median µs of each leg of the cycles of a lockstep capture (python-can's LogReader).
+def cycle_breakdown(stamps: np.ndarray, ids: np.ndarray) -> dict[str, float]:
+    """Median µs of each leg of the cycles of a lockstep capture (:func:`send_stamps`).
     Every frame carries its sender's wall-clock send time (udp_loopback), so the legs are:
     the emulator answering a SYNC (after the RPDO before it), the emulator's second send, the
     transit and the gateway's decision, and the gateway's bookkeeping up to the next SYNC."""
-    stamps, ids = _send_stamps(capture)
     syncs = np.flatnonzero(ids == SYNC_ID)
     legs: list[list[float]] = [[] for _ in LEGS]
     for a, b in zip(syncs[:-1], syncs[1:]):
@@ -65,12 +65,12 @@ def cycle_breakdown(capture: str) -> dict[str, float]:
     return {name: float(np.median(v) * 1e6) if v else float("nan") for name, v in zip(LEGS, legs)}
 
 
-def cycle_spread(capture: str) -> dict[str, float]:
-    """How the lockstep cycle times (SYNC to SYNC send stamps, µs) spread: mean, p50, p90,
+def cycle_spread(stamps: np.ndarray, ids: np.ndarray) -> dict[str, float]:
+    """How the lockstep cycle times (SYNC to SYNC send stamps of :func:`send_stamps`, µs)
+    spread: mean, p50, p90,
     p99, and the share of the run's time spent in cycles longer than twice the median (the
     tail: the emulator computing a plant block ahead, the capture thread holding the GIL,
     the host)."""
-    stamps, ids = _send_stamps(capture)
     d = np.diff(stamps[ids == SYNC_ID]) * 1e6
     if d.size == 0:
         return {"mean": float("nan"), "p50": float("nan"), "p90": float("nan"),

@@ -52,7 +52,7 @@ def test_the_round_trip_floor_gives_up_with_a_reason_when_the_echo_process_does_
 
 def test_cycle_spread_reads_the_sync_intervals_of_a_capture_and_their_tail(tmp_path):
     import can
-    from benchmarks.control_loop import SYNC_ID, cycle_spread
+    from benchmarks.control_loop import SYNC_ID, cycle_spread, send_stamps
     path = tmp_path / "capture.log"
     gaps = [50e-6] * 9 + [200e-6]                     # nine cycles of 50 µs, one of 200 µs
     t = 1_700_000_000.0
@@ -63,7 +63,7 @@ def test_cycle_spread_reads_the_sync_intervals_of_a_capture_and_their_tail(tmp_p
                                                 is_extended_id=False))
             log.on_message_received(can.Message(timestamp=t + 10e-6, arbitration_id=0x181,
                                                 data=bytes(4), is_extended_id=False))
-    spread = cycle_spread(str(path))
+    spread = cycle_spread(*send_stamps(str(path)))
     assert abs(spread["p50"] - 50) < 2
     assert abs(spread["mean"] - 65) < 2
     assert abs(spread["tail_share"] - 200 / 650) < 0.01
