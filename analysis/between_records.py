@@ -28,17 +28,28 @@ variation; their command level means a gain that depends on the command (a dead 
 curve, a limit, or several such effects at once), not on the run; both at once (records at
 rising levels, run in that order), or too few records at different levels, cannot be told
 apart, and the separating experiment is named (the first run again at the end).
+
+The model's other parameters were fitted with one g for all records, so a change between the
+runs may have bent them too (a valve play's width soaks up part of a gain that grows run after
+run). When the per-record values with those parameters held leave more than
+:data:`~analysis.significance.UNEXPLAINED_RATIO` of the noise floor but help, the chosen design
+is fitted once more with the other parameters free as well, g and Δ projected per record at
+every trial of them (variable projection, :func:`refit_per_record`); the better of the two
+is judged. The parameter count is the same: the other parameters were free in the shared fit
+too.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 from scipy import stats
 
 from plant import PlantModel
+
+from scipy import optimize
 
 from . import fit as F
 from .data import Record
@@ -84,6 +95,9 @@ class BetweenRecords:
     follows: str
     extra_params: int = 0         #: parameters beyond the shared g and Δ
     floor: float = math.nan       #: the noise floor it was judged on (objective RMSE, kgf)
+    #: the model's other parameters, refitted with the per-record values (empty: they were
+    #: held at the shared fit's, which explained as well)
+    refit: dict[str, float] = field(default_factory=dict)
     text: str = ""
 
     @property
@@ -102,7 +116,8 @@ class BetweenRecords:
                 "records": [vars(r) for r in self.records], **vars(self.stats),
                 "order_rho": self.order_rho, "level_rho": self.level_rho,
                 "follows": self.follows, "between_runs": self.between_runs,
-                "extra_params": self.extra_params, "explains": self.explains, "text": self.text}
+                "extra_params": self.extra_params, "explains": self.explains,
+                "refit": dict(self.refit), "text": self.text}
 
 
 def _solve(gram: np.ndarray, rhs: np.ndarray, free: tuple[bool, bool]) -> np.ndarray:
@@ -142,51 +157,118 @@ def record_level(rec: Record) -> float:
     return float(a.mean()) if len(a) else 0.0
 
 
-def between_records(model: PlantModel, pieces: Sequence[F.Piece], records: Sequence[Record],
-                    floor: float) -> BetweenRecords | None:
-    """Free fitted ``model``'s g, Δ or both per record (the design with the lowest BIC) and
-    judge it against them shared (:func:`analysis.significance.error_cut`) on the noise floor
-    ``floor`` (objective RMSE, kgf). None for fewer than two records with evaluated samples."""
-    used = sorted({p.record for p in pieces if p.n_eval > 0})
-    if len(used) < 2:
-        return None
-    values = model.params()
-    s1, A, beta0 = F.gain_trend_columns(model.spec, values, pieces)
-    rec_of = np.concatenate([np.full(p.n_eval, used.index(p.record)) for p in pieces])
-    gram = np.zeros((len(used), 2, 2))
-    rhs = np.zeros((len(used), 2))
-    for i in range(len(used)):
+def _record_systems(s1: np.ndarray, A: np.ndarray, rec_of: np.ndarray, n_rec: int
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Each record's 2×2 Gram matrix AᵢᵀAᵢ and right-hand side −Aᵢᵀsᵢ."""
+    gram = np.zeros((n_rec, 2, 2))
+    rhs = np.zeros((n_rec, 2))
+    for i in range(n_rec):
         sel = rec_of == i
-        Ai = A[sel]
-        gram[i] = Ai.T @ Ai
-        rhs[i] = -(Ai.T @ s1[sel])
-    n = len(s1)
-    shared = _solve(gram, rhs, (False, False))[0]
+        gram[i] = A[sel].T @ A[sel]
+        rhs[i] = -(A[sel].T @ s1[sel])
+    return gram, rhs
+
+
+def _projected(spec: str, values: dict, pieces: Sequence[F.Piece], rec_of: np.ndarray,
+               n_rec: int, free: tuple[bool, bool]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The objective residual with g and Δ solved per record (``free``) or shared, the other
+    parameters at ``values``. Returns (residual, δ per record, β0)."""
+    s1, A, beta0 = F.gain_trend_columns(spec, values, pieces)
+    delta = _solve(*_record_systems(s1, A, rec_of, n_rec), free)
+    return s1 + (A * delta[rec_of]).sum(axis=1), delta, beta0
+
+
+#: the refit's relative tolerance (cost and step): ranking against the floor needs ~0.1 %
+REFIT_TOL = 1e-5
+
+
+def refit_per_record(model: PlantModel, pieces: Sequence[F.Piece], rec_of: np.ndarray,
+                     n_rec: int, free: tuple[bool, bool], max_nfev: int | None = None
+                     ) -> tuple[dict[str, float], np.ndarray]:
+    """Fit ``model``'s parameters other than g and Δ with g and Δ free per record where
+    ``free`` says so (shared otherwise), projected at every trial. Returns the parameters'
+    values (g and Δ as they were) and the objective residual there."""
+    spec, values = model.spec, model.params()
+    others = [n for n in values if n not in ("g", "delta")]
+    par = F.Parameterization(spec, values, others)
+
+    def fun(x):
+        return _projected(spec, par.to_values(x), pieces, rec_of, n_rec, free)[0]
+
+    if par.free:
+        lo, hi = par.bounds()
+        eps = 1e-9 * np.maximum(1.0, np.abs(hi - lo))
+        x0 = np.clip(par.to_x(values), lo + eps, hi - eps)
+        res = optimize.least_squares(fun, x0, bounds=(lo, hi), method="trf", x_scale="jac",
+                                     diff_step=F.DIFF_STEP, ftol=REFIT_TOL, xtol=REFIT_TOL,
+                                     max_nfev=max_nfev or 20 * (len(x0) + 1))
+        values = par.to_values(res.x)
+    return values, _projected(spec, values, pieces, rec_of, n_rec, free)[0]
+
+
+def _best_design(gram: np.ndarray, rhs: np.ndarray, s1: np.ndarray, A: np.ndarray,
+                 rec_of: np.ndarray) -> tuple[str, np.ndarray, np.ndarray, int]:
+    """The per-record design (:data:`DESIGNS`) with the lowest BIC. Returns its name, δ per
+    record, the residual and its parameters beyond the shared g and Δ."""
+    n, n_rec = len(s1), len(gram)
     best = None
     for varies, free in DESIGNS.items():
         delta = _solve(gram, rhs, free)
         r = s1 + (A * delta[rec_of]).sum(axis=1)
-        k = sum(len(used) - 1 for c in free if c)
+        k = sum(n_rec - 1 for c in free if c)
         bic = n * math.log(max(float(r @ r) / n, 1e-300)) + k * math.log(n)
         if best is None or bic < best[0]:
             best = (bic, varies, delta, r, k)
-    _, varies, delta, r, k = best
+    return best[1:]
+
+
+def between_records(model: PlantModel, pieces: Sequence[F.Piece], records: Sequence[Record],
+                    floor: float, refit: bool = True) -> BetweenRecords | None:
+    """Free fitted ``model``'s g, Δ or both per record (the design with the lowest BIC) and
+    judge it against them shared (:func:`analysis.significance.error_cut`) on the noise floor
+    ``floor`` (objective RMSE, kgf). ``refit``: when the per-record values with the other
+    parameters held help but leave more than UNEXPLAINED_RATIO of the floor, refit those too
+    (:func:`refit_per_record`). None for fewer than two records with evaluated samples."""
+    used = sorted({p.record for p in pieces if p.n_eval > 0})
+    if len(used) < 2:
+        return None
+    n_rec = len(used)
+    values = model.params()
+    s1, A, beta0 = F.gain_trend_columns(model.spec, values, pieces)
+    rec_of = np.concatenate([np.full(p.n_eval, used.index(p.record)) for p in pieces])
+    gram, rhs = _record_systems(s1, A, rec_of, n_rec)
+    n = len(s1)
+    shared = _solve(gram, rhs, (False, False))[0]
+    varies, delta, r, k = _best_design(gram, rhs, s1, A, rec_of)
     # the reference from the same linearization, g and Δ shared: the fitted model's own error
     # (exactly so for a model linear in g and Δ, whose fit projects them)
     r0 = s1 + A @ shared
-    st = error_cut(F.window_sse(r, pieces), F.window_sse(r0, pieces), floor, n, k)
+    ref_w = F.window_sse(r0, pieces)
+    st = error_cut(F.window_sse(r, pieces), ref_w, floor, n, k)
     g0, d0 = beta0 + shared
+    refitted: dict[str, float] = {}
+    if refit and st.helps and st.objective_rmse > UNEXPLAINED_RATIO * floor \
+            and len(values) > 2:
+        vals2, r2 = refit_per_record(model, pieces, rec_of, n_rec, DESIGNS[varies])
+        if float(r2 @ r2) < float(r @ r):
+            refitted = {n_: v for n_, v in vals2.items() if n_ not in ("g", "delta")}
+            # the design chosen anew at the refitted parameters (a trend per record that
+            # helped with them held may be needless now)
+            s1, A, beta0 = F.gain_trend_columns(model.spec, vals2, pieces)
+            gram, rhs = _record_systems(s1, A, rec_of, n_rec)
+            varies, delta, r, k = _best_design(gram, rhs, s1, A, rec_of)
+            st = error_cut(F.window_sse(r, pieces), ref_w, floor, n, k)
     shifts = [RecordShift(source=records[j].source, g=float(beta0[0] + delta[i, 0]),
                           gain=float((beta0[0] + delta[i, 0]) / g0) if g0 else math.nan,
                           delta=float(beta0[1] + delta[i, 1]), level=record_level(records[j]))
               for i, j in enumerate(used)]
-    values = [s.gain if "gain" in varies else s.delta for s in shifts]
+    varied = [s.gain if "gain" in varies else s.delta for s in shifts]
     levels = [s.level for s in shifts]
-    order_rho, level_rho = _rho(range(len(values)), values), _rho(levels, values)
+    order_rho, level_rho = _rho(range(len(varied)), varied), _rho(levels, varied)
     out = BetweenRecords(model=model.spec, varies=varies, g=float(g0), delta=float(d0),
                          records=shifts, stats=st, order_rho=order_rho, level_rho=level_rho,
                          follows=_follows(order_rho, level_rho, levels), extra_params=k,
-                         floor=float(floor))
+                         floor=float(floor), refit=refitted)
     out.text = describe(out)
     return out
 
@@ -224,6 +306,9 @@ def describe(b: BetweenRecords) -> str:
         parts.append(f"the trend Δ differs between records, "
                      f"{_extremes(b.records, lambda s: s.delta, lambda x: f'{x:+.3g}')} kgf/s "
                      f"(shared: {b.delta:+.3g})")
+    if b.refit:
+        parts[-1] += (" (the model's other parameters refitted with them: "
+                      + ", ".join(f"{k} = {v:.4g}" for k, v in b.refit.items()) + ")")
     what = "gain" if "gain" in b.varies else "trend"
     cause = ("the stand changed between the runs (oil warming over the campaign, the supply "
              "pressure or the valve's zero set anew)" if what == "gain" else
