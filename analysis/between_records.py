@@ -45,11 +45,9 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
-from scipy import stats
+from scipy import optimize, stats
 
 from plant import PlantModel
-
-from scipy import optimize
 
 from . import fit as F
 from .data import Record
@@ -170,12 +168,12 @@ def _record_systems(s1: np.ndarray, A: np.ndarray, rec_of: np.ndarray, n_rec: in
 
 
 def _projected(spec: str, values: dict, pieces: Sequence[F.Piece], rec_of: np.ndarray,
-               n_rec: int, free: tuple[bool, bool]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               n_rec: int, free: tuple[bool, bool]) -> np.ndarray:
     """The objective residual with g and Δ solved per record (``free``) or shared, the other
-    parameters at ``values``. Returns (residual, δ per record, β0)."""
-    s1, A, beta0 = F.gain_trend_columns(spec, values, pieces)
+    parameters at ``values``."""
+    s1, A, _ = F.gain_trend_columns(spec, values, pieces)
     delta = _solve(*_record_systems(s1, A, rec_of, n_rec), free)
-    return s1 + (A * delta[rec_of]).sum(axis=1), delta, beta0
+    return s1 + (A * delta[rec_of]).sum(axis=1)
 
 
 #: the refit's relative tolerance (cost and step): ranking against the floor needs ~0.1 %
@@ -193,7 +191,7 @@ def refit_per_record(model: PlantModel, pieces: Sequence[F.Piece], rec_of: np.nd
     par = F.Parameterization(spec, values, others)
 
     def fun(x):
-        return _projected(spec, par.to_values(x), pieces, rec_of, n_rec, free)[0]
+        return _projected(spec, par.to_values(x), pieces, rec_of, n_rec, free)
 
     if par.free:
         lo, hi = par.bounds()
@@ -203,7 +201,7 @@ def refit_per_record(model: PlantModel, pieces: Sequence[F.Piece], rec_of: np.nd
                                      diff_step=F.DIFF_STEP, ftol=REFIT_TOL, xtol=REFIT_TOL,
                                      max_nfev=max_nfev or 20 * (len(x0) + 1))
         values = par.to_values(res.x)
-    return values, _projected(spec, values, pieces, rec_of, n_rec, free)[0]
+    return values, _projected(spec, values, pieces, rec_of, n_rec, free)
 
 
 def _best_design(gram: np.ndarray, rhs: np.ndarray, s1: np.ndarray, A: np.ndarray,
