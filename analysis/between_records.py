@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 from scipy import optimize, stats
@@ -105,6 +105,11 @@ class BetweenRecords:
         return bool(self.stats.objective_rmse <= UNEXPLAINED_RATIO * self.floor)
 
     @property
+    def refit_text(self) -> str:
+        """The refitted parameters as ``name = value, ...`` (empty if none were refitted)."""
+        return ", ".join(f"{k} = {v:.4g}" for k, v in self.refit.items())
+
+    @property
     def between_runs(self) -> bool:
         """The variation is the runs' own, not the command level's."""
         return self.follows in ("order", "scatter")
@@ -155,25 +160,26 @@ def record_level(rec: Record) -> float:
     return float(a.mean()) if len(a) else 0.0
 
 
-def _record_systems(s1: np.ndarray, A: np.ndarray, rec_of: np.ndarray, n_rec: int
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Each record's 2×2 Gram matrix AᵢᵀAᵢ and right-hand side −Aᵢᵀsᵢ."""
+def _systems(spec: str, values: Mapping[str, float], pieces: Sequence[F.Piece],
+             rec_of: np.ndarray, n_rec: int) -> tuple[np.ndarray, ...]:
+    """The objective's residual, affine in g and Δ at ``values``
+    (:func:`analysis.fit.gain_trend_columns`: ``s1``, ``A``, ``β0``), and each record's 2×2
+    Gram matrix AᵢᵀAᵢ and right-hand side −Aᵢᵀsᵢ."""
+    s1, A, beta0 = F.gain_trend_columns(spec, values, pieces)
     gram = np.zeros((n_rec, 2, 2))
     rhs = np.zeros((n_rec, 2))
     for i in range(n_rec):
         sel = rec_of == i
         gram[i] = A[sel].T @ A[sel]
         rhs[i] = -(A[sel].T @ s1[sel])
-    return gram, rhs
+    return s1, A, beta0, gram, rhs
 
 
-def _projected(spec: str, values: dict, pieces: Sequence[F.Piece], rec_of: np.ndarray,
-               n_rec: int, free: tuple[bool, bool]) -> np.ndarray:
-    """The objective residual with g and Δ solved per record (``free``) or shared, the other
-    parameters at ``values``."""
-    s1, A, _ = F.gain_trend_columns(spec, values, pieces)
-    delta = _solve(*_record_systems(s1, A, rec_of, n_rec), free)
-    return s1 + (A * delta[rec_of]).sum(axis=1)
+def _design(s1: np.ndarray, A: np.ndarray, gram: np.ndarray, rhs: np.ndarray,
+            rec_of: np.ndarray, free: tuple[bool, bool]) -> tuple[np.ndarray, np.ndarray]:
+    """δ per record of one design (``free``, see :func:`_solve`) and the residual with it."""
+    delta = _solve(gram, rhs, free)
+    return delta, s1 + (A * delta[rec_of]).sum(axis=1)
 
 
 #: the refit's relative tolerance (cost and step): ranking against the floor needs ~0.1 %
@@ -182,37 +188,37 @@ REFIT_TOL = 1e-5
 
 def refit_per_record(model: PlantModel, pieces: Sequence[F.Piece], rec_of: np.ndarray,
                      n_rec: int, free: tuple[bool, bool], max_nfev: int | None = None
-                     ) -> tuple[dict[str, float], np.ndarray]:
+                     ) -> dict[str, float]:
     """Fit ``model``'s parameters other than g and Δ with g and Δ free per record where
     ``free`` says so (shared otherwise), projected at every trial. Returns the parameters'
-    values (g and Δ as they were) and the objective residual there."""
+    values (g and Δ as they were)."""
     spec, values = model.spec, model.params()
     others = [n for n in values if n not in ("g", "delta")]
     par = F.Parameterization(spec, values, others)
+    if not par.free:
+        return values
 
     def fun(x):
-        return _projected(spec, par.to_values(x), pieces, rec_of, n_rec, free)
+        s1, A, _, gram, rhs = _systems(spec, par.to_values(x), pieces, rec_of, n_rec)
+        return _design(s1, A, gram, rhs, rec_of, free)[1]
 
-    if par.free:
-        lo, hi = par.bounds()
-        eps = 1e-9 * np.maximum(1.0, np.abs(hi - lo))
-        x0 = np.clip(par.to_x(values), lo + eps, hi - eps)
-        res = optimize.least_squares(fun, x0, bounds=(lo, hi), method="trf", x_scale="jac",
-                                     diff_step=F.DIFF_STEP, ftol=REFIT_TOL, xtol=REFIT_TOL,
-                                     max_nfev=max_nfev or 20 * (len(x0) + 1))
-        values = par.to_values(res.x)
-    return values, _projected(spec, values, pieces, rec_of, n_rec, free)
+    lo, hi = par.bounds()
+    eps = 1e-9 * np.maximum(1.0, np.abs(hi - lo))
+    x0 = np.clip(par.to_x(values), lo + eps, hi - eps)
+    res = optimize.least_squares(fun, x0, bounds=(lo, hi), method="trf", x_scale="jac",
+                                 diff_step=F.DIFF_STEP, ftol=REFIT_TOL, xtol=REFIT_TOL,
+                                 max_nfev=max_nfev or 20 * (len(x0) + 1))
+    return par.to_values(res.x)
 
 
-def _best_design(gram: np.ndarray, rhs: np.ndarray, s1: np.ndarray, A: np.ndarray,
+def _best_design(s1: np.ndarray, A: np.ndarray, gram: np.ndarray, rhs: np.ndarray,
                  rec_of: np.ndarray) -> tuple[str, np.ndarray, np.ndarray, int]:
     """The per-record design (:data:`DESIGNS`) with the lowest BIC. Returns its name, δ per
     record, the residual and its parameters beyond the shared g and Δ."""
     n, n_rec = len(s1), len(gram)
     best = None
     for varies, free in DESIGNS.items():
-        delta = _solve(gram, rhs, free)
-        r = s1 + (A * delta[rec_of]).sum(axis=1)
+        delta, r = _design(s1, A, gram, rhs, rec_of, free)
         k = sum(n_rec - 1 for c in free if c)
         bic = n * math.log(max(float(r @ r) / n, 1e-300)) + k * math.log(n)
         if best is None or bic < best[0]:
@@ -232,12 +238,11 @@ def between_records(model: PlantModel, pieces: Sequence[F.Piece], records: Seque
         return None
     n_rec = len(used)
     values = model.params()
-    s1, A, beta0 = F.gain_trend_columns(model.spec, values, pieces)
     rec_of = np.concatenate([np.full(p.n_eval, used.index(p.record)) for p in pieces])
-    gram, rhs = _record_systems(s1, A, rec_of, n_rec)
+    s1, A, beta0, gram, rhs = _systems(model.spec, values, pieces, rec_of, n_rec)
     n = len(s1)
     shared = _solve(gram, rhs, (False, False))[0]
-    varies, delta, r, k = _best_design(gram, rhs, s1, A, rec_of)
+    varies, delta, r, k = _best_design(s1, A, gram, rhs, rec_of)
     # the reference from the same linearization, g and Δ shared: the fitted model's own error
     # (exactly so for a model linear in g and Δ, whose fit projects them)
     r0 = s1 + A @ shared
@@ -247,14 +252,15 @@ def between_records(model: PlantModel, pieces: Sequence[F.Piece], records: Seque
     refitted: dict[str, float] = {}
     if refit and st.helps and st.objective_rmse > UNEXPLAINED_RATIO * floor \
             and len(values) > 2:
-        vals2, r2 = refit_per_record(model, pieces, rec_of, n_rec, DESIGNS[varies])
+        vals2 = refit_per_record(model, pieces, rec_of, n_rec, DESIGNS[varies])
+        s1b, Ab, beta_b, gram_b, rhs_b = _systems(model.spec, vals2, pieces, rec_of, n_rec)
+        _, r2 = _design(s1b, Ab, gram_b, rhs_b, rec_of, DESIGNS[varies])
         if float(r2 @ r2) < float(r @ r):
             refitted = {n_: v for n_, v in vals2.items() if n_ not in ("g", "delta")}
             # the design chosen anew at the refitted parameters (a trend per record that
             # helped with them held may be needless now)
-            s1, A, beta0 = F.gain_trend_columns(model.spec, vals2, pieces)
-            gram, rhs = _record_systems(s1, A, rec_of, n_rec)
-            varies, delta, r, k = _best_design(gram, rhs, s1, A, rec_of)
+            beta0 = beta_b
+            varies, delta, r, k = _best_design(s1b, Ab, gram_b, rhs_b, rec_of)
             st = error_cut(F.window_sse(r, pieces), ref_w, floor, n, k)
     shifts = [RecordShift(source=records[j].source, g=float(beta0[0] + delta[i, 0]),
                           gain=float((beta0[0] + delta[i, 0]) / g0) if g0 else math.nan,
@@ -305,8 +311,7 @@ def describe(b: BetweenRecords) -> str:
                      f"{_extremes(b.records, lambda s: s.delta, lambda x: f'{x:+.3g}')} kgf/s "
                      f"(shared: {b.delta:+.3g})")
     if b.refit:
-        parts[-1] += (" (the model's other parameters refitted with them: "
-                      + ", ".join(f"{k} = {v:.4g}" for k, v in b.refit.items()) + ")")
+        parts[-1] += f" (the model's other parameters refitted with them: {b.refit_text})"
     what = "gain" if "gain" in b.varies else "trend"
     cause = ("the stand changed between the runs (oil warming over the campaign, the supply "
              "pressure or the valve's zero set anew)" if what == "gain" else

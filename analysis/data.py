@@ -196,6 +196,7 @@ _LEGACY_ENCODINGS = {"cp1251": "Windows-1251 (Cyrillic)", "latin-1": "Latin-1 (I
 # C2 F0 E5 EC FF); in Latin-1 they would be three accented letters in a row, which Western
 # words hardly have
 _CYRILLIC_RUN = re.compile(rb"[\xC0-\xFF]{3,}")
+_HIGH_BYTES = re.compile(rb"[\x80-\xFF]+")
 
 
 def _encoding(path: Path) -> str:
@@ -209,7 +210,7 @@ def _encoding(path: Path) -> str:
         head.decode("utf-8")
     except UnicodeDecodeError as exc:
         if exc.start < len(head) - 3:   # not a character cut at the sniffed length
-            high = sum(b >= 0x80 for b in head)
+            high = sum(len(m) for m in _HIGH_BYTES.findall(head))
             in_words = sum(len(m) for m in _CYRILLIC_RUN.findall(head))
             return "cp1251" if in_words * 2 > high else "latin-1"
     return "utf-8-sig"

@@ -67,10 +67,9 @@ def cycle_breakdown(stamps: np.ndarray, ids: np.ndarray) -> dict[str, float]:
 
 def cycle_spread(stamps: np.ndarray, ids: np.ndarray) -> dict[str, float]:
     """How the lockstep cycle times (SYNC to SYNC send stamps of :func:`send_stamps`, µs)
-    spread: mean, p50, p90,
-    p99, and the share of the run's time spent in cycles longer than twice the median (the
-    tail: the emulator computing a plant block ahead, the capture thread holding the GIL,
-    the host)."""
+    spread: mean, p50, p90, p99, and the share of the run's time spent in cycles longer than
+    twice the median (the tail: the emulator computing a plant block ahead, the capture thread
+    holding the GIL, the host)."""
     d = np.diff(stamps[ids == SYNC_ID]) * 1e6
     if d.size == 0:
         return {"mean": float("nan"), "p50": float("nan"), "p90": float("nan"),

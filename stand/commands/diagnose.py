@@ -145,8 +145,7 @@ def print_between(b) -> None:
           f"{-100 * st.improvement:+.1f}%, {100 * max(st.excess_share, 0):.0f}% of the excess "
           f"({'earns' if st.earns else 'part of it'}; {b.extra_params} more parameters)")
     if b.refit:
-        print("  its other parameters refitted with them: "
-              + ", ".join(f"{k} = {v:.4g}" for k, v in b.refit.items()))
+        print(f"  its other parameters refitted with them: {b.refit_text}")
     rows = list(enumerate(b.records))
     if len(rows) > BETWEEN_ROWS:
         rows = rows[:BETWEEN_ROWS // 2] + [None] + rows[-BETWEEN_ROWS // 2:]
