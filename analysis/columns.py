@@ -92,6 +92,11 @@ def _lookup(name: str, unit: str | None) -> tuple[str | None, str | None]:
     return None, None
 
 
+def written_unit(cell: str) -> str | None:
+    """The unit a header cell writes after a signal's name (None: none, or not a signal)."""
+    return _lookup(*_parse(cell))[1]
+
+
 def map_header(header: list[str]) -> tuple[dict[str, Column], list[str]]:
     """The columns of t, u, y and (if present) r in ``header``, and notes on any conversion.
 

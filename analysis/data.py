@@ -21,7 +21,7 @@ import numpy as np
 from gateway.errors import DataError
 from gateway.runs import is_run_dir, load_run
 
-from .columns import ColumnError, map_header, positional
+from .columns import ColumnError, map_header, positional, written_unit
 from .glitches import remove_glitches
 
 #: relative spread of sample intervals above which a record is resampled to a uniform grid
@@ -169,6 +169,8 @@ class _Layout:
     has_header: bool
     first: list[str]
     encoding: str = "utf-8-sig"
+    #: lines before the data: the header, and a row of units under it if there is one
+    skip: int = 0
 
 
 #: bytes read to tell the text encoding
@@ -224,6 +226,46 @@ def _split(line: str, delimiter: str | None) -> list[str]:
     return line.split() if delimiter is None else next(csv.reader([line], delimiter=delimiter))
 
 
+def _decimal_mark(fields: list[str], delimiter: str | None) -> str:
+    """',' if the fields (split by ``delimiter``) hold decimal commas (``1,5``), else '.'."""
+    return "," if delimiter != "," and any(_DECIMAL_COMMA.match(f.strip()) for f in fields) else "."
+
+
+def _is_number(text: str, decimal: str) -> bool:
+    try:
+        float(text.replace(",", ".") if decimal == "," else text)
+        return True
+    except ValueError:
+        return False
+
+
+def _choose_delimiter(lines: list[str]) -> str | None:
+    """The delimiter of a table from its first lines (None: runs of blanks).
+
+    A candidate must split every sniffed line into the same number of fields. Among those, the
+    one whose header names the signals and whose data fields are all numbers wins; then the
+    more frequent one. Both matter: 'Время, с;Усилие, кгс' has more commas than semicolons,
+    and with decimal commas ('0,0;1,000;9,8067') the comma splits every line alike too."""
+    rows = [ln.rstrip("\r\n") for ln in lines]
+    counts = {d: rows[0].count(d) for d in _DELIMITERS if rows[0].count(d)}
+    if not counts:
+        return None
+    consistent = [d for d in counts if len({len(_split(r, d)) for r in rows}) == 1]
+
+    def score(d: str) -> tuple[bool, bool, int]:
+        data = [f.strip() for r in rows[1:] or rows for f in _split(r, d)]
+        decimal = _decimal_mark(data, d)
+        numeric = all(_is_number(f, decimal) for f in data if f)
+        first = [f.strip() for f in _split(rows[0].lstrip("#"), d)]
+        try:
+            named = all(_is_number(f, decimal) for f in first if f) or bool(map_header(first)[0])
+        except ColumnError:
+            named = False
+        return named and numeric, numeric, counts[d]
+
+    return max(consistent or counts, key=score)
+
+
 def _layout(path: Path) -> _Layout:
     """Sniff the delimiter (comma, semicolon, tab, else blanks), a decimal comma (``1,5;2,25``)
     and whether the first line is a header (it is unless every field is a number; a leading
@@ -231,38 +273,37 @@ def _layout(path: Path) -> _Layout:
     try:
         encoding = _encoding(path)
         with _open_text(path, encoding) as fh:
-            lines = [ln for ln in (fh.readline() for _ in range(3)) if ln.strip()]
+            lines = [ln for ln in (fh.readline() for _ in range(4)) if ln.strip()]
     except (OSError, UnicodeDecodeError, EOFError) as exc:
         raise DataError(f"cannot read {path}: {exc}") from None
     if not lines:
         raise DataError(f"{path}: empty file")
-    counts = {d: lines[0].count(d) for d in _DELIMITERS}
-    # a delimiter that splits every sniffed line into the same number of fields wins over a
-    # more frequent one: 'Время, с;Усилие, кгс' has more commas than semicolons
-    same = {d: n for d, n in counts.items()
-            if n and len({len(_split(ln.rstrip("\r\n"), d)) for ln in lines}) == 1}
-    counts = same or counts
-    delimiter = max(counts, key=counts.get) if max(counts.values()) else None
+    delimiter = _choose_delimiter(lines)
     # numpy's savetxt writes its header as a comment: "# t,u,y"
     first = [f.strip() for f in _split(lines[0].lstrip("#").rstrip("\r\n"), delimiter)]
     data = _split(lines[-1].rstrip("\r\n"), delimiter)
-    decimal = "," if delimiter != "," and any(_DECIMAL_COMMA.match(f.strip()) for f in data) else "."
+    decimal = _decimal_mark(data, delimiter)
 
     def number(text: str) -> bool:
-        try:
-            float(text.replace(",", ".") if decimal == "," else text)
-            return True
-        except ValueError:
-            return False
+        return _is_number(text, decimal)
 
     has_header = not all(number(f) for f in first if f)
+    skip = int(has_header)
+    if has_header and len(lines) > 2:
+        units = [f.strip() for f in _split(lines[1].rstrip("\r\n"), delimiter)]
+        if len(units) == len(first) and any(units) and not any(number(f) for f in units if f):
+            # a logger's row of units under the names ("time;force" then "s;kN"): each unit
+            # joins its name as the header would have written it ("force [kN]")
+            first = [f"{name} [{unit}]" if unit and written_unit(name) is None else name
+                     for name, unit in zip(first, units)]
+            skip = 2
     if has_header and delimiter is None and len(lines) > 1 and len(first) != len(data):
         # blank-separated with "time [s]" in the header: the names would slide onto the
         # wrong columns
         raise DataError(f"{path}: the header has {len(first)} fields ({', '.join(first)}) but the "
                         f"rows have {len(data)}; in a blank-separated table write each name "
                         "without blanks, e.g. 'time_ms' not 'time [ms]'")
-    return _Layout(delimiter, decimal, has_header, first, encoding)
+    return _Layout(delimiter, decimal, has_header, first, encoding, skip)
 
 
 def read_csv(path: str | Path) -> Record:
@@ -312,7 +353,7 @@ def _read_table_arrow(path: Path, layout: _Layout, columns: dict) -> dict | None
     try:
         table = pacsv.read_csv(
             path, read_options=pacsv.ReadOptions(column_names=names,
-                                                 skip_rows=1 if layout.has_header else 0,
+                                                 skip_rows=layout.skip,
                                                  encoding=layout.encoding.replace("-sig", "")),
             parse_options=pacsv.ParseOptions(delimiter=layout.delimiter),
             convert_options=pacsv.ConvertOptions(
@@ -335,7 +376,7 @@ def _read_table_lines(path: Path, layout: _Layout, columns: dict) -> dict:
     try:
         with _open_text(path, layout.encoding) as fh:
             for lineno, line in enumerate(fh, start=1):
-                if lineno == 1 and layout.has_header:
+                if lineno <= layout.skip:
                     continue
                 if line.lstrip().startswith("#"):
                     continue

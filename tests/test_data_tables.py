@@ -152,3 +152,47 @@ def test_a_german_latin_1_table_is_not_taken_for_cyrillic(tmp_path, samples):
     assert any("read as Latin-1" in n for n in rec.notes), rec.notes
     with pytest.raises(ColumnError, match="no force column"):
         map_header(["Время, с", "Управление, %", "Усилие, фунт"])
+
+
+def _export(path, header_lines, rows, encoding="utf-8", bom=False):
+    """A table as a Windows program exports it: CRLF line ends, optionally a byte-order mark."""
+    data = ("\r\n".join(header_lines + rows) + "\r\n").encode(encoding)
+    path.write_bytes((b"\xef\xbb\xbf" if bom else b"") + data)
+    return path
+
+
+@pytest.mark.parametrize("encoding, bom", [("utf-8", False), ("utf-8", True), ("cp1251", False)])
+@pytest.mark.parametrize("header, scale", [
+    ("Время, мс;Управление, В;Усилие, кН", (1e3, 0.1, 1e-3 * G0)),
+    ("Время, с;Управление, %;Усилие, кгс", (1, 1, 1)),
+    ("Время;Управление;Усилие", (1, 1, 1)),
+    (None, (1, 1, 1)),
+])
+def test_a_semicolon_table_with_a_decimal_comma_in_every_value_is_read(tmp_path, samples, encoding,
+                                                                       bom, header, scale):
+    # every value has exactly one comma, so the comma splits every line alike too: the
+    # semicolon must win because its header names the signals and its fields are numbers
+    t, u, y, _ = samples
+    rows = [";".join(f"{v:.4f}".replace(".", ",") for v in (a * scale[0], b * scale[1], c * scale[2]))
+            for a, b, c in zip(t, u, y)]
+    if encoding == "cp1251" and bom:
+        pytest.skip("a byte-order mark is UTF-8's")
+    rec = load(_export(tmp_path / "lab.csv", [header] if header else [], rows, encoding, bom))
+    assert np.allclose(rec.t, t, atol=1e-6) and np.allclose(rec.u, u, atol=1e-3)
+    assert np.allclose(rec.y, y, rtol=1e-4, atol=0.01)
+
+
+def test_an_excel_export_with_a_trailing_empty_column_is_read(tmp_path, samples):
+    t, u, y, _ = samples
+    rows = [f"{a:.3f};{b:.3f};{c:.3f};".replace(".", ",") for a, b, c in zip(t, u, y)]
+    rec = load(_export(tmp_path / "export.csv", ["time;command;force;"], rows + [";;;", ""], bom=True))
+    assert len(rec) == len(t) and np.allclose(rec.y, y, atol=1e-3)
+
+
+def test_a_logger_tsv_with_a_units_row_under_the_header_is_read_in_those_units(tmp_path, samples):
+    t, u, y, _ = samples
+    rows = [f"{a * 1e3:.3f}\t{b / 10:.5f}\t{c * G0 / 1e3:.6f}" for a, b, c in zip(t, u, y)]
+    rec = load(_export(tmp_path / "logger.tsv", ["time\tcommand\tforce", "ms\tV\tkN"], rows, bom=True))
+    assert np.allclose(rec.t, t, atol=1e-6) and np.allclose(rec.u, u, atol=1e-3)
+    assert np.allclose(rec.y, y, rtol=1e-5, atol=0.01)
+    assert any("kN" in n for n in rec.notes) and any("ms" in n for n in rec.notes)
