@@ -11,7 +11,8 @@ offset. The payloads of all frames of one message form an (m, 8) byte matrix; vi
     physical:                 raw · scale + offset      (the same float64 operations as cantools)
 
 so the decoded values equal cantools' ``decode_message`` bit for bit. Frames whose length differs
-from the DBC's are counted, never decoded; unknown ids are counted per id. Multiplexed signals
+from the DBC's are counted, never decoded, except the shorter forms a protocol allows
+(:data:`SHORTER_FORMS`: CiA 301's SYNC without its counter); unknown ids are counted per id. Multiplexed signals
 are NaN in frames whose multiplexer selects another group. CAN FD messages longer than 8 bytes
 use a byte window per signal.
 """
@@ -23,7 +24,15 @@ from pathlib import Path
 import cantools
 import numpy as np
 
+from dbc.profile import SYNC_COB_ID
+
 from .frames import ERROR, EXTENDED, REMOTE, CaptureError, FrameChunk
+
+#: frame id -> a shorter length that is the same message too. CiA 301's SYNC carries a 1-byte
+#: counter only when the producer's counter overflow value (0x1019) is set; the default, and
+#: what most masters send, is a SYNC of DLC 0. Its counter decodes as 0, a value the counter
+#: never takes (it runs from 1).
+SHORTER_FORMS = {SYNC_COB_ID: 0}
 
 DEFAULT_DBC = Path(__file__).resolve().parent.parent / "dbc" / "stand.dbc"
 
@@ -315,6 +324,8 @@ class FrameDecoder:
             codec = self.codecs[m]
             st.per_message[msg.name] = st.per_message.get(msg.name, 0) + count
             good = chunk.dlc[rows] == msg.length
+            if msg.frame_id in SHORTER_FORMS and not msg.is_extended_frame:
+                good |= chunk.dlc[rows] == SHORTER_FORMS[msg.frame_id]
             if not good.all():
                 bad = int((~good).sum())
                 st.wrong_dlc[msg.name] = st.wrong_dlc.get(msg.name, 0) + bad

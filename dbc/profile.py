@@ -14,6 +14,7 @@ VALVE_NODE_ID = 1
 DYNAMOMETER_NODE_ID = 2
 
 # -- CiA 301 communication objects -------------------------------------------------------------
+SYNC_COB_ID = 0x080               # the SYNC's default COB-ID; DLC 0 (no counter) or 1 (counter)
 DEVICE_TYPE = 0x1000
 ERROR_REGISTER = 0x1001
 COMM_CYCLE_PERIOD = 0x1006        # µs; in lockstep the emulator advances this much per SYNC

@@ -282,4 +282,20 @@ def test_sync_without_counter_and_a_second_channel():
     rows = {k: np.concatenate([p[1][k] for p in parts]) for k in parts[0][1]}
     assert_rows_equal_truth(rows, run)
     assert dec.stats.other_channel == len(other)
-    assert dec.stats.wrong_dlc == {"SYNC": 601}
+    assert dec.stats.wrong_dlc == {}, "a SYNC of DLC 0 is a valid SYNC, not the wrong length"
+
+
+def test_both_forms_of_the_sync_decode_silently_the_counter_is_0_without_one():
+    run, chunk = traffic(400)
+    syncs = np.flatnonzero(chunk.can_id == 0x080)
+    plain = syncs[::2]                       # every other SYNC without its counter
+    chunk.dlc[plain] = 0
+    chunk.data[plain] = 0
+    dec = FrameDecoder()
+    decoded = dec.decode(chunk)["SYNC"]
+    counter = decoded.phys["SYNC_Counter"]
+    assert len(counter) == len(syncs) and dec.stats.wrong_dlc == {}
+    with_counter = np.isin(decoded.index, syncs[1::2])
+    assert (counter[~with_counter] == 0).all() and (counter[with_counter] >= 1).all()
+    rows, _, _ = assemble(chunk, 3001)
+    assert_rows_equal_truth(rows[0], run)
