@@ -1,0 +1,210 @@
+"""Loading programmes on the stand: the load experiment and passes that learn (``stand load``).
+
+A pass is one run of the gateway like any experiment (same supervisor, limits, recorder, run
+directory, capture)::
+
+    approach   the force is brought to the programme's first level (a short P loop)
+    programme  u = feedforward through the model's inverse + PI (loading.controller)
+    unload     a haversine from the last level to the unload level, tracked the same way
+
+The supervisor's tracking-error limit, when none is set, is :data:`ERROR_LIMIT_SHARE` of the
+programme's range for these passes: a pass that cannot track stops safely and says why.
+``run_load`` runs ``repeat`` passes in a row, each in its own run directory under ``out``
+(``pass-1``, ``pass-2``, ...); after each pass the tracking report is made from the recorded
+force and the peak/valley compensation learns from it before the next. ``out`` also holds the
+controller used, the learned corrections (``compensation.toml``), the report (``report.json``,
+``report.txt``) and a figure of the last pass (``tracking.png``).
+
+Everything that can be checked is checked before anything moves: the controller's period
+against the loop's, the programme against the force limit, the feedforward's peak command
+against the command limit.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from core.errors import ParameterError
+from loading.compensation import Compensation
+from loading.controller import PIFeedforward
+from loading.design import ControllerDesign
+from loading.feedforward import Feedforward, feedforward
+from loading.programme import Programme, check_programme
+from loading.report import TrackingReport, load_summary, plot_tracking, tracking_report
+
+from .experiments.phases import PhasedExperiment
+from .runs import load_run
+
+#: the supervisor's tracking-error limit when none is set: this share of the programme's range
+ERROR_LIMIT_SHARE = 0.10
+#: the feedforward may use at most this share of the command limit (the rest is the feedback's)
+FEEDFORWARD_SHARE = 0.9
+
+
+def _unload_tail(last_kgf: float, unload_kgf: float, rate_kgf_s: float, period_s: float) -> np.ndarray:
+    """A haversine from the last level to the unload level at a peak rate (samples after the
+    programme's last)."""
+    span = unload_kgf - last_kgf
+    if abs(span) < 1e-9:
+        return np.zeros(0)
+    n = max(int(round(math.pi * abs(span) / (2 * rate_kgf_s) / period_s)), 1)
+    s = np.arange(1, n + 1) / n
+    return last_kgf + span * (1 - np.cos(np.pi * s)) / 2
+
+
+class LoadProgramme(PhasedExperiment):
+    """One pass of a loading programme under the designed controller (module docstring)."""
+
+    name = "load"
+
+    def __init__(self, programme: Programme, controller: ControllerDesign,
+                 compensation: Compensation | None = None, unload_kgf: float = 0.0,
+                 settle_gain: float = 0.02, settle_limit_pct: float = 20.0,
+                 settle_tolerance_kgf: float = 20.0, settle_max_s: float = 20.0,
+                 guard_fraction: float = 0.95) -> None:
+        self.programme = programme
+        self.controller = controller
+        self.compensation = compensation
+        kinds = programme.kinds()
+        self.commanded = (programme.with_levels(compensation.levels(programme.levels_kgf, kinds))
+                          if compensation is not None else programme)
+        peak_rate = float(np.max(np.abs(programme.rate_kgf_s()))) or 1000.0
+        tail = _unload_tail(float(self.commanded.r_kgf[-1]), unload_kgf, min(peak_rate, 2500.0),
+                            programme.period_s)
+        self.reference = np.r_[self.commanded.r_kgf, tail]
+        self.unload_kgf = unload_kgf
+        self.ff: Feedforward = feedforward(controller.model, self.reference, programme.period_s)
+        self.max_command_pct = controller.command_limit_pct
+        self.law = PIFeedforward(controller.kp_pct_per_kgf, controller.ti_s, programme.period_s,
+                                 controller.command_limit_pct)
+        self._init_phases(float(self.reference[0]), settle_gain, settle_limit_pct,
+                          settle_tolerance_kgf, settle_max_s, guard_fraction)
+
+    @property
+    def main_duration_s(self) -> float:
+        return len(self.reference) * self.programme.period_s
+
+    def params(self) -> dict[str, Any]:
+        return {"programme": self.programme.source, "turning_points": int(len(self.programme.turning_idx)),
+                "range_kgf": self.programme.range_kgf, "controller_model": self.controller.model_spec,
+                "kp_pct_per_kgf": self.controller.kp_pct_per_kgf, "ti_s": self.controller.ti_s,
+                "feedforward_inverts": self.ff.inverted, "feedforward_does_not_invert": self.ff.not_inverted,
+                "compensated": self.compensation is not None, "unload_kgf": self.unload_kgf,
+                **self.phase_params()}
+
+    def check(self, period_s: float, force_limit_kgf: float, command_limit_pct: float) -> None:
+        """Refuse what the stand must not be asked for, before anything moves."""
+        if abs(self.controller.period_s - period_s) > 1e-9:
+            raise ParameterError(
+                f"the controller was designed for a period of {self.controller.period_s * 1e3:g} ms but "
+                f"the loop runs at {period_s * 1e3:g} ms; design it again with --period-ms "
+                f"{period_s * 1e3:g}")
+        check_programme(self.programme, force_limit_kgf)
+        check_programme(self.commanded, force_limit_kgf)
+        limit = min(command_limit_pct, self.controller.command_limit_pct)
+        peak = self.ff.peak_pct
+        if peak > FEEDFORWARD_SHARE * limit:
+            k = int(np.argmax(np.abs(self.ff.u_pct)))
+            raise ParameterError(
+                f"{self.programme.source}: at t = {k * period_s:.2f} s the programme needs a valve "
+                f"command of {peak:.1f} % by the model, over {FEEDFORWARD_SHARE:.0%} of the command "
+                f"limit ±{limit:g} %: the valve cannot follow this rate; lower --rate or --frequency")
+
+    def begin_main(self, y0: float) -> None:
+        self.law.reset()
+
+    def step(self, t: float, y: float) -> tuple[float, float]:
+        u, r = super().step(t, y)
+        # during the approach the reference is not recorded: the supervisor's error limit is
+        # for tracking the programme, not for the way to its first level
+        return (u, r) if self.main_start_s is not None else (u, math.nan)
+
+    def main_step(self, tm: float, y: float) -> tuple[float, float]:
+        k = min(int(round(tm / self.programme.period_s)), len(self.reference) - 1)
+        r = float(self.reference[k])
+        return self.law.step(r, y, float(self.ff.u_pct[k])), r
+
+
+@dataclass
+class LoadResult:
+    out: Path
+    passes: list[TrackingReport] = field(default_factory=list)
+    run_dirs: list[Path] = field(default_factory=list)
+    end_reason: str | None = None
+    end_message: str | None = None
+    compensation: Compensation | None = None
+
+    def summary(self) -> dict:
+        d = load_summary(self.passes, self.end_reason or "complete")
+        d["runs"] = [str(p) for p in self.run_dirs]
+        if self.end_message:
+            d["end_message"] = self.end_message
+        return d
+
+
+def achieved(run_dir: Path, experiment: LoadProgramme) -> tuple[np.ndarray, np.ndarray]:
+    """The recorded force on the programme's time base (t = 0 at its start)."""
+    run = load_run(run_dir)
+    t0 = experiment.main_start_s or 0.0
+    return np.asarray(run.t) - t0, np.asarray(run.y)
+
+
+def run_load(gw, programme: Programme, controller: ControllerDesign, out: str | Path,
+             repeat: int = 1, compensation: Compensation | None = None, learn: bool = True,
+             unload_kgf: float = 0.0, progress: bool | None = None) -> LoadResult:
+    """Run ``repeat`` passes of ``programme`` on the gateway ``gw`` (module docstring)."""
+    if not (1 <= repeat <= 1000):
+        raise ParameterError(f"repeat = {repeat}: it must be from 1 to 1000")
+    out = Path(out)
+    limits = gw.config.limits
+    comp = compensation if compensation is not None else (Compensation() if learn and repeat > 1 else None)
+    first = LoadProgramme(programme, controller, comp, unload_kgf)
+    first.check(gw.config.period_s, limits.force_limit_kgf, limits.command_limit_pct)
+    supervisor = gw.loop.supervisor
+    own_limits = supervisor.limits
+    if own_limits.error_limit_kgf is None:      # this programme's, for these passes only
+        supervisor.limits = replace(own_limits, error_limit_kgf=max(
+            ERROR_LIMIT_SHARE * programme.range_kgf, 100.0))
+    try:
+        return _passes(gw, programme, controller, out, repeat, comp, first, learn, unload_kgf, progress)
+    finally:
+        supervisor.limits = own_limits
+
+
+def _passes(gw, programme, controller, out, repeat, comp, first, learn, unload_kgf, progress) -> LoadResult:
+    limits = gw.config.limits
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "controller.toml").write_text(controller.to_toml())
+    result = LoadResult(out, compensation=comp)
+    experiment = first
+    last = None
+    for i in range(1, repeat + 1):
+        if i > 1:
+            experiment = LoadProgramme(programme, controller, comp, unload_kgf)
+            experiment.check(gw.config.period_s, limits.force_limit_kgf, limits.command_limit_pct)
+        res = gw.run(experiment, out / f"pass-{i}", progress=progress)
+        result.run_dirs.append(res.path)
+        if res.status != "complete" or experiment.main_start_s is None:
+            result.end_reason = res.reason or res.status
+            result.end_message = res.outcome.message if res.outcome else None
+            break
+        t, y = achieved(res.path, experiment)
+        report = tracking_report(programme, t, y)
+        result.passes.append(report)
+        last = (t, y)
+        if comp is not None and learn:
+            comp.learn(report.turning_points, programme.range_kgf)
+            comp.save(out / "compensation.toml")
+    if last is not None:
+        (out / "report.txt").write_text(
+            "\n\n".join(f"pass {i}:\n{p.text()}" for i, p in enumerate(result.passes, start=1)) + "\n")
+        t, y = last
+        plot_tracking(programme, t, y, result.passes[-1], out / "tracking.png",
+                      title=f"{programme.source}: pass {len(result.passes)}")
+    (out / "report.json").write_text(json.dumps(result.summary(), indent=2) + "\n")
+    return result

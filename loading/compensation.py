@@ -1,0 +1,95 @@
+r"""Peak/valley compensation that learns: a correction per turning-point level.
+
+As commercial peak/valley compensators do, the command's turning points are moved so that the
+force reaches the programme's: after each pass, for every peak and valley ``i`` with level
+``L_i`` reached at ``A_i``,
+
+.. math::  c(L_i) \leftarrow c(L_i) - \gamma\,(A_i - L_i),\qquad 0 < \gamma \le 1,
+
+and the next pass commands ``L_i + c(L_i)``. Corrections are kept per (kind, level) rounded to
+:attr:`Compensation.resolution_kgf`, so a constant-amplitude programme's peaks share one, and a
+level never seen before gets the correction of the nearest known levels of its kind
+(interpolated linearly). A learning gain below 1 keeps the learning stable when the stand's
+response to a correction is not one to one. Saved as TOML (``stand load --compensation``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from core.errors import ParameterError
+
+LEARNING_GAIN = 0.8
+#: a correction is at most this share of the programme's range: compensation trims turning
+#: points, it does not rewrite the programme (a larger error is the controller's or the model's)
+MAX_CORRECTION_SHARE = 0.05
+SCHEMA = "hydrostand-compensation/1"
+
+
+@dataclass
+class Compensation:
+    learning_gain: float = LEARNING_GAIN
+    resolution_kgf: float = 1.0
+    #: kind ("peak"/"valley") -> {level key: correction kgf}
+    table: dict = field(default_factory=lambda: {"peak": {}, "valley": {}})
+
+    def _key(self, level: float) -> float:
+        return round(level / self.resolution_kgf) * self.resolution_kgf
+
+    def correction(self, kind: str, level: float) -> float:
+        known = self.table.get(kind) or {}
+        if not known:
+            return 0.0
+        key = self._key(level)
+        if key in known:
+            return known[key]
+        xs = np.array(sorted(known))
+        return float(np.interp(key, xs, [known[x] for x in xs]))
+
+    def levels(self, levels: np.ndarray, kinds: list[str]) -> np.ndarray:
+        """The levels to command for a programme's turning points."""
+        return np.array([lv + (self.correction(k, lv) if k in ("peak", "valley") else 0.0)
+                         for lv, k in zip(levels, kinds)])
+
+    def learn(self, points, range_kgf: float) -> None:
+        """Update from a pass's turning points (objects with kind, commanded_kgf, error_kgf)."""
+        bound = MAX_CORRECTION_SHARE * range_kgf
+        sums: dict = {}
+        for p in points:
+            key = (p.kind, self._key(p.commanded_kgf))
+            sums.setdefault(key, []).append(p.error_kgf)
+        for (kind, key), errs in sums.items():
+            old = self.table.setdefault(kind, {}).get(key, self.correction(kind, key))
+            new = old - self.learning_gain * float(np.mean(errs))
+            self.table[kind][key] = min(max(new, -bound), bound)
+
+    def to_toml(self) -> str:
+        out = [f"# {SCHEMA}: peak/valley corrections learned by `stand load`",
+               f"learning_gain = {self.learning_gain!r}", f"resolution_kgf = {self.resolution_kgf!r}"]
+        for kind in ("peak", "valley"):
+            out += ["", f"[{kind}]"] + [f'"{k:g}" = {v!r}' for k, v in sorted(self.table.get(kind, {}).items())]
+        return "\n".join(out) + "\n"
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.write_text(self.to_toml())
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Compensation":
+        from plant.config import read_toml
+        from plant.params import ModelError
+        try:
+            data = read_toml(path)
+            comp = cls(float(data.get("learning_gain", LEARNING_GAIN)), float(data.get("resolution_kgf", 1.0)))
+            for kind in ("peak", "valley"):
+                comp.table[kind] = {float(k): float(v) for k, v in (data.get(kind) or {}).items()}
+        except (ModelError, TypeError, ValueError) as exc:
+            raise ParameterError(f"{path}: not a compensation file ({exc})") from None
+        values = [v for t in comp.table.values() for v in t.values()]
+        if not all(math.isfinite(v) for v in values) or not (0 < comp.learning_gain <= 1):
+            raise ParameterError(f"{path}: corrections must be finite and learning_gain in (0, 1]")
+        return comp

@@ -1,0 +1,134 @@
+r"""Feedforward through the model's inverse: the command that makes the model follow a programme.
+
+The programme is known in advance, so the whole command can be computed before the run. For the
+paper's model ``dy/dt = g·u(t−τ) + Δ`` the force must rise by ``r[k+1] − r[k]`` over step k, so
+the flow command is
+
+.. math::  q_k = \frac{(r_{k+1} - r_k)/T - \Delta - \sum_j F_j(r_k)}{g}
+
+(``F_j``: the model's force-dependent rate terms, e.g. a leakage), sent ``τ = (m + f)·T``
+earlier: ``u_k = (1 − f)·q_{k+m} + f·q_{k+m+1}``. Where the model has them, its effects are
+inverted on the way:
+
+* **FLOW** effects (a gain factor ``G(q, ·)``: the reversal boost, an asymmetry, a supply sag,
+  a plug-in's law): ``q·G(q) = v`` is solved per sample by bisection on ``|q|`` with the sign of
+  ``v``, through the effect's own hooks (so any FLOW effect is inverted, the catalogue's and a
+  user's alike), iterating when the effect's state depends on ``q`` itself;
+* **VALVE** effects with a closed-form inverse: a dead zone (``u = q + d·sign q``) and a valve
+  lag (``u = q + T_v·dq/dt``).
+
+Effects it cannot invert (saturation, a play, a sensor filter, disturbances) are listed in
+:attr:`Feedforward.not_inverted`: the feedback handles what they do.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from plant import PlantModel, Stage
+
+#: VALVE effects with a closed-form inverse here
+INVERTIBLE_VALVE = ("deadzone", "lag")
+#: bisection steps on |q| (2^-40 of the bracket)
+BISECTION_STEPS = 40
+#: the largest flow command the inversion looks for (%)
+Q_MAX = 400.0
+
+
+@dataclass
+class Feedforward:
+    """The command to send in each cycle of a programme (%), and what the inversion covered."""
+
+    u_pct: np.ndarray
+    q_pct: np.ndarray          #: the flow command the model needs at each step (before the valve)
+    inverted: list[str] = field(default_factory=list)
+    not_inverted: list[str] = field(default_factory=list)
+
+    @property
+    def peak_pct(self) -> float:
+        return float(np.max(np.abs(self.u_pct))) if len(self.u_pct) else 0.0
+
+
+def _flow_inverse(model: PlantModel, v: np.ndarray, r: np.ndarray, dt: float,
+                  t: np.ndarray) -> np.ndarray:
+    """Solve ``q·ΠG(q) = v`` for q per sample through the model's FLOW effects' hooks."""
+    flows = [e for e in model.effects if e.stage is Stage.FLOW]
+    q = v.copy()
+    if not flows:
+        return q
+    # the flow of the first m steps was commanded before the programme began and is never
+    # sent: the inversion starts at step m, the rod moving already the way it goes there
+    m = min(model.delay_steps(dt), len(v) - 1)
+    head, v, r, t = v[:m], v[m:], r[m:], t[m:]
+    q = v.copy()
+    sign = np.where(v >= 0, 1.0, -1.0)
+    target = np.abs(v)
+    moving = np.flatnonzero(np.abs(v) > 1e-9)
+    u0 = v[moving[:1]] if len(moving) else v[:1]
+    for _ in range(3):
+        aux = []
+        for e in flows:
+            state = e.init_state(1, u0)
+            kw = {}
+            if e.reads_command:
+                kw["command"] = np.r_[q[m:], np.full(m, q[-1])][None, :]
+            if e.reads_time:
+                kw["t"] = t[None, :]
+            aux.append(e.prepare(q[None, :], dt, state, **kw))
+        lo = np.zeros_like(target)
+        hi = np.full_like(target, Q_MAX)
+        for _ in range(BISECTION_STEPS):
+            mid = (lo + hi) / 2
+            cand = sign * mid
+            out = cand.copy()
+            for e, a in zip(flows, aux):
+                out = out * e.gain(cand[None, :], a, r[None, :])[0]
+            above = np.abs(out) > target
+            hi = np.where(above, mid, hi)
+            lo = np.where(above, lo, mid)
+        new = sign * (lo + hi) / 2
+        if np.allclose(new, q, atol=1e-6):
+            q = new
+            break
+        q = new
+    return np.r_[head, q]
+
+
+def feedforward(model: PlantModel, r_kgf: np.ndarray, period_s: float,
+                t_s: np.ndarray | None = None) -> Feedforward:
+    """The command (%) for each cycle that makes ``model`` follow the reference ``r_kgf``
+    sampled at ``period_s`` (see the module docstring)."""
+    r = np.asarray(r_kgf, float)
+    dt = float(period_s)
+    t = np.arange(len(r)) * dt if t_s is None else np.asarray(t_s, float)
+    inc = np.r_[np.diff(r), 0.0] / dt
+    rate = inc - model.delta
+    inverted, skipped = ["base"], []
+    for e in model.effects:
+        if e.stage is Stage.FORCE:
+            rate = rate - e.force_rate(r[None, :])[0]
+            inverted.append(e.name)
+    v = rate / model.g
+    q = _flow_inverse(model, v, r, dt, t)
+    u = q.copy()
+    for e in reversed([e for e in model.effects if e.stage is Stage.VALVE]):
+        if e.name == "deadzone":
+            u = np.where(u > 0, u + e.width, np.where(u < 0, u - e.width, 0.0))
+        elif e.name == "lag":
+            u = u + e.time_constant * np.gradient(u, dt)
+        else:
+            skipped.append(e.name)
+            continue
+        inverted.append(e.name)
+    for e in model.effects:
+        if e.stage is Stage.FLOW:
+            inverted.append(e.name)
+        elif e.stage in (Stage.DISTURBANCE, Stage.SENSOR):
+            skipped.append(e.name)
+    whole = model.tau / dt
+    m = int(np.floor(whole + 1e-9))
+    f = whole - m
+    pad = np.r_[u, np.zeros(m + 2)]
+    ahead = (1 - f) * pad[m:m + len(u)] + f * pad[m + 1:m + 1 + len(u)]
+    return Feedforward(ahead, q, inverted, skipped)

@@ -1,0 +1,86 @@
+"""``stand load PROGRAM --controller C --out RUN``: a loading programme on the stand, tracked by
+the designed controller, with peak/valley compensation learning over passes (gateway.load)."""
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+
+from .common import add_gateway, gateway_config
+
+
+def register(sub) -> None:
+    p = sub.add_parser("load", help="run a loading programme with the designed controller",
+                       description="Apply a loading programme through the gateway (same supervisor, "
+                                   "limits, recorder and run directories as stand run): the force is "
+                                   "brought to the first level, the programme is tracked by the "
+                                   "controller (feedforward through the model's inverse + PI), then "
+                                   "unloaded. PROGRAM: a turning-point CSV (column 'level', kgf), a time "
+                                   "history CSV ('t,r'), a block programme (.toml with [[block]] mean, "
+                                   "amplitude, frequency, cycles) or "
+                                   "sine:mean=KGF,amplitude=KGF,frequency=HZ,cycles=N.")
+    p.add_argument("program", metavar="PROGRAM", help="the loading programme")
+    p.add_argument("--controller", required=True, metavar="CONTROLLER.toml",
+                   help="a controller file written by stand design")
+    p.add_argument("--out", required=True, metavar="DIR", help="directory for the passes and the report")
+    p.add_argument("--repeat", type=int, default=1, metavar="N",
+                   help="run the programme N times in a row, learning the peak/valley corrections "
+                        "between passes (default %(default)s)")
+    p.add_argument("--rate", type=float, metavar="KGF_PER_S",
+                   help="turning-point sequence: peak rate of the haversines between points, kgf/s")
+    p.add_argument("--frequency", type=float, metavar="HZ",
+                   help="turning-point sequence: one half cycle per 1/(2 HZ) instead of --rate")
+    p.add_argument("--compensation", metavar="FILE.toml",
+                   help="start from peak/valley corrections learned before (compensation.toml of "
+                        "an earlier stand load)")
+    p.add_argument("--no-learn", action="store_true", help="keep the corrections as they are")
+    p.add_argument("--unload-to", type=float, default=0.0, metavar="KGF",
+                   help="force to unload to at the end, kgf (default %(default)s)")
+    p.add_argument("--json", action="store_true",
+                   help="print the tracking summary as JSON (schema hydrostand-load/1)")
+    add_gateway(p)
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=main)
+
+
+def _terminate(signum, frame) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def main(args: argparse.Namespace) -> int:
+    from gateway import Gateway
+    from gateway.load import LoadProgramme, run_load
+    from loading.compensation import Compensation
+    from loading.design import load_controller
+    from loading.programme import load_programme
+    config = gateway_config(args)
+    controller = load_controller(args.controller, config.period_s)
+    programme = load_programme(args.program, config.period_s, args.rate, args.frequency)
+    comp = Compensation.load(args.compensation) if args.compensation else None
+    # everything that can be refused is refused before the stand is touched
+    LoadProgramme(programme, controller, comp, args.unload_to).check(
+        config.period_s, config.limits.force_limit_kgf, config.limits.command_limit_pct)
+    previous = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        with Gateway(config) as gw:
+            result = run_load(gw, programme, controller, args.out, args.repeat, comp,
+                              learn=not args.no_learn, unload_kgf=args.unload_to,
+                              progress=False if args.no_progress else None)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    if args.json:
+        json.dump(result.summary(), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        for i, p in enumerate(result.passes, start=1):
+            print(f"pass {i}: peak/valley error p95 {p.peak_valley_error_pct['p95']:.2f} %, max "
+                  f"{p.peak_valley_error_pct['max']:.2f} %, RMS {p.rms_error_pct:.2f} %, extra cycles "
+                  f"{p.extra_cycles:g}")
+        if result.passes:
+            print(result.passes[-1].text())
+        print(f"-> {result.out} (report.txt, report.json, tracking.png, pass-N/)")
+    if result.end_reason not in (None, "complete"):
+        print(f"stand load: stopped ({result.end_reason}): {result.end_message}", file=sys.stderr)
+        return 1
+    return 0
