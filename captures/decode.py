@@ -327,7 +327,8 @@ def decode_capture(path: str | Path, out: str | Path | None = None, *, collect: 
     bar = None
     if progress:
         from tqdm import tqdm
-        bar = tqdm(total=_size(path), unit="B", unit_scale=True, desc=f"decode {path.name}", leave=False)
+        bar = tqdm(total=_size(path), unit="B", unit_scale=True, desc=f"decode {path.name}", leave=False,
+                   disable=None)
 
     def deliver(pieces):
         for run, part in assembler.take_trace():

@@ -79,6 +79,9 @@ class LoadProgramme(PhasedExperiment):
         self.reference = np.r_[self.commanded.r_kgf, tail]
         self.unload_kgf = unload_kgf
         self.ff: Feedforward = feedforward(controller.model, self.reference, programme.period_s)
+        if not controller.feedforward:
+            self.ff = Feedforward(np.zeros_like(self.reference), np.zeros_like(self.reference), [],
+                                  ["all: feedback alone"])
         self.max_command_pct = controller.command_limit_pct
         self.law = PIFeedforward(controller.kp_pct_per_kgf, controller.ti_s, programme.period_s,
                                  controller.command_limit_pct)
@@ -156,8 +159,11 @@ def achieved(run_dir: Path, experiment: LoadProgramme) -> tuple[np.ndarray, np.n
 
 def run_load(gw, programme: Programme, controller: ControllerDesign, out: str | Path,
              repeat: int = 1, compensation: Compensation | None = None, learn: bool = True,
-             unload_kgf: float = 0.0, progress: bool | None = None) -> LoadResult:
-    """Run ``repeat`` passes of ``programme`` on the gateway ``gw`` (module docstring)."""
+             unload_kgf: float = 0.0, progress: bool | None = None,
+             error_limit_kgf: float | None = None) -> LoadResult:
+    """Run ``repeat`` passes of ``programme`` on the gateway ``gw`` (module docstring).
+    ``error_limit_kgf``: the tracking-error limit for these passes (default: the supervisor's,
+    else :data:`ERROR_LIMIT_SHARE` of the programme's range)."""
     if not (1 <= repeat <= 1000):
         raise ParameterError(f"repeat = {repeat}: it must be from 1 to 1000")
     out = Path(out)
@@ -167,9 +173,10 @@ def run_load(gw, programme: Programme, controller: ControllerDesign, out: str | 
     first.check(gw.config.period_s, limits.force_limit_kgf, limits.command_limit_pct)
     supervisor = gw.loop.supervisor
     own_limits = supervisor.limits
-    if own_limits.error_limit_kgf is None:      # this programme's, for these passes only
-        supervisor.limits = replace(own_limits, error_limit_kgf=max(
-            ERROR_LIMIT_SHARE * programme.range_kgf, 100.0))
+    if error_limit_kgf is None and own_limits.error_limit_kgf is None:
+        error_limit_kgf = max(ERROR_LIMIT_SHARE * programme.range_kgf, 100.0)
+    if error_limit_kgf is not None:             # this programme's, for these passes only
+        supervisor.limits = replace(own_limits, error_limit_kgf=error_limit_kgf)
     try:
         return _passes(gw, programme, controller, out, repeat, comp, first, learn, unload_kgf, progress)
     finally:

@@ -77,6 +77,8 @@ class ControllerDesign:
     ti_s: float
     command_limit_pct: float = COMMAND_LIMIT_PCT
     boost: float = 1.0                   #: ρ, the largest gain factor the model predicts
+    #: False: feedback alone (a P or PI without the model's inverse, for comparisons)
+    feedforward: bool = True
     lambda_s: float = math.nan
     nominal: Margins | None = None
     boosted: Margins | None = None
@@ -110,6 +112,7 @@ class ControllerDesign:
         out = [f"# {SCHEMA}: a force controller designed by `stand design` (edit with care: the",
                "# margins below were computed for these values and are not re-checked on load)",
                "[loop]", f"period_s = {num(self.period_s)}", f"command_limit_pct = {num(self.command_limit_pct)}",
+               f"feedforward = {'true' if self.feedforward else 'false'}",
                "", "[feedback]", f"kp_pct_per_kgf = {num(self.kp_pct_per_kgf)}", f"ti_s = {num(self.ti_s)}",
                "", "[model]", f'spec = "{self.model_spec}"']
         out += [f'"{k}" = {num(v)}' for k, v in self.model_params.items()]
@@ -177,6 +180,21 @@ def margins(kp: float, ti: float, g: float, tau: float, period_s: float, check: 
         out.control_gain_margin = float(cgm) if cgm is not None else math.inf
         out.control_phase_margin_deg = float(cpm) if cpm is not None else math.inf
     return out
+
+
+def proportional(kp_pct_per_kgf: float, model: PlantModel, period_s: float = 0.002) -> ControllerDesign:
+    """A P controller without feedforward (the paper's ``u = k·(r − y)``), for comparisons."""
+    rho, notes = largest_gain_factor(model)
+    return ControllerDesign(period_s, model.spec, model.params(), kp_pct_per_kgf, math.inf,
+                            boost=rho, feedforward=False,
+                            nominal=margins(kp_pct_per_kgf, math.inf, model.g, model.tau, period_s),
+                            boosted=margins(kp_pct_per_kgf, math.inf, model.g * rho, model.tau, period_s),
+                            notes=notes)
+
+
+def critical_p_gain(g: float, tau: float, period_s: float) -> float:
+    """The P gain (%/kgf) at which the loop with plant gain ``g`` reaches its stability limit."""
+    return margins(1.0, math.inf, g, tau, period_s, check=False).gain_margin
 
 
 def largest_gain_factor(model: PlantModel) -> tuple[float, list[str]]:
@@ -256,6 +274,7 @@ def load_controller(path: str | Path, period_s: float | None = None) -> Controll
                              model_params={k: float(v) for k, v in mdl.items()},
                              kp_pct_per_kgf=float(fb["kp_pct_per_kgf"]), ti_s=float(fb["ti_s"]),
                              command_limit_pct=float(loop.get("command_limit_pct", COMMAND_LIMIT_PCT)),
+                             feedforward=bool(loop.get("feedforward", True)),
                              boost=float(data.get("design", {}).get("boost", 1.0)),
                              lambda_s=float(data.get("design", {}).get("lambda_s", math.nan)))
     except KeyError as exc:
@@ -274,7 +293,7 @@ def load_controller(path: str | Path, period_s: float | None = None) -> Controll
                              "parameter of the model must be given (stand design writes them all)")
     for name, v in (("period_s", c.period_s), ("kp_pct_per_kgf", c.kp_pct_per_kgf), ("ti_s", c.ti_s),
                     ("command_limit_pct", c.command_limit_pct)):
-        if not (math.isfinite(v) and v > 0):
+        if not (v > 0 and (math.isfinite(v) or name == "ti_s" and v == math.inf)):
             raise ParameterError(f"{path}: {name} = {v} must be a positive finite number")
     if c.command_limit_pct > 100:
         raise ParameterError(f"{path}: command_limit_pct = {c.command_limit_pct} is over 100 %")

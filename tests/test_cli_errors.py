@@ -81,3 +81,23 @@ def test_every_commands_help_prints_cleanly():
     pages = {name: sub.format_help() for name, sub in subparsers.choices.items()}
     assert {"fit", "compare", "diagnose", "estimate", "campaign", "run", "decode"} <= set(pages)
     assert not [name for name, page in pages.items() if "%%" in page]
+
+
+def test_a_stepwise_diagnosis_into_a_log_writes_a_line_per_step_and_no_bar(tmp_path):
+    """Progress bars belong on a terminal; a log (stderr not a tty) gets one line per step."""
+    import numpy as np
+
+    from analysis.synthetic import meander
+    from plant import PlantModel
+    rec = meander(PlantModel.from_spec("base+reversal", {"g": 120.0, "tau": 0.05}), (5.0, 20.0),
+                  seed=1)
+    files = []
+    for i, r in enumerate(rec if isinstance(rec, list) else [rec]):
+        f = tmp_path / f"m{i}.csv"
+        np.savetxt(f, np.c_[r.t, r.u, r.y], delimiter=",", header="t,u,y", comments="")
+        files.append(str(f))
+    res = stand("diagnose", *files, "--stepwise", "--max-effects", "1", timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "\r" not in res.stderr
+    steps = [ln for ln in res.stderr.splitlines() if ln.startswith("diagnose --stepwise:")]
+    assert 1 <= len(steps) <= 3 and all("diagnosing base" in ln for ln in steps), res.stderr

@@ -162,15 +162,21 @@ def print_between(b) -> None:
 
 @contextlib.contextmanager
 def progress_bar(args: argparse.Namespace, desc: str, total: int | None = None):
-    """A progress bar on stderr counting the models fitted (none with --no-progress); yields the
+    """Progress on stderr while models are fitted (nothing with --no-progress): a bar counting
+    them on a terminal; elsewhere (a log, a pipe) one line per step of the build-up. Yields the
     ``progress(message)`` callback."""
-    bar = None if args.no_progress else tqdm(total=total, desc=desc, unit="model",
-                                             file=sys.stderr, leave=False)
+    terminal = sys.stderr.isatty()
+    bar = None if args.no_progress or not terminal else tqdm(
+        total=total, desc=desc, unit="model", file=sys.stderr, leave=False, disable=None)
 
     def progress(msg: str) -> None:
-        if bar is not None and not msg.startswith("refitting"):
+        if args.no_progress or msg.startswith("refitting"):
+            return
+        if bar is not None:
             bar.set_postfix_str(msg)
             bar.update(1)
+        elif msg.startswith("diagnosing"):      # a step of the build-up starts
+            print(f"{desc}: {msg}", file=sys.stderr, flush=True)
 
     try:
         yield progress
