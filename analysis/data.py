@@ -444,6 +444,19 @@ def _is_capture(path: Path) -> bool:
     return suffix in SUFFIXES
 
 
+def load_capture(path: str | Path, strict: bool = False, **options) -> Record:
+    """A bus capture as a record (t, u, y, r = NaN), decoded with the stand's DBC
+    (:func:`captures.decode.capture_run`). A capture holding several runs needs ``run=i``. A
+    damaged capture gives what was decoded before the damage, with a note naming the position
+    (``strict=True``: raise :class:`captures.CaptureDamaged` instead)."""
+    from captures.decode import capture_run
+    sig, meta, notes = capture_run(path, strict=strict, **options)
+    rec = make_record(sig["t"], sig["u"], sig["y"], sig["r"], source=str(path), experiment=None,
+                      meta=meta)
+    rec.notes = notes + rec.notes
+    return rec
+
+
 def load(path: str | Path) -> Record:
     """Load one input: run directory, CSV ``t,u,y[,r]``, or a bus capture (decoded with the DBC)."""
     path = Path(path)
@@ -454,7 +467,6 @@ def load(path: str | Path) -> Record:
             return read_run(path)
         raise DataError(f"{path} is a directory but not a run (no run.json)")
     if _is_capture(path):
-        from captures import load_capture
         return load_capture(path)
     if _suffix(path) in TABLE_SUFFIXES:
         return read_csv(path)

@@ -33,7 +33,7 @@ from .pfeedback import PFeedbackEstimate, estimate_pfeedback, fit_harmonic, refe
 from .relay import RelayEstimate, estimate_relay, relay_levels
 
 SCHEMA = "hydrostand-estimate/1"
-EXPERIMENT_NAMES = ("meander", "pfeedback", "relay")
+from .defaults import EXPERIMENT_NAMES  # noqa: E402  (re-exported)
 
 Result = Union[MeanderEstimate, PFeedbackEstimate, RelayEstimate]
 

@@ -51,7 +51,7 @@ from .data import Record
 from .parallel import one_blas_thread
 
 #: default window of the free-run error, s
-WINDOW_S = 2.0
+from .defaults import WINDOW_S  # noqa: E402  (re-exported)
 #: lead-in at the start of every record, s: the commands before a record are unknown, so its
 #: first samples only prime the command history (delay line, valve and reversal states)
 LEAD_S = 0.5

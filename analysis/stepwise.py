@@ -34,7 +34,7 @@ from .diagnose import Candidate, Diagnosis, diagnose, judge
 from .parallel import one_blas_thread
 
 #: effects added at most (each step is one diagnosis: all candidates fitted)
-MAX_EFFECTS = 5
+from .defaults import MAX_EFFECTS  # noqa: E402  (re-exported)
 
 
 @dataclass

@@ -1,8 +1,8 @@
 """Captured bus traffic: read any capture fast, decode it with the DBC into the gateway's run
 format, and put it back on a bus (as it was, or as the stand's two nodes).
 
-* :func:`load_capture` — a capture as an :class:`analysis.data.Record` (every analysis command
-  accepts capture files through :func:`analysis.data.load`);
+* :func:`capture_run` — one run of a capture as its signals (every analysis command accepts
+  capture files through :func:`analysis.data.load`, which makes a record of them);
 * :func:`decode_capture` — capture → run directory (``run.json`` + ``signals.parquet``), streamed
   with bounded memory, optionally partitioned, optionally every message as its own dataset;
 * :func:`decode_frames` / :class:`FrameDecoder` — the vectorized DBC decoder on its own;
@@ -13,16 +13,44 @@ format, and put it back on a bus (as it was, or as the stand's two nodes).
 
 See ``docs/captures.md``.
 """
-from .cycles import CycleAssembler, RunInfo, StandSignals
-from .dbcdecode import DecodedMessage, DecodeStats, FrameDecoder, load_dbc
-from .decode import (DecodeOptions, DecodeResult, decode_capture, decode_frames, iter_frames,
-                     load_capture)
-from .frames import CaptureDamaged, CaptureError, Damage, FrameChunk, ReadStats
-from .readers import SUFFIXES, capture_format, open_capture
+from __future__ import annotations
 
-__all__ = [
-    "CaptureDamaged", "CaptureError", "CycleAssembler", "Damage", "DecodeOptions", "DecodeResult",
-    "DecodeStats", "DecodedMessage", "FrameChunk", "FrameDecoder", "ReadStats", "RunInfo",
-    "StandSignals", "SUFFIXES", "capture_format", "decode_capture", "decode_frames", "iter_frames",
-    "load_capture", "load_dbc", "open_capture",
-]
+import importlib
+
+# Names are imported on first use (PEP 562): a command's help does not pay for the readers.
+_LAZY = {
+    "CycleAssembler": ".cycles",
+    "RunInfo": ".cycles",
+    "StandSignals": ".cycles",
+    "DecodedMessage": ".dbcdecode",
+    "DecodeStats": ".dbcdecode",
+    "FrameDecoder": ".dbcdecode",
+    "load_dbc": ".dbcdecode",
+    "DecodeOptions": ".decode",
+    "DecodeResult": ".decode",
+    "decode_capture": ".decode",
+    "decode_frames": ".decode",
+    "iter_frames": ".decode",
+    "capture_run": ".decode",
+    "CaptureDamaged": ".frames",
+    "CaptureError": ".frames",
+    "Damage": ".frames",
+    "FrameChunk": ".frames",
+    "ReadStats": ".frames",
+    "SUFFIXES": ".formats",
+    "capture_format": ".readers",
+    "open_capture": ".readers",
+}
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

@@ -3,7 +3,7 @@
 ::
 
     result = decode_capture("bench.log", out="runs/bench")   # writes runs/bench/{run.json,signals.parquet}
-    record = load_capture("bench.log")                      # analysis.data.Record, in memory
+    signals, meta, notes = capture_run("bench.log")          # one run's signals, in memory
 
 Memory is bounded by the chunk size (about 1 MB of capture at a time) plus the Parquet row
 groups being written, whatever the length of the capture; ``partition_rows`` splits the output
@@ -374,14 +374,13 @@ def decode_capture(path: str | Path, out: str | Path | None = None, *, collect: 
     return result
 
 
-def load_capture(path: str | Path, strict: bool = False, **options):
-    """A capture as an :class:`analysis.data.Record` (t, u, y, r = NaN), for every analysis.
+def capture_run(path: str | Path, strict: bool = False, **options) -> tuple[dict, dict, list[str]]:
+    """One run of a capture as its signals (t, u, y, r = NaN, ...), its metadata and the notes
+    on what decoding met (what :func:`analysis.data.load_capture` makes a record of).
 
     A capture holding several runs needs ``run=i``. A damaged capture gives what was decoded
     before the damage, with a note naming the position (``strict=True``: raise
     :class:`CaptureDamaged` instead)."""
-    from analysis.data import make_record
-
     result = decode_capture(path, **options)
     runs = result.runs_with_rows()
     if result.damage is not None and strict:
@@ -402,8 +401,4 @@ def load_capture(path: str | Path, strict: bool = False, **options):
             raise DataError(f"{path}: there is no run {result.options.run}; the capture holds runs "
                             f"{', '.join(str(r.index) for r in result.runs_with_rows())}")
     run = runs[0]
-    sig = result.signals[run.index]
-    rec = make_record(sig["t"], sig["u"], sig["y"], sig["r"], source=str(path), experiment=None,
-                      meta=result.meta(run))
-    rec.notes = result.notes(run) + rec.notes
-    return rec
+    return result.signals[run.index], result.meta(run), result.notes(run)

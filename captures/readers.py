@@ -24,9 +24,7 @@ from .blf import BlfReader
 from .candump import CandumpReader
 from .frames import ERROR, EXTENDED, FD, REMOTE, TX, CaptureError, Damage, FrameChunk, ReadStats
 
-VECTORIZED = {".log": "candump", ".blf": "blf"}
-VIA_PYTHON_CAN = {".asc": "asc", ".trc": "trc", ".csv": "csv", ".db": "sqlite", ".mf4": "mf4"}
-SUFFIXES = tuple(VECTORIZED) + tuple(VIA_PYTHON_CAN)
+from .formats import SUFFIXES, VECTORIZED, VIA_PYTHON_CAN  # noqa: F401 (re-exported)
 
 
 def capture_format(path: str | Path) -> str:

@@ -13,63 +13,23 @@
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 from tqdm import tqdm
 
-from dbc import profile as P
-from standbus import DEFAULT_BUS, BusSpec, BusSpecError, open_bus
-from standbus.realtime import DEFAULT_PRIORITY, process_threads, realtime_threads, short_gil_slices
+from standbus import BusSpecError, open_bus
+from standbus.realtime import process_threads, realtime_threads, short_gil_slices
 
 from .capture import BusCapture, TappedNetwork
-from .errors import ParameterError, StandError
-from .experiments import Experiment, check_range
+from .errors import StandError
+from .config import GatewayConfig
+from .experiments import Experiment
 from .loop import ControlLoop, LoopOutcome, steady_heap
 from .master import StandMaster
 from .recorder import RunRecorder
-from .supervisor import SafetyLimits, Supervisor
-
-
-@dataclass
-class GatewayConfig:
-    """How to reach and drive the stand. Nothing here describes the plant."""
-
-    bus: str = DEFAULT_BUS
-    valve_id: int = P.VALVE_NODE_ID
-    dynamometer_id: int = P.DYNAMOMETER_NODE_ID
-    period_s: float = 0.002
-    lockstep: bool = False
-    boot_timeout_s: float = 5.0
-    heartbeat_ms: int = 100
-    rpdo_timeout_ms: int = 100
-    limits: SafetyLimits = field(default_factory=SafetyLimits)
-    #: real time: SCHED_FIFO priority of the process's threads (loop, bus reader, recorder,
-    #: capture) during a run where the host allows it (standbus.realtime); 0: ordinary scheduling
-    rt_priority: int = DEFAULT_PRIORITY
-
-    def validate(self) -> None:
-        check_range("period_s", self.period_s, 0.0005, 0.1, "s")
-        check_range("rt_priority", self.rt_priority, 0, 99, integer=True)
-        check_range("valve_id", self.valve_id, 1, 127, integer=True)
-        check_range("dynamometer_id", self.dynamometer_id, 1, 127, integer=True)
-        if self.valve_id == self.dynamometer_id:
-            raise ParameterError("valve_id and dynamometer_id must differ")
-        check_range("boot_timeout_s", self.boot_timeout_s, 0.1, 600, "s")
-        check_range("heartbeat_ms", self.heartbeat_ms, 10, 10000, "ms", integer=True)
-        check_range("rpdo_timeout_ms", self.rpdo_timeout_ms, 0, 60000, "ms", integer=True)
-        self.limits.validate()
-        heartbeat_timeout_s = self.limits.resolved(self.lockstep).heartbeat_timeout_s
-        if heartbeat_timeout_s * 1000 <= self.heartbeat_ms:
-            raise ParameterError(
-                f"heartbeat timeout {heartbeat_timeout_s * 1e3:g} ms must exceed the "
-                f"nodes' heartbeat period {self.heartbeat_ms} ms (CiA 301: consumer time > producer "
-                "time; 2-3.5x is usual)")
-        try:
-            BusSpec.parse(self.bus)
-        except BusSpecError as exc:
-            raise ParameterError(str(exc)) from None
+from .supervisor import Supervisor
 
 
 @dataclass

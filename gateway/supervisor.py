@@ -42,13 +42,15 @@ import threading
 import time
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from dbc import profile as P
 
 from .errors import ParameterError
 from .experiments.base import check_range
-from .master import StandMaster
+
+if TYPE_CHECKING:
+    from .master import StandMaster
 
 ACTIONS = ("indicate", "hold", "unload", "zero")
 #: status word values (bits 0-3) of the valve's fault states
@@ -198,7 +200,7 @@ class Unloader:
 class Supervisor:
     """Watches one stand (the master's two nodes) for one control loop."""
 
-    def __init__(self, master: StandMaster, limits: SafetyLimits, period_s: float,
+    def __init__(self, master: "StandMaster", limits: SafetyLimits, period_s: float,
                  lockstep: bool = False) -> None:
         self.master = master
         self.limits = limits.resolved(lockstep)

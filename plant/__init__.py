@@ -5,14 +5,38 @@
 - :mod:`plant.sensor`: the dynamometer (noise, resolution, range);
 - :mod:`plant.config`: model files and emulator configuration (TOML).
 """
-from .config import PlantConfig, load_model_file, load_plant_config, model_to_toml
-from .effects import CATALOGUE, Effect, Stage, register
-from .model import BASE_PARAMS, PlantModel, PlantState
-from .params import ModelError, Param
-from .sensor import Dynamometer
+from __future__ import annotations
 
-__all__ = [
-    "BASE_PARAMS", "CATALOGUE", "Dynamometer", "Effect", "ModelError", "Param", "PlantConfig",
-    "PlantModel", "PlantState", "Stage", "load_model_file", "load_plant_config",
-    "model_to_toml", "register",
-]
+import importlib
+
+# Names are imported on first use (PEP 562), so `import plant.x` and the command line's --help do
+# not pay for the numerics and the CAN stack behind them.
+_LAZY = {
+    "PlantConfig": ".config",
+    "load_model_file": ".config",
+    "load_plant_config": ".config",
+    "model_to_toml": ".config",
+    "CATALOGUE": ".effects",
+    "Effect": ".effects",
+    "Stage": ".effects",
+    "register": ".effects",
+    "BASE_PARAMS": ".model",
+    "PlantModel": ".model",
+    "PlantState": ".model",
+    "ModelError": ".params",
+    "Param": ".params",
+    "Dynamometer": ".sensor",
+}
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

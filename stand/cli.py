@@ -15,9 +15,9 @@ import sys
 
 from stand import commands
 
-from gateway.errors import StandError
+from core.errors import StandError
 from plant.params import ModelError
-from standbus import BusSpecError
+from standbus.spec import BusSpecError
 
 
 

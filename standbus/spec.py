@@ -13,9 +13,11 @@ Any interface python-can knows (including plug-ins) is accepted; options are pas
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import can
+if TYPE_CHECKING:
+    import can
+
 
 DEFAULT_BUS = "udp_loopback:stand0"
 
@@ -81,9 +83,10 @@ def known_interfaces() -> list[str]:
     return sorted(BACKENDS)
 
 
-def open_bus(spec: "str | BusSpec", **extra: Any) -> can.BusABC:
+def open_bus(spec: "str | BusSpec", **extra: Any) -> "can.BusABC":
     """Open a python-can bus from a spec, turning every failure into a :class:`BusSpecError`
     that says what was wrong and what to try."""
+    import can
     if not isinstance(spec, BusSpec):
         spec = BusSpec.parse(spec)
     interfaces = known_interfaces()

@@ -13,7 +13,8 @@ import pytest
 
 from analysis.data import load
 from analysis.meander import estimate_meander
-from captures import CaptureDamaged, FrameChunk, decode_capture, load_capture
+from analysis.data import load_capture
+from captures import CaptureDamaged, FrameChunk, decode_capture
 from captures.synthetic import FORCE_SCALE, stand_frames, synthetic_run
 from captures.writers import write_blf, write_candump
 from gateway import load_run

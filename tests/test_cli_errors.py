@@ -1,6 +1,7 @@
 """User mistakes give one clear message and exit code 2, never a traceback."""
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 
@@ -79,8 +80,31 @@ def test_every_commands_help_prints_cleanly():
     parser = build_parser()
     subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     pages = {name: sub.format_help() for name, sub in subparsers.choices.items()}
-    assert {"fit", "compare", "diagnose", "estimate", "campaign", "run", "decode"} <= set(pages)
+    for name, sub in subparsers.choices.items():     # stand run's experiments too
+        for a in sub._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                pages.update({f"{name} {n}": s.format_help() for n, s in a.choices.items()})
+    assert {"fit", "compare", "diagnose", "estimate", "campaign", "run", "decode", "design", "load",
+            "run meander", "run relay"} <= set(pages)
     assert not [name for name, page in pages.items() if "%%" in page]
+    # plain words: no reST literals or roles, no argparse dest-style metavars (X_AMPLITUDE_PCT)
+    assert not [name for name, page in pages.items() if "``" in page or ":mod:" in page]
+    assert not [name for name, page in pages.items() if re.search(r"\bX_[A-Z]", page)]
+
+
+def test_the_help_imports_no_numerics_and_no_can_stack():
+    """`stand --help` and `stand X --help` stay snappy: scipy, pyarrow, matplotlib, canopen,
+    python-can's io and numpy are imported only by the commands that run."""
+    heavy = ["scipy", "pyarrow", "matplotlib", "canopen", "can", "can.io", "numpy", "cantools"]
+    code = ("import sys, argparse\n"
+            "from stand.cli import build_parser\n"
+            "p = build_parser()\n"
+            "sub = next(a for a in p._actions if isinstance(a, argparse._SubParsersAction))\n"
+            "for s in sub.choices.values(): s.format_help()\n"
+            f"print(sorted(m for m in {heavy!r} if m in sys.modules))")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "[]", f"imported for --help: {res.stdout}"
 
 
 def test_a_stepwise_diagnosis_into_a_log_writes_a_line_per_step_and_no_bar(tmp_path):

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from analysis.data import read_run
-from captures import load_capture
+from analysis.data import load_capture
 from analysis.estimate import estimate_record
 from analysis.meander import estimate_meander
 from gateway import load_run

@@ -9,12 +9,7 @@ import time
 import uuid
 from pathlib import Path
 
-from analysis.campaign_report import report_campaign
-from gateway import Gateway, GatewayConfig, SafetyLimits
-from gateway.campaign import CampaignPlan, run_campaign
 from gateway.errors import ParameterError
-from plant.config import load_plant_config
-from plant_emulator.process import EmulatorProcess
 
 from .common import add_node_ids, parse_assignments
 
@@ -51,6 +46,11 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from analysis.campaign_report import report_campaign
+    from gateway import Gateway, GatewayConfig, SafetyLimits
+    from gateway.campaign import CampaignPlan, run_campaign
+    from plant.config import load_plant_config
+    from plant_emulator.process import EmulatorProcess
     plan = CampaignPlan.quick() if args.quick else CampaignPlan.default()
     if args.only:
         plan = plan.only([n.strip() for n in args.only.split(",") if n.strip()])

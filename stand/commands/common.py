@@ -5,11 +5,11 @@ import argparse
 import sys
 
 from dbc import profile as P
-from gateway import GatewayConfig, SafetyLimits
-from gateway.errors import ParameterError
-from gateway.supervisor import ACTIONS
-from standbus import DEFAULT_BUS
+from core.errors import ParameterError
+from gateway.config import GatewayConfig
+from gateway.supervisor import ACTIONS, SafetyLimits
 from standbus.realtime import DEFAULT_PRIORITY
+from standbus.spec import DEFAULT_BUS
 
 
 def add_bus(p: argparse.ArgumentParser, default: str | None = DEFAULT_BUS) -> None:
@@ -20,15 +20,15 @@ def add_bus(p: argparse.ArgumentParser, default: str | None = DEFAULT_BUS) -> No
 
 
 def add_node_ids(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--valve-id", type=int, default=P.VALVE_NODE_ID, help="servo-valve node id (default %(default)s)")
-    p.add_argument("--dynamometer-id", type=int, default=P.DYNAMOMETER_NODE_ID,
+    p.add_argument("--valve-id", type=int, default=P.VALVE_NODE_ID, metavar="ID", help="servo-valve node id (default %(default)s)")
+    p.add_argument("--dynamometer-id", type=int, default=P.DYNAMOMETER_NODE_ID, metavar="ID",
                    help="dynamometer node id (default %(default)s)")
 
 
 def add_gateway(p: argparse.ArgumentParser) -> None:
     add_bus(p)
     add_node_ids(p)
-    p.add_argument("--period-ms", type=float, default=2.0, help="control period, ms (default %(default)s)")
+    p.add_argument("--period-ms", type=float, default=2.0, metavar="MS", help="control period, ms (default %(default)s)")
     p.add_argument("--lockstep", action="store_true",
                    help="send the next SYNC as soon as a cycle is done (needs the emulator with --lockstep)")
     p.add_argument("--boot-timeout", type=float, default=5.0, metavar="S",

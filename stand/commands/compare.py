@@ -4,8 +4,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from analysis.compare import compare, metrics_table, params_table
-from analysis import plots
 
 from .common import load_records
 from .fit import add_data_args, check_window, print_json
@@ -35,6 +33,8 @@ def default_out(data: list[str], prefix: str) -> Path:
 
 
 def main(args: argparse.Namespace) -> int:
+    from analysis.compare import compare, metrics_table, params_table
+    from analysis import plots
     check_window(args)
     records = load_records(args.data)
     c = compare(records, args.model, window_s=args.window_s, fit=not args.as_given)

@@ -5,12 +5,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from captures import SUFFIXES, decode_capture
-from captures.decode import DecodeOptions
 from gateway.errors import StandError
 
 
 def register(sub) -> None:
+    from captures.formats import SUFFIXES
     p = sub.add_parser("decode", help="decode a bus capture (candump .log, .blf, .asc, ...) into a run",
                        description="Decode a bus capture with the DBC into the run format the gateway "
                                    "records (run.json + signals.parquet: t, u, y, cycle, y_counts, ...), "
@@ -43,6 +42,8 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from captures import decode_capture
+    from captures.decode import DecodeOptions
     if args.period_ms is not None and not args.period_ms > 0:
         raise StandError(f"--period-ms {args.period_ms}: give a positive period in ms, e.g. 2")
     if args.partition_rows is not None and args.partition_rows < 1:

@@ -7,14 +7,7 @@ import os
 import time
 from pathlib import Path
 
-from analysis.data import read_run
-from analysis.meander import estimate_meander
-from gateway import Gateway, GatewayConfig
 from gateway.experiments import Meander
-from gateway.recorder import write_json
-from gateway.runs import TRUTH_FILE
-from plant.config import load_plant_config
-from plant_emulator.process import EmulatorProcess
 
 from .common import parse_assignments
 
@@ -38,6 +31,13 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from analysis.data import read_run
+    from analysis.meander import estimate_meander
+    from gateway import Gateway, GatewayConfig
+    from gateway.recorder import write_json
+    from gateway.runs import TRUTH_FILE
+    from plant.config import load_plant_config
+    from plant_emulator.process import EmulatorProcess
     config = load_plant_config(args.config, None, parse_assignments(args.set))
     experiment = Meander(args.amplitude_pct, args.period_s, args.cycles)
     bus = args.bus or f"udp_loopback:demo-{os.getpid()}"

@@ -6,15 +6,8 @@ import contextlib
 import sys
 from pathlib import Path
 
-from tqdm import tqdm
 
-from analysis import plots
-from analysis.compare import resolve_model
-from analysis.diagnose import diagnosable_effects, diagnose
-from analysis.report import write_report
-from analysis.stepwise import MAX_EFFECTS, stepwise
 
-from plant import model_to_toml
 
 from .common import load_records
 from .compare import default_out
@@ -22,6 +15,7 @@ from .fit import add_data_args, check_window, print_json
 
 
 def register(sub) -> None:
+    from analysis.defaults import MAX_EFFECTS
     p = sub.add_parser("diagnose", help="find the effect the model is missing (or say it is adequate)",
                        description="Fit the model (default: the paper's base model), then add every "
                                    "diagnosable catalogue effect in turn, refit, and rank them by how "
@@ -58,6 +52,9 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from analysis import plots
+    from analysis.compare import resolve_model
+    from analysis.diagnose import diagnosable_effects, diagnose
     check_window(args)
     if args.max_effects < 1:
         from gateway.errors import ParameterError
@@ -165,6 +162,7 @@ def progress_bar(args: argparse.Namespace, desc: str, total: int | None = None):
     """Progress on stderr while models are fitted (nothing with --no-progress): a bar counting
     them on a terminal; elsewhere (a log, a pipe) one line per step of the build-up. Yields the
     ``progress(message)`` callback."""
+    from tqdm import tqdm
     terminal = sys.stderr.isatty()
     bar = None if args.no_progress or not terminal else tqdm(
         total=total, desc=desc, unit="model", file=sys.stderr, leave=False, disable=None)
@@ -204,6 +202,7 @@ def print_tail(d, files: list, saved: Path | None, heading: str) -> None:
 
 def save_model(args: argparse.Namespace, model, summary: str) -> Path | None:
     """--save: the model arrived at, as a model file (None: there is no model to save)."""
+    from plant import model_to_toml
     if not args.save or model is None:
         if args.save:
             print(f"note: no model to save to {args.save}: no effect earned its parameters",
@@ -216,6 +215,9 @@ def save_model(args: argparse.Namespace, model, summary: str) -> Path | None:
 
 
 def main_stepwise(args: argparse.Namespace, records, model, effects) -> int:
+    from analysis import plots
+    from analysis.report import write_report
+    from analysis.stepwise import stepwise
     with progress_bar(args, "diagnose --stepwise") as progress:
         r = stepwise(records, model, window_s=args.window_s, max_effects=args.max_effects,
                      effects=effects, progress=progress, jobs=args.jobs)

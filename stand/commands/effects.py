@@ -4,7 +4,6 @@ from __future__ import annotations
 import argparse
 import inspect
 
-from plant import BASE_PARAMS, CATALOGUE
 
 from .fit import print_json
 
@@ -24,6 +23,7 @@ def _param(p) -> dict:
 
 
 def main(args: argparse.Namespace) -> int:
+    from plant import BASE_PARAMS, CATALOGUE
     rows = [{"effect": "base", "summary": "dy/dt = g·u(t − τ) + Δ (paper eq. 1 with the trend of eq. 2)",
              "stage": "-", "diagnosable": True, "params": [_param(p) for p in BASE_PARAMS],
              "doc": ""}]

@@ -5,10 +5,6 @@ import argparse
 import contextlib
 import math
 
-from plant.params import ModelError
-from plant.config import load_plant_config
-from plant_emulator import EmulatedStand, EmulatorOptions
-from plant_emulator.process import serve_until_signalled
 
 from standbus.realtime import make_realtime, short_gil_slices
 
@@ -36,6 +32,10 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from plant.params import ModelError
+    from plant.config import load_plant_config
+    from plant_emulator import EmulatedStand, EmulatorOptions
+    from plant_emulator.process import serve_until_signalled
     config = load_plant_config(args.config, args.model, parse_assignments(args.set))
     if not (0.01 <= args.step_ms <= 100 and math.isfinite(args.step_ms)):
         raise ModelError(f"--step-ms {args.step_ms:g} is out of range: use 0.01 to 100 ms")

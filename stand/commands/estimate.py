@@ -5,15 +5,15 @@ import argparse
 import json
 import math
 import sys
+from typing import TYPE_CHECKING
 
-from analysis.campaign_report import ReportInput, estimate_inputs, write_report
-from analysis.estimate import EXPERIMENT_NAMES, EstimateOptions, error_json, result_json
-from analysis.meander import MeanderEstimate
-from analysis.pfeedback import PFeedbackEstimate
-from analysis.relay import RelayEstimate
+if TYPE_CHECKING:
+    from analysis.campaign_report import ReportInput
+
 
 
 def register(sub) -> None:
+    from analysis.defaults import EXPERIMENT_NAMES
     p = sub.add_parser(
         "estimate", help="estimate g and τ from meander, P-feedback or relay runs / CSV files",
         description="Estimate the paper's model parameters from recorded runs, campaign directories "
@@ -36,6 +36,8 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from analysis.campaign_report import estimate_inputs, write_report
+    from analysis.estimate import EstimateOptions, error_json, result_json
     options = EstimateOptions(
         experiment=args.experiment, hysteresis_kgf=args.hysteresis_kgf,
         control_period_s=args.period_ms / 1000.0 if args.period_ms else None,
@@ -64,8 +66,11 @@ def _ci(ci, scale: float = 1.0) -> str:
     return f"[{lo * scale:.4g}, {hi * scale:.4g}]" if math.isfinite(lo) and math.isfinite(hi) else ""
 
 
-def describe(item: ReportInput) -> str:
+def describe(item: "ReportInput") -> str:
     """A few lines per input: the recommended estimates, the paper's formulas, warnings."""
+    from analysis.meander import MeanderEstimate
+    from analysis.pfeedback import PFeedbackEstimate
+    from analysis.relay import RelayEstimate
     if item.estimate is None:
         return f"{item.source}: no estimate"
     est = item.estimate

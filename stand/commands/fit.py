@@ -6,16 +6,13 @@ import json
 import sys
 from pathlib import Path
 
-from analysis.compare import Comparison, jsonable, metrics_table, params_table, resolve_model
-from analysis.fit import WINDOW_S, fit_model
-from analysis.metrics import evaluate
-from plant import model_to_toml
 
 from .common import load_records
 
 
 def add_data_args(p: argparse.ArgumentParser, model_required: bool = True) -> None:
     """DATA, --model, --window-s: shared by fit, compare, diagnose and report."""
+    from analysis.defaults import WINDOW_S
     p.add_argument("data", nargs="+", metavar="DATA",
                    help="tables of samples (.csv/.tsv/.txt: t,u,y[,r] in s, %%, kgf, or other "
                         "names and units in the header, e.g. 'time [ms]', 'force_N'), run "
@@ -35,6 +32,7 @@ def check_window(args: argparse.Namespace) -> None:
 
 
 def print_json(obj) -> None:
+    from analysis.compare import jsonable
     json.dump(jsonable(obj), sys.stdout, indent=2, allow_nan=False)
     sys.stdout.write("\n")
 
@@ -56,6 +54,10 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from analysis.compare import Comparison, metrics_table, params_table, resolve_model
+    from analysis.fit import fit_model
+    from analysis.metrics import evaluate
+    from plant import model_to_toml
     check_window(args)
     records = load_records(args.data)
     model, path = resolve_model(args.model)

@@ -6,13 +6,7 @@ import argparse
 import signal
 import threading
 
-from captures import iter_frames
-from captures.frames import CaptureDamaged
-from captures.plant import ReplayedStand, force_trace
-from captures.replay import Replayer
 from gateway.errors import StandError
-from plant_emulator import EmulatorOptions
-from plant_emulator.process import serve_until_signalled
 from standbus import open_bus
 
 from .common import add_bus, add_node_ids
@@ -51,6 +45,9 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from captures import iter_frames
+    from captures.frames import CaptureDamaged
+    from captures.replay import Replayer
     if args.loop < 1:
         raise StandError("--loop must be at least 1")
     if args.as_plant:
@@ -82,6 +79,9 @@ def main(args: argparse.Namespace) -> int:
 
 
 def as_plant(args: argparse.Namespace) -> int:
+    from captures.plant import ReplayedStand, force_trace
+    from plant_emulator import EmulatorOptions
+    from plant_emulator.process import serve_until_signalled
     trace = force_trace(args.capture, run=args.run)
     options = EmulatorOptions(lockstep=True, valve_id=args.valve_id, dynamometer_id=args.dynamometer_id)
     stand = serve_until_signalled(

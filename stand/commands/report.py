@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import argparse
 
-from analysis.diagnose import diagnose
-from analysis.report import write_report
 
 from .compare import default_out
 from .common import load_records
@@ -30,6 +28,8 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from analysis.diagnose import diagnose
+    from analysis.report import write_report
     check_window(args)
     records = load_records(args.data)
     out = args.out or default_out(args.data, "report")

@@ -3,9 +3,9 @@ from __future__ import annotations
 
 import argparse
 import inspect
+import re
 import signal
 
-from gateway import Gateway
 from gateway.experiments import EXPERIMENTS, make_experiment
 
 from .common import add_gateway, gateway_config
@@ -17,12 +17,17 @@ def register(sub) -> None:
                                    "one experiment and write a run directory.")
     exps = p.add_subparsers(dest="experiment", metavar="EXPERIMENT", required=True)
     for name, klass in EXPERIMENTS.items():
-        doc = inspect.getdoc(klass) or ""
-        e = exps.add_parser(name, help=doc.splitlines()[0] if doc else name, description=doc,
+        doc = plain(inspect.getdoc(klass) or "")
+        helps = param_help(doc)
+        summary = doc.split(":param", 1)[0].strip()
+        e = exps.add_parser(name, help=summary.splitlines()[0] if summary else name, description=summary,
                             formatter_class=argparse.RawDescriptionHelpFormatter)
         for pname, param in inspect.signature(klass).parameters.items():
+            default = param.default
+            shown = "none" if default is None else f"{default:g}" if isinstance(default, float) else default
             e.add_argument("--" + pname.replace("_", "-"), dest=f"x_{pname}", type=float,
-                           default=param.default, help=f"(default {param.default})")
+                           default=default, metavar=metavar(pname),
+                           help=f"{helps.get(pname, pname.replace('_', ' '))} (default {shown})".replace("%", "%%"))
         add_gateway(e)
         e.add_argument("--out", required=True, metavar="DIR", help="run directory to create")
         e.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -32,11 +37,37 @@ def register(sub) -> None:
         e.set_defaults(func=main)
 
 
+#: a parameter's unit suffix -> the metavar its option shows
+_METAVARS = {"pct": "PCT", "s": "S", "kgf": "KGF", "hz": "HZ", "rad_s": "RAD_PER_S", "fraction": "X"}
+
+
+def metavar(pname: str) -> str:
+    for suffix, shown in _METAVARS.items():
+        if pname.endswith("_" + suffix):
+            return shown
+    return "N" if pname in ("cycles", "periods") else "X"
+
+
+def plain(doc: str) -> str:
+    """A docstring as help text: reST literals and roles as plain words."""
+    doc = re.sub(r":(?:mod|class|func|meth|attr|data):`~?([^`]+)`", r"\1", doc)
+    return doc.replace("``", "")
+
+
+def param_help(doc: str) -> dict[str, str]:
+    """``:param name: text`` lines of a docstring (text continued on indented lines)."""
+    out: dict[str, str] = {}
+    for m in re.finditer(r"^:param (\w+): (.*(?:\n(?!:param)\s+\S.*)*)", doc, re.M):
+        out[m.group(1)] = " ".join(m.group(2).split())
+    return out
+
+
 def _terminate(signum, frame) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
 def main(args: argparse.Namespace) -> int:
+    from gateway import Gateway
     params = {k[2:]: v for k, v in vars(args).items() if k.startswith("x_")}
     experiment = make_experiment(args.experiment, params)
     config = gateway_config(args)
