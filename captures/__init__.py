@@ -15,10 +15,10 @@ See ``docs/captures.md``.
 """
 from __future__ import annotations
 
-import importlib
+from core.lazy import lazy_exports
 
-# Names are imported on first use (PEP 562): a command's help does not pay for the readers.
-_LAZY = {
+# imported on first use (core.lazy): `import captures.x` and `stand --help` stay light
+_EXPORTS = {
     "CycleAssembler": ".cycles",
     "RunInfo": ".cycles",
     "StandSignals": ".cycles",
@@ -41,16 +41,5 @@ _LAZY = {
     "capture_format": ".readers",
     "open_capture": ".readers",
 }
-__all__ = sorted(_LAZY)
-
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -6,11 +6,10 @@ Layers, bottom up: :mod:`standbus` (bus) → :mod:`gateway.master` (NMT/SDO/PDO 
 """
 from __future__ import annotations
 
-import importlib
+from core.lazy import lazy_exports
 
-# Names are imported on first use (PEP 562), so `import gateway.x` and the command line's --help do
-# not pay for the numerics and the CAN stack behind them.
-_LAZY = {
+# imported on first use (core.lazy): `import gateway.x` and `stand --help` stay light
+_EXPORTS = {
     "DataError": ".errors",
     "NodeError": ".errors",
     "ParameterError": ".errors",
@@ -23,16 +22,5 @@ _LAZY = {
     "RunResult": ".session",
     "SafetyLimits": ".supervisor",
 }
-__all__ = sorted(_LAZY)
-
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

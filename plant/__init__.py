@@ -7,11 +7,10 @@
 """
 from __future__ import annotations
 
-import importlib
+from core.lazy import lazy_exports
 
-# Names are imported on first use (PEP 562), so `import plant.x` and the command line's --help do
-# not pay for the numerics and the CAN stack behind them.
-_LAZY = {
+# imported on first use (core.lazy): `import plant.x` and `stand --help` stay light
+_EXPORTS = {
     "PlantConfig": ".config",
     "load_model_file": ".config",
     "load_plant_config": ".config",
@@ -27,16 +26,5 @@ _LAZY = {
     "Param": ".params",
     "Dynamometer": ".sensor",
 }
-__all__ = sorted(_LAZY)
-
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
