@@ -23,6 +23,7 @@ from gateway.runs import is_run_dir, load_run
 
 from .columns import ColumnError, map_header, positional, written_unit
 from .glitches import remove_glitches
+from .limits import held_stretches
 
 #: relative spread of sample intervals above which a record is resampled to a uniform grid
 JITTER_TOLERANCE = 0.05
@@ -120,6 +121,10 @@ def make_record(t, u, y, r=None, source: str = "<arrays>", experiment: str | Non
     y, glitches = remove_glitches(y)
     if glitches.count:
         notes.append(glitches.note())
+    if len(t) > 1:
+        for held in held_stretches(u, y, float(np.median(np.diff(t)))):
+            notes.append(f"{held.describe()}: a hydraulic limit (relief valve, stroke end, pressure "
+                         "limit), left out of the model's error")
     return Record(t, u, y, r, source, experiment, dict(meta or {}), notes, bridged)
 
 

@@ -48,6 +48,7 @@ from plant.model import Drive
 from plant.params import ModelError, Param
 
 from .data import Record
+from .limits import held_mask
 from .parallel import one_blas_thread
 
 #: default window of the free-run error, s
@@ -129,9 +130,9 @@ def clipped_mask(y: np.ndarray, run: int = 5) -> np.ndarray:
 
 
 def valid_stretches(rec: Record, min_samples: int) -> list[tuple[int, int]]:
-    """``(start, stop)`` of the stretches of a record whose force reading is not clipped, at
-    least ``min_samples`` long."""
-    bad = clipped_mask(rec.y)
+    """``(start, stop)`` of the stretches of a record whose force reading is not clipped and not
+    held at a hydraulic limit (:mod:`analysis.limits`), at least ``min_samples`` long."""
+    bad = clipped_mask(rec.y) | held_mask(rec.u, rec.y, rec.dt)
     if not bad.any():
         return [(0, len(rec.y))]
     z = np.concatenate([[1], bad.astype(int), [1]])

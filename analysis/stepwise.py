@@ -155,7 +155,9 @@ def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
     last = steps[-1].diagnosis
     final_fit = last.base_fit
     needed: list[Needed] = []
-    if len(added) >= 2:
+    # with several effects, or with one when the build-up did not end adequate (what was added
+    # on the way to "unexplained" must still earn its place, or it is not kept)
+    if len(added) >= 2 or (added and verdict != "adequate"):
         say("checking each added effect with the others in place")
         final_fit, needed = backward_check(records, final_fit, added, last.objective_floor, window_s)
     summary = _summary(steps, verdict, final_fit, needed, last) + tried

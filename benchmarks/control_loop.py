@@ -143,17 +143,21 @@ def _send_empty(addr) -> None:
         s.sendto(b"", addr)
 
 
-def realtime_jitter(duration_s: float) -> dict:
+def realtime_jitter(duration_s: float, experiment=None) -> dict:
     """SYNC timing of a real-time run: each SYNC's wall-clock send time (recorded per cycle)
     against the ideal grid t0 + k·T, k counting the period slots (a missed cycle skips one).
     Bare real-time threads in other processes, one pinned to each CPU (:mod:`benchmarks.wakeup`),
     sleep on their own 2 ms grids meanwhile: a late cycle at a moment one of them woke late too
-    is the host's doing."""
+    is the host's doing. ``experiment``: what the loop runs (default: a meander at 5 %)."""
     bus = f"udp_loopback:bench-rt-{os.getpid()}"
+    if experiment is not None:
+        duration_s = experiment.max_duration_s
     with tempfile.TemporaryDirectory() as tmp, EmulatorProcess(bus, load_plant_config(), lockstep=False):
         with Gateway(GatewayConfig(bus=bus, lockstep=False)) as gw:
             floors = wakeup.start_on_every_cpu(duration_s + 3.0)
-            res = gw.run(Meander(5, 2, max(1, round(duration_s / 2))), f"{tmp}/run", progress=False)
+            if experiment is None:
+                experiment = Meander(5, 2, max(1, round(duration_s / 2)))
+            res = gw.run(experiment, f"{tmp}/run", progress=False)
             host = [stall for f in floors for stall in wakeup.result(f)["stalls"]]
         run = load_run(f"{tmp}/run")
     s = res.outcome.stats

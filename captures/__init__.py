@@ -9,7 +9,7 @@ format, and put it back on a bus (as it was, or as the stand's two nodes).
 * :func:`open_capture` — the reader for a file (candump ``.log`` and ``.blf`` vectorized, other
   python-can formats through python-can), yielding :class:`FrameChunk` s;
 * :mod:`captures.replay` — ``stand replay``: onto any bus with the original timing, or as the
-  plant (:class:`captures.plant.ReplayedStand`).
+  plant (:class:`plant_emulator.replayed.ReplayedStand`, fed by :func:`captures.trace.force_trace`).
 
 See ``docs/captures.md``.
 """

@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dbc import profile as P
+from gateway.runs import COLUMNS as RUN_COLUMNS, SCHEMA
 
 from .dbcdecode import DecodedMessage, FrameDecoder
 from .frames import ERROR, EXTENDED, REMOTE, FrameChunk
@@ -56,10 +57,9 @@ SAFE_REPEATS = 3          #: safe-state RPDOs after a run's last SYNC that mark 
 
 SAFE_CONTROL_WORDS = (int(P.CW_HOLD), int(P.CW_DISABLED))
 
-COLUMNS = ("t", "u", "y", "r", "cycle", "y_counts", "spool", "valve_status", "stale", "sync_time")
-_DTYPES = {"t": np.float64, "u": np.float64, "y": np.float64, "r": np.float64, "cycle": np.int64,
-           "y_counts": np.int32, "spool": np.float64, "valve_status": np.uint16, "stale": np.bool_,
-           "sync_time": np.float64}
+#: the run format's signals, as the gateway records them (one definition: gateway.runs.SCHEMA)
+COLUMNS = RUN_COLUMNS
+_DTYPES = {f.name: np.dtype(f.type.to_pandas_dtype()).type for f in SCHEMA}
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,19 @@ DYNAMOMETER_NODE_ID = 2
 
 # -- CiA 301 communication objects -------------------------------------------------------------
 SYNC_COB_ID = 0x080               # the SYNC's default COB-ID; DLC 0 (no counter) or 1 (counter)
+
+# -- CiA 301 predefined connection set: COB-ID = base + node id ----------------------------------
+NMT_COB_ID = 0x000                # NMT command: (command, node id)
+EMCY_BASE = 0x080
+TPDO_BASES = (0x180, 0x280, 0x380, 0x480)
+RPDO_BASES = (0x200, 0x300, 0x400, 0x500)
+SDO_TX_BASE = 0x580               # server → client
+SDO_RX_BASE = 0x600               # client → server
+HEARTBEAT_BASE = 0x700            # heartbeat and boot-up
+
+# -- NMT commands and the states heartbeats report ---------------------------------------------
+NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
+NMT_STATE_NAMES = {0: "BOOT-UP", 4: "STOPPED", 5: "OPERATIONAL", 127: "PRE-OPERATIONAL"}
 DEVICE_TYPE = 0x1000
 ERROR_REGISTER = 0x1001
 COMM_CYCLE_PERIOD = 0x1006        # µs; in lockstep the emulator advances this much per SYNC

@@ -35,8 +35,8 @@ from .errors import NodeError
 
 log = logging.getLogger(__name__)
 
-NMT_START, NMT_PREOP, NMT_RESET_NODE = 0x01, 0x80, 0x81
-_NMT_NAMES = {0: "BOOT-UP", 4: "STOPPED", 5: "OPERATIONAL", 127: "PRE-OPERATIONAL"}
+NMT_START, NMT_PREOP, NMT_RESET_NODE = P.NMT_START, P.NMT_PREOP, P.NMT_RESET_NODE
+_NMT_NAMES = P.NMT_STATE_NAMES
 
 
 @dataclass
@@ -70,13 +70,13 @@ class StandMaster:
         self.links = (self.valve, self.dynamometer)
         for link in self.links:
             network.add_node(link.node)
-            network.subscribe(0x700 + link.id, self._heartbeat_callback(link))
+            network.subscribe(P.HEARTBEAT_BASE + link.id, self._heartbeat_callback(link))
             if hasattr(network, "expect"):
                 nid = link.id
-                network.expect(0x080 + nid, 8)           # EMCY
-                network.expect(0x580 + nid, 8)           # SDO server → client
-                network.expect(0x700 + nid, 1)           # heartbeat / boot-up
-                for base in (0x180, 0x280, 0x380, 0x480):
+                network.expect(P.EMCY_BASE + nid, 8)
+                network.expect(P.SDO_TX_BASE + nid, 8)
+                network.expect(P.HEARTBEAT_BASE + nid, 1)    # heartbeat / boot-up
+                for base in P.TPDO_BASES:
                     network.expect(base + nid, None)     # TPDOs: exact size once configured
         self.force_scale_kgf: float | None = None
         self.valve_tpdo: PdoLayout | None = None

@@ -39,7 +39,8 @@ from standbus.faults import FrameFilter
 log = logging.getLogger(__name__)
 
 NMT_STATE_CODES = {name: code for code, name in NMT_STATES.items()}
-NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
+NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = (
+    P.NMT_START, P.NMT_STOP, P.NMT_PREOP, P.NMT_RESET_NODE, P.NMT_RESET_COMM)
 EMCY_PDO_LENGTH = P.EMCY_PDO_LENGTH
 PDO_DISABLED = 1 << 31
 
@@ -79,10 +80,10 @@ def slave_frame_filter(network: canopen.Network, node_ids) -> FrameFilter:
     """Put an acceptance filter in front of ``network``'s canopen stack (before ``connect`` or
     before the Notifier is made from ``network.listeners``) and return it."""
     flt = FrameFilter(MessageListener(network).on_message_received)
-    flt.expect(0x000, 2)            # NMT: command, node id
-    flt.expect(0x080, (0, 1))       # SYNC, with or without counter
+    flt.expect(P.NMT_COB_ID, 2)     # NMT: command, node id
+    flt.expect(P.SYNC_COB_ID, (0, 1))   # SYNC, with or without counter
     for nid in node_ids:
-        flt.expect(0x600 + nid, 8)  # SDO client → server
+        flt.expect(P.SDO_RX_BASE + nid, 8)  # SDO client → server
     network.listeners = [flt]
     return flt
 
@@ -164,7 +165,7 @@ class EmulatedNode:
         sees the new state at once instead of up to one heartbeat period later."""
         if int(self.value(0x1017)) > 0:
             state = NMT_STATE_CODES[self.nmt_state]
-            self.network.send_message(0x700 + self.id, bytes((state,)))
+            self.network.send_message(P.HEARTBEAT_BASE + self.id, bytes((state,)))
 
     def _start_pdos(self) -> None:
         od = self.local.object_dictionary

@@ -79,7 +79,7 @@ class EmulatedStand:
         self.valve.before_change = self._catch_up
         self.valve.after_change = self.command_changed
         self.dynamometer.started_listeners.append(self.run_started)
-        self.network.subscribe(0x80, self._on_sync)
+        self.network.subscribe(P.SYNC_COB_ID, self._on_sync)
         self._plant_dt = options.step_s
         self._plant = self.model.new_state(1, self._plant_dt, y0=config.initial_force_kgf)
         #: lockstep: the plant one period per SYNC, computed ahead in blocks

@@ -45,6 +45,8 @@ One hidden effect per simulation (or "none"), or several joined by "+":
   jitter     the delay varies at random, 0-4 ms more at each 2 ms sample (controller/bus timing)
   nulldrift  the valve's null drifts as it warms over each run: the spool sits b*t off the
              command, b = 0.005 %/s (t since the run began)
+  forcelimit a relief valve: the force cannot rise above Fmax = 1500 kgf (it stays there, noise
+             on top, while the flow pushes; it leaves as soon as the flow turns)
   stiction   rod seal friction: the specimen's force is a play of total width w = 200 kgf on the
              hydraulic force (the rod sticks after each reversal until the pressure has
              changed by w); the dynamometer measures the specimen's force
@@ -88,6 +90,7 @@ EFFECT_PARAMS = {
     "jitter": dict(j=0.004),
     "nulldrift": dict(b=0.005),
     "rev_force": dict(boost=2.0, F=150.0),
+    "forcelimit": dict(Fmax=1500.0),
 }
 
 
@@ -259,6 +262,8 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
             if "leakage" in es:
                 rate -= P["leakage"]["lam"] * y
             y += H * rate
+            if "forcelimit" in es:
+                y = min(y, P["forcelimit"]["Fmax"])
             if "stiction" in es:
                 half = P["stiction"]["w"] / 2
                 yp = min(max(yp, y - half), y + half)

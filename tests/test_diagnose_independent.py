@@ -101,6 +101,13 @@ def test_independent_simulator(effect):
         if effect == "stiction":    # the same play on the force
             want = sim.EFFECT_PARAMS["stiction"]["w"]
             assert d.best_candidate.params["stiction.width"] == pytest.approx(want, rel=0.05)
+    elif effect == "forcelimit":
+        # a relief valve holds the force while the command pushes: left out with a note, not
+        # explained by an effect (it is not the plant's law but the stand's limit)
+        assert d.verdict == "adequate", d.summary
+        notes = [n for r in recs for n in r.notes if "hydraulic limit" in n]
+        assert notes and all("held at 1500 kgf" in n or "held at 1499 kgf" in n or
+                             "held at 1501 kgf" in n for n in notes), notes
     elif effect == "jitter":
         # a random delay of 0-4 ms at each sample: no deterministic law removes it; what is left
         # is said to sit after the reversals, where a late or early step moves the force

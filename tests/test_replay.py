@@ -11,7 +11,8 @@ import pytest
 
 from captures import FrameChunk, decode_capture, iter_frames
 from captures.frames import ERROR, EXTENDED, REMOTE
-from captures.plant import ReplayProcess, force_trace
+from captures.trace import force_trace
+from plant_emulator.replayed import ReplayProcess
 from captures.replay import Replayer
 from captures.synthetic import stand_frames, synthetic_run
 from captures.writers import write_candump

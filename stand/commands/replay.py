@@ -79,7 +79,8 @@ def main(args: argparse.Namespace) -> int:
 
 
 def as_plant(args: argparse.Namespace) -> int:
-    from captures.plant import ReplayedStand, force_trace
+    from captures.trace import force_trace
+    from plant_emulator.replayed import ReplayedStand
     from plant_emulator import EmulatorOptions
     from plant_emulator.process import serve_until_signalled
     trace = force_trace(args.capture, run=args.run)

@@ -31,13 +31,12 @@ from pathlib import Path
 import can
 import numpy as np
 
+from core.errors import DataError
 from dbc import profile as P
 from plant.config import load_plant_config
-from plant_emulator import EmulatedStand, EmulatorOptions
-from plant_emulator.process import EmulatorProcess
 
-from .decode import decode_capture
-from .frames import CaptureError
+from .process import EmulatorProcess
+from .stand import EmulatedStand, EmulatorOptions
 
 log = logging.getLogger(__name__)
 
@@ -61,28 +60,12 @@ class ForceTrace:
         return self.counts * self.scale_kgf
 
 
-def force_trace(path: str | Path, run: int | None = None, **options) -> ForceTrace:
-    """Extract the per-SYNC force sequence of one run of a capture."""
-    result = decode_capture(path, trace=True, collect=False, run=run, **options)
-    runs = [r for r in result.runs if r.syncs and r.index in result.traces]
-    if not runs:
-        raise CaptureError(f"{path}: no SYNC answered by the dynamometer in this capture"
-                           + (f" (run {run})" if run is not None else ""))
-    if run is None and len(runs) > 1:
-        raise CaptureError(f"{path} holds {len(runs)} runs; choose one with --run N "
-                           f"({', '.join(str(r.index) for r in runs)})")
-    info = runs[0]
-    tr = result.traces[info.index]
-    return ForceTrace(tr["y_counts"].astype(np.int32), tr["force_status"].astype(np.uint8),
-                      result.force_scale, float(info.period_s), str(path), info.index)
-
-
 class ReplayedStand(EmulatedStand):
     """Both nodes of the stand on ``bus``, the dynamometer replaying ``trace``."""
 
     def __init__(self, bus: can.BusABC, trace: ForceTrace, options: EmulatorOptions | None = None) -> None:
         if not len(trace):
-            raise CaptureError(f"{trace.source}: the force trace is empty")
+            raise DataError(f"{trace.source}: the force trace is empty")
         # One sample per SYNC whatever the wall clock: lockstep-capable by construction.
         options = replace(options or EmulatorOptions(), lockstep=True)
         super().__init__(bus, load_plant_config(None, "base", {}), options)

@@ -1,0 +1,103 @@
+r"""A force held at a hydraulic limit: stretches the model must not be asked to explain.
+
+A relief valve, a stroke end or the stand's pressure limit stops the force at a level for
+seconds while the valve command keeps pushing; the dynamometer's noise stays on top, so it is
+not the dynamometer's flat clip (:func:`analysis.fit.clipped_mask`). No effect of the plant
+model should bend to explain it: the diagnosis would add wrong effects (a direction-dependent
+delay, a load-pressure law) and call the rest unexplained. Such stretches are left out of the
+error like clipped readings (the command history runs on through them) and said in a note.
+
+A stretch is taken for a limit when, for at least ``hold_s``:
+
+* the force stays within a band of ``BAND_SIGMAS`` times its noise (estimated robustly from
+  second differences), while
+* the command pushes one way throughout (``|u| >= push_pct`` of one sign), and
+* the force **arrived** there moving that way under the same command: in the ``hold_s`` before,
+  the command pushed the same way and the force moved by several bands toward the level.
+
+The last condition tells a limit from what looks alike: a dead zone holds the force wherever it
+was when the command became small (it did not arrive moving), a rod that sticks after a reversal
+was moving the other way, a hold at zero command does not push.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import maximum_filter1d, minimum_filter1d
+
+#: the shortest hold taken for a limit, s
+HOLD_S = 1.0
+#: the command must push at least this much, %
+PUSH_PCT = 0.5
+#: the flat band, in noise standard deviations (peak to peak of Gaussian noise over a second of
+#: samples is about 6-7 sigma)
+BAND_SIGMAS = 9.0
+#: the force must have arrived moving by at least this many bands
+ARRIVAL_BANDS = 3.0
+
+
+@dataclass(frozen=True)
+class HeldStretch:
+    start: int            #: first sample
+    stop: int             #: one past the last sample
+    level_kgf: float
+    command_pct: float    #: the median command while held
+    t0_s: float
+    t1_s: float
+
+    def describe(self) -> str:
+        way = "up" if self.command_pct > 0 else "down"
+        return (f"force held at {self.level_kgf:.0f} kgf from t = {self.t0_s:.2f} to {self.t1_s:.2f} s "
+                f"while the command pushed {way} ({self.command_pct:+.1f} %)")
+
+
+def noise_sigma(y: np.ndarray) -> float:
+    """The force reading's noise, from the median absolute second difference (robust to ramps
+    and reversals): a white noise of σ has second differences of σ·√6."""
+    if len(y) < 5:
+        return 0.0
+    d2 = np.diff(np.asarray(y, float), 2)
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+
+
+def held_stretches(u: np.ndarray, y: np.ndarray, dt: float, hold_s: float = HOLD_S,
+                   push_pct: float = PUSH_PCT) -> list[HeldStretch]:
+    """The stretches of a record where the force is held at a limit (module docstring)."""
+    u = np.asarray(u, float)
+    y = np.asarray(y, float)
+    w = int(round(hold_s / dt))
+    n = len(y)
+    if w < 5 or n < 2 * w:
+        return []
+    band = max(BAND_SIGMAS * noise_sigma(y), 1.0)
+    flat = (maximum_filter1d(y, w) - minimum_filter1d(y, w)) <= band
+    up = minimum_filter1d(u, w) >= push_pct
+    down = maximum_filter1d(u, w) <= -push_pct
+    centres = flat & (up | down)
+    if not centres.any():
+        return []
+    # every sample of a window whose centre qualifies
+    held = maximum_filter1d(centres.astype(np.uint8), w).astype(bool)
+    edges = np.flatnonzero(np.diff(np.r_[0, held.astype(np.int8), 0]))
+    out = []
+    for a, b in zip(edges[::2], edges[1::2]):
+        sign = np.sign(np.median(u[a:b]))
+        before = slice(max(a - w, 0), a)
+        if a - before.start < w // 2 or sign == 0:
+            continue
+        pushed_before = np.all(u[before] * sign >= push_pct)
+        moved = (np.median(y[a:min(a + w // 4, b)]) - np.median(y[before][: max(w // 4, 1)])) * sign
+        if not (pushed_before and moved >= ARRIVAL_BANDS * band):
+            continue
+        out.append(HeldStretch(int(a), int(b), float(np.median(y[a:b])), float(np.median(u[a:b])),
+                               float(a * dt), float(b * dt)))
+    return out
+
+
+def held_mask(u: np.ndarray, y: np.ndarray, dt: float) -> np.ndarray:
+    """True where the force is held at a limit."""
+    mask = np.zeros(len(y), bool)
+    for s in held_stretches(u, y, dt):
+        mask[s.start:s.stop] = True
+    return mask
