@@ -82,6 +82,9 @@ def held_stretches(u: np.ndarray, y: np.ndarray, dt: float, hold_s: float = HOLD
     edges = np.flatnonzero(np.diff(np.r_[0, held.astype(np.int8), 0]))
     out = []
     for a, b in zip(edges[::2], edges[1::2]):
+        seg = y[a:b]
+        if max(np.mean(seg == seg.max()), np.mean(seg == seg.min())) > 0.5:
+            continue        # the dynamometer's flat clip, not a hydraulic limit (fit.clipped_mask)
         sign = np.sign(np.median(u[a:b]))
         before = slice(max(a - w, 0), a)
         if a - before.start < w // 2 or sign == 0:

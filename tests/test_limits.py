@@ -58,3 +58,9 @@ def test_ramps_a_dead_zone_a_sticking_rod_and_a_hold_at_zero_are_not_limits():
         assert held_stretches(u, y, DT) == [], kw
     y = np.random.default_rng(1).normal(1000, 2, 5000)
     assert held_stretches(np.zeros(5000), y, DT) == []
+
+
+def test_the_dynamometers_flat_clip_is_not_called_a_hydraulic_limit():
+    t, u, y = meander(levels_limit=2000.0, noise=0.0)
+    y = np.minimum(y + np.random.default_rng(3).normal(0, 2, len(y)), 1990.0)   # clipped reading
+    assert held_stretches(u, y, DT) == []
