@@ -7,13 +7,16 @@ model should bend to explain it: the diagnosis would add wrong effects (a direct
 delay, a load-pressure law) and call the rest unexplained. Such stretches are left out of the
 error like clipped readings (the command history runs on through them) and said in a note.
 
-A stretch is taken for a limit when, for at least ``hold_s``:
+A stretch is taken for a limit when, for at least ``hold_s`` (0.1 s):
 
 * the force stays within a band of ``BAND_SIGMAS`` times its noise (estimated robustly from
   second differences), while
 * the command pushes one way throughout (``|u| >= push_pct`` of one sign), and
-* the force **arrived** there moving that way under the same command: in the ``hold_s`` before,
-  the command pushed the same way and the force moved by several bands toward the level.
+* the force **arrived** there moving that way under the same command and stopped: in the
+  ``hold_s`` before, the command pushed the same way and the force moved by several bands toward
+  the level, and while held it moves at most a tenth as fast (a slow ramp that goes on is not
+  held). A hold from the record's very start (a relay asked for a force beyond the limit) counts
+  when it lasts ten times ``hold_s`` and the force leaves the level once the command lets go.
 
 The last condition tells a limit from what looks alike: a dead zone holds the force wherever it
 was when the command became small (it did not arrive moving), a rod that sticks after a reversal
@@ -27,14 +30,18 @@ import numpy as np
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
 #: the shortest hold taken for a limit, s
-HOLD_S = 1.0
+HOLD_S = 0.1
 #: the command must push at least this much, %
 PUSH_PCT = 0.5
 #: the flat band, in noise standard deviations (peak to peak of Gaussian noise over a second of
 #: samples is about 6-7 sigma)
 BAND_SIGMAS = 9.0
-#: the force must have arrived moving by at least this many bands
+#: the force must have arrived moving by at least this many bands over a hold's time
 ARRIVAL_BANDS = 3.0
+#: ... and stopped there: its rate while held at most this share of its rate before
+STOP_SHARE = 0.1
+#: a hold from the record's start (arrival unknown) counts when this many holds long
+ARRIVAL_HOLDS = 10
 
 
 @dataclass(frozen=True)
@@ -74,28 +81,53 @@ def held_stretches(u: np.ndarray, y: np.ndarray, dt: float, hold_s: float = HOLD
     flat = (maximum_filter1d(y, w) - minimum_filter1d(y, w)) <= band
     up = minimum_filter1d(u, w) >= push_pct
     down = maximum_filter1d(u, w) <= -push_pct
-    centres = flat & (up | down)
-    if not centres.any():
-        return []
-    # every sample of a window whose centre qualifies
-    held = maximum_filter1d(centres.astype(np.uint8), w).astype(bool)
-    edges = np.flatnonzero(np.diff(np.r_[0, held.astype(np.int8), 0]))
+    spans = []
+    for push in (up, down):          # a stretch pushes one way: split at the command's turns
+        centres = flat & push
+        if centres.any():            # every sample of a window whose centre qualifies
+            held = maximum_filter1d(centres.astype(np.uint8), w).astype(bool) & push
+            edges = np.flatnonzero(np.diff(np.r_[0, held.astype(np.int8), 0]))
+            spans += list(zip(edges[::2], edges[1::2]))
     out = []
-    for a, b in zip(edges[::2], edges[1::2]):
+    for a, b in sorted(spans):
         seg = y[a:b]
         if max(np.mean(seg == seg.max()), np.mean(seg == seg.min())) > 0.5:
             continue        # the dynamometer's flat clip, not a hydraulic limit (fit.clipped_mask)
         sign = np.sign(np.median(u[a:b]))
-        before = slice(max(a - w, 0), a)
-        if a - before.start < w // 2 or sign == 0:
+        if sign == 0:
             continue
-        pushed_before = np.all(u[before] * sign >= push_pct)
-        moved = (np.median(y[a:min(a + w // 4, b)]) - np.median(y[before][: max(w // 4, 1)])) * sign
-        if not (pushed_before and moved >= ARRIVAL_BANDS * band):
-            continue
-        out.append(HeldStretch(int(a), int(b), float(np.median(y[a:b])), float(np.median(u[a:b])),
+        if a < w:
+            # held from the record's start: how it got there is unknown; a long hold under a
+            # push is taken for a limit (a relay or a loop asked for a force beyond it)
+            if b - a < ARRIVAL_HOLDS * w:
+                continue
+            if b < n:       # it must leave the level once the command lets go (a dead zone does not)
+                level = float(np.median(seg))
+                after = y[b:min(n, b + 2 * w)]
+                if (level - after.min() if sign > 0 else after.max() - level) < ARRIVAL_BANDS * band:
+                    continue
+        else:
+            before = slice(a - w, a)
+            rate_before = _slope(y[before], dt) * sign
+            rate_during = _slope(seg, dt) * sign
+            arrived = (np.all(u[before] * sign >= push_pct)
+                       and rate_before * w * dt >= ARRIVAL_BANDS * band
+                       and abs(rate_during) <= STOP_SHARE * rate_before)
+            if not arrived:
+                continue
+        level = float(np.median(seg))
+        # the force stays at the level for the delay after the command turns: still held
+        while b < n and abs(y[b] - level) <= band / 2:
+            b += 1
+        out.append(HeldStretch(int(a), int(b), level, float(np.median(u[a:b])),
                                float(a * dt), float(b * dt)))
     return out
+
+
+def _slope(x: np.ndarray, dt: float) -> float:
+    """Least-squares slope of ``x`` per second."""
+    k = np.arange(len(x)) - (len(x) - 1) / 2
+    return float(np.dot(k, x - x.mean()) / np.dot(k, k) / dt) if len(x) > 1 else 0.0
 
 
 def held_mask(u: np.ndarray, y: np.ndarray, dt: float) -> np.ndarray:
