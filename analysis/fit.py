@@ -23,7 +23,7 @@ Starting values, so that the fit does not depend on luck:
   (``ŷ = F + g·A + Δ·B``), so for any trial of the other parameters they are solved exactly from
   three simulations (*variable projection*);
 * τ from a grid of delays (0 … 1 s) with ``g, Δ`` projected, refined by a bounded scalar search;
-* each effect has a small grid of physically sensible starts (:data:`START_GRIDS`, scaled to the
+* each effect has a small grid of physically sensible starts (:meth:`plant.Effect.start_grid`, scaled to the
   data: command levels, force range, sample time); unknown effects get a grid from their
   parameter bounds. The best grid points are polished by ``least_squares``.
 
@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Iterable, Mapping, Sequence
+from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 from scipy import optimize, stats
@@ -500,201 +500,50 @@ class DataSummary:
                    duration_s=max(p.t0 + len(p.u) * p.dt for p in pieces))
 
 
-def _and_less_delay(start: dict, base: Mapping[str, float], extra_s: float) -> list[dict]:
-    """``start``, and the same with τ shortened by ``extra_s``: an effect that holds the
-    response back (a lag, a stuck rod, a late direction) looks like more delay, which the base
-    fit has put into τ."""
-    tau = base.get("tau", 0.05)
-    if extra_s > 0 and tau > 0:
-        return [start, {**start, "tau": max(0.0, tau - extra_s)}]
-    return [start]
 
 
-def _lag_starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
-    out = []
-    for T in (1e-4, 2 * s.dt, 0.01, 0.03, 0.1, 0.3):
-        T = max(T, 1.1e-4)
-        out += _and_less_delay({"lag.time_constant": T}, base, T)
-    return out
 
 
-def _resonance_starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
-    """Natural frequencies of 2-30 Hz (below Nyquist), lightly to well damped; the step
-    response's mean lag 2ζ/ω has gone into the base fit's τ, so each also starts without it."""
-    out = []
-    nyquist = 0.5 / s.dt
-    for f in (2.0, 6.0, 15.0, 30.0):
-        for zeta in (0.15, 0.4, 1.0):
-            if f < nyquist:
-                out += _and_less_delay({"resonance.frequency": f, "resonance.damping": zeta},
-                                       base, 2 * zeta / (2 * math.pi * f))
-    return out
 
 
-def _slew_starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
-    """Spool speeds from a reversal of the middle command level in 5 ms to one in 200 ms; a
-    ramped step reaches the flow about |Δu|/(2R) late, which the base fit put into τ."""
-    swing = 2 * max(float(np.median(s.u_abs_levels)), 1e-3)     # a reversal ±u
-    out = []
-    for t_ramp in (0.005, 0.02, 0.06, 0.2):
-        R = min(1e5, max(1.0, swing / t_ramp))
-        out += _and_less_delay({"slew.rate": R}, base, t_ramp / 2)
-    return out
 
 
-def _supply_starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
-    """Sags of 5-40 % at the largest command in the data, settling in 0.1-3 s."""
-    top = max(s.u_abs_max, 1e-3) / 100.0
-    return [{"supply.sag": min(5.0, f / top), "supply.time_constant": T}
-            for f in (0.05, 0.15, 0.4) for T in (0.1, 0.5, 3.0)]
 
 
-def _warming_starts(effect: str, changes: Sequence[float], limit: float) -> Callable:
-    """Start grid of an effect that drifts from the start of each run (``rate``,
-    ``time_constant``): a total change of each of ``changes`` over the longest run, reached
-    linearly (T far beyond the run) or settling within it; rates within ±``limit``."""
-    def starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
-        D = max(s.duration_s, 1.0)
-
-        def rate(r: float) -> float:
-            return float(np.clip(r, -limit, limit))
-        out = []
-        for change in changes:
-            out += [{f"{effect}.rate": rate(change / D), f"{effect}.time_constant": 1e5},
-                    {f"{effect}.rate": rate(3 * change / D),
-                     f"{effect}.time_constant": max(1.0, D / 3)}]
-        return out
-    return starts
 
 
-def _same_starts(grid: Callable, effect: str, twin: str) -> Callable:
-    """The start grid of ``effect`` for ``twin``, an effect with the same parameters (a sensor
-    lag starts like a valve lag, a command-timed reversal like a rod-timed one)."""
-    def starts(s: DataSummary, base: Mapping[str, float]) -> list[dict]:
-        return [{(twin + k[len(effect):] if k.startswith(effect + ".") else k): v
-                 for k, v in start.items()} for start in grid(s, base)]
-    return starts
 
 
-def _deadzone_starts(s: DataSummary, base) -> list[dict]:
-    ref = float(np.median(s.u_abs_levels))
-    return [{"deadzone.width": min(29.0, f * ref)} for f in (0.0, 0.05, 0.15, 0.3, 0.5, 0.8)]
 
 
-def _saturation_starts(s: DataSummary, base) -> list[dict]:
-    top = s.u_abs_max
-    return [{"saturation.limit": min(100.0, max(0.5, f * top))} for f in (0.3, 0.5, 0.7, 0.9, 1.2)]
 
 
-def _asymmetry_starts(s: DataSummary, base) -> list[dict]:
-    return [{"asymmetry.ratio": a} for a in (-0.3, -0.1, 0.0, 0.1, 0.3)]
 
 
-def _reversal_starts(s: DataSummary, base) -> list[dict]:
-    return [{"reversal.boost": b, "reversal.decay": T, "reversal.exponent": p}
-            for b in (0.5, 2.0, 8.0) for T in (0.03, 0.1, 0.3) for p in (0.0, 0.7)] + [
-        {"reversal.boost": 0.0, "reversal.decay": 0.1, "reversal.exponent": 0.5}]
 
 
-def _travel_reversal_starts(s: DataSummary, base) -> list[dict]:
-    """Boosts that die out within 0.03-0.3 s at the middle command level (travel = |u|·time)."""
-    ref = max(float(np.median(s.u_abs_levels)), 1e-3)
-    return [{"travel_reversal.boost": b, "travel_reversal.travel": min(50.0, max(0.005, ref * T))}
-            for b in (0.5, 2.0, 8.0) for T in (0.03, 0.1, 0.3)] + [
-        {"travel_reversal.boost": 0.0, "travel_reversal.travel": max(0.005, ref * 0.1)}]
 
 
-def _load_pressure_starts(s: DataSummary, base) -> list[dict]:
-    ymax = max(s.y_abs_max, 100.0)
-    return [{"load_pressure.stall_force": min(1e7, max(2000.0, f * ymax))}
-            for f in (1.3, 2.0, 5.0, 20.0, 1000.0)]
 
 
-def _stiffness_starts(s: DataSummary, base) -> list[dict]:
-    """Gain changes at the data's largest force: −20, 0, +20, +60 % for both signs of force,
-    −20, 0, +20 % between tension and compression."""
-    r = 1e4 / max(s.y_abs_max, 100.0)
-    return [{"stiffness.k_abs": min(50.0, a * r), "stiffness.k_sgn": max(-20.0, min(20.0, b * r))}
-            for a in (-0.2, 0.0, 0.2, 0.6) for b in (-0.2, 0.0, 0.2)]
 
 
-def _direction_delay_starts(s: DataSummary, base) -> list[dict]:
-    """Either direction late by 10-80 ms; the base fit's τ is about the mean of the two
-    delays, so each also starts with τ shortened by half the difference."""
-    out = []
-    for d in (-0.08, -0.03, -0.01, 0.01, 0.03, 0.08):
-        out += _and_less_delay({"direction_delay.extra": d}, base, abs(d) / 2)
-    return out
 
 
-def _unloading_starts(s: DataSummary, base) -> list[dict]:
-    return [{"unloading.ratio": h} for h in (-0.3, -0.1, 0.0, 0.1, 0.3)]
 
 
-def _stiction_starts(s: DataSummary, base) -> list[dict]:
-    """Plays of 0-30 % of the force span; a hold after each reversal looks like more delay, so
-    each also starts with τ shortened by the hold at the middle command level."""
-    g = abs(base.get("g", 100.0)) or 100.0
-    ref = max(float(np.median(s.u_abs_levels)), 1e-3)
-    out = []
-    for f in (0.0, 0.01, 0.03, 0.1, 0.3):
-        w = min(5000.0, f * max(s.y_span, 100.0))
-        out += _and_less_delay({"stiction.width": w}, base, w / (g * ref))
-    return out
 
 
-def _leakage_starts(s: DataSummary, base) -> list[dict]:
-    return [{"leakage.rate": lam} for lam in (0.0, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0)]
 
 
-#: effect name -> start grid generator ``(DataSummary, current values) -> [ {name: value} ]``.
-#: An effect without an entry gets :func:`generic_starts` (a grid from its parameter bounds).
-START_GRIDS: dict[str, Callable[[DataSummary, Mapping[str, float]], list[dict]]] = {
-    "lag": _lag_starts,
-    "resonance": _resonance_starts,
-    "slew": _slew_starts,
-    "supply": _supply_starts,
-    # the gain rising or falling by 5-50 % over a run; the null moving by 0.05-0.5 % command
-    "gain_drift": _warming_starts("gain_drift", (-0.3, -0.05, 0.05, 0.2, 0.5), 0.05),
-    "null_drift": _warming_starts("null_drift", (-0.5, -0.1, -0.03, 0.03, 0.1, 0.5), 0.1),
-    "deadzone": _deadzone_starts,
-    "saturation": _saturation_starts,
-    "asymmetry": _asymmetry_starts,
-    "reversal": _reversal_starts,
-    "load_pressure": _load_pressure_starts,
-    "leakage": _leakage_starts,
-    "stiffness": _stiffness_starts,
-    "stiction": _stiction_starts,
-    "unloading": _unloading_starts,
-    "direction_delay": _direction_delay_starts,
-    "sensor_lag": _same_starts(_lag_starts, "lag", "sensor_lag"),
-    "command_reversal": _same_starts(_reversal_starts, "reversal", "command_reversal"),
-    "travel_reversal": _travel_reversal_starts,
-}
 
 
-def generic_starts(effect: str, params: Sequence[Param], limit: int = 27) -> list[dict]:
-    """Default, and a low and a high value per parameter (log-spaced for log parameters)."""
-    axes = []
-    for p in params:
-        if p.log:
-            vals = [p.default, max(p.lower, p.default / 5), min(p.upper, p.default * 5)]
-        else:
-            span = p.upper - p.lower
-            vals = [p.default, p.lower + 0.2 * span, p.lower + 0.6 * span]
-        axes.append(sorted(set(vals)))
-    combos = [{}]
-    for p, vals in zip(params, axes):
-        combos = [{**c, f"{effect}.{p.name}": v} for c in combos for v in vals]
-    return combos[:limit]
 
 
 def effect_starts(effect: str, summary: DataSummary, values: Mapping[str, float]) -> list[dict]:
+    """The effect's start grid (:meth:`plant.Effect.start_grid`) for these data and base fit."""
     from plant.effects import effect_class
-    grid = START_GRIDS.get(effect)
-    if grid is not None:
-        return grid(summary, values)
-    return generic_starts(effect, effect_class(effect).params)
+    return effect_class(effect).start_grid(summary, values)
 
 
 def initial_delay(pieces: Sequence[Piece], spec: str = "base",

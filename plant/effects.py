@@ -27,7 +27,7 @@ from __future__ import annotations
 import enum
 import functools
 import math
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Mapping
 
 import numpy as np
 from scipy.linalg import expm
@@ -35,6 +35,7 @@ from scipy.ndimage import maximum_filter1d, minimum_filter1d
 from scipy.signal import lfilter, ss2tf
 
 from .params import ModelError, Param
+from .start_grids import and_less_delay, generic_starts, renamed, warming_starts
 
 
 class Stage(enum.IntEnum):
@@ -80,6 +81,16 @@ class Effect:
     #: True if :meth:`shape` or :meth:`prepare` reads the time since the run started (``t=``
     #: keyword, (n, K): the start of every step; a record's time counts from its first sample)
     reads_time: ClassVar[bool] = False
+
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        """Starts of the fit's local searches for this effect: ``[{"name.param": value}]``.
+
+        ``s`` summarises the data (``dt``, ``u_abs_levels``, ``u_abs_max``, ``y_abs_max``,
+        ``y_span``, ``duration_s``), ``base`` is the base fit. The default is the parameters'
+        defaults and a low and a high value each from their bounds (log-spaced for ``log``).
+        """
+        return generic_starts(cls.name, cls.params)
 
     def __init__(self, **values: float) -> None:
         known = {p.name: p for p in self.params}
@@ -205,6 +216,11 @@ class NullDrift(Effect):
     def shape(self, q, dt, state, t=None):
         return q + self.rate * warming(t, dt, self.time_constant)
 
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        """The null moving by 0.05-0.5 % command over a run."""
+        return warming_starts(cls.name, (-0.5, -0.1, -0.03, 0.03, 0.1, 0.5), 0.1, s)
+
 
 def first_order_step_average(v: np.ndarray, dt: float, T: float, state: dict) -> np.ndarray:
     """A first-order lag ``T·ẋ = v − x`` driven by ``v`` (n, K) held over each step: the step
@@ -253,6 +269,14 @@ class Lag(Effect):
 
     def shape(self, q, dt, state):
         return first_order_step_average(q, dt, self.time_constant, state)
+
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        out = []
+        for T in (1e-4, 2 * s.dt, 0.01, 0.03, 0.1, 0.3):
+            T = max(T, 1.1e-4)
+            out += and_less_delay({"lag.time_constant": T}, base, T)
+        return out
 
 
 @functools.lru_cache(maxsize=256)
@@ -319,6 +343,19 @@ class Resonance(Effect):
         state["q"] = np.concatenate([state["q"], out], axis=1)[:, -2:].copy()
         return out
 
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        """Natural frequencies of 2-30 Hz (below Nyquist), lightly to well damped; the step
+        response's mean lag 2ζ/ω has gone into the base fit's τ, so each also starts without it."""
+        out = []
+        nyquist = 0.5 / s.dt
+        for f in (2.0, 6.0, 15.0, 30.0):
+            for zeta in (0.15, 0.4, 1.0):
+                if f < nyquist:
+                    out += and_less_delay({"resonance.frequency": f, "resonance.damping": zeta},
+                                           base, 2 * zeta / (2 * math.pi * f))
+        return out
+
 
 @register
 class Slew(Effect):
@@ -356,6 +393,17 @@ class Slew(Effect):
         for i in range(q.shape[0]):
             x_end[i] = _slew_row(q[i], float(x_end[i]), s, out[i])
         state["x"] = x_end
+        return out
+
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        """Spool speeds from a reversal of the middle command level in 5 ms to one in 200 ms; a
+        ramped step reaches the flow about |Δu|/(2R) late, which the base fit put into τ."""
+        swing = 2 * max(float(np.median(s.u_abs_levels)), 1e-3)     # a reversal ±u
+        out = []
+        for t_ramp in (0.005, 0.02, 0.06, 0.2):
+            R = min(1e5, max(1.0, swing / t_ramp))
+            out += and_less_delay({"slew.rate": R}, base, t_ramp / 2)
         return out
 
 
@@ -409,6 +457,11 @@ class DeadZone(Effect):
     def shape(self, q, dt, state):
         return np.sign(q) * np.maximum(np.abs(q) - self.width, 0.0)
 
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        ref = float(np.median(s.u_abs_levels))
+        return [{"deadzone.width": min(29.0, f * ref)} for f in (0.0, 0.05, 0.15, 0.3, 0.5, 0.8)]
+
 
 @register
 class Saturation(Effect):
@@ -427,6 +480,11 @@ class Saturation(Effect):
 
     def shape(self, q, dt, state):
         return np.clip(q, -self.limit, self.limit)
+
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        top = s.u_abs_max
+        return [{"saturation.limit": min(100.0, max(0.5, f * top))} for f in (0.3, 0.5, 0.7, 0.9, 1.2)]
 
 
 @register
@@ -536,6 +594,15 @@ class DirectionDelay(Effect):
             out = (1.0 - f) * out + f * wider
         return out
 
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        """Either direction late by 10-80 ms; the base fit's τ is about the mean of the two
+        delays, so each also starts with τ shortened by half the difference."""
+        out = []
+        for d in (-0.08, -0.03, -0.01, 0.01, 0.03, 0.08):
+            out += and_less_delay({"direction_delay.extra": d}, base, abs(d) / 2)
+        return out
+
 
 @register
 class FlowCurve(Effect):
@@ -589,6 +656,10 @@ class Asymmetry(Effect):
     def gain(self, q, aux, y):
         return 1.0 + self.ratio * np.sign(q)
 
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        return [{"asymmetry.ratio": a} for a in (-0.3, -0.1, 0.0, 0.1, 0.3)]
+
 
 @register
 class Supply(Effect):
@@ -625,6 +696,13 @@ class Supply(Effect):
     def gain(self, q, aux, y):
         return aux
 
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        """Sags of 5-40 % at the largest command in the data, settling in 0.1-3 s."""
+        top = max(s.u_abs_max, 1e-3) / 100.0
+        return [{"supply.sag": min(5.0, f / top), "supply.time_constant": T}
+                for f in (0.05, 0.15, 0.4) for T in (0.1, 0.5, 3.0)]
+
 
 @register
 class GainDrift(Effect):
@@ -659,6 +737,11 @@ class GainDrift(Effect):
 
     def gain(self, q, aux, y):
         return aux
+
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        """The gain rising or falling by 5-50 % over a run."""
+        return warming_starts(cls.name, (-0.3, -0.05, 0.05, 0.2, 0.5), 0.05, s)
 
 
 @register
@@ -701,6 +784,12 @@ class Reversal(Effect):
         scale = (self.U_REF / np.maximum(np.abs(q), 0.5)) ** self.exponent
         return 1.0 + self.boost * scale * aux
 
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        return [{"reversal.boost": b, "reversal.decay": T, "reversal.exponent": p}
+                for b in (0.5, 2.0, 8.0) for T in (0.03, 0.1, 0.3) for p in (0.0, 0.7)] + [
+            {"reversal.boost": 0.0, "reversal.decay": 0.1, "reversal.exponent": 0.5}]
+
 
 @register
 class CommandReversal(Reversal):
@@ -725,6 +814,11 @@ class CommandReversal(Reversal):
 
     def prepare(self, q, dt, state, command=None, t=None):
         return np.exp(-since_reversal(q if command is None else command, dt, state) / self.decay)
+
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        """Starts like the rod-timed reversal (same parameters)."""
+        return renamed(Reversal.start_grid(s, base), "reversal", cls.name)
 
 
 @register
@@ -774,6 +868,14 @@ class TravelReversal(Effect):
 
     def gain(self, q, aux, y):
         return 1.0 + aux
+
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        """Boosts that die out within 0.03-0.3 s at the middle command level (travel = |u|·time)."""
+        ref = max(float(np.median(s.u_abs_levels)), 1e-3)
+        return [{"travel_reversal.boost": b, "travel_reversal.travel": min(50.0, max(0.005, ref * T))}
+                for b in (0.5, 2.0, 8.0) for T in (0.03, 0.1, 0.3)] + [
+            {"travel_reversal.boost": 0.0, "travel_reversal.travel": max(0.005, ref * 0.1)}]
 
 
 def reversal_state(n: int, u0: np.ndarray) -> dict[str, np.ndarray]:
@@ -850,6 +952,12 @@ class LoadPressure(Effect):
     def gain(self, q, aux, y):
         return np.sqrt(np.maximum(1.0 - np.sign(q) * (y - self.offset) / self.stall_force, 0.0))
 
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        ymax = max(s.y_abs_max, 100.0)
+        return [{"load_pressure.stall_force": min(1e7, max(2000.0, f * ymax))}
+                for f in (1.3, 2.0, 5.0, 20.0, 1000.0)]
+
 
 @register
 class Stiffness(Effect):
@@ -885,6 +993,14 @@ class Stiffness(Effect):
         x = y / self.FULL_SCALE
         return np.maximum(1.0 + self.k_abs * np.abs(x) + self.k_sgn * x, 0.0)
 
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        """Gain changes at the data's largest force: −20, 0, +20, +60 % for both signs of force,
+        −20, 0, +20 % between tension and compression."""
+        r = 1e4 / max(s.y_abs_max, 100.0)
+        return [{"stiffness.k_abs": min(50.0, a * r), "stiffness.k_sgn": max(-20.0, min(20.0, b * r))}
+                for a in (-0.2, 0.0, 0.2, 0.6) for b in (-0.2, 0.0, 0.2)]
+
 
 @register
 class Unloading(Effect):
@@ -914,6 +1030,10 @@ class Unloading(Effect):
 
     def gain(self, q, aux, y):
         return 1.0 - self.ratio * np.sign(q) * np.sign(y)
+
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        return [{"unloading.ratio": h} for h in (-0.3, -0.1, 0.0, 0.1, 0.3)]
 
 
 # ------------------------------------------------------------------------------------------
@@ -974,6 +1094,10 @@ class Leakage(Effect):
     def decay_rate(self):
         return self.rate
 
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        return [{"leakage.rate": lam} for lam in (0.0, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0)]
+
 
 # ------------------------------------------------------------------------------------------
 # SENSOR stage
@@ -1009,6 +1133,11 @@ class SensorLag(Effect):
 
     def force_minus_reading(self, state):
         return self.time_constant * state["x"]      # y − y_m = T_s·ẏ_m
+
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        """Starts like a valve lag (same parameters)."""
+        return renamed(Lag.start_grid(s, base), "lag", cls.name)
 
 
 @register
@@ -1096,6 +1225,18 @@ class Stiction(Effect):
                 offset[i] += d * min(crossed[-1], room)
         state["offset"] = offset
         return engaged, offsets
+
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        """Plays of 0-30 % of the force span; a hold after each reversal looks like more delay, so
+        each also starts with τ shortened by the hold at the middle command level."""
+        g = abs(base.get("g", 100.0)) or 100.0
+        ref = max(float(np.median(s.u_abs_levels)), 1e-3)
+        out = []
+        for f in (0.0, 0.01, 0.03, 0.1, 0.3):
+            w = min(5000.0, f * max(s.y_span, 100.0))
+            out += and_less_delay({"stiction.width": w}, base, w / (g * ref))
+        return out
 
 
 def effect_class(name: str) -> type[Effect]:
