@@ -9,10 +9,8 @@ same either way: every task is deterministic and runs alone.
 
 BLAS threads do not pay here: the fits' linear algebra is one factorization of a tall, thin
 Jacobian per least-squares step, and OpenBLAS's threads spent more time handing the work
-around than doing it. Measured on 2 cores, the diagnosis of 1 h at 500 Hz took 29.2 s with
-them and 23.5 s without; the candidates' screening fits took 20.1 s serially and 22.4 s in two
-workers (each worker's BLAS threads crowding the other's), and 14.7 s and 8.1 s with one BLAS
-thread. So fits run under :func:`one_blas_thread`.
+around than doing it, and in forked workers each worker's BLAS threads crowd the others'. So
+fits run under :func:`one_blas_thread` (the figures: docs/decisions.md).
 """
 from __future__ import annotations
 

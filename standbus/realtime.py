@@ -53,11 +53,8 @@ def process_threads() -> list[int]:
     """Kernel ids of every thread of this process: Python's and native ones (pyarrow's thread
     pools, jemalloc's background thread), as ``chrt -f -p`` on each would. The loop shares the
     GIL (and library locks) with all of them, and one preempted by an ordinary process while it
-    holds what the loop needs stalls the loop: priority inversion. Measured, 60 s at 2 ms: with
-    only the loop and bus reader threads raised, stalls of 2-7 ms and 1-3 missed cycles in most
-    runs; raising the recorder and capture threads too gave four runs without one. What is left
-    is the host's: ``benchmarks/wakeup.py`` shows a bare real-time thread waking up to 4 ms late
-    a few times a minute on this virtual machine."""
+    holds what the loop needs stalls the loop: priority inversion. So every thread is raised,
+    not only the loop's and the bus reader's (the figures: docs/decisions.md)."""
     try:
         return sorted(int(t) for t in os.listdir("/proc/self/task"))
     except OSError:      # no procfs: the Python threads we know of
@@ -121,11 +118,8 @@ def short_gil_slices(seconds: float = GIL_SLICE_S) -> Iterator[None]:
     thread formats a quarter second of frames (~500 lines of Python) waits until that thread
     is asked to let go, after the switch interval. The cost is a GIL hand-off every
     ``seconds`` while two threads both want to run, which a real-time loop that mostly sleeps
-    rarely sees. Measured effect: none this host can resolve. An A/B with the benchmark's
-    host probes watching the whole run (2 ms loop, 2026-11-23), 5 ms against 0.2 ms:
-    quiet, 48 s each, 1 late cycle and 0 missed either way; beside a busy process, 36 s
-    each, 2 and 5 late cycles, every one at a host stall. A first A/B (10 late cycles to 0)
-    was made while each run's first half second went unwatched, so it does not count."""
+    rarely sees. It is kept as a guard that costs nothing measurable; its measured effect
+    (none this host can resolve) is in docs/decisions.md."""
     before = sys.getswitchinterval()
     sys.setswitchinterval(seconds)
     try:
