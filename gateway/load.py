@@ -186,7 +186,7 @@ def run_load(gw, programme: Programme, controller: ControllerDesign, out: str | 
 def _passes(gw, programme, controller, out, repeat, comp, first, learn, unload_kgf, progress) -> LoadResult:
     limits = gw.config.limits
     out.mkdir(parents=True, exist_ok=True)
-    (out / "controller.toml").write_text(controller.to_toml())
+    (out / "controller.toml").write_text(controller.to_toml(out / "controller.toml"))
     result = LoadResult(out, compensation=comp)
     experiment = first
     last = None

@@ -26,6 +26,7 @@ feedback handles what the model does not know.
 """
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -106,7 +107,11 @@ class ControllerDesign:
         d["schema"] = SCHEMA
         return d
 
-    def to_toml(self) -> str:
+    def to_toml(self, path: str | Path | None = None) -> str:
+        """The controller file; ``path``: where it will be written (the model's plug-in files
+        are named relative to it)."""
+        from plant.config import plugin_sources
+
         def num(v: float) -> str:
             return repr(float(v))
         out = [f"# {SCHEMA}: a force controller designed by `stand design` (edit with care: the",
@@ -115,6 +120,9 @@ class ControllerDesign:
                f"feedforward = {'true' if self.feedforward else 'false'}",
                "", "[feedback]", f"kp_pct_per_kgf = {num(self.kp_pct_per_kgf)}", f"ti_s = {num(self.ti_s)}",
                "", "[model]", f'spec = "{self.model_spec}"']
+        sources = plugin_sources(self.model, Path(path).parent if path is not None else None)
+        if sources:
+            out.append("plugins = [" + ", ".join(json.dumps(s) for s in sources) + "]")
         out += [f'"{k}" = {num(v)}' for k, v in self.model_params.items()]
         out += ["", "[design]", f"boost = {num(self.boost)}", f"lambda_s = {num(self.lambda_s)}"]
         for label, m in (("nominal", self.nominal), ("boosted", self.boosted)):
@@ -198,17 +206,15 @@ def critical_p_gain(g: float, tau: float, period_s: float) -> float:
 
 
 def largest_gain_factor(model: PlantModel) -> tuple[float, list[str]]:
-    """ρ: how much larger than g the plant's gain gets, by the model's FLOW effects."""
+    """ρ: how much larger than g the plant's gain gets, the product of its effects'
+    :meth:`~plant.Effect.largest_gain_factor` (a plug-in's too), with a note for each."""
     rho = 1.0
     notes = []
     for e in model.effects:
-        if e.name in ("reversal", "command_reversal", "travel_reversal"):
-            rho *= 1.0 + e.boost
-            notes.append(f"{e.name}: gain up to {1 + e.boost:.2f}× right after a reversal "
-                         f"(boost {e.boost:.3g} at |q| = 10 %)")
-        elif e.name == "asymmetry":
-            rho *= 1.0 + abs(e.ratio)
-            notes.append(f"asymmetry: gain {1 + abs(e.ratio):.2f}× in one direction")
+        factor = e.largest_gain_factor()
+        if factor > 1.0 + 1e-9:
+            rho *= factor
+            notes.append(f"{e.name}: gain up to {factor:.2f}× ({e.summary})")
     return rho, notes
 
 
@@ -261,7 +267,7 @@ def design(model: PlantModel, period_s: float = 0.002,
 
 def load_controller(path: str | Path, period_s: float | None = None) -> ControllerDesign:
     """A controller file, validated: its period must be the loop's (if given), every value finite."""
-    from plant.config import read_toml
+    from plant.config import load_named_plugins, read_toml
     path = Path(path)
     try:
         data = read_toml(path)
@@ -270,6 +276,7 @@ def load_controller(path: str | Path, period_s: float | None = None) -> Controll
     try:
         loop, fb, mdl = data["loop"], data["feedback"], dict(data["model"])
         spec = mdl.pop("spec")
+        load_named_plugins({"plugins": mdl.pop("plugins", [])}, f"{path} [model]", path.parent)
         c = ControllerDesign(period_s=float(loop["period_s"]), model_spec=str(spec),
                              model_params={k: float(v) for k, v in mdl.items()},
                              kp_pct_per_kgf=float(fb["kp_pct_per_kgf"]), ti_s=float(fb["ti_s"]),

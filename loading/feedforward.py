@@ -14,8 +14,8 @@ inverted on the way:
   a plug-in's law): ``q·G(q) = v`` is solved per sample by bisection on ``|q|`` with the sign of
   ``v``, through the effect's own hooks (so any FLOW effect is inverted, the catalogue's and a
   user's alike), iterating when the effect's state depends on ``q`` itself;
-* **VALVE** effects with a closed-form inverse: a dead zone (``u = q + d·sign q``) and a valve
-  lag (``u = q + T_v·dq/dt``).
+* **VALVE** effects through their own :meth:`~plant.Effect.invert` where they have one: a
+  dead zone (``u = q + d·sign q``), a valve lag (``u = q + T_v·dq/dt``), a plug-in's.
 
 Effects it cannot invert (saturation, a play, a sensor filter, disturbances) are listed in
 :attr:`Feedforward.not_inverted`: the feedback handles what they do.
@@ -28,8 +28,6 @@ import numpy as np
 
 from plant import PlantModel, Stage
 
-#: VALVE effects with a closed-form inverse here
-INVERTIBLE_VALVE = ("deadzone", "lag")
 #: bisection steps on |q| (2^-40 of the bracket)
 BISECTION_STEPS = 40
 #: the largest flow command the inversion looks for (%)
@@ -113,13 +111,11 @@ def feedforward(model: PlantModel, r_kgf: np.ndarray, period_s: float,
     q = _flow_inverse(model, v, r, dt, t)
     u = q.copy()
     for e in reversed([e for e in model.effects if e.stage is Stage.VALVE]):
-        if e.name == "deadzone":
-            u = np.where(u > 0, u + e.width, np.where(u < 0, u - e.width, 0.0))
-        elif e.name == "lag":
-            u = u + e.time_constant * np.gradient(u, dt)
-        else:
+        before = e.invert(u, dt)
+        if before is None:
             skipped.append(e.name)
             continue
+        u = np.asarray(before, float)
         inverted.append(e.name)
     for e in model.effects:
         if e.stage is Stage.FLOW:

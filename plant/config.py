@@ -14,6 +14,12 @@ A model file (also the ``[base]``/``[effects.*]`` part of an emulator config)::
     [effects.lag]
     enabled = false      # keep the numbers, switch the effect off
 
+A model with effects of one's own names their plug-ins at the top (paths relative to the
+file, or module names), so the file loads on its own (:mod:`plant.plugins`)::
+
+    plugins = ["ripple.py"]
+    model = "base+ripple"
+
 An emulator config adds the measuring device and the start::
 
     [sensor]
@@ -26,7 +32,9 @@ An emulator config adds the measuring device and the start::
 """
 from __future__ import annotations
 
+import json
 import math
+import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,8 +68,11 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         raise ModelError(f"cannot read {path}: {exc}") from None
 
 
-def model_from_mapping(data: Mapping[str, Any], where: str = "model") -> PlantModel:
-    """Build a model from the ``[base]`` and ``[effects.NAME]`` tables of a parsed TOML file."""
+def model_from_mapping(data: Mapping[str, Any], where: str = "model",
+                       base_dir: str | Path | None = None) -> PlantModel:
+    """Build a model from the ``[base]`` and ``[effects.NAME]`` tables of a parsed TOML file,
+    after loading the plug-ins it names (``plugins``, relative to ``base_dir``)."""
+    load_named_plugins(data, where, base_dir)
     base = _table(data, "base", where)
     known_base = {p.name for p in BASE_PARAMS}
     unknown = set(base) - known_base
@@ -96,6 +107,36 @@ def model_from_mapping(data: Mapping[str, Any], where: str = "model") -> PlantMo
     return PlantModel.from_spec(spec, values)
 
 
+def load_named_plugins(data: Mapping[str, Any], where: str,
+                       base_dir: str | Path | None) -> list[str]:
+    """Load the plug-ins a model file names: ``plugins = ["my_effect.py", "pkg.effects"]``."""
+    from .plugins import load_plugins
+    sources = data.get("plugins", [])
+    if isinstance(sources, str):
+        sources = [sources]
+    if not isinstance(sources, list) or not all(isinstance(x, str) for x in sources):
+        raise ModelError(f"{where}: plugins must be a list of files or module names, e.g. "
+                         f'plugins = ["my_effect.py"], got {sources!r}')
+    return load_plugins(sources, base_dir)
+
+
+def plugin_sources(model: PlantModel, relative_to: str | Path | None = None) -> list[str]:
+    """What a model file must name for ``model``'s effects of one's own: their files
+    (relative to ``relative_to`` when given) and modules; installed ones load themselves."""
+    from .plugins import ORIGINS
+    out: list[str] = []
+    for eff in model.effects:
+        org = ORIGINS.get(eff.name)
+        if org is None or org.kind == "entry point":
+            continue
+        src = org.where
+        if org.kind == "file" and relative_to is not None:
+            src = os.path.relpath(src, Path(relative_to).resolve())
+        if src not in out:
+            out.append(src)
+    return out
+
+
 def _table(data: Mapping[str, Any], name: str, where: str) -> dict[str, Any]:
     value = data.get(name, {})
     if value is None:
@@ -106,12 +147,16 @@ def _table(data: Mapping[str, Any], name: str, where: str) -> dict[str, Any]:
 
 
 def load_model_file(path: str | Path) -> PlantModel:
-    return model_from_mapping(read_toml(path), where=str(path))
+    return model_from_mapping(read_toml(path), where=str(path), base_dir=Path(path).parent)
 
 
-def model_to_toml(model: PlantModel, header: str = "") -> str:
-    """Write a model back as a model file (round-trips through :func:`model_from_mapping`)."""
+def model_to_toml(model: PlantModel, header: str = "", path: str | Path | None = None) -> str:
+    """Write a model back as a model file (round-trips through :func:`model_from_mapping`);
+    ``path``: where it will be written (plug-in files are named relative to it)."""
     lines = [f"# {line}" for line in header.splitlines()]
+    sources = plugin_sources(model, Path(path).parent if path is not None else None)
+    if sources:
+        lines.append("plugins = [" + ", ".join(json.dumps(s) for s in sources) + "]")
     lines.append(f'model = "{model.spec}"')
     lines.append("")
     lines.append("[base]")
@@ -172,12 +217,12 @@ def load_plant_config(path: str | Path | None = None, model_spec: str | None = N
     ``initial.force_kgf``)."""
     data: dict[str, Any] = read_toml(path) if path else {}
     where = str(path) if path else "defaults"
-    unknown_tables = set(data) - {"base", "effects", "sensor", "initial", "model"}
+    unknown_tables = set(data) - {"base", "effects", "sensor", "initial", "model", "plugins"}
     if unknown_tables:
         raise ModelError(f"{where}: unknown table(s) {', '.join(sorted(unknown_tables))}; "
                          "expected [base], [effects.NAME], [sensor], [initial]")
     if path:
-        model = model_from_mapping(data, where)
+        model = model_from_mapping(data, where, Path(path).parent)
     else:
         model = PlantModel.from_spec(DEFAULT_MODEL, DEFAULT_VALUES)
     sensor = _table(data, "sensor", where)

@@ -52,10 +52,17 @@ CATALOGUE: dict[str, type["Effect"]] = {}
 
 
 def register(cls: type["Effect"]) -> type["Effect"]:
-    """Class decorator: add an effect to the catalogue under ``cls.name``."""
-    if cls.name in CATALOGUE or cls.name == "base":
-        raise ModelError(f"effect name {cls.name!r} is already taken")
-    CATALOGUE[cls.name] = cls
+    """Class decorator: add an effect to the catalogue under ``cls.name`` (see
+    :mod:`plant.plugins` for effects of one's own)."""
+    name = getattr(cls, "name", None)
+    if CATALOGUE.get(name) is cls:
+        return cls
+    if name == "base":
+        raise ModelError("effect name 'base' is the base model's: choose another name")
+    if name in CATALOGUE:
+        raise ModelError(f"effect name {name!r} is already taken by {CATALOGUE[name].__name__} "
+                         f"({CATALOGUE[name].summary or 'see stand effects'}): choose another name")
+    CATALOGUE[name] = cls
     return cls
 
 
@@ -67,6 +74,10 @@ class Effect:
     params: ClassVar[tuple[Param, ...]]
     #: one line for listings (``stand effects``)
     summary: ClassVar[str] = ""
+    #: what tells it apart from the explanations it looks like: ``{other: experiment}``, with
+    #: ``other`` an effect's name or the base model's ``gain``, ``delay`` or ``trend``; the
+    #: diagnosis names the experiment when the data do not separate the two
+    look_alikes: ClassVar[Mapping[str, str]] = {}
     #: True if the rate term needs the current force (forces step-by-step integration)
     depends_on_force: ClassVar[bool] = False
     #: False for effects that are not plant physics (disturbances): ``stand diagnose`` does not
@@ -145,6 +156,34 @@ class Effect:
         """FORCE stage: additive force rate (kgf/s) as a function of the force ``y`` (kgf)."""
         raise NotImplementedError
 
+    # -- what the controller design asks of an effect ------------------------------------------
+    def largest_gain_factor(self) -> float:
+        """The largest factor this effect puts on the plant's gain at a command of ±10 %, for
+        the controller design, which keeps its margins at ``g`` times the product of these
+        (:mod:`loading.design`). FLOW effects: :meth:`gain` probed along a ±10 % square wave
+        with a reversal every 0.2 s, at forces across ±5000 kgf (right after a reversal for a
+        boost, in the faster direction for an asymmetry); others: 1. Override with a closed
+        form where there is one."""
+        if self.stage is not Stage.FLOW:
+            return 1.0
+        dt, k = 0.002, 1000
+        t = np.arange(k) * dt
+        q = np.where((t // 0.2) % 2 == 0, 10.0, -10.0)[None, :]
+        forces = np.linspace(-5000.0, 5000.0, 5)
+        state = self.init_state(1, q[:, 0].copy())
+        extra = {"t": t[None, :]} if self.reads_time else {}
+        if self.reads_command:
+            extra["command"] = q
+        aux = self.prepare(q.copy(), dt, state, **extra)
+        g = [np.asarray(self.gain(q, aux, np.full_like(q, y)), float) for y in forces]
+        return float(max(1.0, np.nanmax(np.abs(g))))
+
+    def invert(self, q: np.ndarray, dt: float) -> np.ndarray | None:
+        """VALVE stage: the command that makes this effect give the flow command ``q`` (one
+        record, (K,)), for the feedforward (:mod:`loading.feedforward`); None when there is no
+        inverse (the feedback handles what the effect does)."""
+        return None
+
     def decay_rate(self) -> float | None:
         """FORCE stage: if :meth:`force_rate` is ``-λ·y``, return λ (enables exact fast
         integration); otherwise None."""
@@ -208,6 +247,15 @@ class NullDrift(Effect):
     name = "null_drift"
     stage = Stage.VALVE
     summary = "valve null drifting during a run (warming): q = u + b·T·(1 − exp(−t/T))"
+    look_alikes = {
+        "gain_drift": (
+            "the meander at two amplitudes (e.g. 5 and 20 %), or holds at zero command early and "
+            "late in a run: a drifting null adds the same kgf/s at every command and at zero, a "
+            "drifting gain scales with |u|"),
+        "trend": (
+            "one long run, or holds at zero command at its start and its end: the trend Δ is the "
+            "same throughout, a drifting null moves it during the run"),
+    }
     reads_time = True
     params = (Param("rate", 0.002, -0.1, 0.1, "%/s",
                     "initial rate b of the null's drift (command % per second)"),
@@ -261,6 +309,17 @@ class Lag(Effect):
     name = "lag"
     stage = Stage.VALVE
     summary = "first-order valve/actuator lag T_v (besides the delay)"
+    look_alikes = {
+        "delay": (
+            "a meander (step commands) or P-feedback at several reference frequencies: a lag "
+            "rounds the corners and its phase grows less than linearly with frequency; a delay "
+            "only shifts"),
+        "sensor_lag": (
+            "the dynamometer's own filter setting (its configuration or data sheet) or a second "
+            "force measurement; in a linear plant nothing on the command side separates them, "
+            "behind a valve nonlinearity (dead zone, flow limit, reversal boost) meanders at "
+            "amplitudes near it can"),
+    }
     params = (Param("time_constant", 0.03, 1e-4, 2.0, "s", "spool/actuator time constant T_v",
                     log=True),)
 
@@ -269,6 +328,10 @@ class Lag(Effect):
 
     def shape(self, q, dt, state):
         return first_order_step_average(q, dt, self.time_constant, state)
+
+    def invert(self, q, dt):
+        """u = q + T_v·dq/dt: the lag's inverse (a lead)."""
+        return q + self.time_constant * np.gradient(q, dt)
 
     @classmethod
     def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
@@ -324,6 +387,16 @@ class Resonance(Effect):
     name = "resonance"
     stage = Stage.VALVE
     summary = "second-order valve/actuator: natural frequency f_n, damping ζ (the flow rings)"
+    look_alikes = {
+        "lag": (
+            "a meander (command steps) at a small amplitude, or P-feedback at reference "
+            "frequencies up to the suspected f_n: a lag never overshoots, a resonance rings after "
+            "each step and peaks near f_n"),
+        "delay": (
+            "P-feedback at several reference frequencies, up to a third of the sample rate: far "
+            "below f_n a resonance only adds the delay 2ζ/ω_n, near it the phase and gain change "
+            "fast"),
+    }
     params = (Param("frequency", 10.0, 0.3, 200.0, "Hz", "natural frequency f_n", log=True),
               Param("damping", 0.5, 0.05, 5.0, "1",
                     "damping ratio ζ (a hydraulic actuator 0.05-0.3, a servo-valve 0.5-1)", log=True))
@@ -381,6 +454,15 @@ class Slew(Effect):
     name = "slew"
     stage = Stage.VALVE
     summary = "spool speed limit R: a command step of Δu becomes a ramp lasting |Δu|/R"
+    look_alikes = {
+        "lag": (
+            "the meander at several amplitudes (e.g. 5 and 20 %): a speed limit rounds a step for "
+            "|Δu|/R, four times as long at four times the step, a lag for the same time constant "
+            "at every step"),
+        "delay": (
+            "the meander at several amplitudes: a speed-limited spool reaches the flow |Δu|/(2R) "
+            "late, later for larger steps; a delay is the same at every amplitude"),
+    }
     params = (Param("rate", 500.0, 1.0, 1e5, "%/s", "largest spool speed R", log=True),)
 
     def init_state(self, n, u0):
@@ -452,10 +534,27 @@ class DeadZone(Effect):
     name = "deadzone"
     stage = Stage.VALVE
     summary = "valve overlap: no flow for |u| below d"
+    look_alikes = {
+        "gain": (
+            "the meander at several amplitudes (e.g. 5, 10, 15, 20 %): a dead zone lowers the "
+            "slope by g·d at every amplitude, a lower gain in proportion to |u|"),
+        "backlash": (
+            "P-feedback with a harmonic reference (a command that turns smoothly): a play delays "
+            "the valve at every turning point of the command, a dead zone only cuts the flow near "
+            "zero; square waves (meander, relay) cannot tell them apart"),
+        "flow_curve": (
+            "the meander at three or more amplitudes (e.g. 5, 10, 15, 20 %): two amplitudes fit "
+            "both exactly; a dead zone lowers every slope by g·d, a flow curve bends the slopes "
+            "as |u|^p"),
+    }
     params = (Param("width", 1.0, 0.0, 30.0, "%", "overlap d (command below which no flow)"),)
 
     def shape(self, q, dt, state):
         return np.sign(q) * np.maximum(np.abs(q) - self.width, 0.0)
+
+    def invert(self, q, dt):
+        """u = q + d·sign(q): the command just beyond the overlap."""
+        return np.where(q > 0, q + self.width, np.where(q < 0, q - self.width, 0.0))
 
     @classmethod
     def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
@@ -476,6 +575,15 @@ class Saturation(Effect):
     name = "saturation"
     stage = Stage.VALVE
     summary = "flow limit: |q| capped at q_max"
+    look_alikes = {
+        "gain": (
+            "the meander at several amplitudes, some beyond the suspected flow limit: the slope "
+            "stops growing with |u|"),
+        "flow_curve": (
+            "the meander at amplitudes below and beyond the suspected limit: a flow limit leaves "
+            "the small amplitudes' slopes in proportion and flattens only above it, a flow curve "
+            "bends them all"),
+    }
     params = (Param("limit", 50.0, 0.5, 100.0, "%", "largest effective flow command q_max"),)
 
     def shape(self, q, dt, state):
@@ -508,6 +616,10 @@ class Backlash(Effect):
     name = "backlash"
     stage = Stage.VALVE
     summary = "play of total width w between command and spool (hysteresis)"
+    look_alikes = {
+        "gain": (
+            "the meander at several amplitudes, or P-feedback with a harmonic reference"),
+    }
     params = (Param("width", 1.0, 0.0, 30.0, "%", "total width w of the play"),)
 
     def init_state(self, n, u0):
@@ -568,6 +680,11 @@ class DirectionDelay(Effect):
     name = "direction_delay"
     stage = Stage.VALVE
     summary = "a rising command reaches the flow δ later than a falling one (δ < 0: falling later)"
+    look_alikes = {
+        "trend": (
+            "meanders at two periods (e.g. 4 and 12 s): a trend Δ is the same at both, the flow's "
+            "extra time at one command each period shrinks with a longer period"),
+    }
     params = (Param("extra", 0.02, -0.5, 0.5, "s",
                     "extra delay δ of a command rise over a fall (< 0: a fall is the late one)"),)
 
@@ -623,6 +740,11 @@ class FlowCurve(Effect):
     name = "flow_curve"
     stage = Stage.VALVE
     summary = "power-law flow characteristic q = sign(u)·u_ref·(|u|/u_ref)^p"
+    look_alikes = {
+        "gain": (
+            "the meander at several amplitudes: the ramp slopes grow as |u|^p instead of in "
+            "proportion to |u|"),
+    }
     U_REF = 10.0
     params = (Param("exponent", 1.0, 0.3, 3.0, "1", "power p of the flow curve (1: linear)"),)
 
@@ -651,10 +773,19 @@ class Asymmetry(Effect):
     name = "asymmetry"
     stage = Stage.FLOW
     summary = "different gain for extend (1+a) and retract (1-a)"
+    look_alikes = {
+        "trend": (
+            "the meander at two amplitudes, or a hold at zero command: the trend Δ is the same at "
+            "every |u|, an extend/retract asymmetry grows with |u|"),
+    }
     params = (Param("ratio", 0.1, -0.8, 0.8, "1", "relative gain difference a"),)
 
     def gain(self, q, aux, y):
         return 1.0 + self.ratio * np.sign(q)
+
+    def largest_gain_factor(self) -> float:
+        """1 + |a|: the faster direction."""
+        return 1.0 + abs(self.ratio)
 
     @classmethod
     def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
@@ -683,6 +814,15 @@ class Supply(Effect):
     name = "supply"
     stage = Stage.FLOW
     summary = "supply pressure sags with the flow drawn (k at full opening, time constant T)"
+    look_alikes = {
+        "flow_curve": (
+            "a large command held for several seconds after a hold at zero: a sagging supply "
+            "starts at the full slope and bends it down over its time constant, a flow curve has "
+            "the lower slope from the first instant"),
+        "saturation": (
+            "a large command held for several seconds after a hold at zero: a flow limit caps the "
+            "slope at once, a sagging supply lowers it over its time constant"),
+    }
     params = (Param("sag", 0.3, 0.0, 5.0, "1", "relative supply-pressure sag k a full opening settles at"),
               Param("time_constant", 1.0, 1e-3, 100.0, "s", "time constant T of the sag", log=True))
 
@@ -727,6 +867,15 @@ class GainDrift(Effect):
     name = "gain_drift"
     stage = Stage.FLOW
     summary = "gain drifting during a run (oil warming): G = 1 + r·T·(1 − exp(−t/T))"
+    look_alikes = {
+        "supply": (
+            "a long run at one small command amplitude: a warming oil changes the gain whatever "
+            "the flow drawn, a sagging supply hardly sags at small openings and recovers in every "
+            "pause"),
+        "gain": (
+            "two runs, one after the other, or one long run: a drifting gain differs between the "
+            "starts and the ends of the runs, a wrong gain is wrong everywhere alike"),
+    }
     reads_time = True
     params = (Param("rate", 0.002, -0.05, 0.05, "1/s",
                     "relative rate of change r of the gain at the start of a run"),
@@ -767,6 +916,18 @@ class Reversal(Effect):
     name = "reversal"
     stage = Stage.FLOW
     summary = "gain boost decaying after each change of the rod's direction"
+    look_alikes = {
+        "lag": (
+            "the meander at several amplitudes and periods"),
+        "command_reversal": (
+            "the meander with a delay comparable to the boost's decay: a boost timed from the "
+            "command already pushes the old direction during the delay, one timed from the rod "
+            "starts after it"),
+        "travel_reversal": (
+            "the meander at several amplitudes (e.g. 5 and 20 %): a boost timed from the reversal "
+            "lasts T_r at every amplitude, one that dies out over the travel lasts V_r/|u|, four "
+            "times shorter at four times the command"),
+    }
     U_REF = 10.0
     params = (
         Param("boost", 2.0, 0.0, 50.0, "1", "boost b right at the reversal (at |q| = u_ref)"),
@@ -783,6 +944,10 @@ class Reversal(Effect):
     def gain(self, q, aux, y):
         scale = (self.U_REF / np.maximum(np.abs(q), 0.5)) ** self.exponent
         return 1.0 + self.boost * scale * aux
+
+    def largest_gain_factor(self) -> float:
+        """1 + b: right after a reversal, at |q| = u_ref."""
+        return 1.0 + self.boost
 
     @classmethod
     def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
@@ -810,6 +975,12 @@ class CommandReversal(Reversal):
 
     name = "command_reversal"
     summary = "reversal boost timed from the command's sign change (before the delay)"
+    look_alikes = {
+        "travel_reversal": (
+            "the meander at several amplitudes: a boost timed from the command lasts T_r at every "
+            "amplitude and starts during the delay, one that dies out over the travel lasts "
+            "V_r/|u| from the rod's reversal"),
+    }
     reads_command = True
 
     def prepare(self, q, dt, state, command=None, t=None):
@@ -868,6 +1039,10 @@ class TravelReversal(Effect):
 
     def gain(self, q, aux, y):
         return 1.0 + aux
+
+    def largest_gain_factor(self) -> float:
+        """1 + b: right at the reversal."""
+        return 1.0 + self.boost
 
     @classmethod
     def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
@@ -943,6 +1118,11 @@ class LoadPressure(Effect):
     name = "load_pressure"
     stage = Stage.FLOW
     summary = "orifice law: gain scales with sqrt(1 - sign(u)·(y - y_n)/F_s)"
+    look_alikes = {
+        "asymmetry": (
+            "runs at both positive and negative force levels: the load-pressure effect swaps "
+            "extend/retract with the sign of the force"),
+    }
     depends_on_force = True
     params = (Param("stall_force", 30000.0, 2000.0, 1e7, "kgf",
                     "stall force F_s = supply pressure × piston area", log=True),
@@ -1024,6 +1204,15 @@ class Unloading(Effect):
     name = "unloading"
     stage = Stage.FLOW
     summary = "gain g·(1-h) loading, g·(1+h) unloading (specimen hysteresis)"
+    look_alikes = {
+        "asymmetry": (
+            "runs at both positive and negative force levels: an asymmetry keeps its fast "
+            "direction, a specimen stiffer unloading swaps it with the sign of the force"),
+        "load_pressure": (
+            "runs at two force levels of the same sign (e.g. meanders centred at 2000 and 6000 "
+            "kgf): the load-pressure effect grows with the force, the unloading stiffness only "
+            "switches at zero force"),
+    }
     depends_on_force = True
     params = (Param("ratio", 0.1, -0.8, 0.8, "1",
                     "relative gain difference h between unloading and loading (>0: stiffer unloading)"),)
@@ -1085,6 +1274,14 @@ class Leakage(Effect):
     name = "leakage"
     stage = Stage.FORCE
     summary = "drift toward zero force proportional to the load (-λ·y)"
+    look_alikes = {
+        "load_pressure": (
+            "meanders at two amplitudes, or a hold at zero command away from zero force: leakage "
+            "drifts toward zero at any command, the load-pressure effect scales with |u|"),
+        "trend": (
+            "runs around two different force levels (e.g. meanders centred at +2000 and −2000 "
+            "kgf): leakage drifts toward zero, the trend Δ does not depend on the force"),
+    }
     depends_on_force = True
     params = (Param("rate", 0.05, 0.0, 20.0, "1/s", "leak coefficient λ"),)
 
@@ -1163,6 +1360,15 @@ class Stiction(Effect):
     name = "stiction"
     stage = Stage.SENSOR
     summary = "rod sticks after each reversal: the reading is a play of width w on the force"
+    look_alikes = {
+        "delay": (
+            "the meander at two or more amplitudes (e.g. 5 and 20 %): a rod stuck after each "
+            "reversal holds the force w/(g·|u|), longer at small amplitudes; a delay is the same "
+            "at every amplitude"),
+        "backlash": (
+            "the meander (square waves): a play on the command is jumped at once by a step, a "
+            "stuck rod still holds the force after each reversal"),
+    }
     linear_in_gain = False
     params = (Param("width", 100.0, 0.0, 5000.0, "kgf",
                     "play w = 2F_c: the change of hydraulic force that moves a stuck rod"),)

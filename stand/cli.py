@@ -46,6 +46,9 @@ def main(argv: list[str] | None = None) -> int:
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     try:
+        if hasattr(args, "plugin_sources"):   # the command takes models: plug-ins first
+            from stand.commands.common import load_effects
+            load_effects(args)
         return int(args.func(args) or 0)
     except (StandError, ModelError, BusSpecError) as exc:
         print(f"stand {args.command}: error: {exc}", file=sys.stderr)

@@ -163,13 +163,13 @@ def test_stand_diagnose_lists_each_records_gain(warming_data, tmp_path, capsys):
         np.savetxt(p, np.column_stack([rec.t, rec.u, rec.y]), delimiter=",", header="t,u,y",
                    comments="")
         files.append(str(p))
-    assert main(["diagnose", *files, "--no-progress", "--effects", "deadzone,reversal"]) == 0
+    assert main(["diagnose", *files, "--no-progress", "--candidates", "deadzone,reversal"]) == 0
     out = capsys.readouterr().out
     assert "verdict: VARIES_BETWEEN_RECORDS" in out
     assert "base with a gain of its own per record" in out
     rows = [line for line in out.splitlines() if "_meander_u" in line and "kgf" not in line]
     assert len(rows) == 4, out
-    assert main(["diagnose", *files, "--no-progress", "--effects", "deadzone", "--json"]) == 0
+    assert main(["diagnose", *files, "--no-progress", "--candidates", "deadzone", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["verdict"] == "varies_between_records"
     assert len(doc["between_records"]["records"]) == 8 and doc["between_records"]["earns"]

@@ -82,7 +82,7 @@ def test_glitches_no_longer_hide_the_missing_effect_and_are_noted(tmp_path):
     assert res.returncode == 0, res.stderr
     assert "note: " in res.stderr and "replaced 5 glitch(es)" in res.stderr, res.stderr
     res = subprocess.run([sys.executable, "-m", "stand", "diagnose", str(tmp_path / "g.csv"),
-                          "--json", "--no-progress", "--effects", "deadzone"],
+                          "--json", "--no-progress", "--candidates", "deadzone"],
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     notes = json.loads(res.stdout)["data_notes"]

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from gateway.errors import ParameterError
 
-from .common import add_node_ids, parse_assignments
+from .common import add_effects, add_node_ids, parse_assignments
 
 
 def register(sub) -> None:
@@ -40,6 +40,7 @@ def register(sub) -> None:
     p.add_argument("--set", action="append", metavar="NAME=VALUE",
                    help="override an emulator parameter, e.g. --set g=130 --set reversal.boost=0 (repeatable)")
     p.add_argument("--seed", type=int, default=1, help="emulator noise seed (default %(default)s)")
+    add_effects(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--no-figures", action="store_true", help="tables and summary only")
     p.set_defaults(func=main)

@@ -104,6 +104,26 @@ def gateway_config(args: argparse.Namespace) -> GatewayConfig:
                          limits=safety_limits(args))
 
 
+def add_effects(p: argparse.ArgumentParser) -> None:
+    """--effects: the user's effect plug-ins (plant.plugins), loaded before the command runs."""
+    p.add_argument("--effects", action="append", dest="plugin_sources", default=[],
+                   metavar="FILE.py|DIR|MODULE",
+                   help="load effects of your own (a .py file, a directory of them or a module "
+                        "name; repeatable): they join the catalogue for this command "
+                        "(docs/your-own-effect.md; `stand effects --new NAME` starts one)")
+
+
+def load_effects(args: argparse.Namespace) -> list[str]:
+    """Load the installed plug-ins (entry points ``hydrostand.effects``) and those of
+    ``--effects``; say on stderr what the checks found worth a note."""
+    from plant import plugins
+    names = plugins.load_installed() + plugins.load_plugins(args.plugin_sources)
+    for warning in plugins.WARNINGS:
+        print(f"note: {warning}", file=sys.stderr)
+    plugins.WARNINGS.clear()
+    return names
+
+
 def parse_assignments(items: list[str] | None, what: str = "--set") -> dict[str, float]:
     """``["g=100", "reversal.boost=0"]`` → ``{"g": 100.0, "reversal.boost": 0.0}``."""
     out: dict[str, float] = {}

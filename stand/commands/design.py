@@ -6,6 +6,8 @@ import json
 import sys
 from pathlib import Path
 
+from .common import add_effects
+
 
 def register(sub) -> None:
     p = sub.add_parser("design", help="design a force controller from a fitted model",
@@ -22,6 +24,7 @@ def register(sub) -> None:
     p.add_argument("--command-limit", type=float, default=100.0, metavar="PCT",
                    help="the controller's command limit, %% (default %(default)s)")
     p.add_argument("--json", action="store_true", help="print the design as JSON")
+    add_effects(p)
     p.set_defaults(func=main)
 
 
@@ -31,7 +34,7 @@ def main(args: argparse.Namespace) -> int:
     model, _path = resolve_model(args.model)
     c = design(model, args.period_ms / 1e3, args.command_limit)
     if args.out:
-        Path(args.out).write_text(c.to_toml())
+        Path(args.out).write_text(c.to_toml(args.out))
     if args.json:
         json.dump(c.to_dict(), sys.stdout, indent=2)
         sys.stdout.write("\n")

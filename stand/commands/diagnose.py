@@ -24,8 +24,9 @@ def register(sub) -> None:
                                    "removes, described), with the residual pattern in plain words and "
                                    "warnings when the data cannot separate two explanations.")
     add_data_args(p, model_required=False)
-    p.add_argument("--effects", metavar="A,B,...",
-                   help="only try these effects (default: every diagnosable one not in the model)")
+    p.add_argument("--candidates", metavar="A,B,...",
+                   help="only try these effects (default: every diagnosable one not in the "
+                        "model, the catalogue's and those of --effects)")
     p.add_argument("--plots", metavar="DIR", nargs="?", const="",
                    help="also write plots (default directory diagnose-<data>)")
     p.add_argument("--json", action="store_true",
@@ -64,7 +65,8 @@ def main(args: argparse.Namespace) -> int:
         raise ParameterError(f"--jobs {args.jobs} is out of range: give 1 or more")
     records = load_records(args.data)
     model, _ = resolve_model(args.model)
-    effects = [e.strip() for e in args.effects.split(",") if e.strip()] if args.effects else None
+    effects = ([e.strip() for e in args.candidates.split(",") if e.strip()]
+               if args.candidates else None)
     if args.stepwise:
         return main_stepwise(args, records, model, effects)
     if args.report:
@@ -210,7 +212,7 @@ def save_model(args: argparse.Namespace, model, summary: str) -> Path | None:
         return None
     path = Path(args.save)
     header = (f"from {', '.join(Path(d).name for d in args.data)}\n{summary}")
-    path.write_text(model_to_toml(model, header))
+    path.write_text(model_to_toml(model, header, path))
     return path
 
 

@@ -8,7 +8,7 @@ import math
 
 from standbus.realtime import make_realtime, short_gil_slices
 
-from .common import add_bus, add_node_ids, add_rt_priority, parse_assignments
+from .common import add_effects, add_bus, add_node_ids, add_rt_priority, parse_assignments
 
 
 def register(sub) -> None:
@@ -26,6 +26,7 @@ def register(sub) -> None:
                    help="override a parameter: g=130, tau=0.04, reversal.boost=0, sensor.noise_kgf=1, "
                         "initial.force_kgf=500 (repeatable)")
     p.add_argument("--seed", type=int, default=None, help="seed of the measurement noise (reproducible runs)")
+    add_effects(p)
     p.add_argument("--step-ms", type=float, default=0.5, help="plant integration step, ms (default %(default)s)")
     add_rt_priority(p, "real time: run the emulator (the stand's hardware)")
     p.set_defaults(func=main)

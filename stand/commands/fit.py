@@ -7,11 +7,11 @@ import sys
 from pathlib import Path
 
 
-from .common import load_records
+from .common import add_effects, load_records
 
 
 def add_data_args(p: argparse.ArgumentParser, model_required: bool = True) -> None:
-    """DATA, --model, --window-s: shared by fit, compare, diagnose and report."""
+    """DATA, --model, --window-s, --effects: shared by fit, compare, diagnose and report."""
     from analysis.defaults import WINDOW_S
     p.add_argument("data", nargs="+", metavar="DATA",
                    help="tables of samples (.csv/.tsv/.txt: t,u,y[,r] in s, %%, kgf, or other "
@@ -23,6 +23,7 @@ def add_data_args(p: argparse.ArgumentParser, model_required: bool = True) -> No
                         + ("" if model_required else " (default: %(default)s)"))
     p.add_argument("--window-s", type=float, default=WINDOW_S, metavar="S",
                    help="length of the free-run windows, s (default %(default)s)")
+    add_effects(p)
 
 
 def check_window(args: argparse.Namespace) -> None:
@@ -67,7 +68,7 @@ def main(args: argparse.Namespace) -> int:
     if args.save:
         header = (f"fitted by `stand fit` to {', '.join(str(Path(d).name) for d in args.data)}\n"
                   f"windowed RMSE {ev.rmse:.4g} kgf, fit {ev.fit_percent:.2f} %")
-        Path(args.save).write_text(model_to_toml(result.model, header))
+        Path(args.save).write_text(model_to_toml(result.model, header, args.save))
     if args.json:
         print_json(c.to_dict())
         return 0

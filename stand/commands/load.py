@@ -7,7 +7,7 @@ import json
 import signal
 import sys
 
-from .common import add_gateway, gateway_config
+from .common import add_effects, add_gateway, gateway_config
 
 
 def register(sub) -> None:
@@ -41,6 +41,7 @@ def register(sub) -> None:
                    help="print the tracking summary as JSON (schema hydrostand-load/1)")
     add_gateway(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_effects(p)
     p.set_defaults(func=main)
 
 
