@@ -23,6 +23,8 @@ _EXPORTS = {
     "PlantModel": ".model",
     "PlantState": ".model",
     "ModelError": ".params",
+    "PluginError": ".plugins",
+    "load_plugins": ".plugins",
     "Param": ".params",
     "Dynamometer": ".sensor",
 }
