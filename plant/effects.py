@@ -98,10 +98,13 @@ class Effect:
         """Starts of the fit's local searches for this effect: ``[{"name.param": value}]``.
 
         ``s`` summarises the data (``dt``, ``u_abs_levels``, ``u_abs_max``, ``y_abs_max``,
-        ``y_span``, ``duration_s``), ``base`` is the base fit. The default is the parameters'
-        defaults and a low and a high value each from their bounds (log-spaced for ``log``).
+        ``y_span``, ``duration_s``, and where known what the residual of the model without
+        this effect shows: ``residual_frequency_hz``, ``residual_amplitude_kgf``), ``base`` is
+        the base fit. The default (:func:`plant.start_grids.generic_starts`): each parameter's
+        default and values across its bounds, and a parameter in Hz (kgf) also at the residual's
+        dominant frequency (amplitude).
         """
-        return generic_starts(cls.name, cls.params)
+        return generic_starts(cls.name, cls.params, s)
 
     def __init__(self, **values: float) -> None:
         known = {p.name: p for p in self.params}
@@ -656,6 +659,10 @@ class Backlash(Effect):
         state["x"] = x0
         return out
 
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        return [{"backlash.width": w} for w in (1.0, 6.0, 18.0)]
+
 
 @register
 class DirectionDelay(Effect):
@@ -753,6 +760,10 @@ class FlowCurve(Effect):
         if p == 1.0:
             return q
         return np.sign(q) * self.U_REF * (np.abs(q) / self.U_REF) ** p
+
+    @classmethod
+    def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
+        return [{"flow_curve.exponent": p} for p in (0.84, 1.0, 1.92)]
 
 
 # ------------------------------------------------------------------------------------------

@@ -23,20 +23,51 @@ def and_less_delay(start: dict, base: Mapping[str, float], extra_s: float) -> li
     return [start]
 
 
-def generic_starts(effect: str, params: Sequence[Param], limit: int = 27) -> list[dict]:
-    """Default, and a low and a high value per parameter (log-spaced for log parameters)."""
-    axes = []
+#: how many starts a default grid offers at most (each costs one simulation of the search windows)
+GENERIC_LIMIT = 48
+
+
+def generic_starts(effect: str, params: Sequence[Param], s: Any = None,
+                   limit: int = GENERIC_LIMIT) -> list[dict]:
+    """The start grid of an effect that declares none (a plug-in's, by default).
+
+    Each parameter takes its default and values across its bounds (three, log-spaced for
+    ``log=True``, at 1/6, 1/2 and 5/6 of the range otherwise). Where the data summary ``s``
+    knows what the residual of the model without the effect looks like, a parameter in Hz also
+    starts at the residual's dominant frequency (``s.residual_frequency_hz``) and one in kgf at
+    its amplitude (``s.residual_amplitude_kgf``): those starts come first, with the other
+    parameters across their grids. Beyond ``limit`` combinations, an even spread of them."""
+    hints = {"hz": getattr(s, "residual_frequency_hz", None),
+             "kgf": getattr(s, "residual_amplitude_kgf", None)}
+    axes, hinted = [], []
     for p in params:
         if p.log:
-            vals = [p.default, max(p.lower, p.default / 5), min(p.upper, p.default * 5)]
+            inner = np.geomspace(p.lower, p.upper, 5)[1:-1]
         else:
-            span = p.upper - p.lower
-            vals = [p.default, p.lower + 0.2 * span, p.lower + 0.6 * span]
-        axes.append(sorted(set(vals)))
-    combos = [{}]
+            inner = p.lower + (p.upper - p.lower) * np.array([1 / 6, 1 / 2, 5 / 6])
+        axes.append(sorted({float(p.default), *(float(v) for v in inner)}))
+        hint = hints.get(p.unit.strip().lower())
+        hinted.append([float(hint)] if hint is not None and p.lower <= hint <= p.upper else [])
+    combos: list[dict] = []
+    if any(hinted):
+        combos += _product(effect, params, [h or a for h, a in zip(hinted, axes)])
+    rest = _product(effect, params, axes)
+    room = max(limit - len(combos), 1)
+    if len(rest) > room:
+        # the defaults first, then an even spread over the rest
+        keep = np.unique(np.round(np.linspace(0, len(rest) - 1, room)).astype(int))
+        rest = [rest[0]] + [rest[i] for i in keep if i != 0][:room - 1]
+    combos += [c for c in rest if c not in combos]
+    return combos
+
+
+def _product(effect: str, params: Sequence[Param], axes: Sequence[Sequence[float]]) -> list[dict]:
+    """Every combination of the axes' values, the parameters' defaults first."""
+    combos: list[dict] = [{}]
     for p, vals in zip(params, axes):
+        vals = sorted(vals, key=lambda v: v != p.default)
         combos = [{**c, f"{effect}.{p.name}": v} for c in combos for v in vals]
-    return combos[:limit]
+    return combos
 
 
 def warming_starts(effect: str, changes: Sequence[float], limit: float, s: Any) -> list[dict]:
