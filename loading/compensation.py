@@ -61,10 +61,13 @@ class Compensation:
         for p in points:
             key = (p.kind, self._key(p.commanded_kgf))
             sums.setdefault(key, []).append(p.error_kgf)
+        # the corrections the pass ran with, all read before any is updated: a level first seen
+        # in this pass ran with the interpolation of the levels known before it, not with what
+        # this pass learns at its neighbours
+        applied = {k: self.correction(*k) for k in sums}
         for (kind, key), errs in sums.items():
-            old = self.table.setdefault(kind, {}).get(key, self.correction(kind, key))
-            new = old - self.learning_gain * float(np.mean(errs))
-            self.table[kind][key] = min(max(new, -bound), bound)
+            new = applied[kind, key] - self.learning_gain * float(np.mean(errs))
+            self.table.setdefault(kind, {})[key] = min(max(new, -bound), bound)
 
     def to_toml(self) -> str:
         out = [f"# {SCHEMA}: peak/valley corrections learned by `stand load`",

@@ -112,3 +112,19 @@ def test_a_controller_file_round_trips_and_is_validated(tmp_path):
     f.write_text(c.to_toml().replace('"g" = 120.0', ""))
     with pytest.raises(ParameterError):
         load_controller(f)
+
+
+def test_compensation_learns_each_level_from_the_correction_it_ran_with():
+    """A pass over levels never seen before ran without corrections, so each learns −γ·error
+    from zero. (It once took as the old value the interpolation of the corrections learned a
+    moment before at other levels of the same pass: one level's error moved them all, and a
+    random sequence came out worse after compensation than before.)"""
+    comp = Compensation()
+    errors = {1000.0: 12.0, 5000.0: 2.0, 3000.0: -6.0, 6000.0: 0.5}
+    comp.learn([SimpleNamespace(kind="peak", commanded_kgf=lv, error_kgf=e) for lv, e in errors.items()],
+               5000.0)
+    for lv, e in errors.items():
+        assert comp.correction("peak", lv) == pytest.approx(-0.8 * e)
+    comp.learn([SimpleNamespace(kind="peak", commanded_kgf=lv, error_kgf=1.0) for lv in errors], 5000.0)
+    for lv, e in errors.items():
+        assert comp.correction("peak", lv) == pytest.approx(-0.8 * e - 0.8)
