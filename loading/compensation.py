@@ -11,6 +11,18 @@ and the next pass commands ``L_i + c(L_i)``. Corrections are kept per (kind, lev
 level never seen before gets the correction of the nearest known levels of its kind
 (interpolated linearly). A learning gain below 1 keeps the learning stable when the stand's
 response to a correction is not one to one. Saved as TOML (``stand load --compensation``).
+
+Two guards, as commercial compensators have (a tolerance band, and never worse):
+
+* an error within the **tolerance band** (:data:`TOLERANCE_SHARE` of the range, about the
+  peak detector's noise) leaves its correction as it is, so the corrections do not chase noise;
+* **never worse than the best seen**: each level remembers the smallest error it had and the
+  correction it had then (the first pass's is the uncorrected one, or the one loaded). A pass
+  whose error at a level is worse than that by more than the band goes back to that correction
+  and halves the level's learning gain. So a stand whose response to a correction is larger
+  than one to one, or a correction that upsets the segments beside it, costs at most one pass
+  at that level. This memory lives with the object (across ``stand load --repeat`` passes);
+  a file loaded later starts it afresh.
 """
 from __future__ import annotations
 
@@ -26,6 +38,8 @@ LEARNING_GAIN = 0.8
 #: a correction is at most this share of the programme's range: compensation trims turning
 #: points, it does not rewrite the programme (a larger error is the controller's or the model's)
 MAX_CORRECTION_SHARE = 0.05
+#: errors within this share of the programme's range leave their correction as it is
+TOLERANCE_SHARE = 0.0005
 SCHEMA = "hydrostand-compensation/1"
 
 
@@ -35,6 +49,8 @@ class Compensation:
     resolution_kgf: float = 1.0
     #: kind ("peak"/"valley") -> {level key: correction kgf}
     table: dict = field(default_factory=lambda: {"peak": {}, "valley": {}})
+    #: (kind, level key) -> (smallest |error| seen, the correction then, the level's gain)
+    history: dict = field(default_factory=dict, repr=False, compare=False)
 
     def _key(self, level: float) -> float:
         return round(level / self.resolution_kgf) * self.resolution_kgf
@@ -61,10 +77,25 @@ class Compensation:
         for p in points:
             key = (p.kind, self._key(p.commanded_kgf))
             sums.setdefault(key, []).append(p.error_kgf)
+        band = TOLERANCE_SHARE * range_kgf
+        # the corrections the pass ran with, all read before any is updated: a level first seen
+        # in this pass ran with the interpolation of the levels known before it, not with what
+        # this pass learns at its neighbours
+        applied = {k: self.correction(*k) for k in sums}
         for (kind, key), errs in sums.items():
-            old = self.table.setdefault(kind, {}).get(key, self.correction(kind, key))
-            new = old - self.learning_gain * float(np.mean(errs))
-            self.table[kind][key] = min(max(new, -bound), bound)
+            err = float(np.mean(errs))
+            ran = applied[kind, key]
+            best, best_c, gain = self.history.get((kind, key), (math.inf, ran, self.learning_gain))
+            if abs(err) < best:
+                best, best_c = abs(err), ran
+            if abs(err) <= band:                       # within the tolerance band: keep it
+                new = ran
+            elif abs(err) > best + band:               # worse than the best seen: go back
+                new, gain = best_c, gain / 2
+            else:
+                new = ran - gain * err
+            self.history[kind, key] = (best, best_c, gain)
+            self.table.setdefault(kind, {})[key] = min(max(new, -bound), bound)
 
     def to_toml(self) -> str:
         out = [f"# {SCHEMA}: peak/valley corrections learned by `stand load`",

@@ -5,7 +5,13 @@ r"""The designed controller's law, one call per control cycle.
 
 with ``u^ff`` the feedforward precomputed for the whole programme (:mod:`loading.feedforward`)
 and conditional integration as anti-windup: while the command sits at its limit the integral
-does not grow further in that direction. Plain floats: a cycle costs a few operations.
+does not grow further in that direction. Where the model predicts a stand's gain above the one
+the design's margins hold at (right after a reversal, see
+:func:`loading.feedforward.feedback_scale`), ``K_p`` and the integral's growth are scaled down
+by ``s_k ≤ 1``, precomputed with the feedforward. With a ``way`` (±1) the command may move the
+rod only that way or hold it (0), the integral not growing against it (the load experiment
+keeps the feedforward's sign where the model's gain is above ρ: no reversal it does not plan).
+Plain floats: a cycle costs a few operations.
 """
 from __future__ import annotations
 
@@ -25,10 +31,15 @@ class PIFeedforward:
     def reset(self, integral_pct: float = 0.0) -> None:
         self.integral = integral_pct
 
-    def step(self, r_kgf: float, y_kgf: float, u_ff_pct: float) -> float:
+    def step(self, r_kgf: float, y_kgf: float, u_ff_pct: float, scale: float = 1.0,
+             way: float = 0.0) -> float:
         e = r_kgf - y_kgf
-        integral = self.integral + self.ki * e
-        u = u_ff_pct + self.kp * e + integral
+        integral = self.integral + scale * self.ki * e
+        u = u_ff_pct + scale * self.kp * e + integral
+        if way * u < 0:
+            if way * e > 0:
+                self.integral = integral
+            return 0.0
         if u > self.limit:
             u = self.limit
             if e < 0:

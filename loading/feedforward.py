@@ -19,6 +19,15 @@ inverted on the way:
 
 Effects it cannot invert (saturation, a play, a sensor filter, disturbances) are listed in
 :attr:`Feedforward.not_inverted`: the feedback handles what they do.
+
+**The gain the feedback meets.** Along the planned flow the FLOW effects also say how strongly
+the stand answers a small change of the command: the secant slope of ``q·ΠG(q)`` over
+:data:`SECANT_PCT` either side of the planned ``q`` (the larger side),
+:attr:`Feedforward.gain_factor`. Right after a reversal, while the planned flow is still small,
+the reversal boost makes it far larger than its value at ``u_ref`` that the design's ``ρ``
+counts (``1 + b·(u_ref/0.5 %)^p``: 17× for b = 2, p = 0.7, against ρ = 3); the load experiment
+lowers the feedback's gain there so the loop never meets more than ``ρ``
+(:func:`feedback_scale`).
 """
 from __future__ import annotations
 
@@ -32,6 +41,9 @@ from plant import PlantModel, Stage
 BISECTION_STEPS = 40
 #: the largest flow command the inversion looks for (%)
 Q_MAX = 400.0
+#: the change of the flow command over which the local gain is taken (%): about what the
+#: feedback adds to the feedforward near a turning point
+SECANT_PCT = 0.5
 
 
 @dataclass
@@ -42,21 +54,36 @@ class Feedforward:
     q_pct: np.ndarray          #: the flow command the model needs at each step (before the valve)
     inverted: list[str] = field(default_factory=list)
     not_inverted: list[str] = field(default_factory=list)
+    #: per cycle, aligned with ``u_pct`` (τ ahead): the largest factor by which the model's
+    #: FLOW effects raise the stand's gain to a change of the command, from a delay before to
+    #: a delay after the cycle's command acts (1 without FLOW effects)
+    gain_factor: np.ndarray | None = None
 
     @property
     def peak_pct(self) -> float:
         return float(np.max(np.abs(self.u_pct))) if len(self.u_pct) else 0.0
 
 
+def _flow(flows, aux, q: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``q·ΠG(q)``: the flow the FLOW effects make of the command ``q`` (their state ``aux``)."""
+    out = q.copy()
+    for e, a in zip(flows, aux):
+        out = out * e.gain(q[None, :], a, r[None, :])[0]
+    return out
+
+
 def _flow_inverse(model: PlantModel, v: np.ndarray, r: np.ndarray, dt: float,
-                  t: np.ndarray) -> np.ndarray:
-    """Solve ``q·ΠG(q) = v`` for q per sample through the model's FLOW effects' hooks."""
+                  t: np.ndarray, direction: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Solve ``q·ΠG(q) = v`` for q per sample through the model's FLOW effects' hooks; also
+    the local gain factor along q (see the module docstring). ``direction``: the way the rod
+    last moved before the programme (±1; default: the way it first moves)."""
     flows = [e for e in model.effects if e.stage is Stage.FLOW]
     q = v.copy()
     if not flows:
-        return q
+        return q, np.ones_like(q)
     # the flow of the first m steps was commanded before the programme began and is never
-    # sent: the inversion starts at step m, the rod moving already the way it goes there
+    # sent: the inversion starts at step m, the rod moving already the way it goes there (or
+    # the way it is known to have moved)
     m = min(model.delay_steps(dt), len(v) - 1)
     head, v, r, t = v[:m], v[m:], r[m:], t[m:]
     q = v.copy()
@@ -64,7 +91,10 @@ def _flow_inverse(model: PlantModel, v: np.ndarray, r: np.ndarray, dt: float,
     target = np.abs(v)
     moving = np.flatnonzero(np.abs(v) > 1e-9)
     u0 = v[moving[:1]] if len(moving) else v[:1]
-    for _ in range(3):
+    if direction:
+        u0 = np.array([float(direction)])
+
+    def prepared(q):
         aux = []
         for e in flows:
             state = e.init_state(1, u0)
@@ -74,15 +104,15 @@ def _flow_inverse(model: PlantModel, v: np.ndarray, r: np.ndarray, dt: float,
             if e.reads_time:
                 kw["t"] = t[None, :]
             aux.append(e.prepare(q[None, :], dt, state, **kw))
+        return aux
+
+    for _ in range(3):
+        aux = prepared(q)
         lo = np.zeros_like(target)
         hi = np.full_like(target, Q_MAX)
         for _ in range(BISECTION_STEPS):
             mid = (lo + hi) / 2
-            cand = sign * mid
-            out = cand.copy()
-            for e, a in zip(flows, aux):
-                out = out * e.gain(cand[None, :], a, r[None, :])[0]
-            above = np.abs(out) > target
+            above = np.abs(_flow(flows, aux, sign * mid, r)) > target
             hi = np.where(above, mid, hi)
             lo = np.where(above, lo, mid)
         new = sign * (lo + hi) / 2
@@ -90,13 +120,19 @@ def _flow_inverse(model: PlantModel, v: np.ndarray, r: np.ndarray, dt: float,
             q = new
             break
         q = new
-    return np.r_[head, q]
+    aux = prepared(q)
+    h = SECANT_PCT
+    at = _flow(flows, aux, q, r)
+    gain = np.maximum(_flow(flows, aux, q + h, r) - at, at - _flow(flows, aux, q - h, r)) / h
+    return np.r_[head, q], np.r_[np.ones(len(head)), np.maximum(gain, 0.0)]
 
 
 def feedforward(model: PlantModel, r_kgf: np.ndarray, period_s: float,
-                t_s: np.ndarray | None = None) -> Feedforward:
+                t_s: np.ndarray | None = None, direction: float | None = None) -> Feedforward:
     """The command (%) for each cycle that makes ``model`` follow the reference ``r_kgf``
-    sampled at ``period_s`` (see the module docstring)."""
+    sampled at ``period_s`` (see the module docstring). ``direction`` (±1): the way the rod
+    last moved before the reference starts, where it is known (a first motion the other way
+    is then a reversal, with what the model's FLOW effects do at one)."""
     r = np.asarray(r_kgf, float)
     dt = float(period_s)
     t = np.arange(len(r)) * dt if t_s is None else np.asarray(t_s, float)
@@ -108,7 +144,7 @@ def feedforward(model: PlantModel, r_kgf: np.ndarray, period_s: float,
             rate = rate - e.force_rate(r[None, :])[0]
             inverted.append(e.name)
     v = rate / model.g
-    q = _flow_inverse(model, v, r, dt, t)
+    q, gain = _flow_inverse(model, v, r, dt, t, direction)
     u = q.copy()
     for e in reversed([e for e in model.effects if e.stage is Stage.VALVE]):
         before = e.invert(u, dt)
@@ -127,4 +163,17 @@ def feedforward(model: PlantModel, r_kgf: np.ndarray, period_s: float,
     f = whole - m
     pad = np.r_[u, np.zeros(m + 2)]
     ahead = (1 - f) * pad[m:m + len(u)] + f * pad[m + 1:m + 1 + len(u)]
-    return Feedforward(ahead, q, inverted, skipped)
+    # the gain a command meets when it acts (τ later), the largest within a delay either side
+    acts = np.r_[np.ones(m), gain, np.ones(3 * m + 2)]
+    acts = np.maximum(acts[:-1], acts[1:])
+    window = np.lib.stride_tricks.sliding_window_view(acts, 2 * m + 1)[m:m + len(u)].max(axis=1)
+    return Feedforward(ahead, q, inverted, skipped, window)
+
+
+def feedback_scale(ff: Feedforward, rho: float) -> np.ndarray:
+    """Per cycle, the share of the designed feedback gain that keeps the loop's gain within
+    the ``rho`` the design's margins were computed at: ``min(1, ρ/gain_factor)`` (1 wherever the
+    model's gain stays within ρ, so a model without FLOW effects keeps its full feedback)."""
+    if ff.gain_factor is None:
+        return np.ones_like(ff.u_pct)
+    return np.minimum(1.0, max(rho, 1.0) / np.maximum(ff.gain_factor, 1e-12))

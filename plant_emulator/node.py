@@ -11,7 +11,8 @@ producers. This class adds, per CiA 301:
 * RPDO length errors counted (and reported by EMCY 0x8210), never decoded as garbage;
 * the RPDO timeout (event timer 0x1400+n sub 5) checked by :meth:`check_rpdo_timeout`; it runs
   from the moment the node enters OPERATIONAL, so a master that dies before its first command
-  is caught too;
+  is caught too. It counts on :attr:`EmulatedNode.clock`: the wall clock by default, the
+  stand's own time (advanced by SYNC) in lockstep;
 * an acceptance filter (:func:`slave_frame_filter`) in front of the stack: NMT commands must
   have 2 bytes, SYNC 0 or 1, SDO requests 8; error, remote, extended-id and FD frames never
   reach it (counted and dropped, as a CAN controller's filter and a careful stack would).
@@ -114,6 +115,9 @@ class EmulatedNode:
         self._sync_count = 0
         self.rpdo_length_errors = 0
         self.last_rpdo_time: float | None = None
+        #: the clock the RPDO timeout counts on (s): the wall clock, or in lockstep the stand's
+        #: own time, which only SYNCs advance (set by the stand)
+        self.clock = time.monotonic
         self.lock = threading.RLock()
 
     # -- NMT ----------------------------------------------------------------------------------
@@ -187,7 +191,7 @@ class EmulatedNode:
         self._sync_count = 0
         # The RPDO timeout runs from the start: a master that dies before its first command
         # is caught too.
-        self.last_rpdo_time = time.monotonic()
+        self.last_rpdo_time = self.clock()
         self.on_operational()
         for listener in self.started_listeners:
             listener()
@@ -234,7 +238,7 @@ class EmulatedNode:
                 self.rpdo_length_errors += 1
                 self.local.emcy.send(EMCY_PDO_LENGTH, 0x10, struct.pack("<H", len(data)))
                 return
-            self.last_rpdo_time = time.monotonic()
+            self.last_rpdo_time = self.clock()
             changes = list(zip(cfg.layout.keys, cfg.layout.decode(data)))
             for (index, sub), value in changes:
                 self.store_object(index, sub, value)
@@ -246,7 +250,8 @@ class EmulatedNode:
             if not self.operational or self.last_rpdo_time is None:
                 return False
             timers = [c.event_timer_ms for c in self.rpdos.values() if c.event_timer_ms]
-            return bool(timers) and now - self.last_rpdo_time > min(timers) / 1000.0
+            # (1 ns of slack: the stand's time in lockstep is a sum of periods in floats)
+            return bool(timers) and now - self.last_rpdo_time > min(timers) / 1000.0 + 1e-9
 
     def check_rpdo_timeout(self, now: float) -> bool:
         """True once if an RPDO with an event timer has not arrived within it."""

@@ -12,6 +12,11 @@ Time:
 
 Every SYNC: advance the plant, sample the dynamometer, refresh the valve's outputs, send the
 synchronous TPDOs of both nodes (only while OPERATIONAL).
+
+The valve's RPDO timeout counts the stand's time: the wall clock in real time (a thread polls
+it), in lockstep the stand's own time, one period per SYNC (checked at each SYNC). In lockstep
+nothing moves between SYNCs, so a host that stalls the gateway or the emulator for longer than
+the timeout is no fault; a master that goes on sending SYNCs without commands is.
 """
 from __future__ import annotations
 
@@ -87,6 +92,11 @@ class EmulatedStand:
         self._command = 0.0
         self._t_plant = time.monotonic()
         self._syncs = 0
+        #: lockstep: the stand's own time (s), one communication cycle period per SYNC; the
+        #: valve's RPDO timeout counts on it
+        self.stand_time_s = 0.0
+        if options.lockstep:
+            self.valve.clock = self.dynamometer.clock = lambda: self.stand_time_s
         self._stop = threading.Event()
         self._watchdog: threading.Thread | None = None
         self.errors: list[str] = []
@@ -99,8 +109,9 @@ class EmulatedStand:
         self._t_plant = time.monotonic()
         self.valve.boot()
         self.dynamometer.boot()
-        self._watchdog = threading.Thread(target=self._watch, name="emulator-watchdog", daemon=True)
-        self._watchdog.start()
+        if not self.options.lockstep:     # lockstep: checked at each SYNC, on the stand's time
+            self._watchdog = threading.Thread(target=self._watch, name="emulator-watchdog", daemon=True)
+            self._watchdog.start()
 
     def stop(self) -> None:
         self._stop.set()
@@ -157,6 +168,8 @@ class EmulatedStand:
         try:
             with self.lock:
                 self.advance_plant()
+                if self.options.lockstep:
+                    self._lockstep_watchdog()
                 reading, over = self.measure_force()
                 self.dynamometer.publish(reading, over)
                 self.valve.update_outputs(self._command)
@@ -196,8 +209,18 @@ class EmulatedStand:
         """Called by the valve after its effective command may have changed."""
         self._command = self.valve.spool_command_percent()
 
+    def _lockstep_watchdog(self) -> None:
+        """Lockstep: the stand's time advances by one period at this SYNC; the valve's RPDO
+        timeout is checked on it (the command of the period that just ended still counts)."""
+        period = int(self.valve.value(P.COMM_CYCLE_PERIOD)) * 1e-6
+        if period > 0 and math.isfinite(period):
+            self.stand_time_s += period
+        if self.valve.check_rpdo_timeout(self.stand_time_s):
+            self.valve.fault(P.EMCY_RPDO_TIMEOUT)
+
     def _watch(self) -> None:
-        """The valve's RPDO watchdog (event timer 0x1400:05), polled every ``watchdog_poll_s``.
+        """Real time: the valve's RPDO watchdog (event timer 0x1400:05), polled every
+        ``watchdog_poll_s``.
 
         A real valve counts the timeout in its own firmware, which never stops. This emulator
         is a process on a shared machine: when the whole process was not scheduled for a while,

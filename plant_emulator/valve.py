@@ -14,7 +14,8 @@ The spool command that reaches the hydraulics:
 * INIT, DISABLED, FAULT_*: the fail-safe position, zero flow.
 
 Faults: RPDO timeout (EMCY 0x8250; the timer runs from entering OPERATIONAL, so a master that
-dies before its first command is caught too), NMT leaving OPERATIONAL while ACTIVE (goes to
+dies before its first command is caught too; in lockstep it counts the stand's time, one period
+per SYNC, see :mod:`plant_emulator.stand`), NMT leaving OPERATIONAL while ACTIVE (goes to
 HOLD). A fault holds until a rising edge of the reset-fault bit (recovery EMCY 0x0000); an RPDO
 of the wrong length is never applied (EMCY 0x8210, see :mod:`plant_emulator.node`).
 """

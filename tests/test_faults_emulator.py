@@ -147,6 +147,34 @@ def test_rpdo_timeout_from_operational_without_any_command(emulator):
     assert emcy_codes(frames, 1) == [P.EMCY_NO_ERROR]
 
 
+def test_in_lockstep_the_rpdo_timeout_counts_the_stands_time_not_the_wall_clock(emulator):
+    """Lockstep: the stand's time moves one period (0x1006 = 2 ms) per SYNC, and the valve's
+    RPDO timeout (100 ms) counts it. A host stall with no SYNC (0.3 s of wall clock here) is no
+    fault, the stand did not move; SYNCs with a command each never fault; SYNCs without a
+    command fault on the first SYNC that ends more than 100 ms of stand time after the last one
+    (the 51st period), with EMCY 0x8250 and zero flow."""
+    stand, master = emulator(lockstep=True)
+    send(master, 0x000, b"\x01\x01")
+    send(master, 0x201, struct.pack("<Hh", int(P.CW_ACTIVE), 1000))
+    collect(master, 0.3)                                # no SYNC for 3x the timeout
+    assert stand.valve.state is P.ValveState.ACTIVE and stand.valve.faults == 0
+    for k in range(120):                                # 240 ms of stand time, a command each
+        send(master, 0x080, b"")
+        send(master, 0x201, struct.pack("<Hh", int(P.CW_ACTIVE), 1000))
+    collect(master, 0.2)
+    assert stand.valve.state is P.ValveState.ACTIVE and stand.valve.faults == 0
+    syncs = stand._syncs
+    for k in range(50):                                 # exactly 100 ms without a command
+        send(master, 0x080, b"")
+    frames = collect(master, 0.2)
+    assert stand._syncs == syncs + 50
+    assert stand.valve.state is P.ValveState.ACTIVE and not emcy_codes(frames, 1)
+    send(master, 0x080, b"")                            # 102 ms
+    frames = collect(master, 0.2, until=lambda f: f.arbitration_id == 0x81)
+    assert emcy_codes(frames, 1) == [P.EMCY_RPDO_TIMEOUT]
+    assert stand.valve.state is P.ValveState.FAULT_HOLD and stand.valve.spool_command_percent() == 0.0
+
+
 def test_the_emulator_refuses_a_config_it_cannot_run():
     config = plant()
     config.initial_force_kgf = float("nan")
