@@ -1,5 +1,30 @@
 """Analysis: the paper's estimators, model fit, comparison and diagnosis.
 
-Inputs come in through :mod:`analysis.data` (CSV, run directories, bus captures) as
-:class:`~analysis.data.Record`; the plant model is :mod:`plant` (the same code the emulator runs).
+Subpackages by job, each importing only those below it (tests/test_layers.py):
+
+- :mod:`analysis.records`: data as users bring it (tables, runs, captures) made
+  :class:`~analysis.records.record.Record`;
+
+:mod:`analysis.defaults` (the command line's defaults, no numerics) and :mod:`analysis.parallel`
+(worker processes, one BLAS thread) sit below them all. The plant model is :mod:`plant` (the same
+code the emulator runs). The public names below are imported on first use (:mod:`core.lazy`), so
+``from analysis import load`` works and ``import analysis.defaults`` stays light.
 """
+from __future__ import annotations
+
+from core.lazy import lazy_exports
+
+# name -> the module that defines it (relative to this package), imported on first use
+_EXPORTS = {
+    "Record": ".records.record",
+    "make_record": ".records.record",
+    "split_at_gaps": ".records.record",
+    "read_csv": ".records.tables",
+    "write_csv": ".records.tables",
+    "load": ".records.load",
+    "load_all": ".records.load",
+    "load_capture": ".records.load",
+    "read_run": ".records.load",
+}
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -50,7 +50,7 @@ from scipy import optimize, stats
 from plant import PlantModel
 
 from . import fit as F
-from .data import Record
+from .records.record import Record
 from .significance import UNEXPLAINED_RATIO, ErrorCut, error_cut
 
 #: |Spearman ρ| from which the records' gains (or trends) are said to follow their order or

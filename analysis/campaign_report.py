@@ -29,7 +29,8 @@ import numpy as np
 from gateway.errors import StandError
 from gateway.runs import is_run_dir, read_truth
 
-from .data import Record, load
+from .records.load import load
+from .records.record import Record
 from .estimate import Estimate, EstimateOptions, error_json, estimate_record, result_json
 from .meander import MeanderEstimate, mean_ci
 from .pfeedback import PFeedbackEstimate

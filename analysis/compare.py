@@ -16,7 +16,7 @@ import numpy as np
 from plant import PlantModel, load_model_file
 from plant.params import ModelError
 
-from .data import Record
+from .records.record import Record
 from .fit import WINDOW_S, FitResult, fit_model
 from .metrics import Evaluation, evaluate
 

@@ -41,7 +41,7 @@ from plant.effects import effect_class
 
 from . import fit as F
 from .between_records import BetweenRecords, between_records
-from .data import Record
+from .records.record import Record
 from .metrics import (AFTER_REVERSAL_S, Evaluation, RecordSimulation, command_levels,
                       demeaned_residual, evaluate, input_correlation_test, is_closed_loop,
                       reversal_mask, simulate_records, window_increments)

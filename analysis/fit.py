@@ -47,8 +47,8 @@ from plant import PlantModel
 from plant.model import Drive
 from plant.params import ModelError, Param
 
-from .data import Record
-from .limits import held_mask
+from .records.limits import held_mask
+from .records.record import Record
 from .parallel import one_blas_thread
 
 #: default window of the free-run error, s
@@ -131,7 +131,7 @@ def clipped_mask(y: np.ndarray, run: int = 5) -> np.ndarray:
 
 def valid_stretches(rec: Record, min_samples: int) -> list[tuple[int, int]]:
     """``(start, stop)`` of the stretches of a record whose force reading is not clipped and not
-    held at a hydraulic limit (:mod:`analysis.limits`), at least ``min_samples`` long."""
+    held at a hydraulic limit (:mod:`analysis.records.limits`), at least ``min_samples`` long."""
     bad = clipped_mask(rec.y) | held_mask(rec.u, rec.y, rec.dt)
     if not bad.any():
         return [(0, len(rec.y))]

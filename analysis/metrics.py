@@ -54,7 +54,7 @@ import numpy as np
 
 from plant import PlantModel
 
-from .data import Record
+from .records.record import Record
 from .fit import WINDOW_S, pieces_from_records, simulate_piece
 
 #: length of the "just after a reversal" regime, s

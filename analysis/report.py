@@ -34,7 +34,7 @@ from plant import PlantModel
 
 from . import plots
 from .compare import Comparison, compare, interval_label, jsonable
-from .data import Record
+from .records.record import Record
 from .fit import WINDOW_S
 
 HISTORY_FILE = "history.json"

@@ -29,7 +29,7 @@ from typing import Callable, Sequence
 from plant import PlantModel
 
 from . import fit as F
-from .data import Record
+from .records.record import Record
 from .diagnose import Candidate, Diagnosis, diagnose, judge
 from .parallel import one_blas_thread
 

@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from analysis.data import make_record
+from analysis import make_record
 from analysis.stepwise import stepwise
 from tests import independent_stand as sim
 

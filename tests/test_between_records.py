@@ -14,7 +14,7 @@ import pytest
 import tests.independent_stand as sim
 from analysis import fit as F
 from analysis.between_records import _solve, between_records
-from analysis.data import make_record
+from analysis import make_record
 from analysis.diagnose import diagnose, objective_floor
 from analysis.metrics import evaluate
 from analysis.stepwise import stepwise

@@ -8,7 +8,7 @@ import json
 import pytest
 
 from analysis.campaign_report import ReportInput, report_campaign, write_report
-from analysis.data import write_csv
+from analysis import write_csv
 from analysis.estimate import estimate_record
 from analysis.relay import DF_PEAK_BIAS
 from gateway import Gateway, GatewayConfig

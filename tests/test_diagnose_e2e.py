@@ -12,7 +12,7 @@ import sys
 
 import pytest
 
-from analysis.data import read_run
+from analysis import read_run
 from analysis.diagnose import diagnose
 from gateway import Gateway, GatewayConfig, SafetyLimits
 from gateway.experiments import Meander

@@ -7,7 +7,7 @@ import can
 import numpy as np
 import pytest
 
-from analysis.data import read_run
+from analysis import read_run
 from analysis.meander import estimate_meander
 from gateway import Gateway, GatewayConfig, load_run
 from gateway.experiments import Meander

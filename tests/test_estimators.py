@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from analysis.data import make_record, read_csv, write_csv
+from analysis import make_record, read_csv, write_csv
 from analysis.estimate import (EstimateOptions, detect_experiment, error_json, estimate_record,
                                result_json)
 from analysis.meander import estimate_meander

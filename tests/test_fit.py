@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from analysis import synthetic as S
-from analysis.data import make_record
+from analysis.records import synthetic as S
+from analysis import make_record
 from analysis.fit import (Parameterization, fit_model, pieces_from_records, residual,
                           screening_pieces, simulate_piece)
 from plant import PlantModel
@@ -159,7 +159,7 @@ def test_a_gap_in_the_data_splits_the_record_instead_of_being_fitted_across(tmp_
     capture block): bridged by resampling, a model would integrate a held command against an
     interpolated force there; load_all gives the two parts as records of their own, and the
     fit on them sees only the noise."""
-    from analysis.data import load, load_all, split_at_gaps
+    from analysis import load, load_all, split_at_gaps
     truth = PlantModel.from_spec("base", {"g": 120.0, "tau": 0.05, "delta": 0.0})
     rec = S.meander(truth, amplitudes_pct=(5.0, 10.0), cycles=4, seed=3)
     keep = (rec.t < 9.3) | (rec.t > 10.9)

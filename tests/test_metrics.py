@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from analysis import synthetic as S
-from analysis.data import make_record
+from analysis.records import synthetic as S
+from analysis import make_record
 from analysis.metrics import (command_levels, evaluate, noise_sigma, reversal_mask)
 from plant import PlantModel
 

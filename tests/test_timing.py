@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.data import make_record
+from analysis import make_record
 from analysis.metrics import evaluate
 from analysis.timing import jitter_observation, timing_jitter
 from plant import PlantModel

@@ -17,8 +17,8 @@ import can
 import numpy as np
 import pytest
 
-from analysis.data import read_run
-from analysis.data import load_capture
+from analysis import read_run
+from analysis import load_capture
 from analysis.estimate import estimate_record
 from analysis.meander import estimate_meander
 from gateway import load_run

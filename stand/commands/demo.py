@@ -31,7 +31,7 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from analysis.data import read_run
+    from analysis import read_run
     from analysis.meander import estimate_meander
     from gateway import Gateway, GatewayConfig
     from gateway.recorder import write_json
