@@ -4,6 +4,8 @@ Subpackages by job, each importing only those below it (tests/test_layers.py):
 
 - :mod:`analysis.records`: data as users bring it (tables, runs, captures) made
   :class:`~analysis.records.record.Record`;
+- :mod:`analysis.estimators`: the paper's estimators (meander, P feedback, relay) and the
+  dispatch that recognises the experiment;
 
 :mod:`analysis.defaults` (the command line's defaults, no numerics) and :mod:`analysis.parallel`
 (worker processes, one BLAS thread) sit below them all. The plant model is :mod:`plant` (the same
@@ -25,6 +27,19 @@ _EXPORTS = {
     "load_all": ".records.load",
     "load_capture": ".records.load",
     "read_run": ".records.load",
+    "EstimateOptions": ".estimators.dispatch",
+    "Estimate": ".estimators.dispatch",
+    "detect_experiment": ".estimators.dispatch",
+    "estimate_record": ".estimators.dispatch",
+    "estimate_path": ".estimators.dispatch",
+    "result_json": ".estimators.dispatch",
+    "error_json": ".estimators.dispatch",
+    "MeanderEstimate": ".estimators.meander",
+    "estimate_meander": ".estimators.meander",
+    "PFeedbackEstimate": ".estimators.pfeedback",
+    "estimate_pfeedback": ".estimators.pfeedback",
+    "RelayEstimate": ".estimators.relay",
+    "estimate_relay": ".estimators.relay",
 }
 __all__ = sorted(_EXPORTS)
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

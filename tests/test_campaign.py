@@ -9,8 +9,8 @@ import pytest
 
 from analysis.campaign_report import ReportInput, report_campaign, write_report
 from analysis import write_csv
-from analysis.estimate import estimate_record
-from analysis.relay import DF_PEAK_BIAS
+from analysis import estimate_record
+from analysis.estimators.relay import DF_PEAK_BIAS
 from gateway import Gateway, GatewayConfig
 from gateway.campaign import CampaignPlan, MeanderPlan, RelayPlan, run_campaign
 from gateway.errors import ParameterError

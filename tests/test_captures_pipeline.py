@@ -12,7 +12,7 @@ import pyarrow.dataset as ds
 import pytest
 
 from analysis import load
-from analysis.meander import estimate_meander
+from analysis import estimate_meander
 from analysis import load_capture
 from captures import CaptureDamaged, FrameChunk, decode_capture
 from captures.synthetic import FORCE_SCALE, stand_frames, synthetic_run

@@ -19,8 +19,8 @@ import pytest
 
 from analysis import read_run
 from analysis import load_capture
-from analysis.estimate import estimate_record
-from analysis.meander import estimate_meander
+from analysis import estimate_record
+from analysis import estimate_meander
 from gateway import load_run
 
 ROOT = Path(__file__).resolve().parents[1]
