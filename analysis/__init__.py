@@ -6,6 +6,8 @@ Subpackages by job, each importing only those below it (tests/test_layers.py):
   :class:`~analysis.records.record.Record`;
 - :mod:`analysis.estimators`: the paper's estimators (meander, P feedback, relay) and the
   dispatch that recognises the experiment;
+- :mod:`analysis.identification`: any plant model fitted to records by least squares on the
+  windowed free-run error (:func:`fit_model`), evaluated (:func:`evaluate`) and compared;
 
 :mod:`analysis.defaults` (the command line's defaults, no numerics) and :mod:`analysis.parallel`
 (worker processes, one BLAS thread) sit below them all. The plant model is :mod:`plant` (the same
@@ -40,6 +42,14 @@ _EXPORTS = {
     "estimate_pfeedback": ".estimators.pfeedback",
     "RelayEstimate": ".estimators.relay",
     "estimate_relay": ".estimators.relay",
+    "FitResult": ".identification.fit",
+    "ParamEstimate": ".identification.fit",
+    "fit_model": ".identification.fit",
+    "Evaluation": ".identification.metrics",
+    "evaluate": ".identification.metrics",
+    "Comparison": ".identification.compare",
+    "compare": ".identification.compare",
+    "resolve_model": ".identification.compare",
 }
 __all__ = sorted(_EXPORTS)
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

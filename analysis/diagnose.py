@@ -39,13 +39,16 @@ import numpy as np
 from plant import CATALOGUE, PlantModel
 from plant.effects import effect_class
 
-from . import fit as F
 from .between_records import BetweenRecords, between_records
-from .records.record import Record
-from .metrics import (AFTER_REVERSAL_S, Evaluation, RecordSimulation, command_levels,
-                      demeaned_residual, evaluate, input_correlation_test, is_closed_loop,
-                      reversal_mask, simulate_records, window_increments)
+from .identification.fit import FTOL, REFIT_TOL, SCREEN_TOL, FitResult, fit_model
+from .identification.metrics import (AFTER_REVERSAL_S, Evaluation, RecordSimulation,
+                                     command_levels, demeaned_residual, evaluate,
+                                     input_correlation_test, is_closed_loop, reversal_mask,
+                                     simulate_records, window_increments)
+from .identification.windows import (WINDOW_S, Piece, errors, pieces_from_records, residual,
+                                     screening_pieces, window_sse)
 from .parallel import one_blas_thread, run_each, workers_for
+from .records.record import Record
 from .significance import MIN_EXCESS_SHARE, MIN_IMPROVEMENT, MIN_Z, UNEXPLAINED_RATIO, error_cut
 from .timing import jitter_observation
 
@@ -226,7 +229,7 @@ class Candidate:
     refit_on: str                 #: "final" (refitted on all windows, tight tolerance, intervals)
                                   #: or "screening" (screening fit only)
     warnings: list[str] = field(default_factory=list)
-    fit: F.FitResult | None = field(default=None, repr=False)
+    fit: FitResult | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict:
         d = {k: v for k, v in asdict(self).items() if k != "fit"}
@@ -264,7 +267,7 @@ class Diagnosis:
     verdict: str
     model: str                    #: the starting model
     best: str | None
-    base_fit: F.FitResult = field(repr=False)
+    base_fit: FitResult = field(repr=False)
     base_eval: Evaluation = field(repr=False)
     candidates: list[Candidate]
     noise_sigma: float
@@ -311,7 +314,7 @@ def diagnosable_effects(model: PlantModel) -> list[str]:
     return [n for n, c in CATALOGUE.items() if c.diagnosable and n not in have]
 
 
-def _screen_candidate(shared: tuple, name: str) -> F.FitResult | None:
+def _screen_candidate(shared: tuple, name: str) -> FitResult | None:
     """``base + name`` fitted on the screening windows (a grid for the new effect, the rest
     warm), or None if the effect cannot start from the base model's values."""
     base_model, screen = shared
@@ -319,13 +322,13 @@ def _screen_candidate(shared: tuple, name: str) -> F.FitResult | None:
         m0 = PlantModel.from_spec(f"{base_model.spec}+{name}", base_model.params())
     except Exception:  # noqa: BLE001 - an effect that cannot start from here is skipped
         return None
-    return F.fit_model(screen, m0, grid_effects=[name], delay_search=False, covariance=False,
-                       tol=F.SCREEN_TOL)
+    return fit_model(screen, m0, grid_effects=[name], delay_search=False, covariance=False,
+                       tol=SCREEN_TOL)
 
 
 @one_blas_thread
 def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
-             window_s: float = F.WINDOW_S, effects: Sequence[str] | None = None,
+             window_s: float = WINDOW_S, effects: Sequence[str] | None = None,
              max_screen_windows: int = 150, refit_top: int = REFIT_TOP,
              progress: Callable[[str], None] | None = None, jobs: int | None = None) -> Diagnosis:
     """Diagnose what ``model`` misses in ``records`` (one data set). See the module docstring.
@@ -337,22 +340,22 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
     effects = list(effects) if effects is not None else diagnosable_effects(start)
     for name in effects:
         effect_class(name)
-    full = F.pieces_from_records(records, window_s)
-    screen, subset = F.screening_pieces(records, window_s, max_windows=max_screen_windows)
+    full = pieces_from_records(records, window_s)
+    screen, subset = screening_pieces(records, window_s, max_windows=max_screen_windows)
     n_full_w = sum(p.n_windows for p in full)
     n_screen_w = sum(p.n_windows for p in screen)
     screening = {"subset": subset, "windows_total": n_full_w, "windows_screened": n_screen_w,
                  "refit_on_all": ["base"]}
     say(f"fitting {start.spec}" + (f" on {n_screen_w} of {n_full_w} windows" if subset else ""))
-    base_fit = F.fit_model(screen, start, covariance=not subset)
+    base_fit = fit_model(screen, start, covariance=not subset)
     screen_base = base_fit.model
     if subset:
-        base_fit = F.fit_model(full, base_fit.model, starts="given", delay_search=False)
+        base_fit = fit_model(full, base_fit.model, starts="given", delay_search=False)
     base_model = base_fit.model
     base_w = _window_sse(base_model, full)
     # candidates fitted on the screening windows only are compared with the base fitted there
     # too (both evaluated on all windows): nested models, like with like
-    screen_ref = F.errors(screen_base, full) if subset else None
+    screen_ref = errors(screen_base, full) if subset else None
     base_eval = evaluate(base_model, records, window_s)
     sigma = base_eval.noise_sigma
     floor = objective_floor(full, sigma)
@@ -361,16 +364,16 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
     judged: list[tuple] = []
     workers = workers_for(len(effects), _n_eval(screen) * len(effects), jobs)
     screening["workers"] = workers
-    done: dict[str, F.FitResult | None] = {}
+    done: dict[str, FitResult | None] = {}
     for name, fit in run_each(_screen_candidate, effects, (base_model, screen), workers):
         say(f"tried +{name}" if workers > 1 else f"trying +{name}")
         done[name] = fit
     # in the catalogue's order, whatever order the workers finished in
-    fits: dict[str, F.FitResult] = {n: done[n] for n in effects if done[n] is not None}
+    fits: dict[str, FitResult] = {n: done[n] for n in effects if done[n] is not None}
     # rank on all windows with the screening parameters, refit the best on all data
     scored = []
     for name, f in fits.items():
-        w, rmse = F.errors(f.model, full)
+        w, rmse = errors(f.model, full)
         scored.append((float(w.sum()), name, w, rmse))
     scored.sort(key=lambda x: x[0])
     for rank, (_, name, w, rmse) in enumerate(scored):
@@ -378,9 +381,9 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
         refit = "screening"
         if rank < (refit_top if subset else max(refit_top, 2)):
             say(f"refitting +{name} on all windows")
-            f = F.fit_model(full, f.model, starts="given", delay_search=False,
-                            tol=F.FTOL if not subset else F.REFIT_TOL)
-            w, rmse = F.errors(f.model, full)
+            f = fit_model(full, f.model, starts="given", delay_search=False,
+                            tol=FTOL if not subset else REFIT_TOL)
+            w, rmse = errors(f.model, full)
             refit = "final"
             screening["refit_on_all"].append(name)
         fits[name] = f
@@ -509,15 +512,15 @@ def rank_candidates(cands: Sequence[Candidate]) -> list[Candidate]:
     return out
 
 
-def _n_eval(pieces: Sequence[F.Piece]) -> int:
+def _n_eval(pieces: Sequence[Piece]) -> int:
     return sum(p.n_eval for p in pieces)
 
 
-def _window_sse(model: PlantModel, pieces: Sequence[F.Piece]) -> np.ndarray:
-    return F.window_sse(F.residual(model, pieces), pieces)
+def _window_sse(model: PlantModel, pieces: Sequence[Piece]) -> np.ndarray:
+    return window_sse(residual(model, pieces), pieces)
 
 
-def objective_floor(pieces: Sequence[F.Piece], sigma: float) -> float:
+def objective_floor(pieces: Sequence[Piece], sigma: float) -> float:
     """RMSE of the objective for a perfect model: white noise minus its window mean,
     ``σ·sqrt(1 − 1/W)`` averaged over the windows."""
     n = _n_eval(pieces)
@@ -525,7 +528,7 @@ def objective_floor(pieces: Sequence[F.Piece], sigma: float) -> float:
     return sigma * math.sqrt(dof / n) if n else math.nan
 
 
-def judge(name: str, f: F.FitResult, w: np.ndarray, rmse: float, base_w: np.ndarray,
+def judge(name: str, f: FitResult, w: np.ndarray, rmse: float, base_w: np.ndarray,
           base_rmse: float, floor: float, n: int, refit: str) -> Candidate:
     """Judge one candidate against its reference fit of the starting model (same windows)."""
     c = error_cut(w, base_w, floor, n, len(f.free) - 3)
@@ -722,7 +725,7 @@ def _signed_pct(x: float) -> str:
 
 
 def describe_unexplained(ev: Evaluation, floor: float, ratio: float,
-                         fit: F.FitResult) -> Unexplained:
+                         fit: FitResult) -> Unexplained:
     """What the residual left by every candidate looks like: periodic or broadband, where."""
     f, amp, share = periodic_component(ev.sims, floor)
     corr = command_has_line(ev.sims, f) if f is not None else False
@@ -906,7 +909,7 @@ class Excitation:
                    single, float(np.ptp(y)), bool(y.min() < -0.1 * np.ptp(y) and y.max() > 0.1 * np.ptp(y)))
 
 
-def _ambiguities(records: Sequence[Record], base_fit: F.FitResult, cands: Sequence[Candidate],
+def _ambiguities(records: Sequence[Record], base_fit: FitResult, cands: Sequence[Candidate],
                  best: Candidate | None) -> list[Ambiguity]:
     ex = Excitation.of(records)
     out: list[Ambiguity] = []

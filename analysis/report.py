@@ -33,9 +33,9 @@ from gateway.errors import DataError
 from plant import PlantModel
 
 from . import plots
-from .compare import Comparison, compare, interval_label, jsonable
+from .identification.compare import Comparison, compare, interval_label, jsonable
+from .identification.windows import WINDOW_S
 from .records.record import Record
-from .fit import WINDOW_S
 
 HISTORY_FILE = "history.json"
 REPORT_FILE = "report.html"

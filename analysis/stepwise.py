@@ -28,10 +28,11 @@ from typing import Callable, Sequence
 
 from plant import PlantModel
 
-from . import fit as F
-from .records.record import Record
 from .diagnose import Candidate, Diagnosis, diagnose, judge
+from .identification.fit import REFIT_TOL, FitResult, fit_model
+from .identification.windows import WINDOW_S, errors, pieces_from_records
 from .parallel import one_blas_thread
+from .records.record import Record
 
 #: effects added at most (each step is one diagnosis: all candidates fitted)
 from .defaults import MAX_EFFECTS  # noqa: E402  (re-exported)
@@ -74,7 +75,7 @@ class Needed:
 class Stepwise:
     steps: list[Step]
     model: PlantModel             #: the final model (after the backward check), fitted
-    fit: F.FitResult = field(repr=False)
+    fit: FitResult = field(repr=False)
     #: "adequate" | "varies_between_records" | "unexplained" | "max_effects"
     verdict: str
     needed: list[Needed]
@@ -123,7 +124,7 @@ ALTERNATIVE_RATIO = 0.8
 
 @one_blas_thread
 def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
-             window_s: float = F.WINDOW_S, max_effects: int = MAX_EFFECTS,
+             window_s: float = WINDOW_S, max_effects: int = MAX_EFFECTS,
              effects: Sequence[str] | None = None,
              progress: Callable[[str], None] | None = None, jobs: int | None = None) -> Stepwise:
     """Add effects to ``model`` one at a time until it explains ``records`` (module docstring).
@@ -216,21 +217,21 @@ def without(model: PlantModel, effect: str) -> PlantModel:
     return PlantModel.from_spec(spec, values)
 
 
-def backward_check(records: Sequence[Record], full: F.FitResult, added: Sequence[str],
-                   floor: float, window_s: float) -> tuple[F.FitResult, list[Needed]]:
+def backward_check(records: Sequence[Record], full: FitResult, added: Sequence[str],
+                   floor: float, window_s: float) -> tuple[FitResult, list[Needed]]:
     """Refit the model without each added effect in turn; drop the one that helps least if it
     no longer helps, and repeat. Returns the final fit and the verdict on every added effect."""
-    pieces = F.pieces_from_records(records, window_s)
+    pieces = pieces_from_records(records, window_s)
     n = sum(p.n_eval for p in pieces)
     dropped: list[Needed] = []
     while True:
-        w_full, rmse_full = F.errors(full.model, pieces)
+        w_full, rmse_full = errors(full.model, pieces)
         obj_full = math.sqrt(w_full.sum() / n)
         checks = []
         for name in [a for a in added if full.model.effect(a) is not None]:
-            reduced = F.fit_model(pieces, without(full.model, name), starts="given",
-                                  delay_search=False, covariance=False, tol=F.REFIT_TOL)
-            w_red, rmse_red = F.errors(reduced.model, pieces)
+            reduced = fit_model(pieces, without(full.model, name), starts="given",
+                                  delay_search=False, covariance=False, tol=REFIT_TOL)
+            w_red, rmse_red = errors(reduced.model, pieces)
             obj_red = math.sqrt(w_red.sum() / n)
             # judged as a candidate added to the reduced model, like in the diagnosis
             c = judge(name, full, w_full, rmse_full, w_red, rmse_red, floor, n, "final")
@@ -246,7 +247,7 @@ def backward_check(records: Sequence[Record], full: F.FitResult, added: Sequence
         full = reduced
 
 
-def _summary(steps: list[Step], verdict: str, fit: F.FitResult, needed: list[Needed],
+def _summary(steps: list[Step], verdict: str, fit: FitResult, needed: list[Needed],
              last: Diagnosis) -> str:
     path = " → ".join([steps[0].model] + [f"+{s.added}" for s in steps if s.added])
     first, end = steps[0], steps[-1]

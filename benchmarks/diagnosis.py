@@ -7,7 +7,7 @@ import numpy as np
 
 from analysis import Record, make_record
 from analysis.diagnose import diagnose
-from analysis.fit import fit_model
+from analysis import fit_model
 from analysis.records.synthetic import square_wave
 from plant import Dynamometer, PlantModel
 

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 import tests.independent_stand as sim
-from analysis import fit as F
+from analysis.identification import windows as F
 from analysis.between_records import _solve, between_records
 from analysis import make_record
 from analysis.diagnose import diagnose, objective_floor
-from analysis.metrics import evaluate
+from analysis import evaluate
 from analysis.stepwise import stepwise
 from stand.cli import main
 

@@ -7,7 +7,7 @@ import re
 import pytest
 
 from analysis.records import synthetic as S
-from analysis.compare import compare
+from analysis import compare
 from analysis import write_csv
 from analysis.report import load_history, write_report
 from plant import CATALOGUE, PlantModel, load_model_file

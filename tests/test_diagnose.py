@@ -285,7 +285,7 @@ def test_the_number_of_workers_follows_the_work_and_the_request():
 
 def test_diagnosis_json_has_the_stable_schema():
     import json
-    from analysis.compare import jsonable
+    from analysis.identification.compare import jsonable
     d = diagnose([meander4(plant("reversal"), seed=17)])
     out = json.loads(json.dumps(jsonable(d.to_dict()), allow_nan=False))
     assert out["verdict"] == "missing_effect"

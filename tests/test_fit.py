@@ -8,8 +8,9 @@ import pytest
 
 from analysis.records import synthetic as S
 from analysis import make_record
-from analysis.fit import (Parameterization, fit_model, pieces_from_records, residual,
-                          screening_pieces, simulate_piece)
+from analysis.identification.fit import Parameterization, fit_model
+from analysis.identification.windows import (pieces_from_records, residual, screening_pieces,
+                                             simulate_piece)
 from plant import PlantModel
 
 BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}

@@ -8,7 +8,8 @@ import pytest
 
 from analysis.records import synthetic as S
 from analysis import make_record
-from analysis.metrics import (command_levels, evaluate, noise_sigma, reversal_mask)
+from analysis import evaluate
+from analysis.identification.metrics import command_levels, noise_sigma, reversal_mask
 from plant import PlantModel
 
 BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from analysis import make_record
-from analysis.metrics import evaluate
+from analysis import evaluate
 from analysis.timing import jitter_observation, timing_jitter
 from plant import PlantModel
 

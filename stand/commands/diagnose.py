@@ -53,7 +53,7 @@ def register(sub) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from analysis import plots
-    from analysis.compare import resolve_model
+    from analysis import resolve_model
     from analysis.diagnose import diagnosable_effects, diagnose
     check_window(args)
     if args.max_effects < 1:

@@ -16,9 +16,10 @@ import numpy as np
 from plant import PlantModel, load_model_file
 from plant.params import ModelError
 
-from .records.record import Record
-from .fit import WINDOW_S, FitResult, fit_model
+from ..records.record import Record
+from .fit import FitResult, fit_model
 from .metrics import Evaluation, evaluate
+from .windows import WINDOW_S
 
 
 def resolve_model(text: str | PlantModel) -> tuple[PlantModel, str | None]:

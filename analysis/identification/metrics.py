@@ -54,8 +54,8 @@ import numpy as np
 
 from plant import PlantModel
 
-from .records.record import Record
-from .fit import WINDOW_S, pieces_from_records, simulate_piece
+from ..records.record import Record
+from .windows import WINDOW_S, pieces_from_records, simulate_piece
 
 #: length of the "just after a reversal" regime, s
 AFTER_REVERSAL_S = 0.2
