@@ -42,6 +42,7 @@ _EXPORTS = {
     "estimate_pfeedback": ".estimators.pfeedback",
     "RelayEstimate": ".estimators.relay",
     "estimate_relay": ".estimators.relay",
+    "FitOptions": ".identification.fit",
     "FitResult": ".identification.fit",
     "ParamEstimate": ".identification.fit",
     "fit_model": ".identification.fit",

@@ -40,7 +40,7 @@ from plant import CATALOGUE, PlantModel
 from plant.effects import effect_class
 
 from .between_records import BetweenRecords, between_records
-from .identification.fit import FTOL, REFIT_TOL, SCREEN_TOL, FitResult, fit_model
+from .identification.fit import FTOL, REFIT_TOL, FitOptions, FitResult, fit_model
 from .identification.metrics import (AFTER_REVERSAL_S, Evaluation, RecordSimulation,
                                      command_levels, demeaned_residual, evaluate,
                                      input_correlation_test, is_closed_loop, reversal_mask,
@@ -322,8 +322,7 @@ def _screen_candidate(shared: tuple, name: str) -> FitResult | None:
         m0 = PlantModel.from_spec(f"{base_model.spec}+{name}", base_model.params())
     except Exception:  # noqa: BLE001 - an effect that cannot start from here is skipped
         return None
-    return fit_model(screen, m0, grid_effects=[name], delay_search=False, covariance=False,
-                       tol=SCREEN_TOL)
+    return fit_model(screen, m0, options=FitOptions.add_effect(name))
 
 
 @one_blas_thread
@@ -347,10 +346,10 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
     screening = {"subset": subset, "windows_total": n_full_w, "windows_screened": n_screen_w,
                  "refit_on_all": ["base"]}
     say(f"fitting {start.spec}" + (f" on {n_screen_w} of {n_full_w} windows" if subset else ""))
-    base_fit = fit_model(screen, start, covariance=not subset)
+    base_fit = fit_model(screen, start, options=FitOptions(covariance=not subset))
     screen_base = base_fit.model
     if subset:
-        base_fit = fit_model(full, base_fit.model, starts="given", delay_search=False)
+        base_fit = fit_model(full, base_fit.model, options=FitOptions.refit())
     base_model = base_fit.model
     base_w = _window_sse(base_model, full)
     # candidates fitted on the screening windows only are compared with the base fitted there
@@ -381,8 +380,8 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
         refit = "screening"
         if rank < (refit_top if subset else max(refit_top, 2)):
             say(f"refitting +{name} on all windows")
-            f = fit_model(full, f.model, starts="given", delay_search=False,
-                            tol=FTOL if not subset else REFIT_TOL)
+            f = fit_model(full, f.model,
+                          options=FitOptions.refit(tol=FTOL if not subset else REFIT_TOL))
             w, rmse = errors(f.model, full)
             refit = "final"
             screening["refit_on_all"].append(name)

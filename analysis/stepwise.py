@@ -29,7 +29,7 @@ from typing import Callable, Sequence
 from plant import PlantModel
 
 from .diagnose import Candidate, Diagnosis, diagnose, judge
-from .identification.fit import REFIT_TOL, FitResult, fit_model
+from .identification.fit import REFIT_TOL, FitOptions, FitResult, fit_model
 from .identification.windows import WINDOW_S, errors, pieces_from_records
 from .parallel import one_blas_thread
 from .records.record import Record
@@ -229,8 +229,8 @@ def backward_check(records: Sequence[Record], full: FitResult, added: Sequence[s
         obj_full = math.sqrt(w_full.sum() / n)
         checks = []
         for name in [a for a in added if full.model.effect(a) is not None]:
-            reduced = fit_model(pieces, without(full.model, name), starts="given",
-                                  delay_search=False, covariance=False, tol=REFIT_TOL)
+            reduced = fit_model(pieces, without(full.model, name),
+                                options=FitOptions.refit(tol=REFIT_TOL, covariance=False))
             w_red, rmse_red = errors(reduced.model, pieces)
             obj_red = math.sqrt(w_red.sum() / n)
             # judged as a candidate added to the reduced model, like in the diagnosis

@@ -115,6 +115,42 @@ class Parameterization:
 # ------------------------------------------------------------------------------------------
 # the fit
 # ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class FitOptions:
+    """How :func:`fit_model` searches; the defaults fit afresh, with confidence intervals."""
+
+    #: search start values (the projections and grids of the module docstring) besides the
+    #: model's own values; False: polish the model's values only
+    search_starts: bool = True
+    #: effects whose start grids are tried (None: all of the model's)
+    grid_effects: tuple[str, ...] | None = None
+    #: grid-search τ first (with g and Δ projected)
+    delay_search: bool = True
+    #: how many of the best starts are polished
+    n_polish: int = 2
+    #: further start values tried (parameter name -> value)
+    extra_starts: tuple[Mapping[str, float], ...] = ()
+    #: evaluations of the first polish (None: 40 per free parameter, plus 40)
+    max_nfev: int | None = None
+    #: relative tolerance of the polish (None: :data:`FTOL`; :data:`REFIT_TOL` for the polish
+    #: on all windows after a search on a subset)
+    tol: float | None = None
+    #: confidence intervals (a fresh Jacobian at the solution)
+    covariance: bool = True
+
+    @classmethod
+    def refit(cls, tol: float | None = None, covariance: bool = True) -> "FitOptions":
+        """Polish the model's own values, no search: a fitted model fitted again (on all
+        windows after a screening fit, or without one of its effects)."""
+        return cls(search_starts=False, delay_search=False, tol=tol, covariance=covariance)
+
+    @classmethod
+    def add_effect(cls, effect: str) -> "FitOptions":
+        """``model + effect`` screened from a fitted model: the new effect's start grid, the
+        other parameters warm, no delay search, the screening tolerance, no intervals."""
+        return cls(grid_effects=(effect,), delay_search=False, covariance=False, tol=SCREEN_TOL)
+
+
 @dataclass
 class ParamEstimate:
     """A fitted parameter with its 95 % confidence interval."""
@@ -192,26 +228,22 @@ def _as_model(model: PlantModel | str) -> PlantModel:
 
 
 @one_blas_thread
-def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
-              window_s: float = WINDOW_S, fixed: Iterable[str] = (), starts: str = "auto",
-              max_nfev: int | None = None, n_polish: int = 2,
-              extra_starts: Sequence[Mapping[str, float]] = (),
-              grid_effects: Sequence[str] | None = None, delay_search: bool = True,
-              covariance: bool = True, tol: float | None = None) -> FitResult:
+def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str, *,
+              window_s: float = WINDOW_S, fixed: Iterable[str] = (),
+              options: FitOptions | None = None) -> FitResult:
     """Fit ``model`` (a spec like ``"base+reversal"`` or a :class:`PlantModel` whose values are
     a start) to records (or prepared pieces) by least squares on the windowed free-run error.
 
-    ``fixed``: parameter names kept at their given values. ``starts``: ``"auto"`` (grids and
-    projections described in the module docstring, plus the given values) or ``"given"`` (only
-    the model's values). ``grid_effects``: effects whose start grids are tried (default: all of
-    the model's); ``delay_search``: grid-search τ first; ``n_polish``: how many of the best
-    starts are polished; ``tol``: relative tolerance of the polish (default :data:`FTOL`). With
-    more than :data:`SEARCH_WINDOWS` windows the starts are searched (and polished loosely) on a
-    subset of them, then polished on all. Returns a :class:`FitResult` with confidence
-    intervals."""
+    ``window_s``: the windows' length (records only; pieces come cut). ``fixed``: parameter
+    names kept at their given values. ``options``: how the fit searches (:class:`FitOptions`;
+    default: start values searched, intervals computed). With more than
+    :data:`SEARCH_WINDOWS` windows the starts are searched (and polished loosely) on a subset
+    of them, then polished on all. Returns a :class:`FitResult` with confidence intervals."""
+    opt = options or FitOptions()
     model = _as_model(model)
     pieces = _as_pieces(data, window_s)
-    search, searched_subset = subset_pieces(pieces, SEARCH_WINDOWS) if starts == "auto" else (pieces, False)
+    search, searched_subset = (subset_pieces(pieces, SEARCH_WINDOWS) if opt.search_starts
+                               else (pieces, False))
     spec = model.spec
     fixed = set(fixed)
     unknown = fixed - set(model.params())
@@ -230,17 +262,17 @@ def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
         return _result(model, Parameterization(spec, given, []), pieces, r, 0, True,
                        "all parameters fixed", covariance=False)
     candidates.append(project(given)[::-1])
-    for s in extra_starts:
+    for s in opt.extra_starts:
         vals = {**given, **{k: v for k, v in s.items() if k in given and k not in fixed}}
         candidates.append(project(vals)[::-1])
-    if starts == "auto":
+    if opt.search_starts:
         base_vals = dict(given)
-        if delay_search and "tau" not in fixed:
+        if opt.delay_search and "tau" not in fixed:
             tv, _ = initial_delay(search, spec, given)
             base_vals.update({k: tv[k] for k in ("g", "tau", "delta") if k not in fixed})
             candidates.append(project(base_vals)[::-1])
         summary = DataSummary.of(search)
-        names = [e.name for e in model.effects] if grid_effects is None else list(grid_effects)
+        names = [e.name for e in model.effects] if opt.grid_effects is None else list(opt.grid_effects)
         for name in names:
             for s in effect_starts(name, summary, base_vals):
                 vals = {**base_vals, **{k: v for k, v in s.items() if k not in fixed}}
@@ -254,20 +286,20 @@ def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
     best = None
     seen = []
     for sse0, vals in candidates:
-        if len(seen) >= n_polish:
+        if len(seen) >= opt.n_polish:
             break
         key = tuple(np.round(par.to_x(vals), 6))
         if key in seen:
             continue
-        if seen and sse0 > 1.05 * candidates[0][0] and not (grid_effects and len(seen) < 2):
+        if seen and sse0 > 1.05 * candidates[0][0] and not (opt.grid_effects and len(seen) < 2):
             # further starts are clearly worse: one polish is enough. Except for an effect added
             # to a fitted model: its best start is often the effect switched off (the model as
             # it was), a point the polish may not leave while the model's other effects hold
             # the error it would explain (a dead zone after a flow curve): polish one more
             break
-        budget = max_nfev if not seen else min(max_nfev or 10 ** 9, 15 * (len(free) + 1))
+        budget = opt.max_nfev if not seen else min(opt.max_nfev or 10 ** 9, 15 * (len(free) + 1))
         seen.append(key)
-        x, res = _polish(par, search, vals, budget, (FTOL if tol is None else tol)
+        x, res = _polish(par, search, vals, budget, (FTOL if opt.tol is None else opt.tol)
                          if not searched_subset else SCREEN_TOL)
         if best is None or res.cost < best[1].cost:
             best = (x, res)
@@ -276,7 +308,7 @@ def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
         vals = par.to_values(x)
         sse_all = residual(par.model(x), pieces)
         candidates = [(float(sse_all @ sse_all), vals)]
-        x, res = _polish(par, pieces, vals, max_nfev, REFIT_TOL if tol is None else tol)
+        x, res = _polish(par, pieces, vals, opt.max_nfev, REFIT_TOL if opt.tol is None else opt.tol)
     # never worse than the best start (a polish can stall in a flat, non-identifiable valley)
     sse_best, vals_best = candidates[0]
     if 2 * res.cost > sse_best * (1 + 1e-9):
@@ -284,10 +316,10 @@ def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
         r = residual(par.model(x), pieces)
         return _result(par.model(x), par, pieces, r, res.nfev, False,
                        "kept the best start value: the polish did not improve on it",
-                       covariance=covariance)
+                       covariance=opt.covariance)
     fitted = par.model(x)
     return _result(fitted, par, pieces, res.fun, res.nfev, bool(res.success),
-                   str(res.message), covariance=covariance)
+                   str(res.message), covariance=opt.covariance)
 
 
 def _jacobian(par: Parameterization, pieces: Sequence[Piece], x: np.ndarray,
