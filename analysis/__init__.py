@@ -8,6 +8,8 @@ Subpackages by job, each importing only those below it (tests/test_layers.py):
   dispatch that recognises the experiment;
 - :mod:`analysis.identification`: any plant model fitted to records by least squares on the
   windowed free-run error (:func:`fit_model`), evaluated (:func:`evaluate`) and compared;
+- :mod:`analysis.diagnosis`: what a model misses (:func:`diagnose`), built up one effect at a
+  time (:func:`stepwise`), and what the data cannot tell apart;
 
 :mod:`analysis.defaults` (the command line's defaults, no numerics) and :mod:`analysis.parallel`
 (worker processes, one BLAS thread) sit below them all. The plant model is :mod:`plant` (the same
@@ -51,6 +53,14 @@ _EXPORTS = {
     "Comparison": ".identification.compare",
     "compare": ".identification.compare",
     "resolve_model": ".identification.compare",
+    "Candidate": ".diagnosis.candidates",
+    "diagnosable_effects": ".diagnosis.candidates",
+    "Diagnosis": ".diagnosis.verdict",
+    "diagnose": ".diagnosis.verdict",
+    "BetweenRecords": ".diagnosis.between_records",
+    "between_records": ".diagnosis.between_records",
+    "Stepwise": ".diagnosis.stepwise",
+    "stepwise": ".diagnosis.stepwise",
 }
 __all__ = sorted(_EXPORTS)
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -6,7 +6,7 @@ import time
 import numpy as np
 
 from analysis import Record, make_record
-from analysis.diagnose import diagnose
+from analysis import diagnose
 from analysis import fit_model
 from analysis.records.synthetic import square_wave
 from plant import Dynamometer, PlantModel

@@ -13,11 +13,13 @@ import pytest
 
 import tests.independent_stand as sim
 from analysis.identification import windows as F
-from analysis.between_records import _solve, between_records
+from analysis import between_records
+from analysis.diagnosis.between_records import _solve
 from analysis import make_record
-from analysis.diagnose import diagnose, objective_floor
+from analysis import diagnose
+from analysis.diagnosis.verdict import objective_floor
 from analysis import evaluate
-from analysis.stepwise import stepwise
+from analysis import stepwise
 from stand.cli import main
 
 G = sim.DEFAULTS["g"]

@@ -109,7 +109,7 @@ def test_report_refuses_another_data_set_unless_told(reversal_csv, tmp_path, cap
 
 def test_report_with_diagnosis_of_the_latest_model(reversal_csv, tmp_path):
     from analysis import read_csv
-    from analysis.diagnose import diagnose
+    from analysis import diagnose
     recs = [read_csv(reversal_csv)]
     d = diagnose(recs, "base")
     res = write_report(recs, "base", tmp_path / "r", diagnosis=d)

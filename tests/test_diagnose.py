@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from analysis.records import synthetic as S
-from analysis.diagnose import diagnose
+from analysis import diagnose
 from plant import PlantModel
 
 BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}

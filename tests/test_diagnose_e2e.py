@@ -13,7 +13,7 @@ import sys
 import pytest
 
 from analysis import read_run
-from analysis.diagnose import diagnose
+from analysis import diagnose
 from gateway import Gateway, GatewayConfig, SafetyLimits
 from gateway.experiments import Meander
 from tests.conftest import plant

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from analysis import make_record
-from analysis.diagnose import diagnose
+from analysis import diagnose
 from tests import independent_stand as sim
 from tests.independent_sweep import EQUIVALENT
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from analysis import make_record
-from analysis.diagnose import diagnose
+from analysis import diagnose
 from analysis.records.glitches import remove_glitches
 from tests import independent_stand as sim
 

@@ -9,8 +9,8 @@ import pytest
 
 from analysis.records import synthetic as S
 from analysis import make_record, write_csv
-from analysis.diagnose import diagnosable_effects, diagnose
-from analysis.stepwise import stepwise
+from analysis import diagnosable_effects, diagnose
+from analysis import stepwise
 from plant import PlantModel, load_model_file
 from stand.cli import main
 from tests import independent_stand as sim

@@ -6,7 +6,7 @@ import pytest
 
 from analysis import make_record
 from analysis import evaluate
-from analysis.timing import jitter_observation, timing_jitter
+from analysis.diagnosis.timing import jitter_observation, timing_jitter
 from plant import PlantModel
 
 DT = 0.002

@@ -28,7 +28,7 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from analysis.diagnose import diagnose
+    from analysis import diagnose
     from analysis.report import write_report
     check_window(args)
     records = load_records(args.data)

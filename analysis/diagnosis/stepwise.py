@@ -28,14 +28,15 @@ from typing import Callable, Sequence
 
 from plant import PlantModel
 
-from .diagnose import Candidate, Diagnosis, diagnose, judge
-from .identification.fit import REFIT_TOL, FitOptions, FitResult, fit_model
-from .identification.windows import WINDOW_S, errors, pieces_from_records
-from .parallel import one_blas_thread
-from .records.record import Record
+from ..identification.fit import REFIT_TOL, FitOptions, FitResult, fit_model
+from ..identification.windows import WINDOW_S, errors, pieces_from_records
+from ..parallel import one_blas_thread
+from ..records.record import Record
+from .candidates import Candidate, judge
+from .verdict import Diagnosis, diagnose
 
 #: effects added at most (each step is one diagnosis: all candidates fitted)
-from .defaults import MAX_EFFECTS  # noqa: E402  (re-exported)
+from ..defaults import MAX_EFFECTS  # noqa: E402  (re-exported)
 
 
 @dataclass

@@ -49,10 +49,10 @@ from scipy import optimize, stats
 
 from plant import PlantModel
 
-from .identification.fit import DIFF_STEP, Parameterization
-from .identification.projection import gain_trend_columns
-from .identification.windows import Piece, window_sse
-from .records.record import Record
+from ..identification.fit import DIFF_STEP, Parameterization
+from ..identification.projection import gain_trend_columns
+from ..identification.windows import Piece, window_sse
+from ..records.record import Record
 from .significance import UNEXPLAINED_RATIO, ErrorCut, error_cut
 
 #: |Spearman ρ| from which the records' gains (or trends) are said to follow their order or
