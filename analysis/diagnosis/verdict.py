@@ -51,8 +51,7 @@ from ..identification.windows import (WINDOW_S, Piece, errors, pieces_from_recor
                                       screening_pieces, window_sse)
 from ..parallel import one_blas_thread, run_each, workers_for
 from ..records.record import Record
-from .ambiguity import AMBIGUITY_RATIO, Ambiguity, drift_or_level
-from .ambiguity import ambiguities as find_ambiguities
+from .ambiguity import AMBIGUITY_RATIO, Ambiguity, ambiguities, drift_or_level
 from .between_records import BetweenRecords, between_records
 from .candidates import Candidate, diagnosable_effects, judge, rank_candidates
 from .observations import (Unexplained, describe_residual, describe_unexplained, pct,
@@ -112,17 +111,94 @@ class Diagnosis:
                 "between_records": self.between.to_dict() if self.between else None,
                 "warnings": self.warnings}
 
-def _screen_candidate(shared: tuple, name: str) -> FitResult | None:
-    """``base + name`` fitted on the screening windows (a grid for the new effect, the rest
-    warm), or None if the effect cannot start from the base model's values."""
-    base_model, screen = shared
-    try:
-        m0 = PlantModel.from_spec(f"{base_model.spec}+{name}", base_model.params())
-    except Exception:  # noqa: BLE001 - an effect that cannot start from here is skipped
-        return None
-    return fit_model(screen, m0, options=FitOptions.add_effect(name))
+# ------------------------------------------------------------------------------------------
+# what passes between the steps of the diagnosis
+# ------------------------------------------------------------------------------------------
+@dataclass
+class Windows:
+    """The data set cut for the diagnosis: all its windows, and those the candidates are
+    screened on (all of them when the data are short)."""
+
+    full: list[Piece]
+    screen: list[Piece]
+    subset: bool                  #: the screening windows are a subset of all
+
+    @classmethod
+    def of(cls, records: Sequence[Record], window_s: float, max_screen_windows: int) -> "Windows":
+        full = pieces_from_records(records, window_s)
+        screen, subset = screening_pieces(records, window_s, max_windows=max_screen_windows)
+        return cls(full, screen, subset)
+
+    @property
+    def n_full(self) -> int:
+        return sum(p.n_windows for p in self.full)
+
+    @property
+    def n_screen(self) -> int:
+        return sum(p.n_windows for p in self.screen)
 
 
+@dataclass
+class Errors:
+    """A model's errors on all windows: the objective's squared error per window (window
+    starts re-estimated) and the RMSE from the measured starts."""
+
+    window_sse: np.ndarray
+    rmse: float
+
+
+@dataclass
+class StartFit:
+    """The starting model fitted, and what the candidates are judged against."""
+
+    fit: FitResult                #: fitted on all windows
+    evaluation: Evaluation
+    errors: Errors                #: the reference of candidates refitted on all windows
+    #: the starting model fitted on the screening windows only, evaluated on all: the reference
+    #: of candidates fitted there only (nested models, like with like); None: no subset
+    screen_errors: Errors | None
+    objective_rmse: float         #: the fit's objective on all windows, kgf
+    floor: float                  #: the objective's white-noise floor, kgf
+
+    @property
+    def model(self) -> PlantModel:
+        return self.fit.model
+
+
+@dataclass
+class Fitted:
+    """A candidate fitted: on the screening windows only, or refitted on all of them."""
+
+    effect: str
+    fit: FitResult
+    errors: Errors                #: on all windows
+    refit_on: str                 #: "final" (refitted on all windows) or "screening"
+
+
+@dataclass
+class NoiseFloor:
+    """The objective's noise floor the candidates are judged against: the white-noise floor,
+    or the level of what the best model leaves when that looks like noise correlated in time."""
+
+    value: float
+    warning: str | None = None    #: why the floor was raised (None: it was not)
+
+
+@dataclass
+class Conclusion:
+    """The verdict and what it adds to the diagnosis."""
+
+    verdict: str                  #: see :attr:`Diagnosis.verdict`
+    summary: str
+    best: Candidate | None        #: the effect found missing (verdict "missing_effect")
+    observations: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    unexplained: Unexplained | None = None
+
+
+# ------------------------------------------------------------------------------------------
+# the diagnosis
+# ------------------------------------------------------------------------------------------
 @one_blas_thread
 def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
              window_s: float = WINDOW_S, effects: Sequence[str] | None = None,
@@ -137,95 +213,145 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
     effects = list(effects) if effects is not None else diagnosable_effects(start)
     for name in effects:
         effect_class(name)
-    full = pieces_from_records(records, window_s)
-    screen, subset = screening_pieces(records, window_s, max_windows=max_screen_windows)
-    n_full_w = sum(p.n_windows for p in full)
-    n_screen_w = sum(p.n_windows for p in screen)
-    screening = {"subset": subset, "windows_total": n_full_w, "windows_screened": n_screen_w,
-                 "refit_on_all": ["base"]}
-    say(f"fitting {start.spec}" + (f" on {n_screen_w} of {n_full_w} windows" if subset else ""))
-    base_fit = fit_model(screen, start, options=FitOptions(covariance=not subset))
-    screen_base = base_fit.model
-    if subset:
-        base_fit = fit_model(full, base_fit.model, options=FitOptions.refit())
-    base_model = base_fit.model
-    base_w = _window_sse(base_model, full)
-    # candidates fitted on the screening windows only are compared with the base fitted there
-    # too (both evaluated on all windows): nested models, like with like
-    screen_ref = errors(screen_base, full) if subset else None
-    base_eval = evaluate(base_model, records, window_s)
-    sigma = base_eval.noise_sigma
-    floor = objective_floor(full, sigma)
-    base_obj = math.sqrt(base_w.sum() / _n_eval(full))
-    warnings = list(base_fit.warnings)
-    judged: list[tuple] = []
-    workers = workers_for(len(effects), _n_eval(screen) * len(effects), jobs)
+    windows = Windows.of(records, window_s, max_screen_windows)
+    screening = {"subset": windows.subset, "windows_total": windows.n_full,
+                 "windows_screened": windows.n_screen, "refit_on_all": ["base"]}
+    base = fit_start(start, windows, records, window_s, say)
+    workers = workers_for(len(effects), _n_eval(windows.screen) * len(effects), jobs)
     screening["workers"] = workers
-    done: dict[str, FitResult | None] = {}
-    for name, fit in run_each(_screen_candidate, effects, (base_model, screen), workers):
-        say(f"tried +{name}" if workers > 1 else f"trying +{name}")
-        done[name] = fit
-    # in the catalogue's order, whatever order the workers finished in
-    fits: dict[str, FitResult] = {n: done[n] for n in effects if done[n] is not None}
-    # rank on all windows with the screening parameters, refit the best on all data
-    scored = []
-    for name, f in fits.items():
-        w, rmse = errors(f.model, full)
-        scored.append((float(w.sum()), name, w, rmse))
-    scored.sort(key=lambda x: x[0])
-    for rank, (_, name, w, rmse) in enumerate(scored):
-        f = fits[name]
-        refit = "screening"
-        if rank < (refit_top if subset else max(refit_top, 2)):
-            say(f"refitting +{name} on all windows")
-            f = fit_model(full, f.model,
-                          options=FitOptions.refit(tol=FTOL if not subset else REFIT_TOL))
-            w, rmse = errors(f.model, full)
-            refit = "final"
-            screening["refit_on_all"].append(name)
-        fits[name] = f
-        judged.append((name, f, w, rmse, refit))
-
-    def judge_all(fl: float) -> list[Candidate]:
-        out = []
-        for name, f, w, rmse, refit in judged:
-            if refit == "screening" and screen_ref is not None:
-                ref_w, ref_rmse = screen_ref
-            else:
-                ref_w, ref_rmse = base_w, base_eval.rmse
-            out.append(judge(name, f, w, rmse, ref_w, ref_rmse, fl, base_eval.n, refit))
-        return rank_candidates(out)
-
-    cands = judge_all(floor)
-    # correlated (coloured) measurement noise: the white-noise floor from second differences is
-    # then too low. If what the best model leaves is noise-like — unrelated to the command, no
-    # periodic component — its level is the floor.
-    top = cands[0] if cands and cands[0].improvement >= MIN_IMPROVEMENT else None
-    ref_model = top.fit.model if top is not None else base_model
-    ref_obj = top.objective_rmse if top is not None else base_obj
-    noise_like = None
-    if ref_obj > COLOURED_RATIO * floor:
-        noise_like = residual_is_noise(ref_model, records, window_s, floor)
-        if noise_like:
-            warnings.append(
-                f"the error left by {ref_model.spec} ({ref_obj:.3g} kgf, objective) is "
-                f"{ref_obj / floor:.2f}× the white-noise floor but looks like noise (broadband, "
-                f"unrelated to the command): the measurement noise is correlated in time "
-                f"(a filtered sensor?); it is taken as the noise floor")
-            floor = ref_obj
-            cands = judge_all(floor)
+    fitted = refit_best(screen_candidates(base.model, effects, windows, workers, say), windows,
+                        refit_top, say)
+    screening["refit_on_all"] += [c.effect for c in fitted if c.refit_on == "final"]
+    cands = judge_all(fitted, base, base.floor)
+    floor = judging_floor(cands, base, records, window_s)
+    if floor.warning is not None:
+        cands = judge_all(fitted, base, floor.value)
     earning = [c for c in cands if c.earns]
     best = earning[0] if earning else None
-    ratio = base_obj / floor if floor > 0 else math.inf
-    observations = describe_residual(base_eval)
-    ambiguities = find_ambiguities(records, base_fit, cands, best)
-    unexplained = None
+    ratio = base.objective_rmse / floor.value if floor.value > 0 else math.inf
+    observations = describe_residual(base.evaluation)
+    found = ambiguities(records, base.fit, cands, best)
     between = None
     if ratio > UNEXPLAINED_RATIO:
         say("freeing g and Δ per record")
-        between = between_records(base_model, full, records, floor)
+        between = between_records(base.model, windows.full, records, floor.value)
     if between is not None and between.stats.earns and between.follows == "order or level":
-        ambiguities.append(drift_or_level(best, between))
+        found.append(drift_or_level(best, between))
+    end = conclude(best, between, base, floor.value, ratio, windows, records)
+    return Diagnosis(verdict=end.verdict, model=start.spec,
+                     best=end.best.effect if end.best else None, base_fit=base.fit,
+                     base_eval=base.evaluation, candidates=cands,
+                     noise_sigma=base.evaluation.noise_sigma, objective_floor=floor.value,
+                     observations=observations + end.observations
+                     + partial_explanations(cands, end.verdict),
+                     ambiguities=found, unexplained=end.unexplained, summary=end.summary,
+                     screening=screening,
+                     warnings=list(base.fit.warnings) + ([floor.warning] if floor.warning else [])
+                     + end.warnings,
+                     between=between)
+
+
+def fit_start(start: PlantModel, windows: Windows, records: Sequence[Record], window_s: float,
+              say: Callable[[str], None]) -> StartFit:
+    """Step 1: the starting model fitted (on the screening windows, then polished on all when
+    they are a subset) and evaluated, with the noise floor of the objective."""
+    say(f"fitting {start.spec}" + (f" on {windows.n_screen} of {windows.n_full} windows"
+                                   if windows.subset else ""))
+    fit = fit_model(windows.screen, start, options=FitOptions(covariance=not windows.subset))
+    screen_model = fit.model
+    if windows.subset:
+        fit = fit_model(windows.full, fit.model, options=FitOptions.refit())
+    w = _window_sse(fit.model, windows.full)
+    screen_errors = Errors(*errors(screen_model, windows.full)) if windows.subset else None
+    ev = evaluate(fit.model, records, window_s)
+    return StartFit(fit=fit, evaluation=ev, errors=Errors(w, ev.rmse), screen_errors=screen_errors,
+                    objective_rmse=math.sqrt(w.sum() / _n_eval(windows.full)),
+                    floor=objective_floor(windows.full, ev.noise_sigma))
+
+
+def _screen_candidate(shared: tuple, name: str) -> FitResult | None:
+    """``base + name`` fitted on the screening windows (a grid for the new effect, the rest
+    warm), or None if the effect cannot start from the base model's values."""
+    base_model, screen = shared
+    try:
+        m0 = PlantModel.from_spec(f"{base_model.spec}+{name}", base_model.params())
+    except Exception:  # noqa: BLE001 - an effect that cannot start from here is skipped
+        return None
+    return fit_model(screen, m0, options=FitOptions.add_effect(name))
+
+
+def screen_candidates(base_model: PlantModel, effects: Sequence[str], windows: Windows,
+                      workers: int, say: Callable[[str], None]) -> dict[str, FitResult]:
+    """Step 2: ``base_model + effect`` fitted on the screening windows for every effect (in
+    ``workers`` processes), in the order of ``effects`` whatever order the workers finished in;
+    effects that cannot start from the base model's values are left out."""
+    done: dict[str, FitResult | None] = {}
+    for name, fit in run_each(_screen_candidate, effects, (base_model, windows.screen), workers):
+        say(f"tried +{name}" if workers > 1 else f"trying +{name}")
+        done[name] = fit
+    return {n: done[n] for n in effects if done[n] is not None}
+
+
+def refit_best(fits: dict[str, FitResult], windows: Windows, refit_top: int,
+               say: Callable[[str], None]) -> list[Fitted]:
+    """Step 3: the screened candidates ranked on all windows with their screening parameters,
+    the best ``refit_top`` (two at least when the screening windows are all of them) refitted
+    on all data. In the order of that ranking."""
+    scored = []
+    for name, f in fits.items():
+        w, rmse = errors(f.model, windows.full)
+        scored.append((float(w.sum()), name, w, rmse))
+    scored.sort(key=lambda x: x[0])
+    out = []
+    for rank, (_, name, w, rmse) in enumerate(scored):
+        f = fits[name]
+        refit = "screening"
+        if rank < (refit_top if windows.subset else max(refit_top, 2)):
+            say(f"refitting +{name} on all windows")
+            f = fit_model(windows.full, f.model,
+                          options=FitOptions.refit(tol=FTOL if not windows.subset else REFIT_TOL))
+            w, rmse = errors(f.model, windows.full)
+            refit = "final"
+        out.append(Fitted(name, f, Errors(w, rmse), refit))
+    return out
+
+
+def judge_all(fitted: Sequence[Fitted], base: StartFit, floor: float) -> list[Candidate]:
+    """Step 4: every candidate judged against the starting model fitted on the same windows,
+    at the noise floor ``floor``, and ranked."""
+    out = []
+    for c in fitted:
+        if c.refit_on == "screening" and base.screen_errors is not None:
+            ref = base.screen_errors
+        else:
+            ref = base.errors
+        out.append(judge(c.effect, c.fit, c.errors.window_sse, c.errors.rmse, ref.window_sse,
+                         ref.rmse, floor, base.evaluation.n, c.refit_on))
+    return rank_candidates(out)
+
+
+def judging_floor(cands: Sequence[Candidate], base: StartFit, records: Sequence[Record],
+                  window_s: float) -> NoiseFloor:
+    """Step 5: the noise floor to judge by. With correlated (coloured) measurement noise the
+    white-noise floor from second differences is too low: if what the best model leaves is
+    noise-like — unrelated to the command, no periodic component — its level is the floor."""
+    floor = base.floor
+    top = cands[0] if cands and cands[0].improvement >= MIN_IMPROVEMENT else None
+    ref_model = top.fit.model if top is not None else base.model
+    ref_obj = top.objective_rmse if top is not None else base.objective_rmse
+    if ref_obj > COLOURED_RATIO * floor and residual_is_noise(ref_model, records, window_s, floor):
+        return NoiseFloor(ref_obj, (
+            f"the error left by {ref_model.spec} ({ref_obj:.3g} kgf, objective) is "
+            f"{ref_obj / floor:.2f}× the white-noise floor but looks like noise (broadband, "
+            f"unrelated to the command): the measurement noise is correlated in time "
+            f"(a filtered sensor?); it is taken as the noise floor"))
+    return NoiseFloor(floor)
+
+
+def conclude(best: Candidate | None, between: BetweenRecords | None, base: StartFit,
+             floor: float, ratio: float, windows: Windows, records: Sequence[Record]) -> Conclusion:
+    """Step 6: the verdict, from the best earning candidate (``best``), the records' own g and
+    Δ (``between``) and the starting model's error over the noise floor (``ratio``)."""
     # the stand changed between the runs only if the records' own values explain the data (to
     # the noise): per-record values that earn but leave much also soak up a missing effect
     # whose share differs between records (a force-dependent unloading with each run at its
@@ -234,37 +360,45 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
                         and between.explains)
     if between_explains and (
             best is None or best.objective_rmse > AMBIGUITY_RATIO * between.stats.objective_rmse):
-        verdict = "varies_between_records"
-        summary = f"varies between records: {between.text}"
+        end = Conclusion("varies_between_records", f"varies between records: {between.text}", None)
         if best is not None:
-            observations.append(
+            end.observations.append(
                 f"+{best.effect} would lower the error by {100 * best.improvement:.0f} %, a "
                 f"{between.varies} per record by {100 * between.stats.improvement:.0f} %")
-        best = None
-    elif best is not None:
-        verdict = "missing_effect"
+        return end
+    if best is not None:
         after = best.objective_rmse / floor if floor > 0 else math.inf
-        summary = (f"missing effect: {best.effect} — adding it lowers the windowed RMSE from "
-                   f"{base_eval.rmse:.3g} to {best.rmse:.3g} kgf ({100 * best.rmse_reduction:.0f} %)")
+        end = Conclusion("missing_effect",
+                         f"missing effect: {best.effect} — adding it lowers the windowed RMSE from "
+                         f"{base.evaluation.rmse:.3g} to {best.rmse:.3g} kgf "
+                         f"({100 * best.rmse_reduction:.0f} %)", best)
         if after > UNEXPLAINED_RATIO:
-            warnings.append(f"with {best.effect} the error is still {after:.2f}× the noise floor: "
-                            f"diagnose again with --model {best.spec}")
-            left = between_records(best.fit.model, full, records, floor)
+            end.warnings.append(f"with {best.effect} the error is still {after:.2f}× the noise "
+                                f"floor: diagnose again with --model {best.spec}")
+            left = between_records(best.fit.model, windows.full, records, floor)
             if left is not None and left.stats.helps and left.follows != "level":
-                observations.append(f"what {best.spec} leaves differs between records: "
-                                    f"{left.text}")
-    elif ratio > UNEXPLAINED_RATIO:
+                end.observations.append(f"what {best.spec} leaves differs between records: "
+                                        f"{left.text}")
+        return end
+    if ratio > UNEXPLAINED_RATIO:
+        observations = []
         if between is not None and between.stats.helps:
             observations.append(between.text + ("" if between.stats.earns else
                                                 ": part of the missing behaviour, not all of it"))
-        verdict = "unexplained"
-        unexplained = describe_unexplained(base_eval, floor, ratio, base_fit)
-        summary = (f"unexplained: the error is {ratio:.2f}× the noise floor and no catalogue "
-                   f"effect removes it; {unexplained.description}")
-    else:
-        verdict = "adequate"
-        summary = (f"adequate: {base_model.spec} explains the data to "
-                   f"{ratio:.2f}× the noise floor; no effect earns its parameters")
+        unexplained = describe_unexplained(base.evaluation, floor, ratio, base.fit)
+        return Conclusion("unexplained",
+                          f"unexplained: the error is {ratio:.2f}× the noise floor and no catalogue "
+                          f"effect removes it; {unexplained.description}", None,
+                          observations=observations, unexplained=unexplained)
+    return Conclusion("adequate", f"adequate: {base.model.spec} explains the data to "
+                                  f"{ratio:.2f}× the noise floor; no effect earns its parameters",
+                      None)
+
+
+def partial_explanations(cands: Sequence[Candidate], verdict: str) -> list[str]:
+    """Step 7: the candidates that lower the error consistently but do not earn their
+    parameters, and why not (unless an effect was found missing)."""
+    out = []
     for c in cands:
         if not c.earns and c.improvement >= 0.01 and c.z >= MIN_Z and verdict != "missing_effect":
             if c.improvement < MIN_IMPROVEMENT:
@@ -274,13 +408,9 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
                        "the noise: part of the missing behaviour, not all of it")
             else:
                 why = "but not significant against the noise"
-            observations.append(f"+{c.effect} would lower the error by {100 * c.improvement:.1f} % "
-                                f"(consistent over windows, {why})")
-    return Diagnosis(verdict=verdict, model=start.spec, best=best.effect if best else None,
-                     base_fit=base_fit, base_eval=base_eval, candidates=cands, noise_sigma=sigma,
-                     objective_floor=floor, observations=observations, ambiguities=ambiguities,
-                     unexplained=unexplained, summary=summary, screening=screening,
-                     warnings=warnings, between=between)
+            out.append(f"+{c.effect} would lower the error by {100 * c.improvement:.1f} % "
+                       f"(consistent over windows, {why})")
+    return out
 
 
 def _n_eval(pieces: Sequence[Piece]) -> int:
