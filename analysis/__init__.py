@@ -10,6 +10,8 @@ Subpackages by job, each importing only those below it (tests/test_layers.py):
   windowed free-run error (:func:`fit_model`), evaluated (:func:`evaluate`) and compared;
 - :mod:`analysis.diagnosis`: what a model misses (:func:`diagnose`), built up one effect at a
   time (:func:`stepwise`), and what the data cannot tell apart;
+- :mod:`analysis.reports`: figures, the HTML report of a model's versions and the campaign
+  report.
 
 :mod:`analysis.defaults` (the command line's defaults, no numerics) and :mod:`analysis.parallel`
 (worker processes, one BLAS thread) sit below them all. The plant model is :mod:`plant` (the same
@@ -61,6 +63,9 @@ _EXPORTS = {
     "between_records": ".diagnosis.between_records",
     "Stepwise": ".diagnosis.stepwise",
     "stepwise": ".diagnosis.stepwise",
+    "write_report": ".reports.history",
+    "load_history": ".reports.history",
+    "report_campaign": ".reports.campaign",
 }
 __all__ = sorted(_EXPORTS)
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -7,7 +7,8 @@ import json
 
 import pytest
 
-from analysis.campaign_report import ReportInput, report_campaign, write_report
+from analysis import report_campaign
+from analysis.reports.campaign import ReportInput, write_report
 from analysis import write_csv
 from analysis import estimate_record
 from analysis.estimators.relay import DF_PEAK_BIAS

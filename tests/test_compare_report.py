@@ -9,7 +9,7 @@ import pytest
 from analysis.records import synthetic as S
 from analysis import compare
 from analysis import write_csv
-from analysis.report import load_history, write_report
+from analysis import load_history, write_report
 from plant import CATALOGUE, PlantModel, load_model_file
 from stand.cli import main
 

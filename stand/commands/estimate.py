@@ -8,7 +8,7 @@ import sys
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from analysis.campaign_report import ReportInput
+    from analysis.reports.campaign import ReportInput
 
 
 
@@ -36,7 +36,7 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from analysis.campaign_report import estimate_inputs, write_report
+    from analysis.reports.campaign import estimate_inputs, write_report
     from analysis import EstimateOptions, error_json, result_json
     options = EstimateOptions(
         experiment=args.experiment, hysteresis_kgf=args.hysteresis_kgf,

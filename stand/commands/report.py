@@ -29,7 +29,7 @@ def register(sub) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from analysis import diagnose
-    from analysis.report import write_report
+    from analysis import write_report
     check_window(args)
     records = load_records(args.data)
     out = args.out or default_out(args.data, "report")
