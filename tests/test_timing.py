@@ -1,4 +1,4 @@
-"""Timing jitter of the command steps, read from the residual's jumps (analysis/timing.py)."""
+"""Timing jitter of the command steps, read from the residual's jumps (analysis/diagnosis/timing.py)."""
 from __future__ import annotations
 
 import numpy as np

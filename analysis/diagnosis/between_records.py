@@ -10,16 +10,16 @@ by accident of the records' command levels).
 
 The check: with the other parameters of the fitted model held, g and Δ enter the windowed
 objective (affinely, exactly for every effect that does not make the rate depend on the force,
-to first order otherwise; :func:`analysis.fit.gain_trend_columns`), so a g or a Δ of its own
-for every record is one small linear least-squares problem, solved from each record's 2×2
-Gram matrix:
+to first order otherwise; :func:`analysis.identification.projection.gain_trend_columns`), so a g
+or a Δ of its own for every record is one small linear least-squares problem, solved from each
+record's 2×2 Gram matrix:
 
 .. math::  \min_{\delta}\ \sum_i \lVert s_i + A_i\,\delta_i \rVert^2, \qquad
            \delta_i = (\delta g_i, \delta\Delta_i),
 
 with ``δg_i`` (or ``δΔ_i``) either shared by all records or free per record. Of the three
 per-record designs (gain, trend, both) the one with the lowest BIC is judged against the
-shared fit the same way a catalogue candidate is (:mod:`analysis.significance`: a big enough,
+shared fit the same way a catalogue candidate is (:mod:`.significance`: a big enough,
 significant, consistent cut of the error above the noise).
 
 What the records' values follow decides what it means: their order (Spearman ρ with the
@@ -32,7 +32,7 @@ apart, and the separating experiment is named (the first run again at the end).
 The model's other parameters were fitted with one g for all records, so a change between the
 runs may have bent them too (a valve play's width soaks up part of a gain that grows run after
 run). When the per-record values with those parameters held leave more than
-:data:`~analysis.significance.UNEXPLAINED_RATIO` of the noise floor but help, the chosen design
+:data:`~.significance.UNEXPLAINED_RATIO` of the noise floor but help, the chosen design
 is fitted once more with the other parameters free as well, g and Δ projected per record at
 every trial of them (variable projection, :func:`refit_per_record`); the better of the two
 is judged. The parameter count is the same: the other parameters were free in the shared fit
@@ -165,8 +165,8 @@ def record_level(rec: Record) -> float:
 def _systems(spec: str, values: Mapping[str, float], pieces: Sequence[Piece],
              rec_of: np.ndarray, n_rec: int) -> tuple[np.ndarray, ...]:
     """The objective's residual, affine in g and Δ at ``values``
-    (:func:`analysis.fit.gain_trend_columns`: ``s1``, ``A``, ``β0``), and each record's 2×2
-    Gram matrix AᵢᵀAᵢ and right-hand side −Aᵢᵀsᵢ."""
+    (:func:`analysis.identification.projection.gain_trend_columns`: ``s1``, ``A``, ``β0``), and
+    each record's 2×2 Gram matrix AᵢᵀAᵢ and right-hand side −Aᵢᵀsᵢ."""
     s1, A, beta0 = gain_trend_columns(spec, values, pieces)
     gram = np.zeros((n_rec, 2, 2))
     rhs = np.zeros((n_rec, 2))
@@ -231,7 +231,7 @@ def _best_design(s1: np.ndarray, A: np.ndarray, gram: np.ndarray, rhs: np.ndarra
 def between_records(model: PlantModel, pieces: Sequence[Piece], records: Sequence[Record],
                     floor: float, refit: bool = True) -> BetweenRecords | None:
     """Free fitted ``model``'s g, Δ or both per record (the design with the lowest BIC) and
-    judge it against them shared (:func:`analysis.significance.error_cut`) on the noise floor
+    judge it against them shared (:func:`.significance.error_cut`) on the noise floor
     ``floor`` (objective RMSE, kgf). ``refit``: when the per-record values with the other
     parameters held help but leave more than UNEXPLAINED_RATIO of the floor, refit those too
     (:func:`refit_per_record`). None for fewer than two records with evaluated samples."""

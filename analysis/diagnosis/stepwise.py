@@ -2,13 +2,13 @@ r"""Build the model up one effect at a time, as a user would: diagnose, add the 
 lowers the error most, diagnose again, until the model is within the noise.
 
 Real stands rarely miss just one effect. With several, no single catalogue effect may remove
-most of the error above the noise, so :func:`analysis.diagnose.diagnose` alone says
+most of the error above the noise, so :func:`.verdict.diagnose` alone says
 *unexplained* and lists the effects that would remove part of it. ``stepwise`` (forward
 selection with a backward check, like stepwise regression):
 
 1. diagnoses the current model (start: the paper's base model);
 2. adds the best candidate that *earns its parameters*, or, when none does, the best one that
-   *helps* (lowers the error by at least :data:`~analysis.significance.MIN_IMPROVEMENT`,
+   *helps* (lowers the error by at least :data:`~.significance.MIN_IMPROVEMENT`,
    significantly and consistently over the windows: part of the missing behaviour);
 3. stops when the diagnosis says *adequate*, when a g or Δ of its own per record explains the
    rest (*varies between records*: the stand changed between the runs), when nothing helps, or
@@ -131,7 +131,7 @@ def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
     """Add effects to ``model`` one at a time until it explains ``records`` (module docstring).
     If the build-up does not end adequate and one of its partial picks had a close runner-up,
     the build-up is run once more from there with the runner-up, and the better end is kept.
-    ``jobs``: worker processes for each diagnosis (see :func:`analysis.diagnose.diagnose`)."""
+    ``jobs``: worker processes for each diagnosis (see :func:`.verdict.diagnose`)."""
     say = progress or (lambda msg: None)
     start = PlantModel.from_spec(model) if isinstance(model, str) else model
     steps, added, verdict = _forward(records, start, [], [], window_s, max_effects, effects, say,

@@ -1,5 +1,5 @@
 """Compare a model with measurements: fit it (or take it as given), evaluate the windowed
-free-run error, print it as a short table and (with :mod:`analysis.plots`) draw it.
+free-run error, print it as a short table and (with :mod:`analysis.reports.plots`) draw it.
 
 This is the library behind ``stand fit``, ``stand compare`` and ``stand report``; everything the
 commands print is also available here as data.

@@ -1,8 +1,8 @@
 r"""Fit any plant model to measurements by least squares on the windowed simulation error.
 
 The error is the model's *free-run* simulation against the measurement over windows (default
-2 s), each window started from the measured force (see :mod:`analysis.identification.metrics`); the command
-history (delay line, valve and reversal states) runs continuously through the record. The
+2 s), each window started from the measured force (see :mod:`.windows` and :mod:`.metrics`); the
+command history (delay line, valve and reversal states) runs continuously through the record. The
 measured start of a window carries one noise draw that the whole window inherits, so the fit
 re-estimates each window's starting force (its mean residual, a linear nuisance projected out
 exactly) — the classic "initial state estimated with the parameters" of output-error

@@ -265,7 +265,7 @@ def residual(model: PlantModel, pieces: Sequence[Piece], adjust_start: bool = Tr
     i.e. the window's mean residual is removed. The measured start carries one noise draw
     ``e_0`` that the whole window inherits; fitting through it biases the parameters toward that
     draw (five to ten times larger parameter errors in tests). ``False``: the error from the
-    measured start, as reported by :mod:`analysis.metrics`."""
+    measured start, as reported by :mod:`.metrics`."""
     out = []
     for p, yhat in zip(pieces, simulate_pieces(model, pieces)):
         r = yhat - p.y[p.warmup:]
