@@ -5,9 +5,7 @@ import time
 
 import numpy as np
 
-from analysis import Record, make_record
-from analysis import diagnose
-from analysis import fit_model
+from analysis import Record, diagnose, fit_model, make_record
 from analysis.records.synthetic import square_wave
 from plant import Dynamometer, PlantModel
 

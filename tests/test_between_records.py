@@ -12,14 +12,10 @@ import numpy as np
 import pytest
 
 import tests.independent_stand as sim
-from analysis.identification import windows as F
-from analysis import between_records
+from analysis import between_records, diagnose, evaluate, make_record, stepwise
 from analysis.diagnosis.between_records import _solve
-from analysis import make_record
-from analysis import diagnose
 from analysis.diagnosis.verdict import objective_floor
-from analysis import evaluate
-from analysis import stepwise
+from analysis.identification import windows as F
 from stand.cli import main
 
 G = sim.DEFAULTS["g"]

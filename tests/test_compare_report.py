@@ -6,10 +6,8 @@ import re
 
 import pytest
 
+from analysis import compare, load_history, write_csv, write_report
 from analysis.records import synthetic as S
-from analysis import compare
-from analysis import write_csv
-from analysis import load_history, write_report
 from plant import CATALOGUE, PlantModel, load_model_file
 from stand.cli import main
 
@@ -108,8 +106,7 @@ def test_report_refuses_another_data_set_unless_told(reversal_csv, tmp_path, cap
 
 
 def test_report_with_diagnosis_of_the_latest_model(reversal_csv, tmp_path):
-    from analysis import read_csv
-    from analysis import diagnose
+    from analysis import diagnose, read_csv
     recs = [read_csv(reversal_csv)]
     d = diagnose(recs, "base")
     res = write_report(recs, "base", tmp_path / "r", diagnosis=d)

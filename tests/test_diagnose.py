@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from analysis.records import synthetic as S
 from analysis import diagnose
+from analysis.records import synthetic as S
 from plant import PlantModel
 
 BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}

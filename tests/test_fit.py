@@ -6,11 +6,11 @@ import math
 import numpy as np
 import pytest
 
-from analysis.records import synthetic as S
-from analysis import make_record
-from analysis.identification.fit import Parameterization, fit_model
+from analysis import fit_model, make_record
+from analysis.identification.fit import Parameterization
 from analysis.identification.windows import (pieces_from_records, residual, screening_pieces,
                                              simulate_piece)
+from analysis.records import synthetic as S
 from plant import PlantModel
 
 BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}

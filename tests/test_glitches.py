@@ -9,8 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from analysis import make_record
-from analysis import diagnose
+from analysis import diagnose, make_record
 from analysis.records.glitches import remove_glitches
 from tests import independent_stand as sim
 

@@ -6,10 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from analysis.records import synthetic as S
-from analysis import make_record
-from analysis import evaluate
+from analysis import evaluate, make_record
 from analysis.identification.metrics import command_levels, noise_sigma, reversal_mask
+from analysis.records import synthetic as S
 from plant import PlantModel
 
 BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}

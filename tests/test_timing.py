@@ -4,8 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis import make_record
-from analysis import evaluate
+from analysis import evaluate, make_record
 from analysis.diagnosis.timing import jitter_observation, timing_jitter
 from plant import PlantModel
 

@@ -52,9 +52,8 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from analysis import diagnosable_effects, diagnose, resolve_model
     from analysis.reports import plots
-    from analysis import resolve_model
-    from analysis import diagnosable_effects, diagnose
     check_window(args)
     if args.max_effects < 1:
         from gateway.errors import ParameterError
@@ -215,9 +214,8 @@ def save_model(args: argparse.Namespace, model, summary: str) -> Path | None:
 
 
 def main_stepwise(args: argparse.Namespace, records, model, effects) -> int:
+    from analysis import stepwise, write_report
     from analysis.reports import plots
-    from analysis import write_report
-    from analysis import stepwise
     with progress_bar(args, "diagnose --stepwise") as progress:
         r = stepwise(records, model, window_s=args.window_s, max_effects=args.max_effects,
                      effects=effects, progress=progress, jobs=args.jobs)
