@@ -134,26 +134,26 @@ def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
     ``jobs``: worker processes for each diagnosis (see :func:`.verdict.diagnose`)."""
     say = progress or (lambda msg: None)
     start = PlantModel.from_spec(model) if isinstance(model, str) else model
-    steps, added, verdict = _forward(records, start, [], [], window_s, max_effects, effects, say,
-                                     jobs)
+    up = _forward(records, start, [], [], window_s, max_effects, effects, say, jobs)
     tried = ""
-    if verdict != "adequate":
-        branch = _alternative(steps)
+    if up.verdict != "adequate":
+        branch = _alternative(up.steps)
         if branch is not None:
-            i, alt = branch
-            chosen = steps[i].added
+            i, alt = branch.step, branch.runner_up
+            chosen = up.steps[i].added
             say(f"trying +{alt.effect} instead of +{chosen} at step {i + 1}")
-            first = replace(steps[i], added=alt.effect,
+            first = replace(up.steps[i], added=alt.effect,
                             why=f"runner-up to +{chosen}, tried in its place: {100 * alt.rmse_reduction:.0f} % "
                                 f"lower error")
-            alt_steps, alt_added, alt_verdict = _forward(
-                records, alt.fit.model, steps[:i] + [first], added[:i] + [alt.effect], window_s,
-                max_effects, effects, say, jobs)
-            better = (alt_verdict == "adequate") or (alt_steps[-1].over_floor < steps[-1].over_floor)
+            other = _forward(records, alt.fit.model, up.steps[:i] + [first],
+                             up.added[:i] + [alt.effect], window_s, max_effects, effects, say, jobs)
+            better = (other.verdict == "adequate"
+                      or other.steps[-1].over_floor < up.steps[-1].over_floor)
             tried = (f"; +{alt.effect} tried in place of +{chosen} at step {i + 1}: "
                      + ("kept, it ends closer to the noise" if better else "dropped, it ends no closer"))
             if better:
-                steps, added, verdict = alt_steps, alt_added, alt_verdict
+                up = other
+    steps, added, verdict = up.steps, up.added, up.verdict
     last = steps[-1].diagnosis
     final_fit = last.base_fit
     needed: list[Needed] = []
@@ -167,9 +167,37 @@ def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
                     needed=needed, summary=summary)
 
 
+@dataclass
+class BuildUp:
+    """A forward build-up: its diagnoses, the effects it added, and how it ended."""
+
+    steps: list[Step]
+    added: list[str]
+    #: "adequate" | "varies_between_records" | "unexplained" | "max_effects"
+    verdict: str
+
+
+@dataclass
+class Branch:
+    """A step whose partial pick had a close runner-up, to be tried in its place."""
+
+    step: int                     #: the step's index
+    runner_up: Candidate
+
+
+@dataclass
+class Check:
+    """An added effect checked with the others in place: the model refitted without it."""
+
+    effect: str
+    helps: bool                   #: it still helps, judged as a candidate added to the rest
+    factor: float                 #: objective error without it / with it
+    reduced: FitResult            #: the model refitted without it
+    error_without: float          #: objective RMSE without it, kgf
+
+
 def _forward(records, current: PlantModel, steps: list[Step], added: list[str], window_s: float,
-             max_effects: int, effects, say, jobs: int | None = None
-             ) -> tuple[list[Step], list[str], str]:
+             max_effects: int, effects, say, jobs: int | None = None) -> BuildUp:
     """The build-up from ``current`` (reached by ``steps``, having ``added``) to its end."""
     steps, added = list(steps), list(added)
     verdict = "max_effects"
@@ -194,12 +222,12 @@ def _forward(records, current: PlantModel, steps: list[Step], added: list[str], 
         step.added = c.effect
         added.append(c.effect)
         current = c.fit.model
-    return steps, added, verdict
+    return BuildUp(steps, added, verdict)
 
 
-def _alternative(steps: Sequence[Step]) -> tuple[int, Candidate] | None:
+def _alternative(steps: Sequence[Step]) -> Branch | None:
     """The first step that added a partial explanation (none earned) with a runner-up that
-    helps nearly as much: (its index, the runner-up)."""
+    helps nearly as much."""
     for i, st in enumerate(steps):
         d = st.diagnosis
         if st.added is None or d.best_candidate is not None:
@@ -207,7 +235,7 @@ def _alternative(steps: Sequence[Step]) -> tuple[int, Candidate] | None:
         helping = [c for c in d.candidates if c.helps]
         if len(helping) >= 2 and helping[0].effect == st.added and \
                 helping[1].improvement >= ALTERNATIVE_RATIO * helping[0].improvement:
-            return i, helping[1]
+            return Branch(i, helping[1])
     return None
 
 
@@ -236,16 +264,14 @@ def backward_check(records: Sequence[Record], full: FitResult, added: Sequence[s
             obj_red = math.sqrt(w_red.sum() / n)
             # judged as a candidate added to the reduced model, like in the diagnosis
             c = judge(name, full, w_full, rmse_full, w_red, rmse_red, floor, n, "final")
-            checks.append((c.helps, obj_red / obj_full if obj_full > 0 else math.inf, name,
-                           reduced, obj_red))
-        weakest = min(checks, key=lambda x: (x[0], x[1]), default=None)
-        if weakest is None or weakest[0]:
-            kept = [Needed(name, True, obj_red, factor)
-                    for _, factor, name, _, obj_red in checks]
+            checks.append(Check(name, c.helps, obj_red / obj_full if obj_full > 0 else math.inf,
+                                reduced, obj_red))
+        weakest = min(checks, key=lambda x: (x.helps, x.factor), default=None)
+        if weakest is None or weakest.helps:
+            kept = [Needed(x.effect, True, x.error_without, x.factor) for x in checks]
             return full, kept + dropped
-        _, factor, name, reduced, obj_red = weakest
-        dropped.append(Needed(name, False, obj_red, factor))
-        full = reduced
+        dropped.append(Needed(weakest.effect, False, weakest.error_without, weakest.factor))
+        full = weakest.reduced
 
 
 def _summary(steps: list[Step], verdict: str, fit: FitResult, needed: list[Needed],
