@@ -5,10 +5,8 @@ import time
 
 import numpy as np
 
-from analysis.data import Record, make_record
-from analysis.diagnose import diagnose
-from analysis.fit import fit_model
-from analysis.synthetic import square_wave
+from analysis import Record, diagnose, fit_model, make_record
+from analysis.records.synthetic import square_wave
 from plant import Dynamometer, PlantModel
 
 from .table import Row

@@ -2,7 +2,7 @@
 format, and put it back on a bus (as it was, or as the stand's two nodes).
 
 * :func:`capture_run` — one run of a capture as its signals (every analysis command accepts
-  capture files through :func:`analysis.data.load`, which makes a record of them);
+  capture files through :func:`analysis.load`, which makes a record of them);
 * :func:`decode_capture` — capture → run directory (``run.json`` + ``signals.parquet``), streamed
   with bounded memory, optionally partitioned, optionally every message as its own dataset;
 * :func:`decode_frames` / :class:`FrameDecoder` — the vectorized DBC decoder on its own;

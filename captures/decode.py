@@ -376,7 +376,7 @@ def decode_capture(path: str | Path, out: str | Path | None = None, *, collect: 
 
 def capture_run(path: str | Path, strict: bool = False, **options) -> tuple[dict, dict, list[str]]:
     """One run of a capture as its signals (t, u, y, r = NaN, ...), its metadata and the notes
-    on what decoding met (what :func:`analysis.data.load_capture` makes a record of).
+    on what decoding met (what :func:`analysis.load_capture` makes a record of).
 
     A capture holding several runs needs ``run=i``. A damaged capture gives what was decoded
     before the damage, with a note naming the position (``strict=True``: raise

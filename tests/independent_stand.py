@@ -1,6 +1,6 @@
 """An independent stand simulator for testing the diagnosis (numpy and the standard library).
 
-Written apart from plant/ and analysis/synthetic.py (by a separate session that had not read
+Written apart from plant/ and analysis/records/synthetic.py (by a separate session that had not read
 them), with effect laws that differ from the catalogue's where a real stand might: a reversal
 timed from the undelayed command, a sensor lag, backlash, a power-law flow, friction, an
 oscillation with its own phase in every run. tests/test_diagnose_independent.py checks what

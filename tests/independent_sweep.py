@@ -12,8 +12,7 @@ import time
 
 import numpy as np
 
-from analysis.data import make_record
-from analysis.stepwise import stepwise
+from analysis import make_record, stepwise
 from tests import independent_stand as sim
 
 #: simulator effect -> the catalogue effects that name it exactly or equivalently (one effect,

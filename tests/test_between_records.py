@@ -12,12 +12,10 @@ import numpy as np
 import pytest
 
 import tests.independent_stand as sim
-from analysis import fit as F
-from analysis.between_records import _solve, between_records
-from analysis.data import make_record
-from analysis.diagnose import diagnose, objective_floor
-from analysis.metrics import evaluate
-from analysis.stepwise import stepwise
+from analysis import between_records, diagnose, evaluate, make_record, stepwise
+from analysis.diagnosis.between_records import _solve
+from analysis.diagnosis.verdict import objective_floor
+from analysis.identification import windows as F
 from stand.cli import main
 
 G = sim.DEFAULTS["g"]

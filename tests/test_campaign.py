@@ -7,10 +7,9 @@ import json
 
 import pytest
 
-from analysis.campaign_report import ReportInput, report_campaign, write_report
-from analysis.data import write_csv
-from analysis.estimate import estimate_record
-from analysis.relay import DF_PEAK_BIAS
+from analysis import estimate_record, report_campaign, write_csv
+from analysis.estimators.relay import DF_PEAK_BIAS
+from analysis.reports.campaign import ReportInput, write_report
 from gateway import Gateway, GatewayConfig
 from gateway.campaign import CampaignPlan, MeanderPlan, RelayPlan, run_campaign
 from gateway.errors import ParameterError

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.data import load
+from analysis import load
 from captures import decode_capture
 from gateway import Gateway, GatewayConfig, load_run
 from gateway.experiments import Meander

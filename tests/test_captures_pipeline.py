@@ -11,9 +11,7 @@ import numpy as np
 import pyarrow.dataset as ds
 import pytest
 
-from analysis.data import load
-from analysis.meander import estimate_meander
-from analysis.data import load_capture
+from analysis import estimate_meander, load, load_capture
 from captures import CaptureDamaged, FrameChunk, decode_capture
 from captures.synthetic import FORCE_SCALE, stand_frames, synthetic_run
 from captures.writers import write_blf, write_candump

@@ -305,7 +305,7 @@ def test_mf4_captures_read_and_decode_like_candump(tmp_path, stand_chunk):
     """ASAM MDF 4 (python-can's MF4Writer/Reader, asammdf): the same frames, and the same
     stand signals after decoding as from the candump file of the same traffic."""
     pytest.importorskip("asammdf", reason="install hydrostand[mf4] to read .mf4 captures")
-    from analysis.data import load_capture
+    from analysis import load_capture
     part = stand_chunk.take(slice(0, 3000))
     mf4, log = tmp_path / "stand.mf4", tmp_path / "stand.log"
     w = can.Logger(str(mf4))

@@ -111,7 +111,7 @@ def test_a_stepwise_diagnosis_into_a_log_writes_a_line_per_step_and_no_bar(tmp_p
     """Progress bars belong on a terminal; a log (stderr not a tty) gets one line per step."""
     import numpy as np
 
-    from analysis.synthetic import meander
+    from analysis.records.synthetic import meander
     from plant import PlantModel
     rec = meander(PlantModel.from_spec("base+reversal", {"g": 120.0, "tau": 0.05}), (5.0, 20.0),
                   seed=1)

@@ -6,10 +6,8 @@ import re
 
 import pytest
 
-from analysis import synthetic as S
-from analysis.compare import compare
-from analysis.data import write_csv
-from analysis.report import load_history, write_report
+from analysis import compare, load_history, write_csv, write_report
+from analysis.records import synthetic as S
 from plant import CATALOGUE, PlantModel, load_model_file
 from stand.cli import main
 
@@ -108,8 +106,7 @@ def test_report_refuses_another_data_set_unless_told(reversal_csv, tmp_path, cap
 
 
 def test_report_with_diagnosis_of_the_latest_model(reversal_csv, tmp_path):
-    from analysis.data import read_csv
-    from analysis.diagnose import diagnose
+    from analysis import diagnose, read_csv
     recs = [read_csv(reversal_csv)]
     d = diagnose(recs, "base")
     res = write_report(recs, "base", tmp_path / "r", diagnosis=d)
@@ -155,6 +152,6 @@ def test_diagnose_command_prints_verdict_table_and_words(reversal_csv, tmp_path,
 
 
 def test_compare_library_call_matches_the_fit(reversal_csv):
-    from analysis.data import read_csv
+    from analysis import read_csv
     c = compare([read_csv(reversal_csv)], "base+reversal")
     assert c.fit is not None and c.metrics()["rmse"] < 1.2 * c.metrics()["noise_floor_rmse"]

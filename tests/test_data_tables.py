@@ -8,8 +8,8 @@ import gzip
 import numpy as np
 import pytest
 
-from analysis.columns import G0, ColumnError, map_header
-from analysis.data import load, load_all
+from analysis import load, load_all
+from analysis.records.columns import G0, ColumnError, map_header
 from gateway.errors import DataError
 
 

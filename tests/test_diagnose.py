@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from analysis import synthetic as S
-from analysis.diagnose import diagnose
+from analysis import diagnose
+from analysis.records import synthetic as S
 from plant import PlantModel
 
 BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
@@ -252,7 +252,7 @@ def test_diagnosing_the_completed_model_finds_nothing_more():
 def test_long_records_are_screened_on_a_subset_and_the_best_refitted_on_all():
     truth = plant("reversal")
     u = np.concatenate([S.square_wave(a, 2.0, 25, 0.002) for a in (5.0, 10.0, 15.0, 20.0)])
-    from analysis.data import make_record
+    from analysis import make_record
     from plant import Dynamometer
     y = Dynamometer(noise_kgf=2.0, seed=16).measure(truth.simulate(u, 0.002, u_before=0.0))[0]
     d = diagnose([make_record(np.arange(len(u)) * 0.002, u, y)], max_screen_windows=60)
@@ -285,7 +285,7 @@ def test_the_number_of_workers_follows_the_work_and_the_request():
 
 def test_diagnosis_json_has_the_stable_schema():
     import json
-    from analysis.compare import jsonable
+    from analysis.identification.compare import jsonable
     d = diagnose([meander4(plant("reversal"), seed=17)])
     out = json.loads(json.dumps(jsonable(d.to_dict()), allow_nan=False))
     assert out["verdict"] == "missing_effect"
@@ -302,7 +302,7 @@ def test_diagnosis_json_has_the_stable_schema():
 # ------------------------------------------------------------------------------------------
 def _coloured(model, time_constant_s, sigma=4.0, seed=18):
     from scipy.signal import lfilter
-    from analysis.data import make_record
+    from analysis import make_record
     u = np.concatenate([S.square_wave(a, 2.0, 2, 0.002) for a in (5.0, 10.0, 15.0, 20.0)])
     y = model.simulate(u, 0.002, u_before=0.0)
     a = math.exp(-0.002 / time_constant_s)
@@ -325,7 +325,7 @@ def test_coloured_noise_is_not_taken_for_a_model_error_and_does_not_hide_one():
 def _records(u_list, disturbance=None, seed=3, dt=0.002):
     """One record per command in ``u_list``: the base model, white noise 2 kgf, 0.5 kgf steps,
     plus ``disturbance(t, rng)`` on the measurement."""
-    from analysis.data import make_record
+    from analysis import make_record
     rng = np.random.default_rng(seed)
     base = plant()
     out = []

@@ -12,8 +12,7 @@ import sys
 
 import pytest
 
-from analysis.data import read_run
-from analysis.diagnose import diagnose
+from analysis import diagnose, read_run
 from gateway import Gateway, GatewayConfig, SafetyLimits
 from gateway.experiments import Meander
 from tests.conftest import plant

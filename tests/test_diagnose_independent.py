@@ -10,8 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.data import make_record
-from analysis.diagnose import diagnose
+from analysis import diagnose, make_record
 from tests import independent_stand as sim
 from tests.independent_sweep import EQUIVALENT
 

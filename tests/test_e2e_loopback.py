@@ -7,8 +7,7 @@ import can
 import numpy as np
 import pytest
 
-from analysis.data import read_run
-from analysis.meander import estimate_meander
+from analysis import estimate_meander, read_run
 from gateway import Gateway, GatewayConfig, load_run
 from gateway.experiments import Meander
 from standbus.realtime import realtime_allowed

@@ -12,12 +12,10 @@ import math
 import numpy as np
 import pytest
 
-from analysis.data import make_record, read_csv, write_csv
-from analysis.estimate import (EstimateOptions, detect_experiment, error_json, estimate_record,
-                               result_json)
-from analysis.meander import estimate_meander
-from analysis.pfeedback import estimate_pfeedback
-from analysis.relay import DF_PEAK_BIAS, estimate_relay
+from analysis import (EstimateOptions, detect_experiment, error_json, estimate_meander,
+                      estimate_pfeedback, estimate_record, estimate_relay, make_record, read_csv,
+                      result_json, write_csv)
+from analysis.estimators.relay import DF_PEAK_BIAS
 from gateway.errors import DataError
 from gateway.experiments.meander import Meander
 from gateway.experiments.pfeedback import PFeedback

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from analysis.data import Record, make_record
+from analysis import Record, make_record
 from dbc import profile as P
 from gateway.errors import ParameterError
 from gateway.experiments import EXPERIMENTS, Experiment, make_experiment

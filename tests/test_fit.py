@@ -6,10 +6,11 @@ import math
 import numpy as np
 import pytest
 
-from analysis import synthetic as S
-from analysis.data import make_record
-from analysis.fit import (Parameterization, fit_model, pieces_from_records, residual,
-                          screening_pieces, simulate_piece)
+from analysis import fit_model, make_record
+from analysis.identification.fit import Parameterization
+from analysis.identification.windows import (pieces_from_records, residual, screening_pieces,
+                                             simulate_piece)
+from analysis.records import synthetic as S
 from plant import PlantModel
 
 BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
@@ -159,7 +160,7 @@ def test_a_gap_in_the_data_splits_the_record_instead_of_being_fitted_across(tmp_
     capture block): bridged by resampling, a model would integrate a held command against an
     interpolated force there; load_all gives the two parts as records of their own, and the
     fit on them sees only the noise."""
-    from analysis.data import load, load_all, split_at_gaps
+    from analysis import load, load_all, split_at_gaps
     truth = PlantModel.from_spec("base", {"g": 120.0, "tau": 0.05, "delta": 0.0})
     rec = S.meander(truth, amplitudes_pct=(5.0, 10.0), cycles=4, seed=3)
     keep = (rec.t < 9.3) | (rec.t > 10.9)

@@ -9,9 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from analysis.data import make_record
-from analysis.diagnose import diagnose
-from analysis.glitches import remove_glitches
+from analysis import diagnose, make_record
+from analysis.records.glitches import remove_glitches
 from tests import independent_stand as sim
 
 

@@ -48,3 +48,86 @@ def test_no_layer_imports_a_layer_above_it_or_beside_it():
 def test_every_package_has_a_level():
     packages = {p.parent.name for p in ROOT.glob("*/__init__.py")} - {"tests"}
     assert packages <= set(LEVEL), f"give these a level in LEVELS: {sorted(packages - set(LEVEL))}"
+
+
+#: analysis's parts from the bottom up, the same rule inside it: a part imports its own modules and
+#: those of the levels below; analysis/__init__.py only names the public API (imported lazily)
+ANALYSIS_LEVELS = [
+    {"defaults", "parallel"},
+    {"records"},
+    {"estimators", "identification"},
+    {"diagnosis"},
+    {"reports"},
+]
+ANALYSIS_LEVEL = {part: i for i, level in enumerate(ANALYSIS_LEVELS) for part in level}
+ANALYSIS = ROOT / "analysis"
+
+
+def analysis_part(path: Path) -> str:
+    """The part of analysis a module belongs to: its subpackage, or its own name at the top."""
+    return path.relative_to(ANALYSIS).parts[0].removesuffix(".py")
+
+
+def analysis_imports(path: Path) -> list[tuple[int, str]]:
+    """(line, part of analysis) of every import of analysis in a module, relative or absolute,
+    at any depth."""
+    package = ["analysis", *path.relative_to(ANALYSIS).parent.parts]
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            targets = [a.name.split(".") for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = (package[:len(package) - node.level + 1] if node.level else [])
+            base += node.module.split(".") if node.module else []
+            # "from . import plots", "from analysis import diagnose": the names may be modules
+            targets = [base + [a.name] for a in node.names] if len(base) == 1 else [base]
+        else:
+            continue
+        out += [(node.lineno, t[1]) for t in targets if t[0] == "analysis" and len(t) > 1]
+    return out
+
+
+def analysis_modules() -> list[Path]:
+    return sorted(p for p in ANALYSIS.rglob("*.py") if p != ANALYSIS / "__init__.py")
+
+
+def test_analysis_parts_import_only_the_levels_below_them():
+    wrong = []
+    for path in analysis_modules():
+        own = analysis_part(path)
+        for line, target in analysis_imports(path):
+            if target != own and ANALYSIS_LEVEL.get(target, -1) >= ANALYSIS_LEVEL[own]:
+                wrong.append(f"{path.relative_to(ROOT)}:{line}: analysis.{own} (level "
+                             f"{ANALYSIS_LEVEL[own]}) imports analysis.{target} (level "
+                             f"{ANALYSIS_LEVEL[target]})")
+    assert not wrong, "layer violations inside analysis:\n" + "\n".join(wrong)
+
+
+def test_every_part_of_analysis_has_a_level():
+    parts = {analysis_part(p) for p in analysis_modules()}
+    assert parts <= set(ANALYSIS_LEVEL), \
+        f"give these a level in ANALYSIS_LEVELS: {sorted(parts - set(ANALYSIS_LEVEL))}"
+
+
+def test_no_import_cycle_between_the_parts_of_analysis():
+    graph: dict[str, set[str]] = {}
+    for path in analysis_modules():
+        own = analysis_part(path)
+        graph.setdefault(own, set()).update(t for _, t in analysis_imports(path) if t != own)
+    done: set[str] = set()
+
+    def visit(part: str, path: list[str]) -> list[str] | None:
+        if part in path:
+            return path[path.index(part):] + [part]
+        if part in done:
+            return None
+        for nxt in sorted(graph.get(part, ())):
+            cycle = visit(nxt, path + [part])
+            if cycle:
+                return cycle
+        done.add(part)
+        return None
+
+    for part in sorted(graph):
+        cycle = visit(part, [])
+        assert cycle is None, "import cycle between parts of analysis: " + " -> ".join(cycle)

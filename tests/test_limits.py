@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from analysis.data import make_record
-from analysis.fit import pieces_from_records
-from analysis.limits import held_stretches
+from analysis import make_record
+from analysis.identification.windows import pieces_from_records
+from analysis.records.limits import held_stretches
 
 DT = 0.002
 

@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from analysis import synthetic as S
-from analysis.data import make_record
-from analysis.metrics import (command_levels, evaluate, noise_sigma, reversal_mask)
+from analysis import evaluate, make_record
+from analysis.identification.metrics import command_levels, noise_sigma, reversal_mask
+from analysis.records import synthetic as S
 from plant import PlantModel
 
 BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}

@@ -7,10 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from analysis import synthetic as S
-from analysis.data import make_record, write_csv
-from analysis.diagnose import diagnosable_effects, diagnose
-from analysis.stepwise import stepwise
+from analysis import diagnosable_effects, diagnose, make_record, stepwise, write_csv
+from analysis.records import synthetic as S
 from plant import PlantModel, load_model_file
 from stand.cli import main
 from tests import independent_stand as sim

@@ -1,12 +1,11 @@
-"""Timing jitter of the command steps, read from the residual's jumps (analysis/timing.py)."""
+"""Timing jitter of the command steps, read from the residual's jumps (analysis/diagnosis/timing.py)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from analysis.data import make_record
-from analysis.metrics import evaluate
-from analysis.timing import jitter_observation, timing_jitter
+from analysis import evaluate, make_record
+from analysis.diagnosis.timing import jitter_observation, timing_jitter
 from plant import PlantModel
 
 DT = 0.002

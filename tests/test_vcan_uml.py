@@ -17,10 +17,7 @@ import can
 import numpy as np
 import pytest
 
-from analysis.data import read_run
-from analysis.data import load_capture
-from analysis.estimate import estimate_record
-from analysis.meander import estimate_meander
+from analysis import estimate_meander, estimate_record, load_capture, read_run
 from gateway import load_run
 
 ROOT = Path(__file__).resolve().parents[1]

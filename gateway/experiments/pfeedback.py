@@ -14,7 +14,7 @@ class PFeedback(PhasedExperiment):
     For ``dy/dt = g·u(t−τ)`` the loop is stable for ``k·g·τ < π/2`` (the paper's k = 0.005 %/kgf
     with g ≈ 120 kgf/(%·s) gives a loop bandwidth k·g ≈ 0.6 rad/s); after a transient of a few
     ``1/(k·g)`` u and y are harmonics at ω and ``A_y = g·A_u/ω`` (eq. 3, see
-    :mod:`analysis.pfeedback`). The main phase lasts ``transient_s`` plus ``periods`` periods of
+    :mod:`analysis.estimators.pfeedback`). The main phase lasts ``transient_s`` plus ``periods`` periods of
     the reference.
 
     Before the sine the force is brought to r0 by a short proportional loop (skipped when it is

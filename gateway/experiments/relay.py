@@ -15,7 +15,7 @@ class Relay(PhasedExperiment):
     with optional hysteresis ε: the command goes to −u0 when ``y > r + ε`` and to +u0 when
     ``y < r − ε`` and keeps its sign in between (ε = 0: the ideal relay; the sign is kept when
     y = r exactly). For ``dy/dt = g·u(t−τ)`` the force settles into a triangle of period
-    ``P = 4τ`` and peak ``A = g·u0·τ`` about r (see :mod:`analysis.relay`).
+    ``P = 4τ`` and peak ``A = g·u0·τ`` about r (see :mod:`analysis.estimators.relay`).
 
     Before the relay the force is brought to r by a short proportional loop (skipped when it is
     already there); the run stops itself when |y| reaches ``guard_fraction`` of the force limit.

@@ -47,7 +47,7 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from analysis.campaign_report import report_campaign
+    from analysis import report_campaign
     from gateway import Gateway, GatewayConfig, SafetyLimits
     from gateway.campaign import CampaignPlan, run_campaign
     from plant.config import load_plant_config

@@ -141,7 +141,7 @@ def parse_assignments(items: list[str] | None, what: str = "--set") -> dict[str,
 def load_records(paths) -> list:
     """The data sets of ``paths`` (CSV, run directories, captures), each one's notes (rows
     dropped, resampling, glitches replaced) printed to stderr: what was changed is said."""
-    from analysis.data import load_all
+    from analysis import load_all
     records = load_all(paths)
     for rec in records:
         for note in rec.notes:

@@ -33,8 +33,9 @@ def default_out(data: list[str], prefix: str) -> Path:
 
 
 def main(args: argparse.Namespace) -> int:
-    from analysis.compare import compare, metrics_table, params_table
-    from analysis import plots
+    from analysis import compare
+    from analysis.identification.compare import metrics_table, params_table
+    from analysis.reports import plots
     check_window(args)
     records = load_records(args.data)
     c = compare(records, args.model, window_s=args.window_s, fit=not args.as_given)

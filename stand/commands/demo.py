@@ -31,8 +31,7 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from analysis.data import read_run
-    from analysis.meander import estimate_meander
+    from analysis import estimate_meander, read_run
     from gateway import Gateway, GatewayConfig
     from gateway.recorder import write_json
     from gateway.runs import TRUTH_FILE

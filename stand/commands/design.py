@@ -29,7 +29,7 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from analysis.compare import resolve_model
+    from analysis import resolve_model
     from loading.design import design
     model, _path = resolve_model(args.model)
     c = design(model, args.period_ms / 1e3, args.command_limit)

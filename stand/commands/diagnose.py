@@ -53,9 +53,8 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from analysis import plots
-    from analysis.compare import resolve_model
-    from analysis.diagnose import diagnosable_effects, diagnose
+    from analysis import diagnosable_effects, diagnose, resolve_model
+    from analysis.reports import plots
     check_window(args)
     if args.max_effects < 1:
         from gateway.errors import ParameterError
@@ -137,7 +136,7 @@ BETWEEN_ROWS = 16
 
 
 def print_between(b) -> None:
-    """The records' own g and Δ (analysis.between_records), a line each."""
+    """The records' own g and Δ (analysis.diagnosis.between_records), a line each."""
     st = b.stats
     print()
     print(f"{b.model} with a {b.varies} of its own per record: objective error "
@@ -217,9 +216,8 @@ def save_model(args: argparse.Namespace, model, summary: str) -> Path | None:
 
 
 def main_stepwise(args: argparse.Namespace, records, model, effects) -> int:
-    from analysis import plots
-    from analysis.report import write_report
-    from analysis.stepwise import stepwise
+    from analysis import stepwise, write_report
+    from analysis.reports import plots
     with progress_bar(args, "diagnose --stepwise") as progress:
         r = stepwise(records, model, window_s=args.window_s, max_effects=args.max_effects,
                      effects=effects, progress=progress, jobs=args.jobs)

@@ -8,7 +8,7 @@ import sys
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from analysis.campaign_report import ReportInput
+    from analysis.reports.campaign import ReportInput
 
 
 
@@ -36,8 +36,8 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from analysis.campaign_report import estimate_inputs, write_report
-    from analysis.estimate import EstimateOptions, error_json, result_json
+    from analysis import EstimateOptions, error_json, result_json
+    from analysis.reports.campaign import estimate_inputs, write_report
     options = EstimateOptions(
         experiment=args.experiment, hysteresis_kgf=args.hysteresis_kgf,
         control_period_s=args.period_ms / 1000.0 if args.period_ms else None,
@@ -68,9 +68,7 @@ def _ci(ci, scale: float = 1.0) -> str:
 
 def describe(item: "ReportInput") -> str:
     """A few lines per input: the recommended estimates, the paper's formulas, warnings."""
-    from analysis.meander import MeanderEstimate
-    from analysis.pfeedback import PFeedbackEstimate
-    from analysis.relay import RelayEstimate
+    from analysis import MeanderEstimate, PFeedbackEstimate, RelayEstimate
     if item.estimate is None:
         return f"{item.source}: no estimate"
     est = item.estimate

@@ -33,7 +33,7 @@ def check_window(args: argparse.Namespace) -> None:
 
 
 def print_json(obj) -> None:
-    from analysis.compare import jsonable
+    from analysis.identification.compare import jsonable
     json.dump(jsonable(obj), sys.stdout, indent=2, allow_nan=False)
     sys.stdout.write("\n")
 
@@ -55,9 +55,8 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from analysis.compare import Comparison, metrics_table, params_table, resolve_model
-    from analysis.fit import fit_model
-    from analysis.metrics import evaluate
+    from analysis import Comparison, evaluate, fit_model, resolve_model
+    from analysis.identification.compare import metrics_table, params_table
     from plant import model_to_toml
     check_window(args)
     records = load_records(args.data)

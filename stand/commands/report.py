@@ -28,8 +28,7 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from analysis.diagnose import diagnose
-    from analysis.report import write_report
+    from analysis import diagnose, write_report
     check_window(args)
     records = load_records(args.data)
     out = args.out or default_out(args.data, "report")

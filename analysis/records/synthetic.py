@@ -24,7 +24,7 @@ import numpy as np
 
 from plant import Dynamometer, PlantModel
 
-from .data import Record, make_record
+from .record import Record, make_record
 
 #: control law ``(t, y_measured, k) -> (u, r)`` evaluated once per sample
 Law = Callable[[float, float, int], tuple[float, float]]

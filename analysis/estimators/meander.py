@@ -33,7 +33,7 @@ from scipy import stats
 
 from gateway.errors import DataError
 
-from .data import Record
+from ..records.record import Record
 
 PORTIONS = ("main_rise", "main_fall", "transitional_rise", "transitional_fall")
 

@@ -1,5 +1,5 @@
 """Compare a model with measurements: fit it (or take it as given), evaluate the windowed
-free-run error, print it as a short table and (with :mod:`analysis.plots`) draw it.
+free-run error, print it as a short table and (with :mod:`analysis.reports.plots`) draw it.
 
 This is the library behind ``stand fit``, ``stand compare`` and ``stand report``; everything the
 commands print is also available here as data.
@@ -16,9 +16,10 @@ import numpy as np
 from plant import PlantModel, load_model_file
 from plant.params import ModelError
 
-from .data import Record
-from .fit import WINDOW_S, FitResult, fit_model
+from ..records.record import Record
+from .fit import FitResult, fit_model
 from .metrics import Evaluation, evaluate
+from .windows import WINDOW_S
 
 
 def resolve_model(text: str | PlantModel) -> tuple[PlantModel, str | None]:

@@ -1,6 +1,6 @@
 """Is a richer model's cut of the error worth its extra parameters? The criteria a catalogue
-candidate (:func:`analysis.diagnose.judge`) and a per-record gain
-(:mod:`analysis.between_records`) are judged by, on the fit's objective (windowed error, window
+candidate (:func:`.candidates.judge`) and a per-record gain
+(:mod:`.between_records`) are judged by, on the fit's objective (windowed error, window
 starts re-estimated) against the noise floor.
 
 A richer model *helps* if it lowers the objective RMSE by at least :data:`MIN_IMPROVEMENT`,

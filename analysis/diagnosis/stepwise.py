@@ -2,13 +2,13 @@ r"""Build the model up one effect at a time, as a user would: diagnose, add the 
 lowers the error most, diagnose again, until the model is within the noise.
 
 Real stands rarely miss just one effect. With several, no single catalogue effect may remove
-most of the error above the noise, so :func:`analysis.diagnose.diagnose` alone says
+most of the error above the noise, so :func:`.verdict.diagnose` alone says
 *unexplained* and lists the effects that would remove part of it. ``stepwise`` (forward
 selection with a backward check, like stepwise regression):
 
 1. diagnoses the current model (start: the paper's base model);
 2. adds the best candidate that *earns its parameters*, or, when none does, the best one that
-   *helps* (lowers the error by at least :data:`~analysis.significance.MIN_IMPROVEMENT`,
+   *helps* (lowers the error by at least :data:`~.significance.MIN_IMPROVEMENT`,
    significantly and consistently over the windows: part of the missing behaviour);
 3. stops when the diagnosis says *adequate*, when a g or Δ of its own per record explains the
    rest (*varies between records*: the stand changed between the runs), when nothing helps, or
@@ -28,13 +28,15 @@ from typing import Callable, Sequence
 
 from plant import PlantModel
 
-from . import fit as F
-from .data import Record
-from .diagnose import Candidate, Diagnosis, diagnose, judge
-from .parallel import one_blas_thread
+from ..identification.fit import REFIT_TOL, FitOptions, FitResult, fit_model
+from ..identification.windows import WINDOW_S, errors, pieces_from_records
+from ..parallel import one_blas_thread
+from ..records.record import Record
+from .candidates import Candidate, judge
+from .verdict import Diagnosis, diagnose
 
 #: effects added at most (each step is one diagnosis: all candidates fitted)
-from .defaults import MAX_EFFECTS  # noqa: E402  (re-exported)
+from ..defaults import MAX_EFFECTS  # noqa: E402  (re-exported)
 
 
 @dataclass
@@ -74,7 +76,7 @@ class Needed:
 class Stepwise:
     steps: list[Step]
     model: PlantModel             #: the final model (after the backward check), fitted
-    fit: F.FitResult = field(repr=False)
+    fit: FitResult = field(repr=False)
     #: "adequate" | "varies_between_records" | "unexplained" | "max_effects"
     verdict: str
     needed: list[Needed]
@@ -123,35 +125,35 @@ ALTERNATIVE_RATIO = 0.8
 
 @one_blas_thread
 def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
-             window_s: float = F.WINDOW_S, max_effects: int = MAX_EFFECTS,
+             window_s: float = WINDOW_S, max_effects: int = MAX_EFFECTS,
              effects: Sequence[str] | None = None,
              progress: Callable[[str], None] | None = None, jobs: int | None = None) -> Stepwise:
     """Add effects to ``model`` one at a time until it explains ``records`` (module docstring).
     If the build-up does not end adequate and one of its partial picks had a close runner-up,
     the build-up is run once more from there with the runner-up, and the better end is kept.
-    ``jobs``: worker processes for each diagnosis (see :func:`analysis.diagnose.diagnose`)."""
+    ``jobs``: worker processes for each diagnosis (see :func:`.verdict.diagnose`)."""
     say = progress or (lambda msg: None)
     start = PlantModel.from_spec(model) if isinstance(model, str) else model
-    steps, added, verdict = _forward(records, start, [], [], window_s, max_effects, effects, say,
-                                     jobs)
+    up = _forward(records, start, [], [], window_s, max_effects, effects, say, jobs)
     tried = ""
-    if verdict != "adequate":
-        branch = _alternative(steps)
+    if up.verdict != "adequate":
+        branch = _alternative(up.steps)
         if branch is not None:
-            i, alt = branch
-            chosen = steps[i].added
+            i, alt = branch.step, branch.runner_up
+            chosen = up.steps[i].added
             say(f"trying +{alt.effect} instead of +{chosen} at step {i + 1}")
-            first = replace(steps[i], added=alt.effect,
+            first = replace(up.steps[i], added=alt.effect,
                             why=f"runner-up to +{chosen}, tried in its place: {100 * alt.rmse_reduction:.0f} % "
                                 f"lower error")
-            alt_steps, alt_added, alt_verdict = _forward(
-                records, alt.fit.model, steps[:i] + [first], added[:i] + [alt.effect], window_s,
-                max_effects, effects, say, jobs)
-            better = (alt_verdict == "adequate") or (alt_steps[-1].over_floor < steps[-1].over_floor)
+            other = _forward(records, alt.fit.model, up.steps[:i] + [first],
+                             up.added[:i] + [alt.effect], window_s, max_effects, effects, say, jobs)
+            better = (other.verdict == "adequate"
+                      or other.steps[-1].over_floor < up.steps[-1].over_floor)
             tried = (f"; +{alt.effect} tried in place of +{chosen} at step {i + 1}: "
                      + ("kept, it ends closer to the noise" if better else "dropped, it ends no closer"))
             if better:
-                steps, added, verdict = alt_steps, alt_added, alt_verdict
+                up = other
+    steps, added, verdict = up.steps, up.added, up.verdict
     last = steps[-1].diagnosis
     final_fit = last.base_fit
     needed: list[Needed] = []
@@ -165,9 +167,37 @@ def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
                     needed=needed, summary=summary)
 
 
+@dataclass
+class BuildUp:
+    """A forward build-up: its diagnoses, the effects it added, and how it ended."""
+
+    steps: list[Step]
+    added: list[str]
+    #: "adequate" | "varies_between_records" | "unexplained" | "max_effects"
+    verdict: str
+
+
+@dataclass
+class Branch:
+    """A step whose partial pick had a close runner-up, to be tried in its place."""
+
+    step: int                     #: the step's index
+    runner_up: Candidate
+
+
+@dataclass
+class Check:
+    """An added effect checked with the others in place: the model refitted without it."""
+
+    effect: str
+    helps: bool                   #: it still helps, judged as a candidate added to the rest
+    factor: float                 #: objective error without it / with it
+    reduced: FitResult            #: the model refitted without it
+    error_without: float          #: objective RMSE without it, kgf
+
+
 def _forward(records, current: PlantModel, steps: list[Step], added: list[str], window_s: float,
-             max_effects: int, effects, say, jobs: int | None = None
-             ) -> tuple[list[Step], list[str], str]:
+             max_effects: int, effects, say, jobs: int | None = None) -> BuildUp:
     """The build-up from ``current`` (reached by ``steps``, having ``added``) to its end."""
     steps, added = list(steps), list(added)
     verdict = "max_effects"
@@ -192,12 +222,12 @@ def _forward(records, current: PlantModel, steps: list[Step], added: list[str], 
         step.added = c.effect
         added.append(c.effect)
         current = c.fit.model
-    return steps, added, verdict
+    return BuildUp(steps, added, verdict)
 
 
-def _alternative(steps: Sequence[Step]) -> tuple[int, Candidate] | None:
+def _alternative(steps: Sequence[Step]) -> Branch | None:
     """The first step that added a partial explanation (none earned) with a runner-up that
-    helps nearly as much: (its index, the runner-up)."""
+    helps nearly as much."""
     for i, st in enumerate(steps):
         d = st.diagnosis
         if st.added is None or d.best_candidate is not None:
@@ -205,7 +235,7 @@ def _alternative(steps: Sequence[Step]) -> tuple[int, Candidate] | None:
         helping = [c for c in d.candidates if c.helps]
         if len(helping) >= 2 and helping[0].effect == st.added and \
                 helping[1].improvement >= ALTERNATIVE_RATIO * helping[0].improvement:
-            return i, helping[1]
+            return Branch(i, helping[1])
     return None
 
 
@@ -216,37 +246,35 @@ def without(model: PlantModel, effect: str) -> PlantModel:
     return PlantModel.from_spec(spec, values)
 
 
-def backward_check(records: Sequence[Record], full: F.FitResult, added: Sequence[str],
-                   floor: float, window_s: float) -> tuple[F.FitResult, list[Needed]]:
+def backward_check(records: Sequence[Record], full: FitResult, added: Sequence[str],
+                   floor: float, window_s: float) -> tuple[FitResult, list[Needed]]:
     """Refit the model without each added effect in turn; drop the one that helps least if it
     no longer helps, and repeat. Returns the final fit and the verdict on every added effect."""
-    pieces = F.pieces_from_records(records, window_s)
+    pieces = pieces_from_records(records, window_s)
     n = sum(p.n_eval for p in pieces)
     dropped: list[Needed] = []
     while True:
-        w_full, rmse_full = F.errors(full.model, pieces)
+        w_full, rmse_full = errors(full.model, pieces)
         obj_full = math.sqrt(w_full.sum() / n)
         checks = []
         for name in [a for a in added if full.model.effect(a) is not None]:
-            reduced = F.fit_model(pieces, without(full.model, name), starts="given",
-                                  delay_search=False, covariance=False, tol=F.REFIT_TOL)
-            w_red, rmse_red = F.errors(reduced.model, pieces)
+            reduced = fit_model(pieces, without(full.model, name),
+                                options=FitOptions.refit(tol=REFIT_TOL, covariance=False))
+            w_red, rmse_red = errors(reduced.model, pieces)
             obj_red = math.sqrt(w_red.sum() / n)
             # judged as a candidate added to the reduced model, like in the diagnosis
             c = judge(name, full, w_full, rmse_full, w_red, rmse_red, floor, n, "final")
-            checks.append((c.helps, obj_red / obj_full if obj_full > 0 else math.inf, name,
-                           reduced, obj_red))
-        weakest = min(checks, key=lambda x: (x[0], x[1]), default=None)
-        if weakest is None or weakest[0]:
-            kept = [Needed(name, True, obj_red, factor)
-                    for _, factor, name, _, obj_red in checks]
+            checks.append(Check(name, c.helps, obj_red / obj_full if obj_full > 0 else math.inf,
+                                reduced, obj_red))
+        weakest = min(checks, key=lambda x: (x.helps, x.factor), default=None)
+        if weakest is None or weakest.helps:
+            kept = [Needed(x.effect, True, x.error_without, x.factor) for x in checks]
             return full, kept + dropped
-        _, factor, name, reduced, obj_red = weakest
-        dropped.append(Needed(name, False, obj_red, factor))
-        full = reduced
+        dropped.append(Needed(weakest.effect, False, weakest.error_without, weakest.factor))
+        full = weakest.reduced
 
 
-def _summary(steps: list[Step], verdict: str, fit: F.FitResult, needed: list[Needed],
+def _summary(steps: list[Step], verdict: str, fit: FitResult, needed: list[Needed],
              last: Diagnosis) -> str:
     path = " → ".join([steps[0].model] + [f"+{s.added}" for s in steps if s.added])
     first, end = steps[0], steps[-1]

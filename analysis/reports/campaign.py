@@ -29,12 +29,13 @@ import numpy as np
 from gateway.errors import StandError
 from gateway.runs import is_run_dir, read_truth
 
-from .data import Record, load
-from .estimate import Estimate, EstimateOptions, error_json, estimate_record, result_json
-from .meander import MeanderEstimate, mean_ci
-from .pfeedback import PFeedbackEstimate
+from ..estimators.dispatch import Estimate, EstimateOptions, error_json, estimate_record, result_json
+from ..estimators.meander import MeanderEstimate, mean_ci
+from ..estimators.pfeedback import PFeedbackEstimate
+from ..estimators.relay import DF_PEAK_BIAS, RelayEstimate
+from ..records.load import load
+from ..records.record import Record
 from .plots import pyplot
-from .relay import DF_PEAK_BIAS, RelayEstimate
 
 
 @dataclass

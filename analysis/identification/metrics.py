@@ -3,7 +3,7 @@ r"""How well a model reproduces measurements: the windowed free-run error and wh
 **Windowed free-run error.** Each record is cut into windows (default 2 s); in every window the
 model is simulated *open loop* from the measured force at the window's first sample, driven by
 the recorded command, with the command history (delay line, valve and reversal states) running
-continuously through the record. The first :data:`~analysis.fit.LEAD_S` of a record only primes
+continuously through the record. The first :data:`~.windows.LEAD_S` of a record only primes
 that history (the commands before the record are unknown). With ``ŷ`` the simulation:
 
 .. math::
@@ -54,8 +54,8 @@ import numpy as np
 
 from plant import PlantModel
 
-from .data import Record
-from .fit import WINDOW_S, pieces_from_records, simulate_piece
+from ..records.record import Record
+from .windows import WINDOW_S, pieces_from_records, simulate_piece
 
 #: length of the "just after a reversal" regime, s
 AFTER_REVERSAL_S = 0.2
@@ -203,7 +203,7 @@ class CorrelationTest:
 
 @dataclass
 class Evaluation:
-    """Everything :mod:`analysis.compare`, :mod:`analysis.diagnose` and the plots need."""
+    """Everything :mod:`.compare`, :mod:`analysis.diagnosis` and the plots need."""
 
     model: PlantModel
     window_s: float

@@ -39,7 +39,7 @@ from scipy import optimize, stats
 
 from gateway.errors import DataError
 
-from .data import Record
+from ..records.record import Record
 from .meander import _clipped_mask, mean_ci
 
 #: the start-up transient must have decayed below this fraction of the amplitudes

@@ -27,13 +27,14 @@ import numpy as np
 
 from gateway.errors import DataError
 
-from .data import Record, load, split_at_gaps
+from ..records.load import load
+from ..records.record import Record, split_at_gaps
 from .meander import MeanderEstimate, estimate_meander, mean_ci
 from .pfeedback import PFeedbackEstimate, estimate_pfeedback, fit_harmonic, reference_frequency, sine_start
 from .relay import RelayEstimate, estimate_relay, relay_levels
 
 SCHEMA = "hydrostand-estimate/1"
-from .defaults import EXPERIMENT_NAMES  # noqa: E402  (re-exported)
+from ..defaults import EXPERIMENT_NAMES  # noqa: E402  (re-exported)
 
 Result = Union[MeanderEstimate, PFeedbackEstimate, RelayEstimate]
 

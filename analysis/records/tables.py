@@ -1,10 +1,7 @@
-"""Measurements in, whatever their source: a table ``t,u,y[,r]`` (s, %, kgf; other column
-names and units are recognised, :mod:`analysis.columns`), a recorded run directory, or a bus
-capture (decoded with the stand's DBC).
-
-Everything downstream works on :class:`Record`: uniformly sampled arrays plus where they came
-from. Several files given together form one data set (a list of records, never concatenated
-across gaps: each keeps its own time base).
+"""Tables of samples in and out: a table ``t,u,y[,r]`` (s, %, kgf; other column names and units
+are recognised, :mod:`analysis.records.columns`) as other loggers write it — its text encoding,
+delimiter, decimal mark, header and row of units told from the file — read into a
+:class:`~analysis.records.record.Record`, and a record written back as CSV.
 """
 from __future__ import annotations
 
@@ -12,150 +9,15 @@ import csv
 import gzip
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable
 
 import numpy as np
 
 from gateway.errors import DataError
-from gateway.runs import is_run_dir, load_run
 
 from .columns import ColumnError, map_header, positional, written_unit
-from .glitches import remove_glitches
-from .limits import held_stretches
-
-#: relative spread of sample intervals above which a record is resampled to a uniform grid
-JITTER_TOLERANCE = 0.05
-#: an interval this many times the usual one is a gap in the data (samples missing), not jitter
-GAP_INTERVALS = 5
-#: the words of the note ``make_record`` leaves on a record whose gaps it bridged; the note
-#: ``split_at_gaps`` takes off the parts it cuts there
-BRIDGED_NOTE = "were bridged by resampling"
-
-
-@dataclass
-class Record:
-    """One uniformly sampled record: time (s), command (%), force (kgf), reference (kgf or NaN)."""
-
-    t: np.ndarray
-    u: np.ndarray
-    y: np.ndarray
-    r: np.ndarray
-    source: str
-    experiment: str | None = None          #: "meander" | "pfeedback" | "relay" | None (unknown)
-    meta: dict[str, Any] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-    #: samples that fall inside a gap of the data, filled in by resampling (None: no gap);
-    #: :func:`split_at_gaps` cuts them out
-    bridged: np.ndarray | None = None
-
-    @property
-    def dt(self) -> float:
-        return float((self.t[-1] - self.t[0]) / (len(self.t) - 1))
-
-    @property
-    def duration_s(self) -> float:
-        return float(self.t[-1] - self.t[0])
-
-    def __len__(self) -> int:
-        return len(self.t)
-
-    def has_reference(self) -> bool:
-        return bool(np.isfinite(self.r).any())
-
-    def slice(self, start: int, stop: int) -> "Record":
-        return Record(self.t[start:stop], self.u[start:stop], self.y[start:stop],
-                      self.r[start:stop], self.source, self.experiment, self.meta, list(self.notes),
-                      None if self.bridged is None else self.bridged[start:stop])
-
-
-def make_record(t, u, y, r=None, source: str = "<arrays>", experiment: str | None = None,
-                meta: dict | None = None, min_samples: int = 20) -> Record:
-    """Validate and tidy arrays into a :class:`Record`.
-
-    Rejects (with :class:`DataError`) too few samples, non-finite time, time that does not
-    increase; drops rows with non-finite u or y (counted in ``notes``); resamples to a uniform
-    grid if the sampling jitters by more than 5 %; replaces glitches in the force (1-3 samples
-    far off the trend, :mod:`analysis.glitches`), noted too."""
-    t = np.asarray(t, float)
-    u = np.asarray(u, float)
-    y = np.asarray(y, float)
-    r = np.full_like(t, np.nan) if r is None else np.asarray(r, float)
-    notes: list[str] = []
-    if not (len(t) == len(u) == len(y) == len(r)):
-        raise DataError(f"{source}: columns have different lengths")
-    good = np.isfinite(t) & np.isfinite(u) & np.isfinite(y)
-    if not good.all():
-        notes.append(f"dropped {int((~good).sum())} rows with missing or non-finite t, u or y")
-        t, u, y, r = t[good], u[good], y[good], r[good]
-    if len(t) < min_samples:
-        raise DataError(f"{source}: only {len(t)} usable samples; need at least {min_samples}")
-    dts = np.diff(t)
-    if (dts <= 0).any():
-        order = np.argsort(t, kind="stable")
-        t, u, y, r = t[order], u[order], y[order], r[order]
-        keep = np.concatenate([[True], np.diff(t) > 0])
-        notes.append(f"time was not increasing: sorted, dropped {int((~keep).sum())} duplicate times")
-        t, u, y, r = t[keep], u[keep], y[keep], r[keep]
-        dts = np.diff(t)
-        if len(t) < min_samples:
-            raise DataError(f"{source}: only {len(t)} samples with distinct times")
-    med = float(np.median(dts))
-    bridged = None
-    if np.max(np.abs(dts - med)) > JITTER_TOLERANCE * med:
-        gap = dts > GAP_INTERVALS * med
-        n = int(round((t[-1] - t[0]) / med)) + 1
-        grid = t[0] + med * np.arange(n)
-        # the command is held (zero-order hold), the force interpolated
-        idx = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 1)
-        if gap.any():
-            notes.append(f"{int(gap.sum())} gap(s) longer than {GAP_INTERVALS} sample intervals "
-                         f"(samples missing) {BRIDGED_NOTE}")
-            bridged = np.concatenate([gap, [False]])[idx] & (grid > t[idx])
-        u = u[idx]
-        r = r[idx]
-        y = np.interp(grid, t, y)
-        t = grid
-        notes.append(f"sampling was irregular: resampled to a uniform {med * 1e3:.3g} ms grid")
-    y, glitches = remove_glitches(y)
-    if glitches.count:
-        notes.append(glitches.note())
-    if len(t) > 1:
-        for held in held_stretches(u, y, float(np.median(np.diff(t)))):
-            notes.append(f"{held.describe()}: a hydraulic limit (relief valve, stroke end, pressure "
-                         "limit), left out of the model's error")
-    return Record(t, u, y, r, source, experiment, dict(meta or {}), notes, bridged)
-
-
-def split_at_gaps(rec: Record, min_samples: int = 20) -> list[Record]:
-    """The parts of ``rec`` between its gaps (samples missing, bridged by resampling), each a
-    record of its own: a model run across a gap would integrate a command nobody recorded
-    against a force that was only interpolated. Parts shorter than ``min_samples`` are dropped
-    (said in the notes of the first part kept). A record without gaps comes back alone."""
-    if rec.bridged is None or not rec.bridged.any():
-        return [rec]
-    z = np.concatenate([[1], rec.bridged.astype(int), [1]])
-    edges = np.flatnonzero(np.diff(z))
-    spans = list(zip(edges[::2].tolist(), edges[1::2].tolist()))
-    kept = [(a, b) for a, b in spans if b - a >= min_samples]
-    if not kept:
-        raise DataError(f"{rec.source}: no stretch between its gaps (samples missing) has "
-                        f"{min_samples} samples")
-    parts = []
-    for k, (a, b) in enumerate(kept):
-        part = rec.slice(a, b)
-        part.bridged = None
-        part.source = f"{rec.source} [part {k + 1} of {len(kept)}, from {rec.t[a] - rec.t[0]:.3f} s]"
-        part.notes = [n for n in part.notes if BRIDGED_NOTE not in n]
-        if k == 0:
-            part.notes.append(f"split at {len(spans) - 1} gap(s) in the data (samples missing) "
-                              f"into {len(kept)} part(s), each a record of its own"
-                              + (f"; {len(spans) - len(kept)} part(s) under {min_samples} samples dropped"
-                                 if len(kept) < len(spans) else ""))
-        parts.append(part)
-    return parts
-
+from .record import Record, make_record
 
 #: a sampling interval (s) beyond which the time column is suspected to be in another unit
 SLOW_SAMPLING_S = 0.1
@@ -182,13 +44,13 @@ class _Layout:
 _SNIFF_BYTES = 1 << 20
 
 
-def _open(path: Path, mode: str, **kwargs):
+def open_path(path: Path, mode: str, **kwargs):
     """``path`` opened in ``mode`` ("rb", "rt"), through gzip if it ends in ``.gz``."""
     return (gzip.open(path, mode, **kwargs) if path.suffix.lower() == ".gz"
             else path.open(mode, **kwargs))
 
 
-def _suffix(path: Path) -> str:
+def type_suffix(path: Path) -> str:
     """The file's type suffix, lower case, ``.gz`` looked through (``"a.CSV.gz"`` -> ``.csv``;
     ``""``: none)."""
     suffixes = [s.lower() for s in path.suffixes]
@@ -211,7 +73,7 @@ def _encoding(path: Path) -> str:
     Windows-1251 if its non-ASCII bytes are mostly runs of Cyrillic letters (a Russian
     Windows logger: 'Время, с;Усилие, кгс'), else Latin-1 (a Western one: 'Kraft [kN]',
     'Zeit [µs]' in cp1252/ISO 8859-1)."""
-    with _open(path, "rb") as fh:
+    with open_path(path, "rb") as fh:
         head = fh.read(_SNIFF_BYTES)
     try:
         head.decode("utf-8")
@@ -224,7 +86,7 @@ def _encoding(path: Path) -> str:
 
 
 def _open_text(path: Path, encoding: str = "utf-8-sig"):
-    return _open(path, "rt", newline="", encoding=encoding)
+    return open_path(path, "rt", newline="", encoding=encoding)
 
 
 def _split(line: str, delimiter: str | None) -> list[str]:
@@ -316,7 +178,7 @@ def read_csv(path: str | Path) -> Record:
 
     Comma, semicolon, tab or blank separated, a decimal comma recognised; the header names the
     columns and may give their units (``time [ms]``, ``force_N``, ``u_V``: see
-    :mod:`analysis.columns`), which are converted to s, %, kgf with a note; a table without a
+    :mod:`analysis.records.columns`), which are converted to s, %, kgf with a note; a table without a
     header is read as t,u,y[,r] in that order, also with a note.
 
     Read with pyarrow's multi-threaded CSV reader (an hour at 500 Hz in well under a second);
@@ -418,71 +280,3 @@ def write_csv(record: Record, path: str | Path) -> None:
         for row in zip(record.t, record.u, record.y, record.r):
             w.writerow([repr(float(v)) for v in row])
 
-
-def read_run(path: str | Path) -> Record:
-    run = load_run(path)
-    if len(run) == 0:
-        raise DataError(f"{path}: the run has no samples")
-    rec = make_record(run.t, run.u, run.y, run.r, source=str(path), experiment=run.experiment,
-                      meta=run.meta)
-    rec.notes = run.notes + rec.notes
-    return rec
-
-
-def _is_capture(path: Path) -> bool:
-    """A bus capture by its suffixes (``.log``, ``.blf``, ``.asc.gz``, ...); a ``.csv`` is a
-    capture only if its header is python-can's (``timestamp,arbitration_id,...``)."""
-    suffix = _suffix(path)
-    if not suffix:
-        return False
-    if suffix == ".csv":
-        try:
-            with _open(path, "rt", errors="replace") as fh:
-                header = fh.readline().lower()
-        except OSError:
-            return False
-        return "arbitration_id" in header
-    try:
-        from captures import SUFFIXES
-    except ImportError:  # pragma: no cover - captures ships with the project
-        return False
-    return suffix in SUFFIXES
-
-
-def load_capture(path: str | Path, strict: bool = False, **options) -> Record:
-    """A bus capture as a record (t, u, y, r = NaN), decoded with the stand's DBC
-    (:func:`captures.decode.capture_run`). A capture holding several runs needs ``run=i``. A
-    damaged capture gives what was decoded before the damage, with a note naming the position
-    (``strict=True``: raise :class:`captures.CaptureDamaged` instead)."""
-    from captures.decode import capture_run
-    sig, meta, notes = capture_run(path, strict=strict, **options)
-    rec = make_record(sig["t"], sig["u"], sig["y"], sig["r"], source=str(path), experiment=None,
-                      meta=meta)
-    rec.notes = notes + rec.notes
-    return rec
-
-
-def load(path: str | Path) -> Record:
-    """Load one input: run directory, CSV ``t,u,y[,r]``, or a bus capture (decoded with the DBC)."""
-    path = Path(path)
-    if not path.exists():
-        raise DataError(f"{path} does not exist")
-    if path.is_dir():
-        if is_run_dir(path):
-            return read_run(path)
-        raise DataError(f"{path} is a directory but not a run (no run.json)")
-    if _is_capture(path):
-        return load_capture(path)
-    if _suffix(path) in TABLE_SUFFIXES:
-        return read_csv(path)
-    raise DataError(f"{path}: unknown input type; give a table of samples (.csv, .tsv, .txt, .dat: "
-                    "t,u,y[,r]), a run directory or a bus capture (.log, .asc, .blf, .trc, .mf4); "
-                    "each optionally .gz")
-
-
-def load_all(paths: Iterable[str | Path]) -> list[Record]:
-    """Load every input as :func:`load` does, each split at its gaps (:func:`split_at_gaps`)."""
-    records = [part for p in paths for part in split_at_gaps(load(p))]
-    if not records:
-        raise DataError("no input given")
-    return records

@@ -62,7 +62,7 @@ import numpy as np
 
 from gateway.errors import DataError
 
-from .data import Record
+from ..records.record import Record
 from .meander import _clipped_mask, mean_ci
 
 #: π²/8: the factor by which eq. (4) with the peak overestimates g for a triangle

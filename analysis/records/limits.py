@@ -2,7 +2,7 @@ r"""A force held at a hydraulic limit: stretches the model must not be asked to 
 
 A relief valve, a stroke end or the stand's pressure limit stops the force at a level for
 seconds while the valve command keeps pushing; the dynamometer's noise stays on top, so it is
-not the dynamometer's flat clip (:func:`analysis.fit.clipped_mask`). No effect of the plant
+not the dynamometer's flat clip (:func:`analysis.identification.windows.clipped_mask`). No effect of the plant
 model should bend to explain it: the diagnosis would add wrong effects (a direction-dependent
 delay, a load-pressure law) and call the rest unexplained. Such stretches are left out of the
 error like clipped readings (the command history runs on through them) and said in a note.

@@ -18,7 +18,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .metrics import Evaluation, reversal_mask
+from ..identification.metrics import Evaluation, reversal_mask
 
 
 def pyplot():

@@ -10,16 +10,16 @@ by accident of the records' command levels).
 
 The check: with the other parameters of the fitted model held, g and Δ enter the windowed
 objective (affinely, exactly for every effect that does not make the rate depend on the force,
-to first order otherwise; :func:`analysis.fit.gain_trend_columns`), so a g or a Δ of its own
-for every record is one small linear least-squares problem, solved from each record's 2×2
-Gram matrix:
+to first order otherwise; :func:`analysis.identification.projection.gain_trend_columns`), so a g
+or a Δ of its own for every record is one small linear least-squares problem, solved from each
+record's 2×2 Gram matrix:
 
 .. math::  \min_{\delta}\ \sum_i \lVert s_i + A_i\,\delta_i \rVert^2, \qquad
            \delta_i = (\delta g_i, \delta\Delta_i),
 
 with ``δg_i`` (or ``δΔ_i``) either shared by all records or free per record. Of the three
 per-record designs (gain, trend, both) the one with the lowest BIC is judged against the
-shared fit the same way a catalogue candidate is (:mod:`analysis.significance`: a big enough,
+shared fit the same way a catalogue candidate is (:mod:`.significance`: a big enough,
 significant, consistent cut of the error above the noise).
 
 What the records' values follow decides what it means: their order (Spearman ρ with the
@@ -32,7 +32,7 @@ apart, and the separating experiment is named (the first run again at the end).
 The model's other parameters were fitted with one g for all records, so a change between the
 runs may have bent them too (a valve play's width soaks up part of a gain that grows run after
 run). When the per-record values with those parameters held leave more than
-:data:`~analysis.significance.UNEXPLAINED_RATIO` of the noise floor but help, the chosen design
+:data:`~.significance.UNEXPLAINED_RATIO` of the noise floor but help, the chosen design
 is fitted once more with the other parameters free as well, g and Δ projected per record at
 every trial of them (variable projection, :func:`refit_per_record`); the better of the two
 is judged. The parameter count is the same: the other parameters were free in the shared fit
@@ -49,8 +49,10 @@ from scipy import optimize, stats
 
 from plant import PlantModel
 
-from . import fit as F
-from .data import Record
+from ..identification.fit import DIFF_STEP, Parameterization
+from ..identification.projection import gain_trend_columns
+from ..identification.windows import Piece, window_sse
+from ..records.record import Record
 from .significance import UNEXPLAINED_RATIO, ErrorCut, error_cut
 
 #: |Spearman ρ| from which the records' gains (or trends) are said to follow their order or
@@ -160,12 +162,12 @@ def record_level(rec: Record) -> float:
     return float(a.mean()) if len(a) else 0.0
 
 
-def _systems(spec: str, values: Mapping[str, float], pieces: Sequence[F.Piece],
+def _systems(spec: str, values: Mapping[str, float], pieces: Sequence[Piece],
              rec_of: np.ndarray, n_rec: int) -> tuple[np.ndarray, ...]:
     """The objective's residual, affine in g and Δ at ``values``
-    (:func:`analysis.fit.gain_trend_columns`: ``s1``, ``A``, ``β0``), and each record's 2×2
-    Gram matrix AᵢᵀAᵢ and right-hand side −Aᵢᵀsᵢ."""
-    s1, A, beta0 = F.gain_trend_columns(spec, values, pieces)
+    (:func:`analysis.identification.projection.gain_trend_columns`: ``s1``, ``A``, ``β0``), and
+    each record's 2×2 Gram matrix AᵢᵀAᵢ and right-hand side −Aᵢᵀsᵢ."""
+    s1, A, beta0 = gain_trend_columns(spec, values, pieces)
     gram = np.zeros((n_rec, 2, 2))
     rhs = np.zeros((n_rec, 2))
     for i in range(n_rec):
@@ -186,7 +188,7 @@ def _design(s1: np.ndarray, A: np.ndarray, gram: np.ndarray, rhs: np.ndarray,
 REFIT_TOL = 1e-5
 
 
-def refit_per_record(model: PlantModel, pieces: Sequence[F.Piece], rec_of: np.ndarray,
+def refit_per_record(model: PlantModel, pieces: Sequence[Piece], rec_of: np.ndarray,
                      n_rec: int, free: tuple[bool, bool], max_nfev: int | None = None
                      ) -> dict[str, float]:
     """Fit ``model``'s parameters other than g and Δ with g and Δ free per record where
@@ -194,7 +196,7 @@ def refit_per_record(model: PlantModel, pieces: Sequence[F.Piece], rec_of: np.nd
     values (g and Δ as they were)."""
     spec, values = model.spec, model.params()
     others = [n for n in values if n not in ("g", "delta")]
-    par = F.Parameterization(spec, values, others)
+    par = Parameterization(spec, values, others)
     if not par.free:
         return values
 
@@ -206,7 +208,7 @@ def refit_per_record(model: PlantModel, pieces: Sequence[F.Piece], rec_of: np.nd
     eps = 1e-9 * np.maximum(1.0, np.abs(hi - lo))
     x0 = np.clip(par.to_x(values), lo + eps, hi - eps)
     res = optimize.least_squares(fun, x0, bounds=(lo, hi), method="trf", x_scale="jac",
-                                 diff_step=F.DIFF_STEP, ftol=REFIT_TOL, xtol=REFIT_TOL,
+                                 diff_step=DIFF_STEP, ftol=REFIT_TOL, xtol=REFIT_TOL,
                                  max_nfev=max_nfev or 20 * (len(x0) + 1))
     return par.to_values(res.x)
 
@@ -226,10 +228,10 @@ def _best_design(s1: np.ndarray, A: np.ndarray, gram: np.ndarray, rhs: np.ndarra
     return best[1:]
 
 
-def between_records(model: PlantModel, pieces: Sequence[F.Piece], records: Sequence[Record],
+def between_records(model: PlantModel, pieces: Sequence[Piece], records: Sequence[Record],
                     floor: float, refit: bool = True) -> BetweenRecords | None:
     """Free fitted ``model``'s g, Δ or both per record (the design with the lowest BIC) and
-    judge it against them shared (:func:`analysis.significance.error_cut`) on the noise floor
+    judge it against them shared (:func:`.significance.error_cut`) on the noise floor
     ``floor`` (objective RMSE, kgf). ``refit``: when the per-record values with the other
     parameters held help but leave more than UNEXPLAINED_RATIO of the floor, refit those too
     (:func:`refit_per_record`). None for fewer than two records with evaluated samples."""
@@ -246,8 +248,8 @@ def between_records(model: PlantModel, pieces: Sequence[F.Piece], records: Seque
     # the reference from the same linearization, g and Δ shared: the fitted model's own error
     # (exactly so for a model linear in g and Δ, whose fit projects them)
     r0 = s1 + A @ shared
-    ref_w = F.window_sse(r0, pieces)
-    st = error_cut(F.window_sse(r, pieces), ref_w, floor, n, k)
+    ref_w = window_sse(r0, pieces)
+    st = error_cut(window_sse(r, pieces), ref_w, floor, n, k)
     g0, d0 = beta0 + shared
     refitted: dict[str, float] = {}
     if refit and st.helps and st.objective_rmse > UNEXPLAINED_RATIO * floor \
@@ -261,7 +263,7 @@ def between_records(model: PlantModel, pieces: Sequence[F.Piece], records: Seque
             # helped with them held may be needless now)
             beta0 = beta_b
             varies, delta, r, k = _best_design(s1b, Ab, gram_b, rhs_b, rec_of)
-            st = error_cut(F.window_sse(r, pieces), ref_w, floor, n, k)
+            st = error_cut(window_sse(r, pieces), ref_w, floor, n, k)
     shifts = [RecordShift(source=records[j].source, g=float(beta0[0] + delta[i, 0]),
                           gain=float((beta0[0] + delta[i, 0]) / g0) if g0 else math.nan,
                           delta=float(beta0[1] + delta[i, 1]), level=record_level(records[j]))

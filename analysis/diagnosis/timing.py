@@ -21,7 +21,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .metrics import RecordSimulation
+from ..identification.metrics import RecordSimulation
 
 #: residual averaged over this long before and after a step, s
 SPAN_S = 0.04

@@ -32,10 +32,10 @@ import numpy as np
 from gateway.errors import DataError
 from plant import PlantModel
 
+from ..identification.compare import Comparison, compare, interval_label, jsonable
+from ..identification.windows import WINDOW_S
+from ..records.record import Record
 from . import plots
-from .compare import Comparison, compare, interval_label, jsonable
-from .data import Record
-from .fit import WINDOW_S
 
 HISTORY_FILE = "history.json"
 REPORT_FILE = "report.html"

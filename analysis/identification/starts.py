@@ -1,0 +1,76 @@
+"""Start values of the fit, so that it does not depend on luck: what the start grids need to
+know about the data (:class:`DataSummary`), each effect's grid of physically sensible starts
+scaled to the data (:meth:`plant.Effect.start_grid`), and the delay τ from a grid of delays with
+g and Δ projected (:mod:`.projection`), refined by a bounded scalar search.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+from scipy import optimize
+
+from plant import PlantModel
+
+from .projection import project_gain_trend
+from .windows import Piece
+
+
+@dataclass
+class DataSummary:
+    """What the start grids need to know about the data."""
+
+    dt: float
+    u_abs_levels: list[float]      #: distinct |u| levels (≤ 8) or quantiles
+    u_abs_max: float
+    y_abs_max: float
+    y_span: float
+    duration_s: float              #: the longest piece's end, s since its record began
+
+    @classmethod
+    def of(cls, pieces: Sequence[Piece]) -> "DataSummary":
+        u = np.concatenate([p.u for p in pieces])
+        y = np.concatenate([p.y for p in pieces])
+        ua = np.abs(u[u != 0]) if np.any(u != 0) else np.array([1.0])
+        levels = np.unique(np.round(ua, 3))
+        if len(levels) > 8:
+            levels = np.quantile(ua, [0.25, 0.5, 0.75, 0.95])
+        return cls(dt=min(p.dt for p in pieces), u_abs_levels=[float(v) for v in levels],
+                   u_abs_max=float(ua.max()), y_abs_max=float(np.abs(y).max()),
+                   y_span=float(np.ptp(y)),
+                   duration_s=max(p.t0 + len(p.u) * p.dt for p in pieces))
+
+
+def effect_starts(effect: str, summary: DataSummary, values: Mapping[str, float]) -> list[dict]:
+    """The effect's start grid (:meth:`plant.Effect.start_grid`) for these data and base fit."""
+    from plant.effects import effect_class
+    return effect_class(effect).start_grid(summary, values)
+
+
+def initial_delay(pieces: Sequence[Piece], spec: str = "base",
+                  values: Mapping[str, float] | None = None,
+                  tau_max: float = 1.0) -> tuple[dict[str, float], float]:
+    """τ (continuous) with g, Δ projected: a grid of delays, then a bounded scalar search around
+    the best grid point. Returns the values and the SSE."""
+    values = dict(values or PlantModel.from_spec(spec).params())
+    dt = min(p.dt for p in pieces)
+    tau_max = min(tau_max, 0.45 * min(p.window for p in pieces) * dt)
+    grid = np.unique(np.concatenate([np.arange(0, min(0.1, tau_max) + 1e-12, max(dt, 0.005)),
+                                     np.linspace(0.1, tau_max, 13) if tau_max > 0.1 else []]))
+
+    def sse(tau: float) -> tuple[dict, float]:
+        return project_gain_trend(spec, {**values, "tau": float(tau)}, pieces)
+
+    scored = [(sse(t)[1], t) for t in grid]
+    scored.sort()
+    best_val, best_tau = scored[0]
+    i = int(np.searchsorted(grid, best_tau))
+    lo = grid[max(0, i - 1)]
+    hi = grid[min(len(grid) - 1, i + 1)]
+    if hi > lo:
+        res = optimize.minimize_scalar(lambda t: sse(t)[1], bounds=(lo, hi), method="bounded",
+                                       options={"xatol": max(1e-5, dt * 1e-3)})
+        if res.fun < best_val:
+            best_tau = float(res.x)
+    return sse(best_tau)

@@ -1,0 +1,304 @@
+"""The data set cut for the windowed free-run simulation, and that simulation.
+
+The error of a model is its *free-run* simulation against the measurement over windows (default
+2 s), each window started from the measured force; the command history (delay line, valve and
+reversal states) runs continuously through the record. A record becomes one :class:`Piece`, or
+one per stretch whose force reading is neither clipped at the dynamometer's range nor held at a
+hydraulic limit; its first :data:`LEAD_S` only prime the command history. Here: the pieces (all
+windows, or an evenly spread subset for screening), their simulation (pieces with the same
+sample time and window integrated side by side), the residual (window starts measured, or
+re-estimated as the fit's objective does) and its sums per window.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from gateway.errors import DataError
+from plant import PlantModel
+from plant.model import Drive
+
+from ..records.limits import held_mask
+from ..records.record import Record
+
+#: default window of the free-run error, s
+from ..defaults import WINDOW_S  # noqa: E402  (re-exported)
+#: lead-in at the start of every record, s: the commands before a record are unknown, so its
+#: first samples only prime the command history (delay line, valve and reversal states)
+LEAD_S = 0.5
+
+
+@dataclass
+class Piece:
+    """A contiguous stretch of one record, simulated in one pass.
+
+    The first ``warmup`` samples only prime the command history (delay line, valve and
+    reversal states); the error is taken from there on, in windows of ``window`` samples each
+    started from the measured force."""
+
+    u: np.ndarray
+    y: np.ndarray
+    dt: float
+    window: int
+    warmup: int = 0
+    record: int = 0           #: index of the record in the data set
+    start: int = 0            #: index of u[0] in the record
+    t0: float = 0.0           #: time of u[0] since the record's first sample, s
+
+    @property
+    def n_eval(self) -> int:
+        return len(self.u) - self.warmup
+
+    @property
+    def n_windows(self) -> int:
+        return -(-self.n_eval // self.window)
+
+    def window_index(self) -> np.ndarray:
+        """Window number (within the piece) of every evaluated sample."""
+        return np.arange(self.n_eval) // self.window
+
+    def horizon(self) -> np.ndarray:
+        """Samples since the start of the window, for every evaluated sample."""
+        return np.arange(self.n_eval) % self.window
+
+
+def window_samples(dt: float, window_s: float) -> int:
+    return max(2, int(round(window_s / dt)))
+
+
+def lead_samples(n: int, dt: float, window: int, lead_s: float = LEAD_S) -> int:
+    """Lead-in of a record: ``lead_s``, but at most a quarter window and a tenth of the record."""
+    return int(min(round(lead_s / dt), window // 4, n // 10))
+
+
+def clipped_mask(y: np.ndarray, run: int = 5) -> np.ndarray:
+    """Samples where the dynamometer sits at the record's extreme value for ``run`` or more
+    samples in a row: a reading clipped at its range (the true force is unknown there)."""
+    y = np.asarray(y, float)
+    mask = np.zeros(len(y), bool)
+    for extreme in (y.max(), y.min()):
+        at = np.concatenate([[0], (y == extreme).astype(int), [0]])
+        edges = np.flatnonzero(np.diff(at))
+        for a, b in zip(edges[::2], edges[1::2]):
+            if b - a >= run:
+                mask[a:b] = True
+    return mask
+
+
+def valid_stretches(rec: Record, min_samples: int) -> list[tuple[int, int]]:
+    """``(start, stop)`` of the stretches of a record whose force reading is not clipped and not
+    held at a hydraulic limit (:mod:`analysis.records.limits`), at least ``min_samples`` long."""
+    bad = clipped_mask(rec.y) | held_mask(rec.u, rec.y, rec.dt)
+    if not bad.any():
+        return [(0, len(rec.y))]
+    z = np.concatenate([[1], bad.astype(int), [1]])
+    edges = np.flatnonzero(np.diff(z))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2]) if b - a >= min_samples]
+
+
+def pieces_from_records(records: Sequence[Record], window_s: float = WINDOW_S,
+                        lead_s: float = LEAD_S) -> list[Piece]:
+    """The evaluated pieces of a data set: one per record, after its lead-in, or one per
+    unclipped stretch when the force reading hits the dynamometer's range (the clipped samples
+    only carry the command history into the next stretch)."""
+    if not records:
+        raise DataError("no data to fit")
+    out = []
+    for i, rec in enumerate(records):
+        n = len(rec.u)
+        w = window_samples(rec.dt, window_s)
+        lead = lead_samples(n, rec.dt, w, lead_s)
+        stretches = valid_stretches(rec, max(2, w // 4))
+        if stretches == [(0, n)]:
+            out.append(Piece(rec.u, rec.y, rec.dt, max(2, min(w, n - lead)), lead, i, 0, 0.0))
+            continue
+        for a, b in stretches:
+            first = max(a, lead)
+            if b - first < 2:
+                continue
+            s0 = max(0, first - max(lead, int(round(lead_s / rec.dt))))
+            out.append(Piece(rec.u[s0:b], rec.y[s0:b], rec.dt, max(2, min(w, b - first)),
+                             first - s0, i, s0, float(rec.t[s0] - rec.t[0])))
+    if not out:
+        raise DataError("no usable data: every record is too short or its force reading is "
+                        "clipped at the dynamometer's range throughout")
+    return out
+
+
+def screening_pieces(records: Sequence[Record], window_s: float = WINDOW_S,
+                     max_windows: int = 150, chunk_windows: int = 10,
+                     warmup_s: float = 1.0) -> tuple[list[Piece], bool]:
+    """A subset of windows for fast screening: all windows if there are at most ``max_windows``,
+    else evenly spread chunks of ``chunk_windows`` windows, each with ``warmup_s`` of command
+    history before it. Returns ``(pieces, is_subset)``."""
+    return subset_pieces(pieces_from_records(records, window_s), max_windows, chunk_windows,
+                         warmup_s)
+
+
+def subset_pieces(full: Sequence[Piece], max_windows: int = 150, chunk_windows: int = 10,
+                  warmup_s: float = 1.0) -> tuple[list[Piece], bool]:
+    """See :func:`screening_pieces` (same, from prepared pieces)."""
+    full = list(full)
+    total = sum(p.n_windows for p in full)
+    if total <= max_windows:
+        return full, False
+    n_chunks = max(1, max_windows // chunk_windows)
+    # chunks per piece in proportion to its windows
+    share = np.array([p.n_windows for p in full], float)
+    alloc = np.floor(n_chunks * share / share.sum()).astype(int)
+    out: list[Piece] = []
+    for p, n in zip(full, alloc):
+        if n <= 0:
+            continue
+        W = p.window
+        span = chunk_windows * W
+        warm = int(round(warmup_s / p.dt))
+        N = len(p.u)
+        if N - p.warmup <= span or n * span >= N - p.warmup:
+            out.append(p)
+            continue
+        starts = np.linspace(p.warmup, N - span, n).astype(int)
+        for s in starts:
+            a = max(0, s - warm)
+            out.append(Piece(p.u[a:s + span], p.y[a:s + span], p.dt, W, s - a, p.record,
+                             p.start + a, p.t0 + a * p.dt))
+    return (out, True) if out else (full, False)
+
+
+def _cut_windows(model: PlantModel, piece: Piece) -> tuple[Drive, np.ndarray, list[dict] | None]:
+    """The piece's drive (delay, valve, flow preparation over the whole piece, so the command
+    history runs through) cut into its evaluated windows, the measured starts, and the sensor
+    filters' states at the starts (None without SENSOR effects)."""
+    u, y, dt, W, a = piece.u, piece.y, piece.dt, piece.window, piece.warmup
+    state = model.new_state(1, dt, 0.0, u[0], piece.t0)
+    drv = model.drive(u[None, :], dt, state)
+    n = len(u) - a
+    nw = -(-n // W)
+    pad = nw * W - n
+
+    def cut(arr):
+        if arr is None:
+            return None
+        arr = arr[0, a:]
+        if pad:
+            arr = np.concatenate([arr, np.repeat(arr[-1:], pad)])
+        return arr.reshape(nw, W)
+
+    wdrv = Drive(q=cut(drv.q), aux=[cut(x) for x in drv.aux], dist=cut(drv.dist))
+    steps = a + np.arange(nw) * W
+    sensor = model.window_filter_states(drv, y, dt, steps) if model.has_sensor_effects else None
+    return wdrv, y[steps], sensor
+
+
+def simulate_pieces(model: PlantModel, pieces: Sequence[Piece]) -> list[np.ndarray]:
+    """Windowed free-run simulation of several pieces: ŷ for the evaluated samples of each.
+
+    Pieces with the same sample time and window length are integrated together, all their
+    windows side by side (one pass of the integrator, however many pieces)."""
+    out: list[np.ndarray | None] = [None] * len(pieces)
+    groups: dict[tuple[float, int], list[int]] = {}
+    for i, p in enumerate(pieces):
+        groups.setdefault((p.dt, p.window), []).append(i)
+    for (dt, W), idx in groups.items():
+        cuts = [_cut_windows(model, pieces[i]) for i in idx]
+        if len(cuts) == 1:
+            drv, starts, sensor = cuts[0]
+        else:
+            def cat(arrs):
+                return None if arrs[0] is None else np.concatenate(arrs, axis=0)
+            drv = Drive(q=np.concatenate([c[0].q for c in cuts], axis=0),
+                        aux=[cat([c[0].aux[j] for c in cuts]) for j in range(len(cuts[0][0].aux))],
+                        dist=cat([c[0].dist for c in cuts]))
+            starts = np.concatenate([c[1] for c in cuts])
+            sensor = None if cuts[0][2] is None else [
+                {k: np.concatenate([c[2][j][k] for c in cuts]) for k in cuts[0][2][j]}
+                for j in range(len(cuts[0][2]))]
+        yy = model.integrate_from_readings(drv, starts, dt, sensor)[:, :-1]
+        row = 0
+        for i, (d, _, _) in zip(idx, cuts):
+            k = d.q.shape[0]
+            out[i] = yy[row:row + k].reshape(-1)[:pieces[i].n_eval]
+            row += k
+    return out  # type: ignore[return-value]
+
+
+def simulate_piece(model: PlantModel, piece: Piece) -> np.ndarray:
+    """Windowed free-run simulation of one piece: ŷ for the evaluated samples (after warm-up).
+
+    Same computation as :meth:`PlantModel.simulate_windows` (which it equals for
+    ``warmup = 0``), with the windows starting after the warm-up."""
+    return simulate_pieces(model, [piece])[0]
+
+
+def window_means(r: np.ndarray, W: int) -> np.ndarray:
+    """Mean of ``r`` over consecutive windows of ``W`` samples (the last may be shorter)."""
+    n = len(r)
+    full = n // W
+    nw = -(-n // W)
+    out = np.empty(nw)
+    if full:
+        out[:full] = r[:full * W].reshape(full, W).mean(axis=1)
+    if nw > full:
+        out[-1] = r[full * W:].mean()
+    return out
+
+
+def demean_windows(r: np.ndarray, W: int) -> np.ndarray:
+    """``r`` minus its mean in each window of ``W`` samples."""
+    m = window_means(r, W)
+    out = np.array(r, float, copy=True)
+    full = len(r) // W
+    if full:
+        out[:full * W].reshape(full, W)[:] -= m[:full, None]
+    if len(m) > full:
+        out[full * W:] -= m[-1]
+    return out
+
+
+def residual(model: PlantModel, pieces: Sequence[Piece], adjust_start: bool = True) -> np.ndarray:
+    """ŷ − y over all evaluated samples of all pieces, concatenated.
+
+    ``adjust_start=True`` (the fit's objective): each window's starting force is re-estimated,
+    i.e. the window's mean residual is removed. The measured start carries one noise draw
+    ``e_0`` that the whole window inherits; fitting through it biases the parameters toward that
+    draw (five to ten times larger parameter errors in tests). ``False``: the error from the
+    measured start, as reported by :mod:`.metrics`."""
+    out = []
+    for p, yhat in zip(pieces, simulate_pieces(model, pieces)):
+        r = yhat - p.y[p.warmup:]
+        out.append(demean_windows(r, p.window) if adjust_start else r)
+    return np.concatenate(out) if len(out) > 1 else out[0]
+
+
+def errors(model: PlantModel, pieces: Sequence[Piece]) -> tuple[np.ndarray, float]:
+    """From one simulation: the objective's squared error per window (starts re-estimated) and
+    the RMSE from the measured starts."""
+    raw = residual(model, pieces, adjust_start=False)
+    adj, k = [], 0
+    for p in pieces:
+        adj.append(demean_windows(raw[k:k + p.n_eval], p.window))
+        k += p.n_eval
+    return window_sse(np.concatenate(adj), pieces), math.sqrt(float(raw @ raw) / len(raw))
+
+
+def window_sse(r: np.ndarray, pieces: Sequence[Piece]) -> np.ndarray:
+    """Sum of squares of a concatenated residual per window, all pieces in order."""
+    out, k = [], 0
+    for p in pieces:
+        seg = r[k:k + p.n_eval]
+        k += p.n_eval
+        out.append(window_means(seg * seg, p.window) * np.diff(
+            np.minimum(np.arange(p.n_windows + 1) * p.window, p.n_eval)))
+    return np.concatenate(out)
+
+
+def window_labels(pieces: Sequence[Piece]) -> np.ndarray:
+    """A global window number for every evaluated sample (clusters for the covariance)."""
+    out, base = [], 0
+    for p in pieces:
+        out.append(p.window_index() + base)
+        base += p.n_windows
+    return np.concatenate(out)
