@@ -248,7 +248,7 @@ def test_the_emulator_runs_a_plugin_and_a_recorded_run_shows_it(tmp_path, bus_sp
     finally:
         emu.terminate()
         emu.wait(10)
-    from analysis.data import read_run
+    from analysis import read_run
     rec = read_run(tmp_path / "run")
     # the force ripples at 2.5 Hz on top of the meander's ramps: the detrended force's spectrum
     resid = np.diff(rec.y) / rec.dt - np.convolve(np.diff(rec.y) / rec.dt, np.ones(51) / 51, "same")
