@@ -34,6 +34,7 @@ from scipy.linalg import expm
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
 from scipy.signal import lfilter, ss2tf
 
+from .evidence import AMBIGUITY_RATIO, BASE_LOOK_ALIKES, Ambiguity, Evidence, separating_experiment
 from .params import ModelError, Param
 from .start_grids import and_less_delay, generic_starts, renamed, warming_starts
 
@@ -78,6 +79,9 @@ class Effect:
     #: ``other`` an effect's name or the base model's ``gain``, ``delay`` or ``trend``; the
     #: diagnosis names the experiment when the data do not separate the two
     look_alikes: ClassVar[Mapping[str, str]] = {}
+    #: ``(look-alike, how)``: at a single command amplitude this effect looks exactly like
+    #: the look-alike (``gain``: "a dead zone d only lowers the slope to g·(|u| − d)")
+    at_one_amplitude: ClassVar[tuple[str, str] | None] = None
     #: True if the rate term needs the current force (forces step-by-step integration)
     depends_on_force: ClassVar[bool] = False
     #: False for effects that are not plant physics (disturbances): ``stand diagnose`` does not
@@ -105,6 +109,21 @@ class Effect:
         dominant frequency (amplitude).
         """
         return generic_starts(cls.name, cls.params, s)
+
+    @classmethod
+    def ambiguities(cls, ev: Evidence) -> list[Ambiguity]:
+        """What these data cannot tell apart from this effect, with the experiment that would
+        (the diagnosis asks every effect; ``ev`` says which were tried and which is best). The
+        default: when it was tried on square waves of a single amplitude, its
+        :attr:`at_one_amplitude` look-alike. Override to add the effect's own rules."""
+        ex = ev.excitation
+        if cls.at_one_amplitude is None or not ex.single_amplitude or cls.name not in ev.tried:
+            return []
+        other, how = cls.at_one_amplitude
+        return [Ambiguity([cls.name, other],
+                          f"at a single command amplitude (|u| = {ex.levels[0]:g} %) {how}: it "
+                          f"looks exactly like {BASE_LOOK_ALIKES.get(other, '+' + other)}.",
+                          separating_experiment(cls.name, other))]
 
     def __init__(self, **values: float) -> None:
         known = {p.name: p for p in self.params}
@@ -337,6 +356,30 @@ class Lag(Effect):
         return q + self.time_constant * np.gradient(q, dt)
 
     @classmethod
+    def ambiguities(cls, ev: Evidence) -> list[Ambiguity]:
+        ex = ev.excitation
+        out = []
+        if ex.continuous and not ex.has_steps and cls.name in ev.tried and ev.best != "lag":
+            what = ("a smooth single-frequency signal" if ex.single_frequency
+                    else "smooth, without steps")
+            out.append(Ambiguity(["lag", "delay"],
+                                 f"the command is {what}: a valve lag T shifts a slow command "
+                                 f"like extra delay, so mainly τ + T is determined (fitted τ = "
+                                 f"{ev.base['tau'] * 1e3:.1f} ms may include a lag).",
+                                 separating_experiment("lag", "delay")))
+        if ev.best in ("lag", "sensor_lag"):
+            other = "sensor_lag" if ev.best == "lag" else "lag"
+            alt = ev.errors.get(other)
+            if alt is None or alt <= AMBIGUITY_RATIO * ev.errors[ev.best]:
+                out.append(Ambiguity(
+                    [ev.best, other],
+                    "a first-order filter in the dynamometer acts on the measured force exactly "
+                    "like a valve lag on an integrating plant (the two commute), in open and "
+                    "closed loop alike, unless a valve nonlinearity sits between them: these "
+                    "data cannot tell where the lag is.", separating_experiment("lag", "sensor_lag")))
+        return out
+
+    @classmethod
     def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
         out = []
         for T in (1e-4, 2 * s.dt, 0.01, 0.03, 0.1, 0.3):
@@ -363,7 +406,6 @@ def second_order_step_average_filter(frequency: float, damping: float,
     c, d = e[2, :2] / dt, e[2, 3] / dt       # step average = (∫ over the step) / dt
     b, a = ss2tf(phi, gam[:, None], c[None, :], np.array([[d]]))
     return np.ravel(b), np.ravel(a)
-
 
 @register
 class Resonance(Effect):
@@ -537,6 +579,7 @@ class DeadZone(Effect):
     name = "deadzone"
     stage = Stage.VALVE
     summary = "valve overlap: no flow for |u| below d"
+    at_one_amplitude = ("gain", "a dead zone d only lowers the slope to g·(|u| − d)")
     look_alikes = {
         "gain": (
             "the meander at several amplitudes (e.g. 5, 10, 15, 20 %): a dead zone lowers the "
@@ -578,6 +621,7 @@ class Saturation(Effect):
     name = "saturation"
     stage = Stage.VALVE
     summary = "flow limit: |q| capped at q_max"
+    at_one_amplitude = ("gain", "a flow limit below it caps the slope")
     look_alikes = {
         "gain": (
             "the meander at several amplitudes, some beyond the suspected flow limit: the slope "
@@ -596,6 +640,17 @@ class Saturation(Effect):
     def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
         top = s.u_abs_max
         return [{"saturation.limit": min(100.0, max(0.5, f * top))} for f in (0.3, 0.5, 0.7, 0.9, 1.2)]
+
+    @classmethod
+    def ambiguities(cls, ev: Evidence) -> list[Ambiguity]:
+        out = super().ambiguities(ev)
+        top = ev.excitation.top_command_pct
+        if cls.name in ev.tried and ev.best is None and top < 100.0:
+            out.append(Ambiguity(["saturation"],
+                                 f"the command never exceeds {top:.3g} %: a flow limit above that "
+                                 f"cannot show in these data.",
+                                 "runs at larger command amplitudes"))
+        return out
 
 
 @register
@@ -619,6 +674,7 @@ class Backlash(Effect):
     name = "backlash"
     stage = Stage.VALVE
     summary = "play of total width w between command and spool (hysteresis)"
+    at_one_amplitude = ("gain", "a play of width w lowers the slope to g·(|u| − w/2)")
     look_alikes = {
         "gain": (
             "the meander at several amplitudes, or P-feedback with a harmonic reference"),
@@ -747,6 +803,7 @@ class FlowCurve(Effect):
     name = "flow_curve"
     stage = Stage.VALVE
     summary = "power-law flow characteristic q = sign(u)·u_ref·(|u|/u_ref)^p"
+    at_one_amplitude = ("gain", "a bent flow curve only changes the slope")
     look_alikes = {
         "gain": (
             "the meander at several amplitudes: the ramp slopes grow as |u|^p instead of in "
@@ -802,6 +859,23 @@ class Asymmetry(Effect):
     def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
         return [{"asymmetry.ratio": a} for a in (-0.3, -0.1, 0.0, 0.1, 0.3)]
 
+    @classmethod
+    def ambiguities(cls, ev: Evidence) -> list[Ambiguity]:
+        ex = ev.excitation
+        if not (ex.single_amplitude and cls.name in ev.tried and not ex.has_zero_hold):
+            return []
+        lv = f"{ex.levels[0]:g} %"
+        d = ev.base["delta"]
+        ramp = ev.base["g"] * ex.levels[0]
+        hint = (f" The fitted trend Δ = {d:.3g} kgf/s is {abs(d) / ramp * 100:.1f} % of the "
+                f"ramp rate g·|u|; if the valve's null offset is known to be small, read it as "
+                f"an asymmetry a ≈ {d / ramp:+.3f} (retract {'slower' if d > 0 else 'faster'}).") \
+            if ramp > 0 else ""
+        return [Ambiguity(["asymmetry", "trend"],
+                          f"with the command always ±{lv}, a gain that differs between extend "
+                          f"and retract adds the same force rate as the trend Δ.{hint}",
+                          separating_experiment("asymmetry", "trend"))]
+
 
 @register
 class Supply(Effect):
@@ -853,6 +927,19 @@ class Supply(Effect):
         top = max(s.u_abs_max, 1e-3) / 100.0
         return [{"supply.sag": min(5.0, f / top), "supply.time_constant": T}
                 for f in (0.05, 0.15, 0.4) for T in (0.1, 0.5, 3.0)]
+
+    @classmethod
+    def ambiguities(cls, ev: Evidence) -> list[Ambiguity]:
+        if ev.best != cls.name:
+            return []
+        T = ev.best_params.get("supply.time_constant", math.nan)
+        return [Ambiguity(
+            ["supply", "flow_curve"],
+            f"at a held command the supply's sag settles at k·|u| and the gain at "
+            f"√(1 − k·|u|/100), a degressive flow characteristic of its own: only the sag's "
+            f"build-up over T (fitted {T:.3g} s) after |u| changes tells a sagging supply from a "
+            f"bent flow curve (or a dead zone with one).",
+            separating_experiment("supply", "flow_curve"))]
 
 
 @register
@@ -1306,6 +1393,16 @@ class Leakage(Effect):
     def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
         return [{"leakage.rate": lam} for lam in (0.0, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0)]
 
+    @classmethod
+    def ambiguities(cls, ev: Evidence) -> list[Ambiguity]:
+        pair = {"leakage", "load_pressure"}
+        if not ev.excitation.single_amplitude or not (pair <= ev.tried or ev.best in pair):
+            return []
+        return [Ambiguity(["leakage", "load_pressure"],
+                          "at a single command amplitude the orifice law's slow-down "
+                          "(∝ sign(u)·y) acts like a leak toward zero force.",
+                          separating_experiment("leakage", "load_pressure"))]
+
 
 # ------------------------------------------------------------------------------------------
 # SENSOR stage
@@ -1455,12 +1552,28 @@ class Stiction(Effect):
             out += and_less_delay({"stiction.width": w}, base, w / (g * ref))
         return out
 
+    @classmethod
+    def ambiguities(cls, ev: Evidence) -> list[Ambiguity]:
+        ex = ev.excitation
+        if not (ex.single_amplitude and cls.name in ev.tried):
+            return []
+        return [Ambiguity(["stiction", "delay"],
+                          f"at a single command amplitude (|u| = {ex.levels[0]:g} %) a rod that "
+                          f"sticks after each reversal holds the force the same w/(g·|u|) every "
+                          f"time: it looks like more delay (the fitted τ = "
+                          f"{ev.base['tau'] * 1e3:.1f} ms may include such a hold).",
+                          separating_experiment("stiction", "delay"))]
+
 
 def effect_class(name: str) -> type[Effect]:
-    """Look up an effect by name, with a helpful error."""
+    """Look up an effect by name (the catalogue's, a plug-in's, an installed package's), with a
+    helpful error."""
+    if name not in CATALOGUE:
+        from .plugins import load_installed
+        load_installed()
     try:
         return CATALOGUE[name]
     except KeyError:
         raise ModelError(
-            f"unknown effect {name!r}; the catalogue has: {', '.join(CATALOGUE)} "
-            "(see `stand effects`)") from None
+            f"unknown effect {name!r}; the catalogue has: {', '.join(CATALOGUE)} (see `stand "
+            f"effects`); an effect of your own is loaded with --effects FILE.py") from None

@@ -19,6 +19,7 @@ import numpy as np
 from plant import PlantModel
 
 from ..identification.fit import FitResult
+from ..identification.periodic import Segment, dominant_periodic
 from ..identification.metrics import (AFTER_REVERSAL_S, Evaluation, RecordSimulation,
                                       command_levels, demeaned_residual, input_correlation_test,
                                       is_closed_loop, reversal_mask, simulate_records,
@@ -310,62 +311,11 @@ def command_has_line(sims: Sequence[RecordSimulation], f: float) -> bool:
 
 def periodic_component(sims: Sequence[RecordSimulation], floor: float,
                        max_samples: int = 400_000) -> tuple[float | None, float | None, float]:
-    """Dominant frequency of the residual (window means removed): Welch spectrum peak, refined
-    by fitting ``a·sin 2πft + b·cos 2πft`` (with the window means) on a fine frequency grid.
+    """Dominant frequency of the residual (:func:`..identification.periodic.dominant_periodic`).
     Returns (frequency Hz, amplitude kgf, share of the excess squared error it explains)."""
-    from scipy.signal import welch
-    e = demeaned_residual(sims)
-    dt = sims[0].record.dt
-    psd_sum, freqs = None, None
-    seg = 1 << int(math.ceil(math.log2(max(16, round(8.0 / dt)))))
-    for s, x in zip(sims, e):
-        if s.record.dt != dt or len(x) < 16:
-            continue
-        fr, p = welch(x, fs=1 / dt, nperseg=min(seg, len(x)), detrend=False)
-        if freqs is None:
-            freqs, psd_sum = fr, np.zeros_like(p)
-        if len(fr) == len(freqs):
-            psd_sum += p
-    if freqs is None:
+    segments = [Segment(s.t, x, s.win, s.record.dt, s.window)
+                for s, x in zip(sims, demeaned_residual(sims))]
+    found = dominant_periodic(segments, max_samples)
+    if found.frequency_hz is None:
         return None, None, 0.0
-    wmin = 1.0 / (sims[0].window * dt)  # below the window rate the demeaning removes power
-    band = (freqs >= wmin) & (freqs < 0.45 / dt)
-    if not band.any():
-        return None, None, 0.0
-    k = int(np.flatnonzero(band)[np.argmax(psd_sum[band])])
-    df = freqs[1] - freqs[0]
-    grid = np.linspace(max(wmin, freqs[k] - 1.5 * df), freqs[k] + 1.5 * df, 61)
-    # fit on a bounded number of samples
-    # fit on a bounded number of samples; each record with its own amplitude and phase (a
-    # disturbance is not synchronous with the start of separate runs)
-    pieces = []
-    budget = max_samples
-    for s, x in zip(sims, e):
-        m = min(len(x), budget)
-        if m <= 0:
-            break
-        wl = s.win[:m]
-        pieces.append((s.t[:m], x[:m], wl, np.bincount(wl)))
-        budget -= m
-
-    best = (0.0, None, None)
-    for f in grid:
-        expl = weight = amp2 = 0.0
-        for t, x, wl, cnt in pieces:
-            S = np.sin(2 * np.pi * f * t)
-            C = np.cos(2 * np.pi * f * t)
-            S -= (np.bincount(wl, weights=S) / cnt)[wl]
-            C -= (np.bincount(wl, weights=C) / cnt)[wl]
-            A = np.column_stack([S, C])
-            coef, *_ = np.linalg.lstsq(A, x, rcond=None)
-            part = float(np.sum((A @ coef) ** 2))
-            expl += part
-            amp2 += float(coef @ coef) * len(x)
-            weight += len(x)
-        if expl > best[0]:
-            best = (expl, float(f), math.sqrt(amp2 / weight))
-    expl, f, amp = best
-    x = np.concatenate([p[1] for p in pieces])
-    excess = float(x @ x) - floor ** 2 * len(x)
-    share = min(1.0, expl / excess) if excess > 0 else 0.0
-    return f, amp, share
+    return found.frequency_hz, found.amplitude_kgf, found.share(floor)

@@ -48,7 +48,7 @@ from plant.params import ModelError, Param
 from ..parallel import one_blas_thread
 from ..records.record import Record
 from .projection import project_gain_trend
-from .starts import DataSummary, effect_starts, initial_delay
+from .starts import DataSummary, effect_starts, initial_delay, without
 from .windows import (WINDOW_S, Piece, pieces_from_records, residual, subset_pieces, window_labels,
                       window_sse)
 
@@ -271,8 +271,8 @@ def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
             tv, _ = initial_delay(search, spec, given)
             base_vals.update({k: tv[k] for k in ("g", "tau", "delta") if k not in fixed})
             candidates.append(project(base_vals)[::-1])
-        summary = DataSummary.of(search)
         names = [e.name for e in model.effects] if opt.grid_effects is None else list(opt.grid_effects)
+        summary = DataSummary.of(search, without(spec, base_vals, names))
         for name in names:
             for s in effect_starts(name, summary, base_vals):
                 vals = {**base_vals, **{k: v for k, v in s.items() if k not in fixed}}

@@ -5,7 +5,8 @@ g and Δ projected (:mod:`.projection`), refined by a bounded scalar search.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -13,13 +14,15 @@ from scipy import optimize
 
 from plant import PlantModel
 
+from .periodic import NONE, Periodic, residual_periodic
 from .projection import project_gain_trend
 from .windows import Piece
 
 
 @dataclass
 class DataSummary:
-    """What the start grids need to know about the data."""
+    """What the start grids need to know about the data, and (computed when a grid asks) what
+    the residual of the model without the effects being tried looks like."""
 
     dt: float
     u_abs_levels: list[float]      #: distinct |u| levels (≤ 8) or quantiles
@@ -27,9 +30,12 @@ class DataSummary:
     y_abs_max: float
     y_span: float
     duration_s: float              #: the longest piece's end, s since its record began
+    #: the model the effects are tried on, at its fitted values (None: unknown)
+    reference: PlantModel | None = field(default=None, repr=False, compare=False)
+    pieces: Sequence[Piece] = field(default=(), repr=False, compare=False)
 
     @classmethod
-    def of(cls, pieces: Sequence[Piece]) -> "DataSummary":
+    def of(cls, pieces: Sequence[Piece], reference: PlantModel | None = None) -> "DataSummary":
         u = np.concatenate([p.u for p in pieces])
         y = np.concatenate([p.y for p in pieces])
         ua = np.abs(u[u != 0]) if np.any(u != 0) else np.array([1.0])
@@ -39,7 +45,28 @@ class DataSummary:
         return cls(dt=min(p.dt for p in pieces), u_abs_levels=[float(v) for v in levels],
                    u_abs_max=float(ua.max()), y_abs_max=float(np.abs(y).max()),
                    y_span=float(np.ptp(y)),
-                   duration_s=max(p.t0 + len(p.u) * p.dt for p in pieces))
+                   duration_s=max(p.t0 + len(p.u) * p.dt for p in pieces),
+                   reference=reference, pieces=pieces)
+
+    @cached_property
+    def residual(self) -> Periodic:
+        """The dominant sinusoid in the reference model's residual (none without one)."""
+        return NONE if self.reference is None else residual_periodic(self.reference, self.pieces)
+
+    @property
+    def residual_frequency_hz(self) -> float | None:
+        return self.residual.frequency_hz
+
+    @property
+    def residual_amplitude_kgf(self) -> float | None:
+        return self.residual.amplitude_kgf
+
+
+def without(model_spec: str, values: Mapping[str, float], effects: Sequence[str]) -> PlantModel:
+    """The model ``model_spec`` without ``effects``, at ``values`` (theirs left out)."""
+    parts = [p for p in model_spec.split("+") if p not in set(effects)]
+    keep = {k: v for k, v in values.items() if k.split(".", 1)[0] not in set(effects)}
+    return PlantModel.from_spec("+".join(parts), keep)
 
 
 def effect_starts(effect: str, summary: DataSummary, values: Mapping[str, float]) -> list[dict]:
