@@ -1,7 +1,7 @@
 """A stand that changed between the runs: a gain or a trend of its own per record.
 
-The data come from the independent simulator (tests/independent_stand.py, 0.1 ms steps, its
-own code), with the paper's eight runs, each run's g or Δ set apart: what the diagnosis must
+The data come from the independent simulator (tests/support/independent_stand.py, 0.1 ms
+steps, its own code), with the paper's eight runs, each run's g or Δ set apart: what the diagnosis must
 name, the per-record values it must find, and what it must not claim (one g for all; a dead
 zone, whose records also look like gains of their own per command level)."""
 from __future__ import annotations
@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-import tests.independent_stand as sim
+import tests.support.independent_stand as sim
 from analysis import fit as F
 from analysis.between_records import _solve, between_records
 from analysis.data import make_record

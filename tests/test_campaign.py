@@ -18,8 +18,8 @@ from gateway.experiments.meander import Meander
 from gateway.experiments.pfeedback import PFeedback
 from gateway.experiments.relay import Relay
 from stand.cli import main as stand
-from tests.conftest import plant
-from tests.test_experiments import BASE, run_offline
+from tests.support.offline import run_offline
+from tests.support.stand import BASE, plant
 
 TRUTH_G, TRUTH_TAU = BASE["g"], BASE["tau"]
 

@@ -12,8 +12,8 @@ from analysis.data import write_csv
 from analysis.report import load_history, write_report
 from plant import CATALOGUE, PlantModel, load_model_file
 from stand.cli import main
+from tests.support.stand import BASE
 
-BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 PNG = b"\x89PNG\r\n\x1a\n"
 
 

@@ -14,8 +14,9 @@ import pytest
 from analysis import synthetic as S
 from analysis.diagnose import diagnose
 from plant import PlantModel
+from tests.support.records import meander4, pfeedback, relay
+from tests.support.stand import BASE
 
-BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 HIDDEN = {
     "reversal": {"reversal.boost": 2.0, "reversal.decay": 0.15},
     "asymmetry": {"asymmetry.ratio": 0.12},
@@ -35,18 +36,6 @@ def plant(effect: str | None = None, base: dict | None = None, **values) -> Plan
         vals.update(HIDDEN.get(effect, {}))
     vals.update({k.replace("__", "."): v for k, v in values.items()})
     return PlantModel.from_spec(spec, vals)
-
-
-def meander4(model, seed=1, **kw):
-    return S.meander(model, (5.0, 10.0, 15.0, 20.0), period_s=2.0, cycles=2, seed=seed, **kw)
-
-
-def relay(model, seed=1, **kw):
-    return S.relay(model, 10.0, (0.0, 1500.0, -1500.0), 6.0, seed=seed, **kw)
-
-
-def pfeedback(model, seed=1, omegas=(0.6283, 1.5), **kw):
-    return S.pfeedback(model, gain=0.005, amplitude_kgf=2000.0, omegas_rad_s=omegas, seed=seed, **kw)
 
 
 def assert_found(d, effect, min_reduction=0.70):

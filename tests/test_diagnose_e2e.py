@@ -16,10 +16,9 @@ from analysis.data import read_run
 from analysis.diagnose import diagnose
 from gateway import Gateway, GatewayConfig, SafetyLimits
 from gateway.experiments import Meander
-from tests.conftest import plant
+from tests.support.stand import BASE, plant
 
 pytestmark = pytest.mark.e2e
-BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 
 
 def _config(bus_spec: str) -> GatewayConfig:

@@ -11,12 +11,8 @@ from analysis.data import make_record
 from analysis.fit import (Parameterization, fit_model, pieces_from_records, residual,
                           screening_pieces, simulate_piece)
 from plant import PlantModel
-
-BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
-
-
-def meander4(model, seed=1, **kw):
-    return S.meander(model, (5.0, 10.0, 15.0, 20.0), period_s=2.0, cycles=2, seed=seed, **kw)
+from tests.support.records import meander4
+from tests.support.stand import BASE
 
 
 def test_base_fit_recovers_gain_fractional_delay_and_trend_inside_the_intervals():

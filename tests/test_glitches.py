@@ -12,7 +12,7 @@ import pytest
 from analysis.data import make_record
 from analysis.diagnose import diagnose
 from analysis.glitches import remove_glitches
-from tests import independent_stand as sim
+from tests.support import independent_stand as sim
 
 
 def glitched(y: np.ndarray, rng, count: int, spacing: int = 12) -> tuple[np.ndarray, list]:

@@ -18,9 +18,9 @@ from captures.synthetic import stand_frames, synthetic_run
 from captures.writers import write_candump
 from gateway import Gateway, GatewayConfig, load_run
 from gateway.experiments import Meander
-from tests.conftest import recv_frames
 from standbus import open_bus
-from tests.conftest import plant
+from tests.support.bus import recv_frames
+from tests.support.stand import plant
 
 
 class FakeClock:

@@ -1,34 +1,26 @@
 """stand diagnose --stepwise: data that miss several effects at once, built up one effect at a
-time (our plant model, and the independent simulator of tests/independent_stand.py)."""
+time (our plant model, and the independent simulator of tests/support/independent_stand.py)."""
 from __future__ import annotations
 
 import json
 
-import numpy as np
 import pytest
 
-from analysis import synthetic as S
-from analysis.data import make_record, write_csv
+from analysis.data import write_csv
 from analysis.diagnose import diagnosable_effects, diagnose
 from analysis.stepwise import stepwise
 from plant import PlantModel, load_model_file
 from stand.cli import main
-from tests import independent_stand as sim
+from tests.support.records import independent_records as independent
+from tests.support.records import meander4, pfeedback, relay
+from tests.support.stand import BASE
 
-BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 THREE = {"reversal.boost": 1.5, "reversal.decay": 0.1, "leakage.rate": 0.2, "backlash.width": 2.0}
 
 
 def campaign(truth: PlantModel, seed: int) -> list:
     """Meanders at four amplitudes, relay at three references, P-feedback at two frequencies."""
-    return [S.meander(truth, (5.0, 10.0, 15.0, 20.0), period_s=2.0, cycles=2, seed=seed),
-            S.relay(truth, 10.0, (0.0, 1500.0, -1500.0), 6.0, seed=seed),
-            S.pfeedback(truth, gain=0.005, amplitude_kgf=2000.0, omegas_rad_s=(0.6283, 1.5), seed=seed)]
-
-
-def independent(combo: str, seed: int) -> list:
-    return [make_record(t, u, y, r if np.isfinite(r).any() else None, source=name)
-            for name, _, t, u, y, r, _ in sim.make_dataset(combo, seed)]
+    return [meander4(truth, seed=seed), relay(truth, seed=seed), pfeedback(truth, seed=seed)]
 
 
 def test_three_effects_no_single_one_explains_are_found_one_after_another():
