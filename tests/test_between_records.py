@@ -194,6 +194,7 @@ def test_records_own_values_that_leave_much_of_the_error_are_not_the_verdict():
     assert left and all("or a missing effect that weighs differently in each record" in o for o in left)
 
 
+@pytest.mark.slow
 def test_a_change_between_runs_refits_the_parameters_one_g_had_bent():
     """The gain grows 8 % over the runs and the valve has a play (backlash, 1.0 % wide). Fitted
     with one g for all records, the play's width is bent (1.23 %) to follow part of the drift,

@@ -107,6 +107,7 @@ def test_the_base_model_is_adequate_for_base_data(excitation):
     assert d.base_fit.objective_rmse < 1.05 * d.objective_floor
 
 
+@pytest.mark.slow
 def test_no_false_alarm_across_seeds_noise_levels_and_sampling_rates():
     cases = [(seed, noise, dt) for seed, (noise, dt) in enumerate(
         [(0.5, 0.001), (2.0, 0.002), (8.0, 0.005), (2.0, 0.01), (0.2, 0.002), (4.0, 0.001),

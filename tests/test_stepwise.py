@@ -23,6 +23,7 @@ def campaign(truth: PlantModel, seed: int) -> list:
     return [meander4(truth, seed=seed), relay(truth, seed=seed), pfeedback(truth, seed=seed)]
 
 
+@pytest.mark.slow
 def test_three_effects_no_single_one_explains_are_found_one_after_another():
     truth = PlantModel.from_spec("base+reversal+leakage+backlash", {**BASE, **THREE})
     r = stepwise(campaign(truth, seed=5))
@@ -47,6 +48,7 @@ def test_three_effects_no_single_one_explains_are_found_one_after_another():
     assert {n.effect for n in r.needed if n.kept} == true, r.needed
 
 
+@pytest.mark.slow
 def test_an_effect_picked_early_is_dropped_once_the_real_ones_are_in():
     """Independent simulator, dead zone + asymmetry + leakage: the load-pressure law explains
     most of the first residual, then leakage, dead zone and asymmetry take over and the
@@ -64,6 +66,7 @@ def test_an_effect_picked_early_is_dropped_once_the_real_ones_are_in():
         assert [n.effect for n in gone] == ["load_pressure"] and "dropped" in gone[0].text()
 
 
+@pytest.mark.slow
 def test_a_sensor_filter_behind_a_flow_limit_is_not_a_valve_lag():
     """Independent simulator, 12 % flow limit + 10 ms dynamometer filter: a valve lag sits before
     the limit and cannot mimic it; the sensor lag is found, with its time constant."""
@@ -74,6 +77,7 @@ def test_a_sensor_filter_behind_a_flow_limit_is_not_a_valve_lag():
     assert p["saturation.limit"] == pytest.approx(12.0, rel=0.02)
 
 
+@pytest.mark.slow
 def test_a_dead_zone_is_found_after_a_flow_curve_that_took_part_of_it():
     """Independent simulator, dead zone 1 % then a power-law flow 0.8: the flow curve alone
     fits p = 0.88 and holds part of the dead zone's error, so the dead zone's best start is
@@ -93,6 +97,7 @@ def test_a_dead_zone_is_found_after_a_flow_curve_that_took_part_of_it():
     assert p["flow_curve.exponent"] == pytest.approx(0.8, abs=0.01)
 
 
+@pytest.mark.slow
 def test_what_the_catalogue_cannot_explain_stays_unexplained_after_what_it_can():
     r = stepwise(independent("osc+asymmetry", 1005))
     assert r.verdict == "unexplained" and r.model.spec == "base+asymmetry", r.summary
@@ -104,6 +109,7 @@ def test_nothing_missing_is_one_step():
     assert r.verdict == "adequate" and r.model.spec == "base" and len(r.steps) == 1
 
 
+@pytest.mark.slow
 def test_cli_stepwise_json_plot_and_saved_model(tmp_path, capsys):
     truth = PlantModel.from_spec("base+reversal+deadzone",
                                  {**BASE, "reversal.boost": 2.0, "reversal.decay": 0.15,
