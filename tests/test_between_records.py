@@ -48,6 +48,7 @@ def warming_data():
     return dataset(9101, per_run=warming)
 
 
+@pytest.mark.slow
 def test_a_gain_growing_run_after_run_is_named_with_each_records_gain(warming_data):
     d = diagnose(warming_data)
     assert d.verdict == "varies_between_records", d.summary
@@ -63,6 +64,7 @@ def test_a_gain_growing_run_after_run_is_named_with_each_records_gain(warming_da
     assert d.to_dict()["between_records"]["records"][0]["source"] == "meander_u5"
 
 
+@pytest.mark.slow
 def test_stepwise_stops_at_a_gain_per_record_instead_of_piling_up_effects(warming_data):
     s = stepwise(warming_data, max_effects=2)
     assert s.verdict == "varies_between_records", s.summary
@@ -70,6 +72,7 @@ def test_stepwise_stops_at_a_gain_per_record_instead_of_piling_up_effects(warmin
     assert "explains each record" in s.summary
 
 
+@pytest.mark.slow
 def test_a_valve_null_moved_between_runs_is_a_trend_per_record():
     recs = dataset(9102, per_run=lambda i: {"delta": NULLS[i]})
     d = diagnose(recs)
@@ -80,6 +83,7 @@ def test_a_valve_null_moved_between_runs_is_a_trend_per_record():
     assert "the trend Δ differs between records" in d.summary
 
 
+@pytest.mark.slow
 def test_gains_set_anew_in_every_run_in_no_order_are_the_runs_own():
     rng = np.random.default_rng(5)
     factors = 1 + 0.1 * rng.uniform(-0.5, 0.5, len(sim.PLAN))
@@ -90,6 +94,7 @@ def test_gains_set_anew_in_every_run_in_no_order_are_the_runs_own():
     assert np.max(np.abs(found / (G * factors) - 1)) < 0.005, found
 
 
+@pytest.mark.slow
 def test_a_drift_in_meanders_run_at_rising_levels_cannot_be_told_from_a_level_effect():
     """The paper's meanders at 5, 10, 15, 20 % in that order, the gain growing run after run:
     a gain that rises with |u| would look the same, so no verdict is drawn from it, and the
@@ -108,6 +113,7 @@ def test_a_drift_in_meanders_run_at_rising_levels_cannot_be_told_from_a_level_ef
     assert len(told) == 1 and "first run repeated at the end" in told[0].text(), d.ambiguities
 
 
+@pytest.mark.slow
 def test_one_gain_for_all_records_is_not_called_a_variation():
     recs = dataset(9103)
     d = diagnose(recs)
@@ -119,6 +125,7 @@ def test_one_gain_for_all_records_is_not_called_a_variation():
     assert np.ptp([r.gain for r in b.records]) < 0.01
 
 
+@pytest.mark.slow
 def test_a_dead_zone_stays_the_diagnosis_though_records_at_other_levels_differ_in_gain():
     """Under a dead zone each meander record has its own effective gain, so gains per record
     remove most of the error too: the catalogue's exact law must still win."""
@@ -175,6 +182,7 @@ def test_stand_diagnose_lists_each_records_gain(warming_data, tmp_path, capsys):
     assert len(doc["between_records"]["records"]) == 8 and doc["between_records"]["earns"]
 
 
+@pytest.mark.slow
 def test_records_own_values_that_leave_much_of_the_error_are_not_the_verdict():
     """A flow limit and an unloading (the force falls faster than it rises, by a share of
     the force: every run at its own force level) on the simulator. Gains and trends of each

@@ -20,7 +20,12 @@ def dataset(effect: str) -> list:
     return independent_records(effect, SEED0 + EFFECTS.index(effect))
 
 
-@pytest.mark.parametrize("effect", EFFECTS)
+#: the quick loop's case (the paper's reversal, timed from the flow); the others are slow
+QUICK = {"rev_flow"}
+
+
+@pytest.mark.parametrize("effect", [e if e in QUICK else pytest.param(e, marks=pytest.mark.slow)
+                                    for e in EFFECTS])
 def test_independent_simulator(effect):
     recs = dataset(effect)
     d = diagnose(recs)

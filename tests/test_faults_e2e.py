@@ -161,6 +161,7 @@ def test_small_delay_in_lockstep_changes_nothing(channel, start_emulator, tmp_pa
 FLOODED_S = 5.0
 
 
+@pytest.mark.slow
 def test_a_flood_of_garbage_changes_nothing(channel, start_emulator, tmp_path):
     """A separate process floods the bus with random frames (error/remote/extended/FD frames,
     random ids, and the stand's own ids with wrong lengths) at ~4,000 frames/s during a lockstep

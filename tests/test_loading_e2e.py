@@ -30,6 +30,7 @@ def _design(tmp_path, spec="base+reversal", **values):
     return out
 
 
+@pytest.mark.slow
 def test_a_sine_is_tracked_within_half_a_percent_and_reported_as_json(bus_spec, start_emulator,
                                                                        tmp_path, capsys):
     start_emulator(plant(TRUTH, model="base+reversal"), lockstep=True, seed=2)
@@ -65,6 +66,7 @@ def test_a_turning_point_sequence_meets_the_goal_in_passes_and_learns(bus_spec, 
     assert res.compensation.table["peak"] and res.compensation.table["valley"]
 
 
+@pytest.mark.slow
 def test_the_reversal_in_the_model_lowers_the_tracking_error_on_a_stand_with_it(bus_spec, start_emulator,
                                                                                tmp_path):
     start_emulator(plant(TRUTH, model="base+reversal"), lockstep=True, seed=4)

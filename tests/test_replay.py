@@ -148,6 +148,7 @@ def test_force_trace_holds_the_answer_to_every_sync(tmp_path):
 
 
 @pytest.mark.e2e
+@pytest.mark.slow
 def test_replayed_plant_gives_the_gateway_the_recorded_force(bus_spec, channel, start_emulator, tmp_path):
     """Record on the (emulated) bench, then run the gateway against the recording: the new run
     reads the recorded force sequence, cycle for cycle — also after a change of the experiment."""
