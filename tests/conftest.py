@@ -1,28 +1,16 @@
-"""Shared fixtures: private bus channels and emulator processes."""
+"""Shared fixtures: private bus channels and emulator processes (plain helpers: tests/support/)."""
 from __future__ import annotations
 
 import itertools
 import os
-import time
 import uuid
 
 import pytest
 
-from plant.config import PlantConfig, load_plant_config
+from plant.config import PlantConfig
 from plant_emulator.process import EmulatorProcess
 
 _counter = itertools.count()
-
-
-def recv_frames(bus, n: int, timeout: float = 2.0, poll: float = 0.1) -> list:
-    """Up to ``n`` frames from ``bus``, waiting at most ``timeout`` seconds in all."""
-    out = []
-    deadline = time.monotonic() + timeout
-    while len(out) < n and time.monotonic() < deadline:
-        m = bus.recv(poll)
-        if m is not None:
-            out.append(m)
-    return out
 
 
 @pytest.fixture
@@ -34,10 +22,6 @@ def channel() -> str:
 @pytest.fixture
 def bus_spec(channel: str) -> str:
     return f"udp_loopback:{channel}"
-
-
-def plant(overrides: dict | None = None, model: str | None = None) -> PlantConfig:
-    return load_plant_config(None, model, overrides or {})
 
 
 @pytest.fixture

@@ -1,5 +1,6 @@
 """A sweep of `stand diagnose --stepwise` over random pairs of the independent simulator's
-effects (tests/independent_stand.py): does it arrive at the true pair, or its exact equivalent?
+effects (tests/support/independent_stand.py): does it arrive at the true pair, or its exact
+equivalent?
 
     .venv/bin/python -m tests.independent_sweep SEED N [--k 3]   # N random pairs (or triples)
 
@@ -12,23 +13,8 @@ import time
 
 import numpy as np
 
-from analysis import make_record, stepwise
-from tests import independent_stand as sim
-
-#: simulator effect -> the catalogue effects that name it exactly or equivalently (one effect,
-#: or both where the data cannot tell them apart); tests/test_diagnose_independent.py uses it too
-EQUIVALENT = {"rev_flow": {"reversal"}, "rev_cmd": {"command_reversal"},
-              "rev_force": {"travel_reversal"},
-              "lag": {"lag", "sensor_lag"}, "sensorlag": {"lag", "sensor_lag"},
-              "deadzone": {"deadzone"}, "saturation": {"saturation"}, "asymmetry": {"asymmetry"},
-              "loadpress": {"load_pressure"}, "leakage": {"leakage"}, "backlash": {"backlash"},
-              "flownl": {"flow_curve"}, "friction": {"deadzone"},   # Coulomb friction on the rate
-              "stiffening": {"stiffness"}, "stiction": {"stiction"}, "softload": {"unloading"},
-              "dirdelay": {"direction_delay"}, "res": {"resonance"},
-              "valve2nd": {"resonance"},        # the same law at 25 Hz, ζ = 0.5
-              "slew": {"slew"}, "supply": {"supply"}, "gaindrift": {"gain_drift"},
-              "nulldrift": {"null_drift"}}
-
+from analysis import stepwise
+from tests.support.records import EQUIVALENT, independent_records
 
 #: the simulator's reversal boosts (timed from the rod, the command, or over the force travelled):
 #: at most one per data set
@@ -59,9 +45,7 @@ def main() -> None:
     ok = 0
     sets = random_sets(args.seed, args.n, args.k)
     for i, combo in enumerate(sets):
-        runs = sim.make_dataset("+".join(combo), 5000 + i)
-        recs = [make_record(t, u, y, r if np.isfinite(r).any() else None, source=name)
-                for name, _, t, u, y, r, _ in runs]
+        recs = independent_records("+".join(combo), 5000 + i)
         t0 = time.perf_counter()
         res = stepwise(recs)
         got = {e.name for e in res.model.effects}

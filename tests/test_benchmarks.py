@@ -14,6 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.e2e
 
 
+@pytest.mark.slow
 def test_every_benchmark_runs_in_quick_mode_and_prints_its_rows():
     res = subprocess.run([sys.executable, "-m", "benchmarks.runner", "--quick"], cwd=ROOT,
                          capture_output=True, text=True, timeout=600)

@@ -1,7 +1,7 @@
 """A stand that changed between the runs: a gain or a trend of its own per record.
 
-The data come from the independent simulator (tests/independent_stand.py, 0.1 ms steps, its
-own code), with the paper's eight runs, each run's g or Δ set apart: what the diagnosis must
+The data come from the independent simulator (tests/support/independent_stand.py, 0.1 ms
+steps, its own code), with the paper's eight runs, each run's g or Δ set apart: what the diagnosis must
 name, the per-record values it must find, and what it must not claim (one g for all; a dead
 zone, whose records also look like gains of their own per command level)."""
 from __future__ import annotations
@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-import tests.independent_stand as sim
+import tests.support.independent_stand as sim
 from analysis import between_records, diagnose, evaluate, make_record, stepwise
 from analysis.diagnosis.between_records import _solve
 from analysis.diagnosis.verdict import objective_floor
@@ -46,6 +46,7 @@ def warming_data():
     return dataset(9101, per_run=warming)
 
 
+@pytest.mark.slow
 def test_a_gain_growing_run_after_run_is_named_with_each_records_gain(warming_data):
     d = diagnose(warming_data)
     assert d.verdict == "varies_between_records", d.summary
@@ -61,6 +62,7 @@ def test_a_gain_growing_run_after_run_is_named_with_each_records_gain(warming_da
     assert d.to_dict()["between_records"]["records"][0]["source"] == "meander_u5"
 
 
+@pytest.mark.slow
 def test_stepwise_stops_at_a_gain_per_record_instead_of_piling_up_effects(warming_data):
     s = stepwise(warming_data, max_effects=2)
     assert s.verdict == "varies_between_records", s.summary
@@ -68,6 +70,7 @@ def test_stepwise_stops_at_a_gain_per_record_instead_of_piling_up_effects(warmin
     assert "explains each record" in s.summary
 
 
+@pytest.mark.slow
 def test_a_valve_null_moved_between_runs_is_a_trend_per_record():
     recs = dataset(9102, per_run=lambda i: {"delta": NULLS[i]})
     d = diagnose(recs)
@@ -78,6 +81,7 @@ def test_a_valve_null_moved_between_runs_is_a_trend_per_record():
     assert "the trend Δ differs between records" in d.summary
 
 
+@pytest.mark.slow
 def test_gains_set_anew_in_every_run_in_no_order_are_the_runs_own():
     rng = np.random.default_rng(5)
     factors = 1 + 0.1 * rng.uniform(-0.5, 0.5, len(sim.PLAN))
@@ -88,6 +92,7 @@ def test_gains_set_anew_in_every_run_in_no_order_are_the_runs_own():
     assert np.max(np.abs(found / (G * factors) - 1)) < 0.005, found
 
 
+@pytest.mark.slow
 def test_a_drift_in_meanders_run_at_rising_levels_cannot_be_told_from_a_level_effect():
     """The paper's meanders at 5, 10, 15, 20 % in that order, the gain growing run after run:
     a gain that rises with |u| would look the same, so no verdict is drawn from it, and the
@@ -106,6 +111,7 @@ def test_a_drift_in_meanders_run_at_rising_levels_cannot_be_told_from_a_level_ef
     assert len(told) == 1 and "first run repeated at the end" in told[0].text(), d.ambiguities
 
 
+@pytest.mark.slow
 def test_one_gain_for_all_records_is_not_called_a_variation():
     recs = dataset(9103)
     d = diagnose(recs)
@@ -117,6 +123,7 @@ def test_one_gain_for_all_records_is_not_called_a_variation():
     assert np.ptp([r.gain for r in b.records]) < 0.01
 
 
+@pytest.mark.slow
 def test_a_dead_zone_stays_the_diagnosis_though_records_at_other_levels_differ_in_gain():
     """Under a dead zone each meander record has its own effective gain, so gains per record
     remove most of the error too: the catalogue's exact law must still win."""
@@ -173,6 +180,7 @@ def test_stand_diagnose_lists_each_records_gain(warming_data, tmp_path, capsys):
     assert len(doc["between_records"]["records"]) == 8 and doc["between_records"]["earns"]
 
 
+@pytest.mark.slow
 def test_records_own_values_that_leave_much_of_the_error_are_not_the_verdict():
     """A flow limit and an unloading (the force falls faster than it rises, by a share of
     the force: every run at its own force level) on the simulator. Gains and trends of each
@@ -192,6 +200,7 @@ def test_records_own_values_that_leave_much_of_the_error_are_not_the_verdict():
     assert left and all("or a missing effect that weighs differently in each record" in o for o in left)
 
 
+@pytest.mark.slow
 def test_a_change_between_runs_refits_the_parameters_one_g_had_bent():
     """The gain grows 8 % over the runs and the valve has a play (backlash, 1.0 % wide). Fitted
     with one g for all records, the play's width is bent (1.23 %) to follow part of the drift,

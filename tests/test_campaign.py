@@ -17,8 +17,8 @@ from gateway.experiments.meander import Meander
 from gateway.experiments.pfeedback import PFeedback
 from gateway.experiments.relay import Relay
 from stand.cli import main as stand
-from tests.conftest import plant
-from tests.test_experiments import BASE, run_offline
+from tests.support.offline import run_offline
+from tests.support.stand import BASE, plant
 
 TRUTH_G, TRUTH_TAU = BASE["g"], BASE["tau"]
 
@@ -124,6 +124,7 @@ def test_stand_estimate_reads_csv_files_and_prints_the_documented_json(tmp_path,
 
 # == end to end ====================================================================================
 @pytest.mark.e2e
+@pytest.mark.slow
 def test_stand_campaign_with_the_base_model_meets_the_accuracy_targets(tmp_path, capsys):
     out = tmp_path / "campaign"
     code = stand(["campaign", "--quick", "--model", "base", "--seed", "3", "--out", str(out), "--no-progress"])
@@ -156,6 +157,7 @@ def test_stand_campaign_with_the_base_model_meets_the_accuracy_targets(tmp_path,
 
 
 @pytest.mark.e2e
+@pytest.mark.slow
 def test_with_the_reversal_effect_the_transitional_gain_stands_out_less_as_u0_grows(bus_spec, start_emulator, tmp_path,
                                                                                   capsys):
     config = plant(BASE)                                     # the emulator's default: base+reversal

@@ -11,10 +11,9 @@ from analysis import load
 from captures import decode_capture
 from gateway import Gateway, GatewayConfig, load_run
 from gateway.experiments import Meander
-from tests.conftest import plant
+from tests.support.stand import BASE, plant
 
 pytestmark = pytest.mark.e2e
-BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 EXACT = ("u", "y", "cycle", "y_counts", "spool", "valve_status", "stale")
 
 

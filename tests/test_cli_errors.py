@@ -107,6 +107,7 @@ def test_the_help_imports_no_numerics_and_no_can_stack():
     assert res.stdout.strip() == "[]", f"imported for --help: {res.stdout}"
 
 
+@pytest.mark.slow
 def test_a_stepwise_diagnosis_into_a_log_writes_a_line_per_step_and_no_bar(tmp_path):
     """Progress bars belong on a terminal; a log (stderr not a tty) gets one line per step."""
     import numpy as np

@@ -10,8 +10,8 @@ from analysis import compare, load_history, write_csv, write_report
 from analysis.records import synthetic as S
 from plant import CATALOGUE, PlantModel, load_model_file
 from stand.cli import main
+from tests.support.stand import BASE
 
-BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 PNG = b"\x89PNG\r\n\x1a\n"
 
 
@@ -73,6 +73,7 @@ def test_compare_as_given_uses_the_file_values(reversal_csv, tmp_path, capsys):
     assert doc["whiteness"]["band"] == pytest.approx(1.96 / doc["whiteness"]["n"] ** 0.5)
 
 
+@pytest.mark.slow
 def test_report_keeps_the_history_and_the_error_falls(reversal_csv, tmp_path, capsys):
     out_dir = tmp_path / "rep"
     for spec in ("base", "base+lag", "base+reversal"):
@@ -105,6 +106,7 @@ def test_report_refuses_another_data_set_unless_told(reversal_csv, tmp_path, cap
     assert code == 0 and len(load_history(out_dir)["versions"]) == 1
 
 
+@pytest.mark.slow
 def test_report_with_diagnosis_of_the_latest_model(reversal_csv, tmp_path):
     from analysis import diagnose, read_csv
     recs = [read_csv(reversal_csv)]
@@ -142,6 +144,7 @@ def test_user_errors_are_one_line(reversal_csv, tmp_path, capsys):
     assert code == 2 and "--window-s" in err
 
 
+@pytest.mark.slow
 def test_diagnose_command_prints_verdict_table_and_words(reversal_csv, tmp_path, capsys):
     code, out, _ = run_cli(capsys, "diagnose", reversal_csv, "--no-progress", "--plots", tmp_path / "dg")
     assert code == 0

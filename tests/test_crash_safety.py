@@ -24,10 +24,9 @@ from gateway import load_run
 from gateway.capture import TappedNetwork, read_capture
 from gateway.master import NMT_START, StandMaster
 from standbus import open_bus
-from tests.conftest import plant
-from tests.test_faults_support import LOAD_ALLOWANCE_S, Sniffer, log_reaction, valve_state
+from tests.support.faults import LOAD_ALLOWANCE_S, Sniffer, log_reaction, valve_state
+from tests.support.stand import BASE, plant
 
-BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 #: the valve's RPDO timeout (0x1400:05, as the gateway writes it) + watchdog poll + deferral, s
 VALVE_BOUND_S = 0.100 + 0.005 + 0.020
 

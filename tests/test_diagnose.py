@@ -14,8 +14,9 @@ import pytest
 from analysis import diagnose
 from analysis.records import synthetic as S
 from plant import PlantModel
+from tests.support.records import meander4, pfeedback, relay
+from tests.support.stand import BASE
 
-BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 HIDDEN = {
     "reversal": {"reversal.boost": 2.0, "reversal.decay": 0.15},
     "asymmetry": {"asymmetry.ratio": 0.12},
@@ -37,18 +38,6 @@ def plant(effect: str | None = None, base: dict | None = None, **values) -> Plan
     return PlantModel.from_spec(spec, vals)
 
 
-def meander4(model, seed=1, **kw):
-    return S.meander(model, (5.0, 10.0, 15.0, 20.0), period_s=2.0, cycles=2, seed=seed, **kw)
-
-
-def relay(model, seed=1, **kw):
-    return S.relay(model, 10.0, (0.0, 1500.0, -1500.0), 6.0, seed=seed, **kw)
-
-
-def pfeedback(model, seed=1, omegas=(0.6283, 1.5), **kw):
-    return S.pfeedback(model, gain=0.005, amplitude_kgf=2000.0, omegas_rad_s=omegas, seed=seed, **kw)
-
-
 def assert_found(d, effect, min_reduction=0.70):
     assert d.verdict == "missing_effect", d.summary
     assert d.best == effect, d.summary
@@ -67,7 +56,8 @@ def test_meander_at_several_amplitudes_names_each_hidden_effect(effect):
     assert_found(d, effect)
 
 
-@pytest.mark.parametrize("effect", ["reversal", "lag", "leakage", "load_pressure"])
+@pytest.mark.parametrize("effect", ["reversal", "lag", pytest.param("leakage", marks=pytest.mark.slow),
+                                    pytest.param("load_pressure", marks=pytest.mark.slow)])
 def test_relay_feedback_names_the_hidden_effect(effect):
     d = diagnose([relay(plant(effect), seed=3)])
     if effect in ("leakage", "load_pressure"):
@@ -79,9 +69,11 @@ def test_relay_feedback_names_the_hidden_effect(effect):
         assert_found(d, effect)
 
 
-@pytest.mark.parametrize("effect,extra", [("reversal", {}), ("asymmetry", {}), ("deadzone", {}),
+@pytest.mark.parametrize("effect,extra", [("reversal", {}), pytest.param("asymmetry", {}, marks=pytest.mark.slow),
+                                          pytest.param("deadzone", {}, marks=pytest.mark.slow),
                                           ("saturation", {"saturation__limit": 6.0}),
-                                          ("leakage", {}), ("load_pressure", {})])
+                                          pytest.param("leakage", {}, marks=pytest.mark.slow),
+                                          pytest.param("load_pressure", {}, marks=pytest.mark.slow)])
 def test_p_feedback_with_sinusoidal_reference_names_the_hidden_effect(effect, extra):
     d = diagnose([pfeedback(plant(effect, **extra), seed=4)])
     assert_found(d, effect)
@@ -97,6 +89,7 @@ def test_the_paper_s_reversal_effect_is_described_in_plain_words():
     assert fitted["reversal.decay"] == pytest.approx(0.15, rel=0.1)
 
 
+@pytest.mark.slow
 def test_an_asymmetry_is_described_as_a_lower_retract_slope():
     d = diagnose([meander4(plant("asymmetry", asymmetry__ratio=0.1), seed=6)])
     text = " ".join(d.observations)
@@ -118,6 +111,7 @@ def test_the_base_model_is_adequate_for_base_data(excitation):
     assert d.base_fit.objective_rmse < 1.05 * d.objective_floor
 
 
+@pytest.mark.slow
 def test_no_false_alarm_across_seeds_noise_levels_and_sampling_rates():
     cases = [(seed, noise, dt) for seed, (noise, dt) in enumerate(
         [(0.5, 0.001), (2.0, 0.002), (8.0, 0.005), (2.0, 0.01), (0.2, 0.002), (4.0, 0.001),
@@ -136,7 +130,7 @@ def test_no_false_alarm_across_seeds_noise_levels_and_sampling_rates():
 # ------------------------------------------------------------------------------------------
 # outside the catalogue: unexplained, with its frequency
 # ------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("excitation", [meander4, pfeedback])
+@pytest.mark.parametrize("excitation", [meander4, pytest.param(pfeedback, marks=pytest.mark.slow)])
 def test_a_disturbance_outside_the_catalogue_is_unexplained_with_its_frequency(excitation):
     truth = plant("oscillation", oscillation__amplitude=30.0, oscillation__frequency=3.0)
     d = diagnose([excitation(truth, seed=8)])
@@ -152,13 +146,14 @@ def test_a_disturbance_outside_the_catalogue_is_unexplained_with_its_frequency(e
 # ------------------------------------------------------------------------------------------
 # robustness: other sampling rates, force offset, other g and τ, heavy noise
 # ------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("dt", [0.001, 0.005, 0.01])
+@pytest.mark.parametrize("dt", [pytest.param(0.001, marks=pytest.mark.slow), 0.005, 0.01])
 def test_other_sampling_rates(dt):
     d = diagnose([S.meander(plant("reversal"), (5.0, 10.0, 15.0, 20.0), period_s=2.0, cycles=2,
                             dt=dt, seed=9)])
     assert_found(d, "reversal")
 
 
+@pytest.mark.slow
 def test_force_offset_other_gain_and_delay_and_heavy_noise():
     truth = plant("load_pressure", base={"g": 210.0, "tau": 0.11, "delta": -12.0},
                   load_pressure__stall_force=9000.0)
@@ -171,6 +166,7 @@ def test_force_offset_other_gain_and_delay_and_heavy_noise():
 # ------------------------------------------------------------------------------------------
 # what the data cannot tell apart: say so, name the experiment
 # ------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_dead_zone_from_one_amplitude_is_a_warned_ambiguity_and_more_amplitudes_resolve_it():
     truth = plant("deadzone", deadzone__width=2.0)
     one = diagnose([S.meander(truth, (10.0,), period_s=2.0, cycles=8, seed=12)])
@@ -183,6 +179,7 @@ def test_dead_zone_from_one_amplitude_is_a_warned_ambiguity_and_more_amplitudes_
     assert not any(set(a.effects) == {"deadzone", "gain"} for a in two.ambiguities)
 
 
+@pytest.mark.slow
 def test_stiction_from_one_amplitude_is_more_delay_and_two_amplitudes_resolve_it():
     truth = plant("stiction", stiction__width=120.0)       # holds 0.1 s at 10 %
     one = diagnose([S.meander(truth, (10.0,), period_s=2.0, cycles=8, seed=12)])
@@ -193,6 +190,7 @@ def test_stiction_from_one_amplitude_is_more_delay_and_two_amplitudes_resolve_it
     assert two.best_candidate.params["stiction.width"] == pytest.approx(120.0, rel=0.05)
 
 
+@pytest.mark.slow
 def test_dead_zone_and_flow_curve_from_two_amplitudes_are_a_warned_tie():
     """Two amplitudes fit a dead zone and a power-law flow curve exactly: the tie goes to the
     catalogue's order (dead zone) and the report names the experiment that separates them."""
@@ -206,6 +204,7 @@ def test_dead_zone_and_flow_curve_from_two_amplitudes_are_a_warned_tie():
     assert four.best_candidate.params["flow_curve.exponent"] == pytest.approx(1.3, abs=0.03)
 
 
+@pytest.mark.slow
 def test_backlash_is_a_dead_zone_under_square_waves_and_p_feedback_separates_them():
     truth = plant("backlash", backlash__width=3.0)
     square = diagnose([meander4(truth, seed=16)])
@@ -242,6 +241,7 @@ def test_lag_versus_delay_from_one_frequency_is_a_warned_ambiguity():
 # ------------------------------------------------------------------------------------------
 # the loop: add the effect, diagnose again
 # ------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_diagnosing_the_completed_model_finds_nothing_more():
     rec = meander4(plant("reversal"), seed=15)
     d = diagnose([rec], "base+reversal")
@@ -249,6 +249,7 @@ def test_diagnosing_the_completed_model_finds_nothing_more():
     assert "reversal" not in {c.effect for c in d.candidates}
 
 
+@pytest.mark.slow
 def test_long_records_are_screened_on_a_subset_and_the_best_refitted_on_all():
     truth = plant("reversal")
     u = np.concatenate([S.square_wave(a, 2.0, 25, 0.002) for a in (5.0, 10.0, 15.0, 20.0)])
@@ -310,6 +311,7 @@ def _coloured(model, time_constant_s, sigma=4.0, seed=18):
     return make_record(np.arange(len(u)) * 0.002, u, np.round((y + e) / 0.5) * 0.5)
 
 
+@pytest.mark.slow
 def test_coloured_noise_is_not_taken_for_a_model_error_and_does_not_hide_one():
     """A low-pass filtered dynamometer: second differences see only part of the noise. What the
     model leaves is broadband and unrelated to the command, so it is noise."""
@@ -343,6 +345,7 @@ def _squares():
     return [S.square_wave(a, 4.0, 4, 0.002) for a in (5.0, 10.0, 15.0, 20.0)]
 
 
+@pytest.mark.slow
 def test_an_oscillation_with_its_own_phase_in_every_run_is_found():
     """Separate runs do not start in phase with a disturbance: amplitude and phase are fitted
     per record (a common phase cancelled out: 3 kgf reported for 20, and 'adequate' on the

@@ -15,10 +15,9 @@ import pytest
 from analysis import diagnose, read_run
 from gateway import Gateway, GatewayConfig, SafetyLimits
 from gateway.experiments import Meander
-from tests.conftest import plant
+from tests.support.stand import BASE, plant
 
 pytestmark = pytest.mark.e2e
-BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 
 
 def _config(bus_spec: str) -> GatewayConfig:
@@ -39,6 +38,7 @@ def _runs(bus_spec, start_emulator, tmp_path, model, values: dict | None = None)
     return paths
 
 
+@pytest.mark.slow
 def test_reversal_effect_is_found_on_emulator_runs(bus_spec, start_emulator, tmp_path):
     paths = _runs(bus_spec, start_emulator, tmp_path, "base+reversal")
     d = diagnose([read_run(p) for p in paths])
@@ -55,6 +55,7 @@ def test_reversal_effect_is_found_on_emulator_runs(bus_spec, start_emulator, tmp
     assert doc["verdict"] == "missing_effect" and doc["candidates"][0]["effect"] == "reversal"
 
 
+@pytest.mark.slow
 def test_a_boost_that_dies_out_over_the_travel_is_told_from_a_timed_one_on_emulator_runs(
         bus_spec, start_emulator, tmp_path):
     """travel_reversal behind CANopen, at 5 and 20 %: its transition is four times shorter at
@@ -70,6 +71,7 @@ def test_a_boost_that_dies_out_over_the_travel_is_told_from_a_timed_one_on_emula
     assert timed.objective_rmse > 1.5 * d.best_candidate.objective_rmse
 
 
+@pytest.mark.slow
 def test_the_emulator_without_the_effect_is_adequate(bus_spec, start_emulator, tmp_path):
     """The emulator integrates in 0.5 ms sub-steps behind CANopen, the analysis at the 2 ms
     control period: the base model must still be adequate (no false alarm)."""
@@ -78,6 +80,7 @@ def test_the_emulator_without_the_effect_is_adequate(bus_spec, start_emulator, t
     assert d.verdict == "adequate", d.summary
 
 
+@pytest.mark.slow
 def test_a_specimen_that_stiffens_with_the_load_is_found_on_emulator_runs(bus_spec, start_emulator,
                                                                           tmp_path):
     """A catalogue effect that depends on the force, behind CANopen: the emulator steps it in
@@ -92,6 +95,7 @@ def test_a_specimen_that_stiffens_with_the_load_is_found_on_emulator_runs(bus_sp
     assert d.best_candidate.rmse_reduction >= 0.7
 
 
+@pytest.mark.slow
 def test_rod_stiction_is_found_on_emulator_runs(bus_spec, start_emulator, tmp_path):
     """The reading holds after each reversal until the force has crossed the play (0.2 s at 5 %,
     0.05 s at 20 %): a state the emulator carries from period to period."""
@@ -104,7 +108,8 @@ def test_rod_stiction_is_found_on_emulator_runs(bus_spec, start_emulator, tmp_pa
     assert d.best_candidate.rmse_reduction >= 0.7
 
 
-@pytest.mark.parametrize("effect, rate", [("gain_drift", 0.03), ("null_drift", 0.06)])
+@pytest.mark.parametrize("effect, rate", [("gain_drift", 0.03),
+                                          pytest.param("null_drift", 0.06, marks=pytest.mark.slow)])
 def test_a_drift_from_the_start_of_every_run_is_found_on_emulator_runs(bus_spec, start_emulator,
                                                                        tmp_path, effect, rate):
     """The gain grows 3 %/s, or the valve's null moves 0.06 %/s, from the start of each run:

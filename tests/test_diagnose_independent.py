@@ -1,30 +1,31 @@
-"""The diagnosis on data it was not written against: tests/independent_stand.py, a fine-step
-simulator with its own effect laws, one hidden effect per data set (4 meanders, 2 relay and 2
+"""The diagnosis on data it was not written against: tests/support/independent_stand.py, a
+fine-step simulator with its own effect laws, one hidden effect per data set (4 meanders, 2 relay and 2
 P-feedback runs, 170 s). Found in a probe of this code: an oscillation with its own phase in
 every run was described as broadband at 3 kgf (now 20 kgf at 3 Hz), and a flow law outside the
 catalogue was waved off as coloured sensor noise. Its backlash and power-law flow then joined
 the catalogue (backlash, flow_curve), with their own laws written apart from the simulator's."""
 from __future__ import annotations
 
-
-import numpy as np
 import pytest
 
-from analysis import diagnose, make_record
-from tests import independent_stand as sim
-from tests.independent_sweep import EQUIVALENT
+from analysis import diagnose
+from tests.support import independent_stand as sim
+from tests.support.records import EQUIVALENT, independent_records
 
 SEED0 = 20240601
 EFFECTS = list(sim.EFFECT_PARAMS)
 
 
 def dataset(effect: str) -> list:
-    runs = sim.make_dataset(effect, SEED0 + EFFECTS.index(effect))
-    return [make_record(t, u, y, r if np.isfinite(r).any() else None, source=name)
-            for name, _, t, u, y, r, _ in runs]
+    return independent_records(effect, SEED0 + EFFECTS.index(effect))
 
 
-@pytest.mark.parametrize("effect", EFFECTS)
+#: the quick loop's case (the paper's reversal, timed from the flow); the others are slow
+QUICK = {"rev_flow"}
+
+
+@pytest.mark.parametrize("effect", [e if e in QUICK else pytest.param(e, marks=pytest.mark.slow)
+                                    for e in EFFECTS])
 def test_independent_simulator(effect):
     recs = dataset(effect)
     d = diagnose(recs)

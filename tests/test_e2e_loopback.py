@@ -11,10 +11,9 @@ from analysis import estimate_meander, read_run
 from gateway import Gateway, GatewayConfig, load_run
 from gateway.experiments import Meander
 from standbus.realtime import realtime_allowed
-from tests.conftest import plant
+from tests.support.stand import BASE, plant
 
 pytestmark = pytest.mark.e2e
-BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 
 
 def _run(bus_spec, out, experiment, lockstep=True, progress=False):

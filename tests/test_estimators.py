@@ -1,7 +1,7 @@
 """The three estimators on synthetic data with known answers, and on bad data.
 
 Open loop: :meth:`PlantModel.simulate` behind a :class:`Dynamometer`. Closed loops: the
-experiments themselves driven through :func:`tests.test_experiments.run_offline` (the loop's
+experiments themselves driven through :func:`tests.support.offline.run_offline` (the loop's
 timing, the plant stepped with new_state/advance, dynamometer noise and resolution).
 """
 from __future__ import annotations
@@ -21,8 +21,8 @@ from gateway.experiments.meander import Meander
 from gateway.experiments.pfeedback import PFeedback
 from gateway.experiments.relay import Relay
 from plant import Dynamometer, PlantModel
-from tests.conftest import plant
-from tests.test_experiments import BASE, run_offline
+from tests.support.offline import run_offline
+from tests.support.stand import BASE, plant
 
 TRUTH = dict(g=120.0, tau=0.05)
 

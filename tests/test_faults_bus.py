@@ -8,7 +8,7 @@ import time
 import can
 import pytest
 
-from tests.conftest import recv_frames
+from tests.support.bus import recv_frames
 from standbus import BusSpecError, open_bus
 from standbus.faults import (ALL_LENGTHS, FaultInjector, FaultSpec, FrameFilter, canopen_protected,
                              garbage_frame, parse_id_range)

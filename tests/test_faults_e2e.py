@@ -23,14 +23,12 @@ from gateway import Gateway, GatewayConfig, SafetyLimits, load_run
 from gateway.capture import read_capture
 from standbus import open_bus
 from standbus.faults import FaultInjector, FaultSpec
-from tests.conftest import plant
-from tests.test_faults_support import (LOAD_ALLOWANCE_S, SAFE_WORDS, Const, RampReference,
-                                       Stall, emcys, first_safe_command, log_reaction, rpdos,
-                                       valve_state)
+from tests.support.faults import (LOAD_ALLOWANCE_S, SAFE_WORDS, Const, RampReference, Stall,
+                                  emcys, first_safe_command, log_reaction, rpdos, valve_state)
+from tests.support.stand import BASE, plant
 
 pytestmark = pytest.mark.e2e
 T = 0.002
-BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 
 
 def gateway(bus_spec, lockstep, **limits):
@@ -163,6 +161,7 @@ def test_small_delay_in_lockstep_changes_nothing(channel, start_emulator, tmp_pa
 FLOODED_S = 5.0
 
 
+@pytest.mark.slow
 def test_a_flood_of_garbage_changes_nothing(channel, start_emulator, tmp_path):
     """A separate process floods the bus with random frames (error/remote/extended/FD frames,
     random ids, and the stand's own ids with wrong lengths) at ~4,000 frames/s during a lockstep

@@ -13,7 +13,7 @@ import pytest
 from dbc import profile as P
 from plant.params import ModelError
 from plant_emulator import EmulatedStand, EmulatorOptions
-from tests.conftest import plant
+from tests.support.stand import plant
 
 
 class ScriptedForce(EmulatedStand):

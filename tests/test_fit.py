@@ -12,12 +12,8 @@ from analysis.identification.windows import (pieces_from_records, residual, scre
                                              simulate_piece)
 from analysis.records import synthetic as S
 from plant import PlantModel
-
-BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
-
-
-def meander4(model, seed=1, **kw):
-    return S.meander(model, (5.0, 10.0, 15.0, 20.0), period_s=2.0, cycles=2, seed=seed, **kw)
+from tests.support.records import meander4
+from tests.support.stand import BASE
 
 
 def test_base_fit_recovers_gain_fractional_delay_and_trend_inside_the_intervals():

@@ -11,7 +11,7 @@ import pytest
 
 from analysis import diagnose, make_record
 from analysis.records.glitches import remove_glitches
-from tests import independent_stand as sim
+from tests.support import independent_stand as sim
 
 
 def glitched(y: np.ndarray, rng, count: int, spacing: int = 12) -> tuple[np.ndarray, list]:
@@ -27,6 +27,7 @@ def glitched(y: np.ndarray, rng, count: int, spacing: int = 12) -> tuple[np.ndar
     return z, placed
 
 
+@pytest.mark.slow
 def test_clean_data_of_every_simulated_effect_is_left_alone():
     for effect in sim.EFFECT_PARAMS:
         for _, _, t, u, y, r, _ in sim.make_dataset(effect, 11):
@@ -58,6 +59,7 @@ def test_glitches_are_replaced_by_the_trend(seed):
         assert 60.0 * 0.9 < found.largest_kgf <= 500.0 * 1.1
 
 
+@pytest.mark.slow
 def test_glitches_no_longer_hide_the_missing_effect_and_are_noted(tmp_path):
     """One 60-500 kgf glitch per ~600 samples made a perfect model 4.6× the noise floor
     ("unexplained") and hid a dead zone; now base is adequate, the dead zone is named."""

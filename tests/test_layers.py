@@ -1,5 +1,6 @@
 """The layout is the architecture: a layer imports only the layers below it (docs/architecture.md).
-Every import is read, function-local ones too, so a cycle cannot hide behind a late import."""
+Every import is read, function-local ones too, so a cycle cannot hide behind a late import.
+The tests keep a layout too: shared helpers in tests/support/, no test module imports another."""
 from __future__ import annotations
 
 import ast
@@ -131,3 +132,42 @@ def test_no_import_cycle_between_the_parts_of_analysis():
     for part in sorted(graph):
         cycle = visit(part, [])
         assert cycle is None, "import cycle between parts of analysis: " + " -> ".join(cycle)
+
+
+def imported_modules(path: Path) -> list[tuple[int, str]]:
+    """(line, dotted name) of every module a file imports, at any depth: ``from a import b``
+    gives both ``a`` and ``a.b`` (b may be a module); relative imports are resolved."""
+    package = ".".join(path.relative_to(ROOT).parent.parts)
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parent = package.split(".")[:len(package.split(".")) - node.level + 1]
+                base = ".".join(parent + ([base] if base else []))
+            out += [(node.lineno, base)] + [(node.lineno, f"{base}.{a.name}") for a in node.names]
+    return out
+
+
+def test_no_test_module_imports_another_test_module_or_conftest():
+    """Shared helpers live in tests/support/; fixtures come from conftest.py through pytest."""
+    wrong = []
+    for path in sorted((ROOT / "tests").rglob("*.py")):
+        for line, name in imported_modules(path):
+            last = name.split(".")[-1]
+            if name.startswith("tests.") and (last.startswith("test_") or last == "conftest"):
+                wrong.append(f"{path.relative_to(ROOT)}:{line}: imports {name}")
+    assert not wrong, "import shared helpers from tests/support/ instead:\n" + "\n".join(wrong)
+
+
+def test_the_test_helpers_hold_no_tests():
+    """A module named test_*.py holds tests; helpers sit in tests/support/ under other names."""
+    named_like_tests = sorted(p.name for p in (ROOT / "tests" / "support").rglob("test_*.py"))
+    assert not named_like_tests, named_like_tests
+    for path in sorted((ROOT / "tests").glob("test_*.py")):
+        tree = ast.parse(path.read_text(), str(path))
+        tests = [n for n in tree.body if isinstance(n, (ast.FunctionDef, ast.ClassDef))
+                 and n.name.startswith(("test", "Test"))]
+        assert tests, f"{path.relative_to(ROOT)} holds no tests: move it to tests/support/"

@@ -14,10 +14,10 @@ from loading.design import design
 from loading.programme import from_levels, random_sequence, sine
 from plant import PlantModel
 from stand.cli import main as stand
-from tests.conftest import plant
+from tests.support.stand import BASE, plant
 
 pytestmark = pytest.mark.e2e
-TRUTH = {"g": 120.0, "tau": 0.05, "delta": 8.0}
+TRUTH = BASE          # the emulator's plant in these runs
 T = 0.002
 
 
@@ -30,6 +30,7 @@ def _design(tmp_path, spec="base+reversal", **values):
     return out
 
 
+@pytest.mark.slow
 def test_a_sine_is_tracked_within_half_a_percent_and_reported_as_json(bus_spec, start_emulator,
                                                                        tmp_path, capsys):
     start_emulator(plant(TRUTH, model="base+reversal"), lockstep=True, seed=2)
@@ -76,6 +77,7 @@ def test_a_turning_point_sequence_meets_the_goal_in_passes_and_learns(bus_spec, 
     assert res.compensation.table["peak"] and res.compensation.table["valley"]
 
 
+@pytest.mark.slow
 def test_the_reversal_in_the_model_lowers_the_tracking_error_on_a_stand_with_it(bus_spec, start_emulator,
                                                                                tmp_path):
     start_emulator(plant(TRUTH, model="base+reversal"), lockstep=True, seed=4)

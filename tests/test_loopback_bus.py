@@ -13,7 +13,7 @@ import time
 import can
 import pytest
 
-from tests.conftest import recv_frames
+from tests.support.bus import recv_frames
 from standbus import BusSpec, BusSpecError, open_bus
 from standbus import wire
 from standbus.loopback import LoopbackBus, resolve_channel

@@ -18,9 +18,9 @@ from captures.synthetic import stand_frames, synthetic_run
 from captures.writers import write_candump
 from gateway import Gateway, GatewayConfig, load_run
 from gateway.experiments import Meander
-from tests.conftest import recv_frames
 from standbus import open_bus
-from tests.conftest import plant
+from tests.support.bus import recv_frames
+from tests.support.stand import plant
 
 
 class FakeClock:
@@ -148,6 +148,7 @@ def test_force_trace_holds_the_answer_to_every_sync(tmp_path):
 
 
 @pytest.mark.e2e
+@pytest.mark.slow
 def test_replayed_plant_gives_the_gateway_the_recorded_force(bus_spec, channel, start_emulator, tmp_path):
     """Record on the (emulated) bench, then run the gateway against the recording: the new run
     reads the recorded force sequence, cycle for cycle — also after a change of the experiment."""

@@ -1,34 +1,27 @@
 """stand diagnose --stepwise: data that miss several effects at once, built up one effect at a
-time (our plant model, and the independent simulator of tests/independent_stand.py)."""
+time (our plant model, and the independent simulator of tests/support/independent_stand.py)."""
 from __future__ import annotations
 
 import json
 
-import numpy as np
 import pytest
 
-from analysis import diagnosable_effects, diagnose, make_record, stepwise, write_csv
-from analysis.records import synthetic as S
+from analysis import diagnosable_effects, diagnose, stepwise, write_csv
 from plant import PlantModel, load_model_file
 from stand.cli import main
-from tests import independent_stand as sim
+from tests.support.records import independent_records as independent
+from tests.support.records import meander4, pfeedback, relay
+from tests.support.stand import BASE
 
-BASE = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 THREE = {"reversal.boost": 1.5, "reversal.decay": 0.1, "leakage.rate": 0.2, "backlash.width": 2.0}
 
 
 def campaign(truth: PlantModel, seed: int) -> list:
     """Meanders at four amplitudes, relay at three references, P-feedback at two frequencies."""
-    return [S.meander(truth, (5.0, 10.0, 15.0, 20.0), period_s=2.0, cycles=2, seed=seed),
-            S.relay(truth, 10.0, (0.0, 1500.0, -1500.0), 6.0, seed=seed),
-            S.pfeedback(truth, gain=0.005, amplitude_kgf=2000.0, omegas_rad_s=(0.6283, 1.5), seed=seed)]
+    return [meander4(truth, seed=seed), relay(truth, seed=seed), pfeedback(truth, seed=seed)]
 
 
-def independent(combo: str, seed: int) -> list:
-    return [make_record(t, u, y, r if np.isfinite(r).any() else None, source=name)
-            for name, _, t, u, y, r, _ in sim.make_dataset(combo, seed)]
-
-
+@pytest.mark.slow
 def test_three_effects_no_single_one_explains_are_found_one_after_another():
     truth = PlantModel.from_spec("base+reversal+leakage+backlash", {**BASE, **THREE})
     r = stepwise(campaign(truth, seed=5))
@@ -53,6 +46,7 @@ def test_three_effects_no_single_one_explains_are_found_one_after_another():
     assert {n.effect for n in r.needed if n.kept} == true, r.needed
 
 
+@pytest.mark.slow
 def test_an_effect_picked_early_is_dropped_once_the_real_ones_are_in():
     """Independent simulator, dead zone + asymmetry + leakage: the load-pressure law explains
     most of the first residual, then leakage, dead zone and asymmetry take over and the
@@ -70,6 +64,7 @@ def test_an_effect_picked_early_is_dropped_once_the_real_ones_are_in():
         assert [n.effect for n in gone] == ["load_pressure"] and "dropped" in gone[0].text()
 
 
+@pytest.mark.slow
 def test_a_sensor_filter_behind_a_flow_limit_is_not_a_valve_lag():
     """Independent simulator, 12 % flow limit + 10 ms dynamometer filter: a valve lag sits before
     the limit and cannot mimic it; the sensor lag is found, with its time constant."""
@@ -80,6 +75,7 @@ def test_a_sensor_filter_behind_a_flow_limit_is_not_a_valve_lag():
     assert p["saturation.limit"] == pytest.approx(12.0, rel=0.02)
 
 
+@pytest.mark.slow
 def test_a_dead_zone_is_found_after_a_flow_curve_that_took_part_of_it():
     """Independent simulator, dead zone 1 % then a power-law flow 0.8: the flow curve alone
     fits p = 0.88 and holds part of the dead zone's error, so the dead zone's best start is
@@ -99,6 +95,7 @@ def test_a_dead_zone_is_found_after_a_flow_curve_that_took_part_of_it():
     assert p["flow_curve.exponent"] == pytest.approx(0.8, abs=0.01)
 
 
+@pytest.mark.slow
 def test_what_the_catalogue_cannot_explain_stays_unexplained_after_what_it_can():
     r = stepwise(independent("osc+asymmetry", 1005))
     assert r.verdict == "unexplained" and r.model.spec == "base+asymmetry", r.summary
@@ -110,6 +107,7 @@ def test_nothing_missing_is_one_step():
     assert r.verdict == "adequate" and r.model.spec == "base" and len(r.steps) == 1
 
 
+@pytest.mark.slow
 def test_cli_stepwise_json_plot_and_saved_model(tmp_path, capsys):
     truth = PlantModel.from_spec("base+reversal+deadzone",
                                  {**BASE, "reversal.boost": 2.0, "reversal.decay": 0.15,

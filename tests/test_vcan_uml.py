@@ -65,6 +65,7 @@ def test_uml_runner_returns_the_commands_status_and_output():
     assert "from-inside" in res.stdout and "vcan0" in res.stdout
 
 
+@pytest.mark.slow
 def test_meander_over_vcan_matches_the_emulator_truth(vcan_runs):
     info = vcan_runs["meander"]
     assert info["status"] == "complete", info
@@ -74,6 +75,7 @@ def test_meander_over_vcan_matches_the_emulator_truth(vcan_runs):
     assert est.g == pytest.approx(120.0, rel=0.03)
 
 
+@pytest.mark.slow
 def test_relay_over_vcan_matches_the_emulator_truth(vcan_runs):
     info = vcan_runs["relay"]
     assert info["status"] == "complete", info
@@ -83,6 +85,7 @@ def test_relay_over_vcan_matches_the_emulator_truth(vcan_runs):
 
 
 @pytest.mark.parametrize("name", ["meander", "relay"])
+@pytest.mark.slow
 def test_candump_capture_decodes_to_the_recorded_signals(vcan_runs, name):
     """can-utils' candump -- a peer we did not write -- captured the same cycles the gateway
     recorded: decoded with the stand's DBC they give the same command and force, bit for bit."""
