@@ -7,8 +7,7 @@ import numpy as np
 import pytest
 
 from core.errors import DataError, ParameterError
-from loading.programme import (check_programme, from_levels, load_programme, random_sequence,
-                               sine)
+from loading.programme import check_programme, from_levels, load_programme, random_sequence
 
 T = 0.002
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from plant import PlantModel, load_model_file, model_to_toml, plugins
+from plant import PlantModel, model_to_toml, plugins
 from plant.effects import CATALOGUE
 from plant.plugins import PluginError, load_plugins
 from plant.skeleton import skeleton

@@ -20,7 +20,6 @@ def meanders(shift_s, amp=10.0, half=0.5, seconds=40.0, osc=0.0, seed=0):
     n = int(seconds / DT)
     t = np.arange(n) * DT
     u = np.where((t // half) % 2 == 0, amp, -amp)
-    tf = np.arange(n * FINE) * (DT / FINE)
     edges = np.flatnonzero(np.diff(u)) + 1
     uf = np.repeat(u, FINE)
     for i, k in enumerate(edges):           # move each step by its own timing error
