@@ -102,13 +102,14 @@ class Effect:
         """Starts of the fit's local searches for this effect: ``[{"name.param": value}]``.
 
         ``s`` summarises the data (``dt``, ``u_abs_levels``, ``u_abs_max``, ``y_abs_max``,
-        ``y_span``, ``duration_s``, and where known what the residual of the model without
-        this effect shows: ``residual_frequency_hz``, ``residual_amplitude_kgf``), ``base`` is
-        the base fit. The default (:func:`plant.start_grids.generic_starts`): each parameter's
-        default and values across its bounds, and a parameter in Hz (kgf) also at the residual's
-        dominant frequency (amplitude).
+        ``y_span``, ``duration_s``, and what the residual of the model without this effect
+        shows: ``residual_periodic(carrier)``, its dominant sinusoid read as the force, its
+        rate or its rate over the flow), ``base`` is the base fit. The default
+        (:func:`plant.start_grids.generic_starts`): each parameter's default and values across
+        its bounds, and a parameter in Hz (kgf) also at the residual's dominant frequency
+        (amplitude), read where this effect acts.
         """
-        return generic_starts(cls.name, cls.params, s)
+        return generic_starts(cls.name, cls.params, s, cls.stage)
 
     @classmethod
     def ambiguities(cls, ev: Evidence) -> list[Ambiguity]:

@@ -27,18 +27,33 @@ def and_less_delay(start: dict, base: Mapping[str, float], extra_s: float) -> li
 GENERIC_LIMIT = 48
 
 
-def generic_starts(effect: str, params: Sequence[Param], s: Any = None,
+#: where in the signal path an effect acts -> how its trace in the residual is read
+#: (:meth:`analysis.identification.starts.DataSummary.residual_periodic`)
+CARRIER = {"VALVE": "rate", "FLOW": "flow"}
+
+
+def generic_starts(effect: str, params: Sequence[Param], s: Any = None, stage: Any = None,
                    limit: int = GENERIC_LIMIT) -> list[dict]:
     """The start grid of an effect that declares none (a plug-in's, by default).
 
     Each parameter takes its default and values across its bounds (three, log-spaced for
-    ``log=True``, at 1/6, 1/2 and 5/6 of the range otherwise). Where the data summary ``s``
-    knows what the residual of the model without the effect looks like, a parameter in Hz also
-    starts at the residual's dominant frequency (``s.residual_frequency_hz``) and one in kgf at
-    its amplitude (``s.residual_amplitude_kgf``): those starts come first, with the other
-    parameters across their grids. Beyond ``limit`` combinations, an even spread of them."""
-    hints = {"hz": getattr(s, "residual_frequency_hz", None),
-             "kgf": getattr(s, "residual_amplitude_kgf", None)}
+    ``log=True``, at 1/6, 1/2 and 5/6 of the range otherwise). Where the data summary ``s`` can
+    say what the residual of the model without the effect looks like, a parameter in Hz (or
+    rad/s) also starts at the residual's dominant frequency, read where the effect acts
+    (``stage``: the force for a disturbance, its rate over the flow for a FLOW effect, its rate
+    for a VALVE effect), and one in kgf at the force residual's amplitude: those starts come
+    first, with the other parameters across their grids. Beyond ``limit`` combinations, an
+    even spread."""
+    hints: dict[str, float | None] = {}
+    if s is not None and hasattr(s, "residual_periodic"):
+        units = {p.unit.strip().lower() for p in params}
+        if units & {"hz", "rad/s"}:
+            carrier = CARRIER.get(getattr(stage, "name", ""), "force")
+            f = s.residual_periodic(carrier).frequency_hz
+            hints["hz"] = f
+            hints["rad/s"] = None if f is None else 2 * np.pi * f
+        if "kgf" in units:
+            hints["kgf"] = s.residual_periodic("force").amplitude_kgf
     axes, hinted = [], []
     for p in params:
         if p.log:

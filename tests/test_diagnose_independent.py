@@ -119,6 +119,12 @@ def test_independent_simulator(effect):
         assert said, d.observations
         ms = float(said[0].split("about ±")[1].split(" ms")[0])
         assert 0.6 < ms < 1.6, said[0]
+    elif effect == "supripple":
+        # a gain that oscillates with the supply (no catalogue effect has it): the force shows
+        # only sidebands of the command's reversals, the rate over the flow the one line
+        assert d.verdict == "unexplained", d.summary
+        assert d.unexplained.gain_frequency_hz == pytest.approx(3.0, abs=0.02), d.summary
+        assert "--stage flow" in d.unexplained.next_step
     else:
         assert effect == "osc", effect
         assert d.verdict == "unexplained", d.summary

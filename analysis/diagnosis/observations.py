@@ -19,11 +19,12 @@ import numpy as np
 from plant import PlantModel
 
 from ..identification.fit import FitResult
-from ..identification.periodic import Segment, dominant_periodic
+from ..identification.periodic import Segment, dominant_periodic, residual_periodic
 from ..identification.metrics import (AFTER_REVERSAL_S, Evaluation, RecordSimulation,
                                       command_levels, demeaned_residual, input_correlation_test,
                                       is_closed_loop, reversal_mask, simulate_records,
                                       window_increments)
+from ..identification.windows import pieces_from_records
 from ..records.record import Record
 from .timing import jitter_observation
 
@@ -48,6 +49,10 @@ class Unexplained:
     rmse_over_floor: float
     correlated_with_command: bool
     description: str
+    #: what the user can do: write the missing law as a plug-in, at the stage it suggests
+    next_step: str = ""
+    #: where the residual's rate over the flow has a line (a gain changing periodically)
+    gain_frequency_hz: float | None = None
 
 
 def pct(x: float) -> str:
@@ -227,12 +232,20 @@ def _signed_pct(x: float) -> str:
     return f"{abs(x) * 100:.0f} % too {'fast' if x > 0 else 'slow'}"
 
 
+#: a line in the residual's rate over the flow standing out this many times from its
+#: surroundings, at no frequency of the command, reads as a gain that changes periodically
+GAIN_LINE_PROMINENCE = 100.0
+
+
 def describe_unexplained(ev: Evaluation, floor: float, ratio: float,
                          fit: FitResult) -> Unexplained:
-    """What the residual left by every candidate looks like: periodic or broadband, where."""
+    """What the residual left by every candidate looks like: periodic or broadband, where; and
+    when the force's residual is not periodic, whether the gain is (a periodic change of the
+    gain under a reversing command shows in the force only as sidebands)."""
     f, amp, share = periodic_component(ev.sims, floor)
     corr = command_has_line(ev.sims, f) if f is not None else False
     closed = is_closed_loop(ev.sims)
+    gain_f = None
     if f is not None and share >= 0.5:
         desc = (f"the residual is periodic at {f:.3g} Hz (amplitude ≈ {amp:.3g} kgf, "
                 f"{pct(share)} of the error above the noise)"
@@ -252,8 +265,29 @@ def describe_unexplained(ev: Evaluation, floor: float, ratio: float,
         if where is not None:
             desc += (f"; it is largest in '{where.name}' ({pct(where.sse_share)} of the squared "
                      f"error in {pct(where.time_share)} of the time)")
+        records = list({id(s.record): s.record for s in ev.sims}.values())
+        gain = residual_periodic(fit.model, pieces_from_records(records, ev.window_s), "flow")
+        if (gain.frequency_hz is not None and gain.prominence >= GAIN_LINE_PROMINENCE
+                and not command_has_line(ev.sims, gain.frequency_hz)):
+            gain_f = gain.frequency_hz
+            desc += (f"; read as a change of the gain (the residual's rate over the flow g·q), "
+                     f"it is periodic at {gain_f:.3g} Hz ({gain.prominence:.0f}× its "
+                     f"surroundings, ≈ {100 * gain.amplitude_kgf:.2g} % of g): a gain that "
+                     f"changes at {gain_f:.3g} Hz, such as a supply pressure that oscillates")
+    if f is not None and share >= 0.5 and not corr:
+        stage, law = "disturbance", f"a force at {f:.3g} Hz"
+    elif f is not None and share >= 0.5:
+        stage, law = "flow", f"a gain that changes at {f:.3g} Hz"
+    elif gain_f is not None:
+        stage, law = "flow", f"a gain that changes at {gain_f:.3g} Hz"
+    else:
+        stage, law = "flow", "the law"
+    step = (f"next: write {law} as an effect of your own (`stand effects --new NAME --stage "
+            f"{stage} > NAME.py`, docs/your-own-effect.md) and diagnose again with "
+            f"--effects NAME.py")
     return Unexplained(dominant_frequency_hz=f, amplitude_kgf=amp, periodic_share=share,
-                       rmse_over_floor=ratio, correlated_with_command=corr, description=desc)
+                       rmse_over_floor=ratio, correlated_with_command=corr, description=desc,
+                       next_step=step, gain_frequency_hz=gain_f)
 
 
 def residual_is_noise(model: PlantModel, records: Sequence[Record], window_s: float,

@@ -107,10 +107,10 @@ def pick(d: Diagnosis) -> tuple[Candidate | None, str]:
         return None, "adequate: the error is within the noise"
     if d.verdict == "varies_between_records":
         return None, (f"a {d.between.varies} of its own per record explains the error better "
-                      f"than any catalogue effect: the stand changed between the runs")
+                      f"than any effect tried: the stand changed between the runs")
     helping = [c for c in d.candidates if c.helps]
     if not helping:
-        return None, "no catalogue effect lowers the error significantly"
+        return None, "no effect tried lowers the error significantly"
     c = helping[0]
     return c, (f"part of the missing behaviour: lowers the error by {100 * c.rmse_reduction:.0f} % "
                f"({100 * max(c.excess_share, 0):.0f} % of the excess), significant and "
@@ -287,7 +287,7 @@ def _summary(steps: list[Step], verdict: str, fit: FitResult, needed: list[Neede
     elif verdict == "varies_between_records":
         head = f"{fit.model.spec} explains each record, not all of them with one g and Δ ({last.between.text})"
     elif verdict == "unexplained":
-        head = (f"{fit.model.spec} is the closest the catalogue gets; the rest is unexplained"
+        head = (f"{fit.model.spec} is the closest the effects tried get; the rest is unexplained"
                 + (f" ({last.unexplained.description})" if last.unexplained else ""))
     else:
         head = f"stopped at {fit.model.spec} (effect limit); the error is still above the noise"

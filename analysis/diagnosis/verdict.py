@@ -386,9 +386,10 @@ def conclude(best: Candidate | None, between: BetweenRecords | None, base: Start
             observations.append(between.text + ("" if between.stats.earns else
                                                 ": part of the missing behaviour, not all of it"))
         unexplained = describe_unexplained(base.evaluation, floor, ratio, base.fit)
+        observations.append(unexplained.next_step)
         return Conclusion("unexplained",
-                          f"unexplained: the error is {ratio:.2f}× the noise floor and no catalogue "
-                          f"effect removes it; {unexplained.description}", None,
+                          f"unexplained: the error is {ratio:.2f}× the noise floor and no effect "
+                          f"tried removes it; {unexplained.description}", None,
                           observations=observations, unexplained=unexplained)
     return Conclusion("adequate", f"adequate: {base.model.spec} explains the data to "
                                   f"{ratio:.2f}× the noise floor; no effect earns its parameters",

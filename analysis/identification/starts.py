@@ -6,7 +6,6 @@ g and Δ projected (:mod:`.projection`), refined by a bounded scalar search.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import cached_property
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -33,6 +32,7 @@ class DataSummary:
     #: the model the effects are tried on, at its fitted values (None: unknown)
     reference: PlantModel | None = field(default=None, repr=False, compare=False)
     pieces: Sequence[Piece] = field(default=(), repr=False, compare=False)
+    _periodic: dict = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def of(cls, pieces: Sequence[Piece], reference: PlantModel | None = None) -> "DataSummary":
@@ -48,18 +48,24 @@ class DataSummary:
                    duration_s=max(p.t0 + len(p.u) * p.dt for p in pieces),
                    reference=reference, pieces=pieces)
 
-    @cached_property
-    def residual(self) -> Periodic:
-        """The dominant sinusoid in the reference model's residual (none without one)."""
-        return NONE if self.reference is None else residual_periodic(self.reference, self.pieces)
+    def residual_periodic(self, carrier: str = "force") -> Periodic:
+        """The dominant sinusoid in the reference model's residual, read as ``carrier`` (the
+        force, its rate, or its rate over the flow: :func:`.periodic.residual_periodic`);
+        computed once per carrier, and only when a start grid asks."""
+        if self.reference is None:
+            return NONE
+        if carrier not in self._periodic:
+            self._periodic[carrier] = residual_periodic(self.reference, self.pieces, carrier)
+        return self._periodic[carrier]
 
     @property
     def residual_frequency_hz(self) -> float | None:
-        return self.residual.frequency_hz
+        """The force residual's dominant frequency (a disturbance's)."""
+        return self.residual_periodic().frequency_hz
 
     @property
     def residual_amplitude_kgf(self) -> float | None:
-        return self.residual.amplitude_kgf
+        return self.residual_periodic().amplitude_kgf
 
 
 def without(model_spec: str, values: Mapping[str, float], effects: Sequence[str]) -> PlantModel:

@@ -50,6 +50,9 @@ One hidden effect per simulation (or "none"), or several joined by "+":
   stiction   rod seal friction: the specimen's force is a play of total width w = 200 kgf on the
              hydraulic force (the rod sticks after each reversal until the pressure has
              changed by w); the dynamometer measures the specimen's force
+  supripple  the supply pressure oscillates, and the flow with it: flow x (1 + a*sin(2*pi*f*t +
+             phase)), a = 0.15, f = 3 Hz, t since the run began (phase as for osc); no
+             catalogue effect has this law (docs/your-own-effect.md writes it as a plug-in)
 """
 from __future__ import annotations
 
@@ -91,6 +94,7 @@ EFFECT_PARAMS = {
     "nulldrift": dict(b=0.005),
     "rev_force": dict(boost=2.0, F=150.0),
     "forcelimit": dict(Fmax=1500.0),
+    "supripple": dict(a=0.15, f=3.0),
 }
 
 
@@ -229,6 +233,9 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
                 sp = P["supply"]
                 ps += H * ((1.0 - ps) / sp["T"] - sp["c"] * abs(q) / 100.0)
                 q *= math.sqrt(max(ps, 0.0))
+            if "supripple" in es:
+                sr = P["supripple"]
+                q *= 1.0 + sr["a"] * math.sin(2 * math.pi * sr["f"] * t + osc_phase)
             if "asymmetry" in es and q < 0:
                 q *= P["asymmetry"]["neg"]
             if "loadpress" in es:

@@ -24,10 +24,11 @@ def pfeedback(model, seed=1, omegas=(0.6283, 1.5), **kw):
     return S.pfeedback(model, gain=0.005, amplitude_kgf=2000.0, omegas_rad_s=omegas, seed=seed, **kw)
 
 
-def independent_records(effects: str, seed: int) -> list:
-    """The independent simulator's eight runs with ``effects`` ("none", or names joined by "+")."""
+def independent_records(effects: str, seed: int, fixed_phase: float | None = None) -> list:
+    """The independent simulator's eight runs with ``effects`` ("none", or names joined by
+    "+"); ``fixed_phase``: an oscillation or ripple starts in that phase in every run."""
     return [make_record(t, u, y, r if np.isfinite(r).any() else None, source=name)
-            for name, _, t, u, y, r, _ in sim.make_dataset(effects, seed)]
+            for name, _, t, u, y, r, _ in sim.make_dataset(effects, seed, fixed_phase)]
 
 
 #: simulator effect -> the catalogue effects that name it exactly or equivalently (one effect,
