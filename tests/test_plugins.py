@@ -256,3 +256,20 @@ def test_the_emulator_runs_a_plugin_and_a_recorded_run_shows_it(tmp_path, bus_sp
     freqs = np.fft.rfftfreq(len(resid) - 200, rec.dt)
     band = (freqs > 0.5) & (freqs < 20)
     assert freqs[band][np.argmax(spec[band])] == pytest.approx(2.5, abs=0.1)
+
+
+def test_an_emulator_configuration_with_a_plugin_names_it_for_the_emulator_process(tmp_path):
+    """stand demo, stand campaign and the tests start the emulator from a written plant file:
+    it names the plug-in's file, so the emulator process loads it."""
+    from plant import load_plant_config
+    from plant_emulator.process import config_to_toml
+    f = write(tmp_path / "ripple.py", RIPPLE)
+    load_plugins([f])
+    config = load_plant_config(None, "base+ripple", {"ripple.frequency": 2.5})
+    plant_file = write(tmp_path / "elsewhere.toml", config_to_toml(config))
+    code = ("from plant import load_plant_config\n"
+            f"c = load_plant_config({str(plant_file)!r})\n"
+            "print(c.model.spec, c.model.params()['ripple.frequency'])")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split() == ["base+ripple", "2.5"]
