@@ -39,3 +39,11 @@ def start_emulator(bus_spec):
     yield start
     for proc in started:
         proc.stop()
+
+
+@pytest.fixture
+def isolated_catalogue():
+    """A test that loads plug-ins leaves the effect catalogue as it found it."""
+    from tests.support.plugins import isolated_catalogue as isolated
+    with isolated():
+        yield

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -16,42 +15,11 @@ from plant import PlantModel, model_to_toml, plugins
 from plant.effects import CATALOGUE
 from plant.plugins import PluginError, load_plugins
 from plant.skeleton import skeleton
+from tests.support.plugins import RIPPLE
 
 ROOT = Path(__file__).resolve().parents[1]
 
-RIPPLE = textwrap.dedent('''\
-    import numpy as np
-    from plant import Effect, Param, Stage
-
-    class Ripple(Effect):
-        """Pump ripple: a force disturbance A·sin(2πft + φ)."""
-        name = "ripple"
-        stage = Stage.DISTURBANCE
-        summary = "pump ripple"
-        params = (Param("amplitude", 20.0, 0.0, 500.0, "kgf", "amplitude A"),
-                  Param("frequency", 1.0, 0.1, 50.0, "Hz", "frequency f", log=True),
-                  Param("phase", 0.0, -3.1416, 3.1416, "rad", "phase"))
-
-        def disturbance(self, t, dt):
-            w = 2 * np.pi * self.frequency
-            return self.amplitude * (np.sin(w * (t + dt) + self.phase) - np.sin(w * t + self.phase)) / dt
-''')
-
-
-@pytest.fixture(autouse=True)
-def isolated_catalogue():
-    """Plug-ins join the process's catalogue: each test here leaves it as it found it."""
-    saved = (dict(CATALOGUE), dict(plugins.ORIGINS), dict(plugins._LOADED),
-             plugins._installed_loaded, list(plugins.WARNINGS))
-    yield
-    CATALOGUE.clear()
-    CATALOGUE.update(saved[0])
-    plugins.ORIGINS.clear()
-    plugins.ORIGINS.update(saved[1])
-    plugins._LOADED.clear()
-    plugins._LOADED.update(saved[2])
-    plugins._installed_loaded = saved[3]
-    plugins.WARNINGS[:] = saved[4]
+pytestmark = pytest.mark.usefixtures("isolated_catalogue")
 
 
 def stand(*args: str, cwd: Path | None = None, env: dict | None = None,

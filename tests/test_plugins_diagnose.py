@@ -16,9 +16,9 @@ import pytest
 from analysis import diagnose, write_csv
 from analysis.records.synthetic import meander
 from plant import PlantModel, plugins
-from plant.effects import CATALOGUE
 from plant.params import Param
 from plant.start_grids import GENERIC_LIMIT, generic_starts
+from tests.support.plugins import RIPPLE
 from tests.support.records import independent_records
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -32,32 +32,7 @@ def docs_plugin() -> str:
     return blocks[0]
 
 
-RIPPLE = '''
-import numpy as np
-from plant import Effect, Param, Stage
-
-class Ripple(Effect):
-    """A force disturbance A·sin(2πft + φ): a neighbouring actuator."""
-    name = "ripple"
-    stage = Stage.DISTURBANCE
-    summary = "pump ripple"
-    params = (Param("amplitude", 20.0, 0.0, 500.0, "kgf", "amplitude A"),
-              Param("frequency", 1.0, 0.1, 50.0, "Hz", "frequency f", log=True),
-              Param("phase", 0.0, -3.1416, 3.1416, "rad", "phase"))
-
-    def disturbance(self, t, dt):
-        w = 2 * np.pi * self.frequency
-        return self.amplitude * (np.sin(w * (t + dt) + self.phase) - np.sin(w * t + self.phase)) / dt
-'''
-
-
-@pytest.fixture(autouse=True)
-def isolated_catalogue():
-    saved = (dict(CATALOGUE), dict(plugins.ORIGINS), dict(plugins._LOADED))
-    yield
-    for live, old in zip((CATALOGUE, plugins.ORIGINS, plugins._LOADED), saved):
-        live.clear()
-        live.update(old)
+pytestmark = pytest.mark.usefixtures("isolated_catalogue")
 
 
 def stand(*args: str, cwd: Path, timeout: float = 600) -> subprocess.CompletedProcess:
