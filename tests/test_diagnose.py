@@ -50,7 +50,12 @@ def assert_found(d, effect, min_reduction=0.70):
 # ------------------------------------------------------------------------------------------
 # one hidden effect: named, and adding it cuts the windowed RMSE by at least 70 %
 # ------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("effect", list(HIDDEN))
+#: the quick loop's cases (a FLOW, a VALVE nonlinearity and a VALVE dynamics); the others are slow
+QUICK_HIDDEN = {"reversal", "deadzone", "lag"}
+
+
+@pytest.mark.parametrize("effect", [e if e in QUICK_HIDDEN else pytest.param(e, marks=pytest.mark.slow)
+                                    for e in HIDDEN])
 def test_meander_at_several_amplitudes_names_each_hidden_effect(effect):
     d = diagnose([meander4(plant(effect), seed=2)])
     assert_found(d, effect)
@@ -102,7 +107,8 @@ def test_an_asymmetry_is_described_as_a_lower_retract_slope():
 # ------------------------------------------------------------------------------------------
 # no hidden effect: adequate, across seeds, noise levels, sampling rates and excitations
 # ------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("excitation", [meander4, relay, pfeedback])
+@pytest.mark.parametrize("excitation", [meander4, pytest.param(relay, marks=pytest.mark.slow),
+                                        pytest.param(pfeedback, marks=pytest.mark.slow)])
 def test_the_base_model_is_adequate_for_base_data(excitation):
     d = diagnose([excitation(plant(), seed=7)])
     assert d.verdict == "adequate", d.summary
