@@ -121,7 +121,13 @@ class DecodeResult:
         if f.error_frames:
             out.append(f"{f.error_frames} CAN error frame(s)")
         if f.other_channel:
-            out.append(f"{f.other_channel} frame(s) of other channels skipped")
+            others = ", ".join(f.other_channels)
+            if f.channel_chosen is not None:
+                out.append(f"frames on several channels: the stand's loop read from "
+                           f"{f.channel_chosen} (its first SYNC), {f.other_channel} frame(s) of "
+                           f"{others} skipped; for another give channel=NAME (stand decode --channel)")
+            else:
+                out.append(f"{f.other_channel} frame(s) of other channels ({others}) skipped")
         for r in ([run] if run is not None else self.runs):
             if r.stale:
                 out.append(f"run {r.index}: {r.stale} stale cycle(s) (force TPDO late or missing; "
@@ -275,6 +281,9 @@ class _NoCycles:
     wanted: dict = {}
     runs: list = []
 
+    def choose_channel(self, chunk) -> None:
+        pass
+
     def feed(self, chunk, decoded) -> None:
         pass
 
@@ -344,6 +353,7 @@ def decode_capture(path: str | Path, out: str | Path | None = None, *, collect: 
     try:
         done = 0
         for chunk in reader:
+            assembler.choose_channel(chunk)
             decoded = decoder.decode(chunk, wanted)
             if frames_out is not None:
                 frames_out.write(decoded)
