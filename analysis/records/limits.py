@@ -2,7 +2,7 @@ r"""A force held at a hydraulic limit: stretches the model must not be asked to 
 
 A relief valve, a stroke end or the stand's pressure limit stops the force at a level for
 seconds while the valve command keeps pushing; the dynamometer's noise stays on top, so it is
-not the dynamometer's flat clip (:func:`analysis.identification.windows.clipped_mask`). No effect of the plant
+not the dynamometer's flat clip (:func:`clipped_mask`, left out too, with a note of its own). No effect of the plant
 model should bend to explain it: the diagnosis would add wrong effects (a direction-dependent
 delay, a load-pressure law) and call the rest unexplained. Such stretches are left out of the
 error like clipped readings (the command history runs on through them) and said in a note.
@@ -105,7 +105,7 @@ def held_stretches(u: np.ndarray, y: np.ndarray, dt: float, hold_s: float = HOLD
     for a, b, sign in sorted(spans):
         seg = y[a:b]
         if b - a < 5 or max(np.mean(seg == seg.max()), np.mean(seg == seg.min())) > 0.5:
-            continue        # too short to tell; or the dynamometer's flat clip (windows.clipped_mask)
+            continue        # too short to tell; or the dynamometer's flat clip (clipped_mask)
         if a < w:
             # held from the record's start: how it got there is unknown; a long hold under a
             # push is taken for a limit (a relay or a loop asked for a force beyond it)
@@ -134,6 +134,34 @@ def held_stretches(u: np.ndarray, y: np.ndarray, dt: float, hold_s: float = HOLD
             b += 1
         out.append(HeldStretch(int(a), int(b), level, command, float(a * dt), float(b * dt)))
     return out
+
+
+def clipped_mask(y: np.ndarray, run: int = 5) -> np.ndarray:
+    """Samples where the dynamometer sits at the record's extreme value for ``run`` or more
+    samples in a row: a reading clipped at its range (the true force is unknown there)."""
+    y = np.asarray(y, float)
+    mask = np.zeros(len(y), bool)
+    if not len(y):
+        return mask
+    for extreme in (y.max(), y.min()):
+        at = np.isclose(y, extreme, rtol=0, atol=1e-9 * max(1.0, abs(extreme)))
+        edges = np.flatnonzero(np.diff(np.r_[0, at.astype(np.int8), 0]))
+        for a, b in zip(edges[::2], edges[1::2]):
+            if b - a >= run:
+                mask[a:b] = True
+    return mask
+
+
+def clipped_note(t: np.ndarray, y: np.ndarray, mask: np.ndarray) -> str:
+    """What a record's note says of its readings clipped at the dynamometer's range."""
+    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
+    starts = edges[::2]
+    levels = " and ".join(f"{v:+.0f}" for v in sorted({float(y[a]) for a in starts}))
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    return (f"force reading clipped at the dynamometer's range ({levels} kgf) in {len(starts)} "
+            f"stretch(es), {mask.sum() * dt:.3g} s in all from t = {t[starts[0]] - t[0]:.2f} s: the "
+            "true force is unknown there, left out of the model's error (to keep such stretches, "
+            "load within the range: a smaller command or reference)")
 
 
 def _slope(x: np.ndarray, dt: float) -> float:

@@ -16,7 +16,7 @@ import numpy as np
 from gateway.errors import DataError
 
 from .glitches import remove_glitches
-from .limits import held_stretches
+from .limits import clipped_mask, clipped_note, held_stretches
 
 #: relative spread of sample intervals above which a record is resampled to a uniform grid
 JITTER_TOLERANCE = 0.05
@@ -67,10 +67,11 @@ def make_record(t, u, y, r=None, source: str = "<arrays>", experiment: str | Non
                 meta: dict | None = None, min_samples: int = 20) -> Record:
     """Validate and tidy arrays into a :class:`Record`.
 
-    Rejects (with :class:`DataError`) too few samples, non-finite time, time that does not
-    increase; drops rows with non-finite u or y (counted in ``notes``); resamples to a uniform
-    grid if the sampling jitters by more than 5 %; replaces glitches in the force (1-3 samples
-    far off the trend, :mod:`analysis.records.glitches`), noted too."""
+    Rejects (with :class:`DataError`) too few samples; drops rows with non-finite t, u or y
+    (counted in ``notes``); sorts rows out of order and drops repeated times (noted); resamples to a uniform grid if the sampling jitters by more than 5 %; replaces
+    glitches in the force (1-3 samples far off the trend, :mod:`analysis.records.glitches`);
+    notes readings clipped at the dynamometer's range and holds at a hydraulic limit
+    (:mod:`analysis.records.limits`)."""
     t = np.asarray(t, float)
     u = np.asarray(u, float)
     y = np.asarray(y, float)
@@ -114,6 +115,9 @@ def make_record(t, u, y, r=None, source: str = "<arrays>", experiment: str | Non
     y, glitches = remove_glitches(y)
     if glitches.count:
         notes.append(glitches.note())
+    clipped = clipped_mask(y)
+    if clipped.any():
+        notes.append(clipped_note(t, y, clipped))
     if len(t) > 1:
         for held in held_stretches(u, y, float(np.median(np.diff(t)))):
             notes.append(f"{held.describe()}: a hydraulic limit (relief valve, stroke end, pressure "
