@@ -45,7 +45,8 @@ class DecodeOptions:
 
     ``period_s``: the control period if the capture does not say it (overrides the 0x1006
     download and the median SYNC interval); ``clock``: "lockstep" / "realtime" / None (auto);
-    ``channel``: only frames of this channel (several buses in one file); ``run``: only this run
+    ``channel``: only frames of this channel (several buses in one file; None: the channel the
+    stand's first SYNC comes on, :meth:`CycleAssembler.choose_channel`); ``run``: only this run
     (0-based) of a capture holding several; ``on_damage``: "stop" at the first damaged
     line/object (everything before it is decoded) or "skip" it and go on (candump lines,
     BLF containers and objects)."""
@@ -125,7 +126,7 @@ class DecodeResult:
             if f.channel_chosen is not None:
                 out.append(f"frames on several channels: the stand's loop read from "
                            f"{f.channel_chosen} (its first SYNC), {f.other_channel} frame(s) of "
-                           f"{others} skipped; for another give channel=NAME (stand decode --channel)")
+                           f"{others} skipped; to read another, decode it with stand decode --channel NAME")
             else:
                 out.append(f"{f.other_channel} frame(s) of other channels ({others}) skipped")
         for r in ([run] if run is not None else self.runs):
