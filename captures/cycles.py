@@ -224,8 +224,7 @@ class CycleAssembler:
         # SYNC from the raw frames: with its 1-byte counter (the DBC's layout) or without
         # (DLC 0, CiA 301's plain SYNC, which the DBC decoder counts as the wrong length)
         mine = self._channel_mask(chunk)
-        sync = np.flatnonzero((chunk.can_id == self.sync_msg.frame_id) & (chunk.dlc <= 1) & mine
-                              & ((chunk.flags & (EXTENDED | REMOTE | ERROR)) == (EXTENDED if self.sync_msg.extended else 0)))
+        sync = np.flatnonzero(self._is_sync(chunk) & mine)
         if len(sync):
             self.S.add(base + sync, chunk.ts[sync])
         if self.force_msg.name in decoded:
@@ -244,6 +243,22 @@ class CycleAssembler:
         self._find_period_writes(chunk, base, mine)
         self._find_clock_reads(chunk, base, mine)
         self._process(final=False)
+
+    def _is_sync(self, chunk: FrameChunk) -> np.ndarray:
+        """SYNC frames (data frames with the SYNC's id and at most its counter byte)."""
+        return ((chunk.can_id == self.sync_msg.frame_id) & (chunk.dlc <= 1)
+                & ((chunk.flags & (EXTENDED | REMOTE | ERROR)) == (EXTENDED if self.sync_msg.extended else 0)))
+
+    def choose_channel(self, chunk: FrameChunk) -> None:
+        """Without a channel given, keep the one the stand's first SYNC comes on: a logger
+        recording several buses writes them into one capture, and another bus may use the
+        same ids (a second stand, another machine's node 2). Call before decoding ``chunk``."""
+        if self.decoder.channel is not None or not chunk.channels:
+            return
+        sync = np.flatnonzero(self._is_sync(chunk))
+        if len(sync):
+            self.decoder.channel = chunk.channels[int(chunk.channel[sync[0]])]
+            self.decoder.stats.channel_chosen = self.decoder.channel
 
     def _channel_mask(self, chunk: FrameChunk) -> np.ndarray | bool:
         """Frames on the channel the decoder keeps (all, without a channel option)."""

@@ -196,6 +196,10 @@ class DecodeStats:
     remote: int = 0
     error_frames: int = 0
     other_channel: int = 0
+    #: the names of the channels whose frames were skipped
+    other_channels: list = field(default_factory=list)
+    #: the channel kept when none was given: the one of the stand's first SYNC
+    channel_chosen: str | None = None
     out_of_order: int = 0
     max_backstep_s: float = 0.0
     first_ts: float | None = None
@@ -289,7 +293,11 @@ class FrameDecoder:
                 other = chunk.channel != chunk.channels.index(self.channel)
             else:
                 other = np.ones(len(chunk), bool)
-            st.other_channel += int((other & (idx != -2)).sum())
+            skipped = other & (idx != -2)
+            st.other_channel += int(skipped.sum())
+            for i in np.unique(chunk.channel[skipped]).tolist():
+                if chunk.channels[i] not in st.other_channels:
+                    st.other_channels.append(chunk.channels[i])
             idx[other] = -2
         unknown = idx == -1
         n_unknown = int(unknown.sum())

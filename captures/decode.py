@@ -45,7 +45,8 @@ class DecodeOptions:
 
     ``period_s``: the control period if the capture does not say it (overrides the 0x1006
     download and the median SYNC interval); ``clock``: "lockstep" / "realtime" / None (auto);
-    ``channel``: only frames of this channel (several buses in one file); ``run``: only this run
+    ``channel``: only frames of this channel (several buses in one file; None: the channel the
+    stand's first SYNC comes on, :meth:`CycleAssembler.choose_channel`); ``run``: only this run
     (0-based) of a capture holding several; ``on_damage``: "stop" at the first damaged
     line/object (everything before it is decoded) or "skip" it and go on (candump lines,
     BLF containers and objects)."""
@@ -121,7 +122,13 @@ class DecodeResult:
         if f.error_frames:
             out.append(f"{f.error_frames} CAN error frame(s)")
         if f.other_channel:
-            out.append(f"{f.other_channel} frame(s) of other channels skipped")
+            others = ", ".join(f.other_channels)
+            if f.channel_chosen is not None:
+                out.append(f"frames on several channels: the stand's loop read from "
+                           f"{f.channel_chosen} (its first SYNC), {f.other_channel} frame(s) of "
+                           f"{others} skipped; to read another, decode it with stand decode --channel NAME")
+            else:
+                out.append(f"{f.other_channel} frame(s) of other channels ({others}) skipped")
         for r in ([run] if run is not None else self.runs):
             if r.stale:
                 out.append(f"run {r.index}: {r.stale} stale cycle(s) (force TPDO late or missing; "
@@ -275,6 +282,9 @@ class _NoCycles:
     wanted: dict = {}
     runs: list = []
 
+    def choose_channel(self, chunk) -> None:
+        pass
+
     def feed(self, chunk, decoded) -> None:
         pass
 
@@ -344,6 +354,7 @@ def decode_capture(path: str | Path, out: str | Path | None = None, *, collect: 
     try:
         done = 0
         for chunk in reader:
+            assembler.choose_channel(chunk)
             decoded = decoder.decode(chunk, wanted)
             if frames_out is not None:
                 frames_out.write(decoded)

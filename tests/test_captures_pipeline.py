@@ -112,6 +112,40 @@ def test_damaged_capture_keeps_what_came_before_and_says_where(tmp_path):
     assert meta["status"] == "damaged" and meta["decode"]["reader"]["damage"]["line"] == 6001
 
 
+def test_a_busy_bus_decodes_to_the_stands_run(tmp_path):
+    """A capture as a logger on a shared bus writes it: the stand's traffic among another node's
+    (its TPDOs, heartbeat, EMCY, SDO, NMT), error frames whose class bits read as the stand's
+    ids (0x20000080: SYNC's 0x080), remote requests for the stand's ids, an extended id ending
+    in 0x080, and a second bus (can1) with the force TPDO's id. Before, can1's 0x182 frames were
+    taken for the dynamometer's: 333 'lost or duplicated' TPDOs, glitches of 2e7 kgf."""
+    run, clean = capture(tmp_path, 3000, seed=4)
+    rng = np.random.default_rng(0)
+    extra = []
+    for k, t in enumerate(np.sort(rng.uniform(1_700_000_000.0, 1_700_000_006.0, 2000))):
+        stamp = f"({t:.6f})"
+        extra.append(f"{stamp} " + [
+            f"can0 {rng.choice(['185', '285', '705', '085', '585'])}#{rng.bytes(8).hex().upper()}",
+            f"can0 {rng.choice(['20000080', '20000182', '20000004', '20000201'])}#{rng.bytes(8).hex().upper()}",
+            f"can0 {rng.choice(['182', '181', '080', '201'])}#R{rng.choice(['', '5', '8'])}",
+            f"can1 182#{rng.bytes(5).hex().upper()}",
+            f"can0 00000080#{rng.bytes(2).hex().upper()}",
+            f"can0 {rng.choice(['000#0105', '605#4000100000000000'])}"][k % 6])
+    lines = clean.read_text().splitlines() + extra
+    busy = tmp_path / "busy.log"
+    busy.write_text("\n".join(sorted(lines, key=lambda ln: float(ln[1:ln.index(")")]))) + "\n")
+    a, b = decode_capture(clean).signals[0], decode_capture(busy).signals[0]
+    for name in COLUMNS:
+        assert np.array_equal(a[name], b[name], equal_nan=True), name
+    rec = load(busy)
+    assert np.array_equal(rec.y, run.y) and np.array_equal(rec.u, run.u)
+    said = " | ".join(rec.notes)
+    assert "334 CAN error frame(s)" in said and "ids not in the DBC skipped" in said
+    assert "the stand's loop read from can0 (its first SYNC), 333 frame(s) of can1 skipped" in said
+    assert not any("glitch" in n or "lost or duplicated" in n for n in rec.notes), rec.notes
+    with pytest.raises(DataError, match="no control cycles found"):
+        load_capture(busy, channel="can1")
+
+
 def _peak_bytes(path, **kw) -> int:
     tracemalloc.start()
     try:

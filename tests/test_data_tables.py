@@ -196,3 +196,42 @@ def test_a_logger_tsv_with_a_units_row_under_the_header_is_read_in_those_units(t
     assert np.allclose(rec.t, t, atol=1e-6) and np.allclose(rec.u, u, atol=1e-3)
     assert np.allclose(rec.y, y, rtol=1e-5, atol=0.01)
     assert any("kN" in n for n in rec.notes) and any("ms" in n for n in rec.notes)
+
+
+@pytest.mark.parametrize("sep_line", ["sep=;", '"sep=;"', "SEP=;"])
+def test_an_excel_csv_that_names_its_delimiter_in_its_first_line_is_read(tmp_path, samples, sep_line):
+    """Excel writes 'sep=;' as the first line of a CSV (and reads the file back by it): it was
+    taken for the header ('no time column ... (header: sep=,)')."""
+    t, u, y, r = samples
+    rows = [f"{a:.3f};{b:.3f};{c:.3f};{d:.3f}".replace(".", ",") for a, b, c, d in zip(t, u, y, r)]
+    rec = load(_export(tmp_path / "excel.csv", [sep_line, "time [s];command [%];force [kgf];reference"],
+                       rows, bom=True))
+    assert len(rec) == len(t) and np.allclose(rec.t, t) and np.allclose(rec.u, u)
+    assert np.allclose(rec.y, y, atol=1e-3) and np.allclose(rec.r, r, atol=1e-3)
+    # the delimiter it names wins, even where another would split the lines alike
+    rows = [f"{a:.3f},{b:.3f},{c:.3f}" for a, b, c in zip(t, u, y)]
+    rec = load(_export(tmp_path / "comma.csv", ["sep=,", "t,u,y"], rows))
+    assert np.allclose(rec.y, y, atol=1e-3)
+
+
+def test_a_table_whose_time_starts_again_is_refused_with_where_and_what_to_do(tmp_path, samples):
+    """Two runs written one after the other (the time restarts at 0), or a logger's clock set
+    back: the rows were sorted by time and the repeated times dropped, which kept one run and
+    lost the other without a word, or interleaved the two."""
+    t, u, y, _ = samples
+    two = _write(tmp_path / "two.csv", "t,u,y", [np.r_[t, t + 0.001], np.r_[u, -u], np.r_[y, y + 100]])
+    with pytest.raises(DataError, match=r"two.csv: the time goes back from 7.998 s to 0.001 s at "
+                                        r"sample 4001 of 8000: two runs in one file.*Give each run a "
+                                        r"file of its own"):
+        load(two)
+    stepped = t.copy()
+    stepped[2000:] -= 0.5
+    with pytest.raises(DataError, match="goes back from 3.998 s to 3.5 s at sample 2001"):
+        load(_write(tmp_path / "clock.csv", "t,u,y", [stepped, u, y]))
+    # a few rows out of order and a repeated time are only tidied
+    order = np.arange(len(t))
+    order[[100, 101]] = [101, 100]
+    dup = np.r_[order[:300], 299, order[300:]]
+    rec = load(_write(tmp_path / "swapped.csv", "t,u,y", [t[dup], u[dup], y[dup]]))
+    assert np.array_equal(rec.t, t) and np.array_equal(rec.y, np.round(y, 6))
+    assert any("time was not increasing: sorted, dropped 1 duplicate" in n for n in rec.notes), rec.notes

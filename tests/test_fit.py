@@ -115,6 +115,21 @@ def test_clipped_force_readings_are_left_out_of_the_error():
     assert f.params["g"] == pytest.approx(120.0, rel=0.01)
 
 
+def test_a_run_that_reaches_the_dynamometers_range_both_ways_is_noted_and_fitted_right():
+    """The force of a 20 % meander swings past ±1000 kgf, the dynamometer's range: the clipped
+    readings are said in the record's notes (they were left out silently) and the fit of the
+    rest finds the reversal's values."""
+    truth = PlantModel.from_spec("base+reversal", {**BASE, "reversal.boost": 1.5, "reversal.decay": 0.1})
+    rec = S.meander(truth, (10.0, 20.0), period_s=2.0, cycles=4, range_kgf=1000.0, seed=6)
+    assert (rec.y == 1000.0).sum() > 300 and (rec.y == -1000.0).sum() > 300
+    said = [n for n in rec.notes if "dynamometer's range" in n]
+    assert len(said) == 1 and "(-1000 and +1000 kgf) in 8 stretch(es)" in said[0], rec.notes
+    assert not any("hydraulic limit" in n for n in rec.notes)
+    f = fit_model([rec], "base+reversal")
+    for name, want in {**BASE, "reversal.boost": 1.5, "reversal.decay": 0.1}.items():
+        assert f.params[name] == pytest.approx(want, rel=0.03, abs=0.003), name
+
+
 def test_several_records_are_one_data_set_and_may_differ_in_sampling():
     truth = PlantModel.from_spec("base", BASE)
     a = S.meander(truth, (5.0,), period_s=2.0, cycles=3, dt=0.002, seed=7)

@@ -33,7 +33,12 @@ from scipy import stats
 
 from gateway.errors import DataError
 
+from ..records.limits import clipped_mask
 from ..records.record import Record
+
+#: samples in a row at the record's extreme value taken for a reading clipped at the
+#: dynamometer's range (a saturated dynamometer reads a constant)
+CLIP_RUN = 10
 
 PORTIONS = ("main_rise", "main_fall", "transitional_rise", "transitional_fall")
 
@@ -125,21 +130,6 @@ def _smooth(y: np.ndarray, n: int) -> np.ndarray:
     return np.convolve(np.pad(y, (pad, n - 1 - pad), mode="edge"), kernel, mode="valid")
 
 
-def _clipped_mask(y: np.ndarray, run: int = 10) -> np.ndarray:
-    """Samples that sit on the record's extreme value for ``run`` or more samples in a row
-    (a saturated dynamometer reads a constant)."""
-    mask = np.zeros(len(y), bool)
-    for extreme in (y.max(), y.min()):
-        at = np.isclose(y, extreme, rtol=0, atol=1e-9 * max(1.0, abs(extreme)))
-        if at.sum() >= run:
-            idx = np.flatnonzero(at)
-            splits = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
-            for s in splits:
-                if len(s) >= run:
-                    mask[s[0]:s[-1] + 1] = True
-    return mask
-
-
 def estimate_meander(rec: Record, transitional_s: float | None = None) -> MeanderEstimate:
     """Estimate g (per portion and amplitude), Δ and a rough τ from a square-wave record."""
     t, u, y = rec.t, rec.u, rec.y
@@ -159,7 +149,7 @@ def estimate_meander(rec: Record, transitional_s: float | None = None) -> Meande
         raise DataError(
             f"{rec.source}: a meander estimate needs at least two reversals of a square-wave "
             f"command; found {len(segs)} (is this an open-loop meander record?)")
-    clipped = _clipped_mask(y)
+    clipped = clipped_mask(y, CLIP_RUN)
     # -- delay from the extrema after each reversal ------------------------------------------
     ys = _smooth(y, max(1, int(round(0.01 / dt))))
     taus = []

@@ -39,8 +39,9 @@ from scipy import optimize, stats
 
 from gateway.errors import DataError
 
+from ..records.limits import clipped_mask
 from ..records.record import Record
-from .meander import _clipped_mask, mean_ci
+from .meander import CLIP_RUN, mean_ci
 
 #: the start-up transient must have decayed below this fraction of the amplitudes
 TRANSIENT_TOLERANCE = 0.005
@@ -170,7 +171,7 @@ def estimate_pfeedback(rec: Record, omega_rad_s: float | None = None, gain: floa
         raise DataError(f"{rec.source}: the reference is not a sinusoid at ω = {omega:.4g} rad/s "
                         f"(residual {np.std(r_res):.0f} kgf against amplitude {rh.amplitude:.0f} kgf); "
                         "not a P-feedback record with harmonic reference")
-    if _clipped_mask(rec.y)[i0:][ok].any():
+    if clipped_mask(rec.y, CLIP_RUN)[i0:][ok].any():
         raise DataError(f"{rec.source}: the force is saturated (flat at {rec.y.max():.0f} / "
                         f"{rec.y.min():.0f} kgf); eq. (3) needs the unclipped force. Lower A_r")
     e = r - y

@@ -62,8 +62,9 @@ import numpy as np
 
 from gateway.errors import DataError
 
+from ..records.limits import clipped_mask
 from ..records.record import Record
-from .meander import _clipped_mask, mean_ci
+from .meander import CLIP_RUN, mean_ci
 
 #: π²/8: the factor by which eq. (4) with the peak overestimates g for a triangle
 DF_PEAK_BIAS = math.pi ** 2 / 8
@@ -246,7 +247,7 @@ def estimate_relay(rec: Record, hysteresis_kgf: float | None = None,
             f"{rec.source}: no sustained oscillation: {len(events)} relay switches after the start "
             f"give {max(ncyc, 0)} complete cycle(s) ({skip_cycles} skipped); need at least "
             f"{min_cycles}. Record a longer relay phase (duration_s) or check that the loop oscillates")
-    clipped = _clipped_mask(rec.y)[start:]
+    clipped = clipped_mask(rec.y, CLIP_RUN)[start:]
     i_first = events[0][3]
     if clipped[i_first:].any():
         raise DataError(f"{rec.source}: the force is saturated (flat at {rec.y.max():.0f} / "

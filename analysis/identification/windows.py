@@ -21,7 +21,7 @@ from gateway.errors import DataError
 from plant import PlantModel
 from plant.model import Drive
 
-from ..records.limits import held_mask
+from ..records.limits import clipped_mask, held_mask
 from ..records.record import Record
 
 #: default window of the free-run error, s
@@ -72,20 +72,6 @@ def window_samples(dt: float, window_s: float) -> int:
 def lead_samples(n: int, dt: float, window: int, lead_s: float = LEAD_S) -> int:
     """Lead-in of a record: ``lead_s``, but at most a quarter window and a tenth of the record."""
     return int(min(round(lead_s / dt), window // 4, n // 10))
-
-
-def clipped_mask(y: np.ndarray, run: int = 5) -> np.ndarray:
-    """Samples where the dynamometer sits at the record's extreme value for ``run`` or more
-    samples in a row: a reading clipped at its range (the true force is unknown there)."""
-    y = np.asarray(y, float)
-    mask = np.zeros(len(y), bool)
-    for extreme in (y.max(), y.min()):
-        at = np.concatenate([[0], (y == extreme).astype(int), [0]])
-        edges = np.flatnonzero(np.diff(at))
-        for a, b in zip(edges[::2], edges[1::2]):
-            if b - a >= run:
-                mask[a:b] = True
-    return mask
 
 
 def valid_stretches(rec: Record, min_samples: int) -> list[tuple[int, int]]:

@@ -16,7 +16,7 @@ import numpy as np
 from gateway.errors import DataError
 
 from .glitches import remove_glitches
-from .limits import held_stretches
+from .limits import clipped_mask, clipped_note, held_stretches
 
 #: relative spread of sample intervals above which a record is resampled to a uniform grid
 JITTER_TOLERANCE = 0.05
@@ -67,10 +67,13 @@ def make_record(t, u, y, r=None, source: str = "<arrays>", experiment: str | Non
                 meta: dict | None = None, min_samples: int = 20) -> Record:
     """Validate and tidy arrays into a :class:`Record`.
 
-    Rejects (with :class:`DataError`) too few samples, non-finite time, time that does not
-    increase; drops rows with non-finite u or y (counted in ``notes``); resamples to a uniform
-    grid if the sampling jitters by more than 5 %; replaces glitches in the force (1-3 samples
-    far off the trend, :mod:`analysis.records.glitches`), noted too."""
+    Rejects (with :class:`DataError`) too few samples and time that starts again (goes back by
+    more than a few samples: two runs in one file); drops rows with non-finite t, u or y
+    (counted in ``notes``); sorts rows a few samples out of order and drops repeated times
+    (noted); resamples to a uniform grid if the sampling jitters by more than 5 %; replaces
+    glitches in the force (1-3 samples far off the trend, :mod:`analysis.records.glitches`);
+    notes readings clipped at the dynamometer's range and holds at a hydraulic limit
+    (:mod:`analysis.records.limits`)."""
     t = np.asarray(t, float)
     u = np.asarray(u, float)
     y = np.asarray(y, float)
@@ -79,6 +82,7 @@ def make_record(t, u, y, r=None, source: str = "<arrays>", experiment: str | Non
     if not (len(t) == len(u) == len(y) == len(r)):
         raise DataError(f"{source}: columns have different lengths")
     good = np.isfinite(t) & np.isfinite(u) & np.isfinite(y)
+    row = np.flatnonzero(good)          # the sample's place in what was given
     if not good.all():
         notes.append(f"dropped {int((~good).sum())} rows with missing or non-finite t, u or y")
         t, u, y, r = t[good], u[good], y[good], r[good]
@@ -86,6 +90,18 @@ def make_record(t, u, y, r=None, source: str = "<arrays>", experiment: str | Non
         raise DataError(f"{source}: only {len(t)} usable samples; need at least {min_samples}")
     dts = np.diff(t)
     if (dts <= 0).any():
+        step = float(np.median(dts[dts > 0])) if (dts > 0).any() else 0.0
+        back = np.flatnonzero(dts < -GAP_INTERVALS * step)
+        if len(back):
+            # not a few rows out of order: the time starts again (runs written one after the
+            # other, a logger's clock reset); sorting would interleave them
+            i = int(back[0])
+            more = f", and {len(back) - 1} more time(s)" if len(back) > 1 else ""
+            raise DataError(
+                f"{source}: the time goes back from {t[i]:g} s to {t[i + 1]:g} s at sample "
+                f"{row[i + 1] + 1} of {len(good)}{more}: two runs in one file, or a clock that "
+                "was reset? Give each run a file of its own (several files are read as one data "
+                "set, each on its own time), or cut this one there")
         order = np.argsort(t, kind="stable")
         t, u, y, r = t[order], u[order], y[order], r[order]
         keep = np.concatenate([[True], np.diff(t) > 0])
@@ -114,6 +130,9 @@ def make_record(t, u, y, r=None, source: str = "<arrays>", experiment: str | Non
     y, glitches = remove_glitches(y)
     if glitches.count:
         notes.append(glitches.note())
+    clipped = clipped_mask(y)
+    if clipped.any():
+        notes.append(clipped_note(t, y, clipped))
     if len(t) > 1:
         for held in held_stretches(u, y, float(np.median(np.diff(t)))):
             notes.append(f"{held.describe()}: a hydraulic limit (relief valve, stroke end, pressure "

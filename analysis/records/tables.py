@@ -25,6 +25,8 @@ SLOW_SAMPLING_S = 0.1
 TABLE_SUFFIXES = (".csv", ".tsv", ".txt", ".dat")
 _DELIMITERS = (",", ";", "\t")
 _DECIMAL_COMMA = re.compile(r"^[-+]?\d+,\d+(?:[eE][-+]?\d+)?$")
+#: Excel's first line naming the delimiter: ``sep=;`` (quoted by some exporters)
+_SEP_LINE = re.compile(r'^"?sep=(.)"?\s*$', re.IGNORECASE)
 
 
 @dataclass(frozen=True)
@@ -136,16 +138,22 @@ def _choose_delimiter(lines: list[str]) -> str | None:
 def _layout(path: Path) -> _Layout:
     """Sniff the delimiter (comma, semicolon, tab, else blanks), a decimal comma (``1,5;2,25``)
     and whether the first line is a header (it is unless every field is a number; a leading
-    ``#`` is taken off it). Later lines starting with ``#`` are comments."""
+    ``#`` is taken off it). Later lines starting with ``#`` are comments. A first line
+    ``sep=;`` (Excel writes it, and reads the file back by it) gives the delimiter."""
     try:
         encoding = _encoding(path)
         with _open_text(path, encoding) as fh:
-            lines = [ln for ln in (fh.readline() for _ in range(4)) if ln.strip()]
+            lines = [ln for ln in (fh.readline() for _ in range(5)) if ln.strip()]
     except (OSError, UnicodeDecodeError, EOFError) as exc:
         raise DataError(f"cannot read {path}: {exc}") from None
+    declared = _SEP_LINE.match(lines[0].rstrip("\r\n")) if lines else None
+    if declared:
+        lines = lines[1:]
+    else:
+        lines = lines[:4]
     if not lines:
         raise DataError(f"{path}: empty file")
-    delimiter = _choose_delimiter(lines)
+    delimiter = declared.group(1) if declared else _choose_delimiter(lines)
     # numpy's savetxt writes its header as a comment: "# t,u,y"
     first = [f.strip() for f in _split(lines[0].lstrip("#").rstrip("\r\n"), delimiter)]
     data = _split(lines[-1].rstrip("\r\n"), delimiter)
@@ -170,7 +178,7 @@ def _layout(path: Path) -> _Layout:
         raise DataError(f"{path}: the header has {len(first)} fields ({', '.join(first)}) but the "
                         f"rows have {len(data)}; in a blank-separated table write each name "
                         "without blanks, e.g. 'time_ms' not 'time [ms]'")
-    return _Layout(delimiter, decimal, has_header, first, encoding, skip)
+    return _Layout(delimiter, decimal, has_header, first, encoding, skip + int(bool(declared)))
 
 
 def read_csv(path: str | Path) -> Record:

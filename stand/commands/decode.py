@@ -26,7 +26,8 @@ def register(sub) -> None:
                         "download in the capture, else the median SYNC interval)")
     p.add_argument("--clock", choices=("lockstep", "realtime"),
                    help="how the run was clocked (default: lockstep if SYNCs came faster than the period)")
-    p.add_argument("--channel", metavar="NAME", help="only frames of this channel (e.g. can0)")
+    p.add_argument("--channel", metavar="NAME", help="only frames of this channel (e.g. can0; default: the channel of the "
+                        "stand's first SYNC)")
     p.add_argument("--run", type=int, metavar="N", help="only run N (0-based) of a capture holding several")
     p.add_argument("--partition-rows", type=int, metavar="N",
                    help="write signals.parquet as a directory of part files of at most N rows each")
