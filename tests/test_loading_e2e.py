@@ -12,6 +12,7 @@ from gateway.load import run_load
 from loading.design import design
 from loading.programme import from_levels, random_sequence, sine
 from plant import PlantModel
+from plant.config import load_model_file
 from stand.cli import main as stand
 from tests.support.stand import BASE, plant
 
@@ -127,3 +128,35 @@ def test_a_controller_that_cannot_track_is_stopped_by_the_supervisor(bus_spec, s
     assert rc == 1 and "stopped" in err
     meta = json.loads((tmp_path / "bad" / "pass-1" / "run.json").read_text())
     assert meta["status"] == "stopped" and meta["end_reason"] == "error_limit", meta["end_reason"]
+
+
+@pytest.mark.slow
+def test_the_whole_workflow_on_a_stand_with_other_parameters(bus_spec, start_emulator, tmp_path, capsys):
+    """What a user runs, every step a command: meanders on the stand, ``diagnose --stepwise
+    --save``, ``design`` from the saved model, ``load`` a turning-point file in passes. The
+    controller comes from identified parameters only (the stand's are not the defaults)."""
+    start_emulator(plant(OTHER, model="base+asymmetry+reversal"), lockstep=True, seed=3)
+    runs = []
+    for amp, period in ((5, 2.0), (10, 2.0), (20, 1.0)):
+        out = tmp_path / f"meander-{amp}"
+        assert stand(["run", "meander", "--amplitude-pct", str(amp), "--period-s", str(period),
+                      "--cycles", "6", "--set-point-kgf", "3000", "--bus", bus_spec, "--lockstep",
+                      "--out", str(out), "--no-progress"]) == 0
+        runs.append(str(out))
+    model = tmp_path / "model.toml"
+    assert stand(["diagnose", *runs, "--stepwise", "--save", str(model), "--jobs", "1"]) == 0
+    m = load_model_file(model)
+    assert "reversal" in m.spec, m.spec
+    assert m.params()["g"] == pytest.approx(OTHER["g"], rel=0.05) and m.params()["tau"] == pytest.approx(OTHER["tau"], abs=0.005)
+
+    ctl = tmp_path / "controller.toml"
+    assert stand(["design", str(model), "-o", str(ctl)]) == 0
+    levels = tmp_path / "levels.csv"
+    levels.write_text("level\n" + "\n".join(f"{v:.1f}" for v in random_sequence(40, 400, 6200, seed=11)) + "\n")
+    capsys.readouterr()
+    assert stand(["load", str(levels), "--rate", "2500", "--controller", str(ctl), "--out", str(tmp_path / "load"),
+                  "--lockstep", "--bus", bus_spec, "--repeat", "3", "--json", "--no-progress"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["end_reason"] == "complete" and len(s["passes"]) == 3
+    assert s["peak_valley_error_pct"]["p95"] <= 0.5 and s["peak_valley_error_pct"]["max"] <= 1.0, s
+    assert [p["extra_cycles"] for p in s["passes"]] == [0, 0, 0], s["passes"]

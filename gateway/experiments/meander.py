@@ -13,8 +13,8 @@ class Meander(PhasedExperiment):
 
     Before the square wave the force is brought to ``set_point_kgf`` by a short proportional loop
     (skipped when it is already there; the reference r is recorded as the set point during that
-    phase and NaN during the open-loop square wave). ``set_point_kgf = None`` (the default, as
-    before this option existed) starts the square wave wherever the force is. The first segment of the square wave lasts a
+    phase and NaN during the open-loop square wave). ``set_point_kgf = None`` (the default)
+    starts the square wave wherever the force is. The first segment of the square wave lasts a
     quarter period, so the force ramps symmetrically around the set point (up g·u0·P/4, down
     g·u0·P/2, ...) instead of drifting away by g·u0·P/2. The run stops itself when |y| reaches
     ``guard_fraction`` of the force limit.
@@ -22,7 +22,7 @@ class Meander(PhasedExperiment):
     :param amplitude_pct: u0, 0 < u0 <= 100 %
     :param period_s: full period P of the square wave, 0.02..600 s
     :param cycles: number of periods, 1..10000
-    :param set_point_kgf: force to start from, kgf (None: where it is)
+    :param set_point_kgf: force to start from, kgf (none: start where the force is)
     :param settle_gain: gain of the approach loop, %/kgf
     :param settle_limit_pct: command limit of the approach loop, %
     :param settle_tolerance_kgf: the set point is reached within ± this, kgf
