@@ -69,9 +69,11 @@ def read_toml(path: str | Path) -> dict[str, Any]:
 
 
 def model_from_mapping(data: Mapping[str, Any], where: str = "model",
-                       base_dir: str | Path | None = None) -> PlantModel:
+                       base_dir: str | Path | None = None, complete: bool = False) -> PlantModel:
     """Build a model from the ``[base]`` and ``[effects.NAME]`` tables of a parsed TOML file,
-    after loading the plug-ins it names (``plugins``, relative to ``base_dir``)."""
+    after loading the plug-ins it names (``plugins``, relative to ``base_dir``). A parameter the
+    file leaves out takes its default, unless ``complete`` (a model something is designed from:
+    every value must be the stand's, so one left out is an error naming it)."""
     load_named_plugins(data, where, base_dir)
     base = _table(data, "base", where)
     known_base = {p.name for p in BASE_PARAMS}
@@ -104,6 +106,13 @@ def model_from_mapping(data: Mapping[str, Any], where: str = "model",
                              "table says enabled = false")
         names += [n for n in listed[1:] if n not in names]
     spec = "+".join(["base"] + names)
+    if complete:
+        missing = [p.name for p in BASE_PARAMS if p.name not in values]
+        missing += [f"{n}.{p.name}" for n in names for p in effect_class(n).params if f"{n}.{p.name}" not in values]
+        if missing:
+            raise ModelError(f"{where}: no value for {', '.join(missing)}; a controller is designed from "
+                             "the stand's identified values, not defaults: give every parameter of "
+                             f"{spec} (stand fit --save and stand diagnose --stepwise --save write them all)")
     return PlantModel.from_spec(spec, values)
 
 
@@ -146,8 +155,10 @@ def _table(data: Mapping[str, Any], name: str, where: str) -> dict[str, Any]:
     return dict(value)
 
 
-def load_model_file(path: str | Path) -> PlantModel:
-    return model_from_mapping(read_toml(path), where=str(path), base_dir=Path(path).parent)
+def load_model_file(path: str | Path, complete: bool = False) -> PlantModel:
+    """The model a TOML model file describes (see :func:`model_from_mapping`)."""
+    return model_from_mapping(read_toml(path), where=str(path), base_dir=Path(path).parent,
+                              complete=complete)
 
 
 def model_to_toml(model: PlantModel, header: str = "", path: str | Path | None = None) -> str:

@@ -115,6 +115,27 @@ def test_a_controller_file_round_trips_and_is_validated(tmp_path):
         load_controller(f)
 
 
+def test_a_model_file_with_a_value_left_out_or_not_finite_is_refused_by_design(tmp_path, capsys):
+    """A controller is designed from the stand's values: a parameter the file leaves out would
+    silently take the default stand's value, so it is an error naming it; so is a NaN."""
+    from plant.config import model_to_toml
+    from stand.cli import main as stand
+    good = model_to_toml(PlantModel.from_spec("base+reversal", TRUTH))
+    cases = [(good.replace("decay = ", "# decay = "), "no value for reversal.decay"),
+             ("\n".join(ln for ln in good.splitlines() if not ln.startswith("tau ")), "no value for tau"),
+             (good.replace("boost = 2.0", "boost = nan"), "reversal.boost must be finite")]
+    for text, message in cases:
+        f = tmp_path / "model.toml"
+        f.write_text(text)
+        out = tmp_path / "c.toml"
+        assert stand(["design", str(f), "-o", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert message in err and "Traceback" not in err, err
+        assert not out.exists()
+    f.write_text(good)
+    assert stand(["design", str(f), "-o", str(out)]) == 0 and out.exists()
+
+
 def test_compensation_learns_each_level_from_the_correction_it_ran_with():
     """A pass over levels never seen before ran without corrections, so each learns −γ·error
     from zero. (It once took as the old value the interpolation of the corrections learned a

@@ -22,9 +22,9 @@ from .metrics import Evaluation, evaluate
 from .windows import WINDOW_S
 
 
-def resolve_model(text: str | PlantModel) -> tuple[PlantModel, str | None]:
-    """A model from ``base+reversal+deadzone`` or from a TOML model file. Returns the model and
-    the file it came from (None for a spec)."""
+def resolve_model(text: str | PlantModel, complete: bool = False) -> tuple[PlantModel, str | None]:
+    """A model from ``base+reversal+deadzone`` or from a TOML model file (``complete``: the file
+    must give every parameter). Returns the model and the file it came from (None for a spec)."""
     if isinstance(text, PlantModel):
         return text, None
     text = str(text).strip()
@@ -32,7 +32,7 @@ def resolve_model(text: str | PlantModel) -> tuple[PlantModel, str | None]:
     if text.lower().endswith(".toml") or path.is_file():
         if not path.is_file():
             raise ModelError(f"model file {path} does not exist (or give a spec like base+reversal)")
-        return load_model_file(path), str(path)
+        return load_model_file(path, complete=complete), str(path)
     return PlantModel.from_spec(text), None
 
 

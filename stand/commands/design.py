@@ -31,7 +31,7 @@ def register(sub) -> None:
 def main(args: argparse.Namespace) -> int:
     from analysis import resolve_model
     from loading.design import design
-    model, _path = resolve_model(args.model)
+    model, _path = resolve_model(args.model, complete=True)
     c = design(model, args.period_ms / 1e3, args.command_limit)
     if args.out:
         Path(args.out).write_text(c.to_toml(args.out))
