@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import os
+import select
 import shutil
+import signal
 import socket
 import struct
 import subprocess
@@ -184,10 +186,17 @@ def test_bus_works_in_a_namespace_with_only_loopback(tmp_path):
 def test_python_can_tools_attach_by_name(channel, tmp_path):
     """``python -m can.logger -i udp_loopback`` joins the emulated bus like any interface."""
     log = tmp_path / "cap.log"
-    logger = subprocess.Popen([sys.executable, "-m", "can.logger", "-i", "udp_loopback", "-c", channel,
-                               "-f", str(log)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    logger = subprocess.Popen([sys.executable, "-u", "-m", "can.logger", "-i", "udp_loopback", "-c", channel,
+                               "-f", str(log)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, bufsize=0)
+    said = b""
     try:
-        time.sleep(1.5)   # let the logger start listening
+        # listening once it says it is connected (its bus is open: frames from then on wait in its
+        # socket); a fixed wait was too short on a loaded machine
+        deadline = time.monotonic() + 60
+        while b"Connected to" not in said:
+            assert time.monotonic() < deadline and logger.poll() is None, f"can.logger did not start: {said!r}"
+            if select.select([logger.stdout], [], [], 1.0)[0]:
+                said += os.read(logger.stdout.fileno(), 4096)
         bus = can.Bus(interface="udp_loopback", channel=channel)
         for i in range(5):
             bus.send(can.Message(arbitration_id=0x182, data=bytes([i, 1, 2]), is_extended_id=False))
@@ -195,8 +204,13 @@ def test_python_can_tools_attach_by_name(channel, tmp_path):
         bus.shutdown()
         time.sleep(0.5)
     finally:
-        logger.send_signal(2)
-        logger.wait(10)
+        logger.send_signal(signal.SIGINT)
+        try:
+            rest, _ = logger.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            logger.kill()
+            rest, _ = logger.communicate()
+            pytest.fail(f"can.logger did not stop on SIGINT within 30 s: {said + rest!r}")
     frames = list(can.LogReader(str(log)))
     assert [bytes(f.data)[0] for f in frames if f.arbitration_id == 0x182] == [0, 1, 2, 3, 4]
 
