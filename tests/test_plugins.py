@@ -151,7 +151,7 @@ def test_a_saved_model_names_its_plugin_and_reloads_on_its_own(tmp_path):
 def test_a_controller_designed_from_a_plugin_model_loads_on_its_own(tmp_path):
     write(tmp_path / "gainy.py", skeleton("gainy", "flow"))
     model = write(tmp_path / "m.toml", 'plugins = ["gainy.py"]\nmodel = "base+gainy"\n'
-                                       "[base]\ng = 120.0\ntau = 0.05\n[effects.gainy]\nk = 1.0\n")
+                                       "[base]\ng = 120.0\ntau = 0.05\ndelta = 0.0\n[effects.gainy]\nk = 1.0\n")
     res = stand("design", str(model), "-o", str(tmp_path / "c.toml"), "--json")
     assert res.returncode == 0, res.stderr
     design = json.loads(res.stdout)
