@@ -187,7 +187,10 @@ def test_python_can_tools_attach_by_name(channel, tmp_path):
     """``python -m can.logger -i udp_loopback`` joins the emulated bus like any interface."""
     log = tmp_path / "cap.log"
     logger = subprocess.Popen([sys.executable, "-u", "-m", "can.logger", "-i", "udp_loopback", "-c", channel,
-                               "-f", str(log)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, bufsize=0)
+                               "-f", str(log)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, bufsize=0,
+                              # Ctrl-C stops it, as on a terminal: a job started with `&` by a
+                              # non-interactive shell (CI, nohup) hands its children SIGINT ignored
+                              preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     said = b""
     try:
         # listening once it says it is connected (its bus is open: frames from then on wait in its
