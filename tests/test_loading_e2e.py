@@ -146,8 +146,10 @@ def test_the_whole_workflow_on_a_stand_with_other_parameters(bus_spec, start_emu
     model = tmp_path / "model.toml"
     assert stand(["diagnose", *runs, "--stepwise", "--save", str(model), "--jobs", "1"]) == 0
     m = load_model_file(model)
+    found = m.params()
     assert "reversal" in m.spec, m.spec
-    assert m.params()["g"] == pytest.approx(OTHER["g"], rel=0.05) and m.params()["tau"] == pytest.approx(OTHER["tau"], abs=0.005)
+    assert found["g"] == pytest.approx(OTHER["g"], rel=0.05), found
+    assert found["tau"] == pytest.approx(OTHER["tau"], abs=0.005), found
 
     ctl = tmp_path / "controller.toml"
     assert stand(["design", str(model), "-o", str(ctl)]) == 0

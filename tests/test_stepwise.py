@@ -9,8 +9,8 @@ import pytest
 from analysis import diagnosable_effects, diagnose, stepwise, write_csv
 from plant import PlantModel, load_model_file
 from stand.cli import main
-from tests.support.records import independent_records as independent
 from tests.support import independent_stand as sim
+from tests.support.records import independent_records as independent
 from tests.support.records import meander4, pfeedback, relay
 from tests.support.stand import BASE
 
@@ -136,7 +136,6 @@ def test_cli_stepwise_json_plot_and_saved_model(tmp_path, capsys):
     text = capsys.readouterr().out
     assert code == 0 and text.startswith("verdict: MAX_EFFECTS")
     assert "stopped after 1 added effects (--max-effects); next: deadzone" in text
-
 
 
 @pytest.mark.slow
