@@ -40,9 +40,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from .effects import effect_class
+from .catalogue import CATALOGUE, effect_class
 from .model import BASE_PARAMS, PlantModel
 from .params import ModelError, Param
+from .plugins import ORIGINS, load_installed, load_plugins
 from .sensor import Dynamometer
 
 if sys.version_info >= (3, 11):
@@ -85,7 +86,7 @@ def model_from_mapping(data: Mapping[str, Any], where: str = "model",
     names: list[str] = []
     effects = _table(data, "effects", where)
     for name, table in effects.items():
-        effect_class(name)  # validates the name
+        known_effect(name)  # validates the name
         if not isinstance(table, Mapping):
             raise ModelError(f"{where}: effects.{name} must be a table like [effects.{name}], "
                              f"got {table!r}")
@@ -104,6 +105,8 @@ def model_from_mapping(data: Mapping[str, Any], where: str = "model",
         if disabled:
             raise ModelError(f"{where}: {', '.join(disabled)} is listed in `model` but its "
                              "table says enabled = false")
+        for n in listed[1:]:
+            known_effect(n)
         names += [n for n in listed[1:] if n not in names]
     spec = "+".join(["base"] + names)
     if complete:
@@ -116,10 +119,17 @@ def model_from_mapping(data: Mapping[str, Any], where: str = "model",
     return PlantModel.from_spec(spec, values)
 
 
+def known_effect(name: str) -> type:
+    """The effect class of ``name``: the catalogue's, a plug-in's loaded before, or an installed
+    package's (loaded now if the name is not known yet)."""
+    if name not in CATALOGUE:
+        load_installed()
+    return effect_class(name)
+
+
 def load_named_plugins(data: Mapping[str, Any], where: str,
                        base_dir: str | Path | None) -> list[str]:
     """Load the plug-ins a model file names: ``plugins = ["my_effect.py", "pkg.effects"]``."""
-    from .plugins import load_plugins
     sources = data.get("plugins", [])
     if isinstance(sources, str):
         sources = [sources]
@@ -132,7 +142,6 @@ def load_named_plugins(data: Mapping[str, Any], where: str,
 def plugin_sources(model: PlantModel, relative_to: str | Path | None = None) -> list[str]:
     """What a model file must name for ``model``'s effects of one's own: their files
     (relative to ``relative_to`` when given) and modules; installed ones load themselves."""
-    from .plugins import ORIGINS
     out: list[str] = []
     for eff in model.effects:
         org = ORIGINS.get(eff.name)

@@ -4,10 +4,11 @@ effect answers which explanations these data cannot separate from it (:class:`Am
 with the experiment that would.
 
 The knowledge lives on the effect classes (:attr:`plant.Effect.look_alikes`: the experiment per
-look-alike; :attr:`plant.Effect.at_one_amplitude`: the look-alike a single command amplitude
-cannot tell it from; :meth:`plant.Effect.ambiguities`: the rules for the data at hand), so a
-plug-in's is used exactly as the catalogue's; :mod:`analysis.diagnosis.ambiguity` asks each
-effect it tried.
+look-alike, read by :func:`plant.contract.separating_experiment`;
+:attr:`plant.Effect.at_one_amplitude`: the look-alike a single command amplitude cannot tell it
+from; :meth:`plant.Effect.ambiguities`: the rules for the data at hand), so a plug-in's is used
+exactly as the catalogue's; :mod:`analysis.diagnosis.ambiguity` asks each effect it tried. This
+module holds only the data that passes between them: it knows no effect.
 """
 from __future__ import annotations
 
@@ -98,14 +99,3 @@ class Evidence:
     best_params: Mapping[str, float] = field(default_factory=dict)
     #: each candidate's windowed error with re-estimated starts (kgf)
     errors: Mapping[str, float] = field(default_factory=dict)
-
-
-def separating_experiment(a: str, b: str) -> str:
-    """What tells ``a`` from ``b`` (effects, or the base model's ``gain``, ``delay``,
-    ``trend``): either effect's :attr:`~plant.Effect.look_alikes`, else a richer excitation."""
-    from .effects import CATALOGUE
-    for x, y in ((a, b), (b, a)):
-        cls = CATALOGUE.get(x)
-        if cls is not None and y in cls.look_alikes:
-            return cls.look_alikes[y]
-    return DEFAULT_EXPERIMENT

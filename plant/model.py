@@ -18,7 +18,8 @@ from typing import Iterable, Mapping
 import numpy as np
 from scipy.signal import lfilter
 
-from .effects import CATALOGUE, Effect, Stage, effect_class
+from .catalogue import effect_class, order
+from .contract import Effect, Stage
 from .params import ModelError, Param
 
 #: The paper's model (eq. 1) with the constant trend Δ of eq. 2.
@@ -53,7 +54,7 @@ class Drive:
 
 
 class PlantModel:
-    """``dy/dt = g·u(t−τ) + Δ`` refined by catalogue effects (see :mod:`plant.effects`)."""
+    """``dy/dt = g·u(t−τ) + Δ`` refined by catalogue effects (see :mod:`plant.contract`, :mod:`plant.effects`)."""
 
     def __init__(self, g: float = 120.0, tau: float = 0.05, delta: float = 0.0,
                  effects: Iterable[Effect] = ()) -> None:
@@ -64,8 +65,7 @@ class PlantModel:
         dupes = {n for n in names if names.count(n) > 1}
         if dupes:
             raise ModelError(f"effect(s) listed twice: {', '.join(sorted(dupes))}")
-        order = list(CATALOGUE)
-        self.effects: list[Effect] = sorted(effects, key=lambda e: (e.stage, order.index(e.name)))
+        self.effects: list[Effect] = sorted(effects, key=lambda e: (e.stage, order(e.name)))
         # per stage, once (the emulator steps a few samples per SYNC: this is its hot path)
         self._n_valve = sum(e.stage is Stage.VALVE for e in self.effects)   # the first ones
         self._flow = [e for e in self.effects if e.stage is Stage.FLOW]

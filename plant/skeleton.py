@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import re
 
-from .effects import Stage
-from .plugins import NAME_RE, PluginError
+from .contract import Stage
+from .loader import NAME_RE, PluginError
 
 _HEAD = '''"""{name}: <one line: what this effect models>.
 

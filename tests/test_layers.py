@@ -6,6 +6,8 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 #: packages from the bottom up; a package may import its own modules and any lower level's
@@ -51,70 +53,86 @@ def test_every_package_has_a_level():
     assert packages <= set(LEVEL), f"give these a level in LEVELS: {sorted(packages - set(LEVEL))}"
 
 
-#: analysis's parts from the bottom up, the same rule inside it: a part imports its own modules and
-#: those of the levels below; analysis/__init__.py only names the public API (imported lazily)
-ANALYSIS_LEVELS = [
-    {"defaults", "parallel"},
-    {"records"},
-    {"estimators", "identification"},
-    {"diagnosis"},
-    {"reports"},
-]
-ANALYSIS_LEVEL = {part: i for i, level in enumerate(ANALYSIS_LEVELS) for part in level}
-ANALYSIS = ROOT / "analysis"
+#: the parts of a package from the bottom up, the same rule inside it: a part imports its own
+#: modules and those of the levels below; a package's __init__.py only names the public API
+#: (imported lazily)
+PART_LEVELS = {
+    "analysis": [
+        {"defaults", "parallel"},
+        {"records"},
+        {"estimators", "identification"},
+        {"diagnosis"},
+        {"reports"},
+    ],
+    # the effect contract at the bottom, the built-ins and the loader above it, the model above
+    # them, then what loads a user's plug-ins (it checks them by simulating) and the files
+    "plant": [
+        {"params", "evidence"},
+        {"signals", "start_grids", "sensor"},
+        {"contract"},
+        {"effects", "loader"},
+        {"catalogue"},
+        {"model"},
+        {"plugins"},
+        {"config", "skeleton"},
+    ],
+}
 
 
-def analysis_part(path: Path) -> str:
-    """The part of analysis a module belongs to: its subpackage, or its own name at the top."""
-    return path.relative_to(ANALYSIS).parts[0].removesuffix(".py")
+def part_of(package: str, path: Path) -> str:
+    """The part of a package a module belongs to: its subpackage, or its own name at the top."""
+    return path.relative_to(ROOT / package).parts[0].removesuffix(".py")
 
 
-def analysis_imports(path: Path) -> list[tuple[int, str]]:
-    """(line, part of analysis) of every import of analysis in a module, relative or absolute,
-    at any depth."""
-    package = ["analysis", *path.relative_to(ANALYSIS).parent.parts]
+def part_imports(package: str, path: Path) -> list[tuple[int, str]]:
+    """(line, part of ``package``) of every import of ``package`` in a module, relative or
+    absolute, at any depth."""
+    here = [package, *path.relative_to(ROOT / package).parent.parts]
     out = []
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.Import):
             targets = [a.name.split(".") for a in node.names]
         elif isinstance(node, ast.ImportFrom):
-            base = (package[:len(package) - node.level + 1] if node.level else [])
+            base = (here[:len(here) - node.level + 1] if node.level else [])
             base += node.module.split(".") if node.module else []
             # "from . import plots", "from analysis import diagnose": the names may be modules
             targets = [base + [a.name] for a in node.names] if len(base) == 1 else [base]
         else:
             continue
-        out += [(node.lineno, t[1]) for t in targets if t[0] == "analysis" and len(t) > 1]
+        out += [(node.lineno, t[1]) for t in targets if t[0] == package and len(t) > 1]
     return out
 
 
-def analysis_modules() -> list[Path]:
-    return sorted(p for p in ANALYSIS.rglob("*.py") if p != ANALYSIS / "__init__.py")
+def part_modules(package: str) -> list[Path]:
+    return sorted(p for p in (ROOT / package).rglob("*.py") if p != ROOT / package / "__init__.py")
 
 
-def test_analysis_parts_import_only_the_levels_below_them():
+@pytest.mark.parametrize("package", sorted(PART_LEVELS))
+def test_the_parts_of_a_package_import_only_the_levels_below_them(package):
+    level = {part: i for i, parts in enumerate(PART_LEVELS[package]) for part in parts}
     wrong = []
-    for path in analysis_modules():
-        own = analysis_part(path)
-        for line, target in analysis_imports(path):
-            if target != own and ANALYSIS_LEVEL.get(target, -1) >= ANALYSIS_LEVEL[own]:
-                wrong.append(f"{path.relative_to(ROOT)}:{line}: analysis.{own} (level "
-                             f"{ANALYSIS_LEVEL[own]}) imports analysis.{target} (level "
-                             f"{ANALYSIS_LEVEL[target]})")
-    assert not wrong, "layer violations inside analysis:\n" + "\n".join(wrong)
+    for path in part_modules(package):
+        own = part_of(package, path)
+        for line, target in part_imports(package, path):
+            if target != own and level.get(target, -1) >= level[own]:
+                wrong.append(f"{path.relative_to(ROOT)}:{line}: {package}.{own} (level "
+                             f"{level[own]}) imports {package}.{target} (level {level[target]})")
+    assert not wrong, f"layer violations inside {package}:\n" + "\n".join(wrong)
 
 
-def test_every_part_of_analysis_has_a_level():
-    parts = {analysis_part(p) for p in analysis_modules()}
-    assert parts <= set(ANALYSIS_LEVEL), \
-        f"give these a level in ANALYSIS_LEVELS: {sorted(parts - set(ANALYSIS_LEVEL))}"
+@pytest.mark.parametrize("package", sorted(PART_LEVELS))
+def test_every_part_of_a_package_has_a_level(package):
+    parts = {part_of(package, p) for p in part_modules(package)}
+    known = set().union(*PART_LEVELS[package])
+    assert parts <= known, f"give these a level in PART_LEVELS[{package!r}]: {sorted(parts - known)}"
 
 
-def test_no_import_cycle_between_the_parts_of_analysis():
+@pytest.mark.parametrize("package", sorted(PART_LEVELS))
+def test_no_import_cycle_between_the_parts_of_a_package(package):
     graph: dict[str, set[str]] = {}
-    for path in analysis_modules():
-        own = analysis_part(path)
-        graph.setdefault(own, set()).update(t for _, t in analysis_imports(path) if t != own)
+    for path in part_modules(package):
+        own = part_of(package, path)
+        graph.setdefault(own, set()).update(t for _, t in part_imports(package, path) if t != own)
     done: set[str] = set()
 
     def visit(part: str, path: list[str]) -> list[str] | None:
@@ -131,7 +149,7 @@ def test_no_import_cycle_between_the_parts_of_analysis():
 
     for part in sorted(graph):
         cycle = visit(part, [])
-        assert cycle is None, "import cycle between parts of analysis: " + " -> ".join(cycle)
+        assert cycle is None, f"import cycle between parts of {package}: " + " -> ".join(cycle)
 
 
 def imported_modules(path: Path) -> list[tuple[int, str]]:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from plant import PlantModel, model_to_toml, plugins
-from plant.effects import CATALOGUE
+from plant.catalogue import BUILTINS, CATALOGUE
 from plant.plugins import PluginError, load_plugins
 from plant.skeleton import skeleton
 from tests.support.plugins import RIPPLE
@@ -241,3 +241,34 @@ def test_an_emulator_configuration_with_a_plugin_names_it_for_the_emulator_proce
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr
     assert res.stdout.split() == ["base+ripple", "2.5"]
+
+
+# ------------------------------------------------------------------------------------------
+# the catalogue's own effects are plug-ins of the same contract
+# ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", BUILTINS)
+def test_every_built_in_effect_passes_the_check_a_plug_in_must(name):
+    """What a user's plug-in must pass on load (its hook and a model with it simulated at its
+    defaults and at each bound), every built-in passes: none relies on anything a plug-in lacks."""
+    assert plugins.check_effect(CATALOGUE[name], f"plant/effects ({name})") == []
+
+
+def test_a_built_in_module_loads_as_a_user_plug_in_file_would(tmp_path):
+    """A copy of a built-in's module, renamed, is a working plug-in file: the built-ins are
+    written to the contract docs/your-own-effect.md gives, nothing more."""
+    text = (ROOT / "plant" / "effects" / "stiffness.py").read_text()
+    text = text.replace('name = "stiffness"', 'name = "my_stiffness"')
+    names = load_plugins([write(tmp_path / "my_stiffness.py", text)])
+    assert names == ["my_stiffness"]
+    assert plugins.origin("my_stiffness").startswith("file ")
+    y = PlantModel.from_spec("base+my_stiffness", {"my_stiffness.k_abs": 1.5}).simulate(
+        np.full(500, 10.0), 0.002)
+    ref = PlantModel.from_spec("base+stiffness", {"stiffness.k_abs": 1.5}).simulate(
+        np.full(500, 10.0), 0.002)
+    assert np.array_equal(y, ref)
+
+
+def test_the_catalogue_lists_the_built_ins_first_in_stage_order():
+    stages = [CATALOGUE[n].stage for n in BUILTINS]
+    assert stages == sorted(stages)
+    assert list(BUILTINS) == [n for n in CATALOGUE if n in BUILTINS][:len(BUILTINS)]

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 from typing import Sequence
 
-from plant.effects import CATALOGUE
-from plant.evidence import (AMBIGUITY_RATIO, Ambiguity, Evidence, Excitation,  # noqa: F401
-                            separating_experiment)
+from plant.catalogue import CATALOGUE
+from plant.contract import separating_experiment
+from plant.evidence import AMBIGUITY_RATIO, Ambiguity, Evidence, Excitation  # noqa: F401
 
 from ..identification.fit import FitResult
 from ..records.record import Record

@@ -43,7 +43,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from plant import PlantModel
-from plant.effects import effect_class
+from plant.catalogue import effect_class
 
 from ..identification.fit import FTOL, REFIT_TOL, FitOptions, FitResult, fit_model
 from ..identification.metrics import Evaluation, evaluate

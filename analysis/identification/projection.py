@@ -18,7 +18,8 @@ from .windows import Piece, demean_windows, residual
 def _linear_in_gain_and_trend(spec: str) -> bool:
     """True if ŷ is affine in g and Δ with no other additive term: no force-dependent effect and
     no disturbance (then one simulation gives the projection)."""
-    from plant.effects import Stage, effect_class
+    from plant.catalogue import effect_class
+    from plant.contract import Stage
     for name in spec.split("+")[1:]:
         c = effect_class(name)
         if c.depends_on_force or not c.linear_in_gain or c.stage in (Stage.FORCE, Stage.DISTURBANCE):

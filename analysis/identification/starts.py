@@ -77,7 +77,7 @@ def without(model_spec: str, values: Mapping[str, float], effects: Sequence[str]
 
 def effect_starts(effect: str, summary: DataSummary, values: Mapping[str, float]) -> list[dict]:
     """The effect's start grid (:meth:`plant.Effect.start_grid`) for these data and base fit."""
-    from plant.effects import effect_class
+    from plant.catalogue import effect_class
     return effect_class(effect).start_grid(summary, values)
 
 

@@ -42,11 +42,12 @@ def main(args: argparse.Namespace) -> int:
         print(skeleton(args.new, args.stage), end="")
         return 0
     from plant import BASE_PARAMS, CATALOGUE
+    from plant.catalogue import order
     from plant.plugins import origin
     rows = [{"effect": "base", "summary": "dy/dt = g·u(t − τ) + Δ (paper eq. 1 with the trend of eq. 2)",
              "stage": "-", "diagnosable": True, "origin": "catalogue",
              "params": [_param(p) for p in BASE_PARAMS], "look_alikes": {}, "doc": ""}]
-    for name, cls in CATALOGUE.items():
+    for name, cls in sorted(CATALOGUE.items(), key=lambda kv: order(kv[0])):
         rows.append({"effect": name, "summary": cls.summary, "stage": cls.stage.name.lower(),
                      "diagnosable": cls.diagnosable, "origin": origin(name),
                      "params": [_param(p) for p in cls.params],

@@ -5,8 +5,8 @@ import contextlib
 import textwrap
 from typing import Iterator
 
-from plant import plugins
-from plant.effects import CATALOGUE
+from plant import loader, plugins
+from plant.catalogue import CATALOGUE
 
 #: a force disturbance A·sin(2πft + φ) whose default frequency (1 Hz) is a third of the tests'
 RIPPLE = textwrap.dedent('''\
@@ -31,12 +31,12 @@ RIPPLE = textwrap.dedent('''\
 @contextlib.contextmanager
 def isolated_catalogue() -> Iterator[None]:
     """Plug-ins join the process's catalogue: restore it (and what the loader remembers)."""
-    saved = (dict(CATALOGUE), dict(plugins.ORIGINS), dict(plugins._LOADED),
+    saved = (dict(CATALOGUE), dict(plugins.ORIGINS), dict(loader._LOADED),
              plugins._installed_loaded, list(plugins.WARNINGS))
     try:
         yield
     finally:
-        for live, old in zip((CATALOGUE, plugins.ORIGINS, plugins._LOADED), saved):
+        for live, old in zip((CATALOGUE, plugins.ORIGINS, loader._LOADED), saved):
             live.clear()
             live.update(old)
         plugins._installed_loaded = saved[3]
