@@ -24,9 +24,10 @@ from threadpoolctl import threadpool_limits
 T = TypeVar("T")
 R = TypeVar("R")
 
-#: work (samples simulated per evaluation × tasks) below which forking is not worth it:
-#: a worker costs ~10 ms to fork, a candidate's screening fit on 100 k samples ~0.5 s
-AUTO_MIN_WORK = 1_000_000
+#: work (the estimated seconds of all the tasks on one core) below which forking is not worth
+#: it: a worker costs ~10 ms to fork; a candidate's screening fit is ~100 evaluations of the
+#: model (0.5 s on 100 k samples of the base model, 2 s with a force-dependent effect)
+AUTO_MIN_WORK_S = 3.0
 #: at most this many workers when chosen automatically
 AUTO_MAX_WORKERS = 8
 
@@ -43,14 +44,14 @@ def one_blas_thread(fn: Callable[..., R]) -> Callable[..., R]:
     return wrapper
 
 
-def workers_for(tasks: int, work: int, jobs: int | None = None) -> int:
+def workers_for(tasks: int, work_s: float, jobs: int | None = None) -> int:
     """How many worker processes to use: ``jobs`` if given (1: none), else one per CPU this
-    process may run on (at most :data:`AUTO_MAX_WORKERS`) if ``work`` is at least
-    :data:`AUTO_MIN_WORK`, never more than ``tasks``."""
+    process may run on (at most :data:`AUTO_MAX_WORKERS`) if ``work_s`` (the tasks' estimated
+    seconds on one core) is at least :data:`AUTO_MIN_WORK_S`, never more than ``tasks``."""
     if "fork" not in multiprocessing.get_all_start_methods():
         return 1
     if jobs is None:
-        if work < AUTO_MIN_WORK:
+        if work_s < AUTO_MIN_WORK_S:
             return 1
         try:
             cpus = len(os.sched_getaffinity(0))

@@ -86,6 +86,8 @@ class EmulatedStand:
         self.dynamometer.started_listeners.append(self.run_started)
         self.network.subscribe(P.SYNC_COB_ID, self._on_sync)
         self._plant_dt = options.step_s
+        # compile (or load) the model's compiled loops now, not at the first SYNC of a run
+        self.model.simulate(np.zeros(8), self._plant_dt, y0=config.initial_force_kgf)
         self._plant = self.model.new_state(1, self._plant_dt, y0=config.initial_force_kgf)
         #: lockstep: the plant one period per SYNC, computed ahead in blocks
         self.lockstep_plant = LockstepPlant(self.model, config.initial_force_kgf, options.step_s)

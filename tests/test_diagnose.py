@@ -284,9 +284,9 @@ def test_candidates_fitted_in_worker_processes_give_the_same_diagnosis():
 
 
 def test_the_number_of_workers_follows_the_work_and_the_request():
-    from analysis.parallel import AUTO_MIN_WORK, workers_for
-    assert workers_for(20, AUTO_MIN_WORK - 1) == 1                 # too little to gain
-    assert 1 <= workers_for(20, AUTO_MIN_WORK) <= 8
+    from analysis.parallel import AUTO_MIN_WORK_S, workers_for
+    assert workers_for(20, 0.9 * AUTO_MIN_WORK_S) == 1             # too little to gain
+    assert 1 <= workers_for(20, AUTO_MIN_WORK_S) <= 8
     assert workers_for(3, 10, jobs=6) == 3 and workers_for(20, 10, jobs=1) == 1
 
 

@@ -204,7 +204,9 @@ def _forward(records, current: PlantModel, steps: list[Step], added: list[str], 
     while True:
         say(f"diagnosing {current.spec}")
         todo = None if effects is None else [e for e in effects if current.effect(e) is None]
-        d = diagnose(records, current, window_s=window_s, effects=todo, progress=say, jobs=jobs)
+        # after the first step the model is a candidate fitted to these records: polished
+        d = diagnose(records, current, window_s=window_s, effects=todo, progress=say, jobs=jobs,
+                     fitted=bool(steps))
         floor = d.objective_floor
         step = Step(model=d.base_fit.model.spec, rmse=d.base_eval.rmse,
                     over_floor=d.base_fit.objective_rmse / floor if floor > 0 else math.inf,

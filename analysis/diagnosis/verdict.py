@@ -37,6 +37,7 @@ from __future__ import annotations
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import asdict, dataclass, field
 from typing import Callable, Sequence
 
@@ -203,11 +204,14 @@ class Conclusion:
 def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
              window_s: float = WINDOW_S, effects: Sequence[str] | None = None,
              max_screen_windows: int = 150, refit_top: int = REFIT_TOP,
-             progress: Callable[[str], None] | None = None, jobs: int | None = None) -> Diagnosis:
+             progress: Callable[[str], None] | None = None, jobs: int | None = None,
+             fitted: bool = False) -> Diagnosis:
     """Diagnose what ``model`` misses in ``records`` (one data set). See the module docstring.
 
     ``jobs``: worker processes for the candidates' screening fits (1: none; default: one per
-    CPU when the data are large enough to gain, :func:`analysis.parallel.workers_for`)."""
+    CPU when the data are large enough to gain, :func:`analysis.parallel.workers_for`).
+    ``fitted``: ``model``'s values were fitted to these records already (a candidate of the
+    step before, in a build-up): they are polished, not searched for again."""
     say = progress or (lambda msg: None)
     start = PlantModel.from_spec(model) if isinstance(model, str) else model
     effects = list(effects) if effects is not None else diagnosable_effects(start)
@@ -216,8 +220,8 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
     windows = Windows.of(records, window_s, max_screen_windows)
     screening = {"subset": windows.subset, "windows_total": windows.n_full,
                  "windows_screened": windows.n_screen, "refit_on_all": ["base"]}
-    base = fit_start(start, windows, records, window_s, say)
-    workers = workers_for(len(effects), _n_eval(windows.screen) * len(effects), jobs)
+    base = fit_start(start, windows, records, window_s, say, fitted)
+    workers = workers_for(len(effects), screening_seconds(base.model, windows, len(effects)), jobs)
     screening["workers"] = workers
     fitted = refit_best(screen_candidates(base.model, effects, windows, workers, say), windows,
                         refit_top, say)
@@ -252,12 +256,15 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
 
 
 def fit_start(start: PlantModel, windows: Windows, records: Sequence[Record], window_s: float,
-              say: Callable[[str], None]) -> StartFit:
+              say: Callable[[str], None], fitted: bool = False) -> StartFit:
     """Step 1: the starting model fitted (on the screening windows, then polished on all when
-    they are a subset) and evaluated, with the noise floor of the objective."""
-    say(f"fitting {start.spec}" + (f" on {windows.n_screen} of {windows.n_full} windows"
-                                   if windows.subset else ""))
-    fit = fit_model(windows.screen, start, options=FitOptions(covariance=not windows.subset))
+    they are a subset) and evaluated, with the noise floor of the objective. ``fitted``: its
+    values are a fit to these records already: polished from there, no search for starts."""
+    say(("polishing " if fitted else "fitting ") + start.spec
+        + (f" on {windows.n_screen} of {windows.n_full} windows" if windows.subset else ""))
+    first = FitOptions.refit(covariance=not windows.subset) if fitted \
+        else FitOptions(covariance=not windows.subset)
+    fit = fit_model(windows.screen, start, options=first)
     screen_model = fit.model
     if windows.subset:
         fit = fit_model(windows.full, fit.model, options=FitOptions.refit())
@@ -267,6 +274,20 @@ def fit_start(start: PlantModel, windows: Windows, records: Sequence[Record], wi
     return StartFit(fit=fit, evaluation=ev, errors=Errors(w, ev.rmse), screen_errors=screen_errors,
                     objective_rmse=math.sqrt(w.sum() / _n_eval(windows.full)),
                     floor=objective_floor(windows.full, ev.noise_sigma))
+
+
+#: evaluations of the model a candidate's screening fit takes, about (its start grid with g and
+#: Δ projected, two polishes with their Jacobians)
+EVALS_PER_CANDIDATE = 100
+
+
+def screening_seconds(model: PlantModel, windows: Windows, candidates: int) -> float:
+    """The candidates' screening fits' time on one core, estimated from one evaluation of the
+    starting model on the screening windows (a force-dependent model costs several times more
+    per sample than one whose force is a running sum)."""
+    t0 = time.perf_counter()
+    residual(model, windows.screen)
+    return (time.perf_counter() - t0) * EVALS_PER_CANDIDATE * candidates
 
 
 def _screen_candidate(shared: tuple, name: str) -> FitResult | None:

@@ -12,6 +12,7 @@ re-estimated as the fit's objective does) and its sums per window.
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -154,11 +155,23 @@ def subset_pieces(full: Sequence[Piece], max_windows: int = 150, chunk_windows: 
     return (out, True) if out else (full, False)
 
 
-def _cut_windows(model: PlantModel, piece: Piece) -> tuple[Drive, np.ndarray, list[dict] | None]:
+#: the drives of the last pieces simulated, by piece and :meth:`PlantModel.drive_key`: a fit
+#: simulates the same pieces hundreds of times, and most of its Jacobian's columns move a
+#: parameter the drive does not read (g, Δ, a force-dependent law, a sensor)
+_DRIVES: "OrderedDict[tuple, tuple[Piece, Drive, Drive]]" = OrderedDict()
+_DRIVES_KEPT = 16
+
+
+def _piece_drive(model: PlantModel, piece: Piece) -> tuple[Drive, Drive]:
     """The piece's drive (delay, valve, flow preparation over the whole piece, so the command
-    history runs through) cut into its evaluated windows, the measured starts, and the sensor
-    filters' states at the starts (None without SENSOR effects)."""
-    u, y, dt, W, a = piece.u, piece.y, piece.dt, piece.window, piece.warmup
+    history runs through), whole and cut into its evaluated windows (arrays not to be
+    modified: they are shared by later simulations with the same drive)."""
+    key = (id(piece), model.drive_key())
+    hit = _DRIVES.get(key)
+    if hit is not None and hit[0] is piece:
+        _DRIVES.move_to_end(key)
+        return hit[1], hit[2]
+    u, dt, W, a = piece.u, piece.dt, piece.window, piece.warmup
     state = model.new_state(1, dt, 0.0, u[0], piece.t0)
     drv = model.drive(u[None, :], dt, state)
     n = len(u) - a
@@ -174,9 +187,24 @@ def _cut_windows(model: PlantModel, piece: Piece) -> tuple[Drive, np.ndarray, li
         return arr.reshape(nw, W)
 
     wdrv = Drive(q=cut(drv.q), aux=[cut(x) for x in drv.aux], dist=cut(drv.dist))
-    steps = a + np.arange(nw) * W
-    sensor = model.window_filter_states(drv, y, dt, steps) if model.has_sensor_effects else None
-    return wdrv, y[steps], sensor
+    for d in (drv, wdrv):     # shared from now on: a hook that wrote into them would raise
+        for arr in (d.q, d.dist, *d.aux):
+            if isinstance(arr, np.ndarray):
+                arr.flags.writeable = False
+    _DRIVES[key] = (piece, drv, wdrv)
+    if len(_DRIVES) > _DRIVES_KEPT:
+        _DRIVES.popitem(last=False)
+    return drv, wdrv
+
+
+def _cut_windows(model: PlantModel, piece: Piece) -> tuple[Drive, np.ndarray, list[dict] | None]:
+    """The piece's drive cut into its evaluated windows (:func:`_piece_drive`), the measured
+    starts, and the sensor filters' states at the starts (None without SENSOR effects)."""
+    drv, wdrv = _piece_drive(model, piece)
+    steps = piece.warmup + np.arange(wdrv.q.shape[0]) * piece.window
+    sensor = (model.window_filter_states(drv, piece.y, piece.dt, steps)
+              if model.has_sensor_effects else None)
+    return wdrv, piece.y[steps], sensor
 
 
 def simulate_pieces(model: PlantModel, pieces: Sequence[Piece]) -> list[np.ndarray]:

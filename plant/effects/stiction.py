@@ -5,6 +5,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from core.jit import njit
 from plant.contract import Effect, Stage, separating_experiment
 from plant.evidence import Ambiguity, Evidence
 from plant.params import Param
@@ -69,41 +70,16 @@ class Stiction(Effect):
     def _play(self, rate, dt, state, track=False):
         """Engaged fraction of each step (0 while the play is being crossed), advancing
         ``state["offset"]`` (force minus reading, in [−w/2, w/2]); with ``track``, also the
-        offset at each step's start. The direction of a stretch is that of its motion; where
-        the offset sits says how much of the play a motion that way still has to cross."""
-        half = self.width / 2
+        offset at each step's start. Each step moves the force by ``m = rate·dt`` and the
+        offset to ``clip(offset + m, −w/2, w/2)``; the reading moves by the rest."""
         n, K = rate.shape
-        engaged = np.ones((n, K))
-        offset = state["offset"].astype(float)
-        offsets = np.repeat(offset[:, None], K, axis=1) if track else None
-        if half <= 0:
-            return engaged, offsets
-        move = np.abs(rate) * dt
-        sgn = np.sign(rate)
-        for i in range(n):
-            moving = np.flatnonzero(sgn[i])
-            if not len(moving):
-                continue
-            signs = sgn[i, moving]
-            turns = moving[1:][signs[1:] != signs[:-1]]   # steps where the motion turns
-            bounds = np.concatenate([[0], turns, [K]])
-            for a, b in zip(bounds[:-1], bounds[1:]):
-                d = sgn[i, moving[np.searchsorted(moving, a)]]   # this stretch's direction
-                room = half - d * offset[i]                     # force change still to cross
-                if room <= 0:                                    # engaged: the reading follows
-                    if track:
-                        offsets[i, a:b] = offset[i]
-                    continue
-                crossed = np.cumsum(move[i, a:b])
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    part = np.where(move[i, a:b] > 0, (crossed - room) / move[i, a:b], 1.0)
-                engaged[i, a:b] = np.clip(part, 0.0, 1.0)
-                if track:
-                    before_step = np.concatenate([[0.0], crossed[:-1]])
-                    offsets[i, a:b] = offset[i] + d * np.minimum(before_step, room)
-                offset[i] += d * min(crossed[-1], room)
+        engaged = np.empty((n, K))
+        offset = np.array(state["offset"], dtype=float)
+        offsets = np.empty((n, K)) if track else np.empty((0, 0))
+        _play_steps(np.ascontiguousarray(rate, dtype=float), float(dt), self.width / 2, offset,
+                    engaged, offsets, track)
         state["offset"] = offset
-        return engaged, offsets
+        return engaged, (offsets if track else None)
 
     @classmethod
     def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
@@ -130,3 +106,25 @@ class Stiction(Effect):
                           separating_experiment("stiction", "delay"))]
 
 
+
+
+@njit
+def _play_steps(rate, dt, half, offset, engaged, offsets, track):
+    """The play along ``rate`` (n, K), row by row from ``offset`` (n,, advanced in place):
+    ``engaged`` the share of each step's force change that reaches the reading, ``offsets``
+    (when ``track``) the offset at each step's start."""
+    n, K = rate.shape
+    for i in range(n):
+        o = offset[i]
+        for k in range(K):
+            if track:
+                offsets[i, k] = o
+            m = rate[i, k] * dt
+            new = o + m
+            if new > half:
+                new = half
+            elif new < -half:
+                new = -half
+            engaged[i, k] = (m - (new - o)) / m if m != 0.0 else 1.0
+            o = new
+        offset[i] = o
