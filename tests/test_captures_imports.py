@@ -1,8 +1,9 @@
 """`stand decode` of a candump log imports what reading and decoding the log needs, not the other
 formats' stacks: no python-can (``import can`` loads every log format, ``.mf4``'s asammdf and
 pandas among them), no cantools (it imports python-can; the stand's DBC comes from its
-precompiled codec table, which must be what cantools gives), no BLF reader. Every format still
-decodes, its reader imported when it is opened."""
+precompiled codec table, which must be what cantools gives), no BLF reader, no pandas (pyarrow
+imports it to ask whether a numpy column is a pandas one). Every format still decodes, its reader
+imported when it is opened."""
 from __future__ import annotations
 
 import gzip
@@ -24,7 +25,7 @@ from dbc import STAND_CODECS, STAND_DBC
 #: what a candump log's decode needs none of (the stacks of the other formats, and what only
 #: other commands use)
 NOT_FOR_A_CANDUMP_LOG = ["asammdf", "can", "can.io.blf", "can.io.mf4", "canmatrix", "canopen", "cantools",
-                         "captures.blf", "captures.pycan", "matplotlib", "scipy"]
+                         "captures.blf", "captures.pycan", "matplotlib", "pandas", "scipy"]
 
 _DECODE_AND_LIST_MODULES = (
     "import json, sys\n"
