@@ -14,18 +14,22 @@ so the decoded values equal cantools' ``decode_message`` bit for bit. Frames who
 from the DBC's are counted, never decoded, except the shorter forms a protocol allows
 (:data:`SHORTER_FORMS`: CiA 301's SYNC without its counter); unknown ids are counted per id. Multiplexed signals
 are NaN in frames whose multiplexer selects another group. CAN FD messages longer than 8 bytes
-use a byte window per signal.
+use a byte window per signal. The per-signal arithmetic is in :mod:`captures.codecs`; the stand's
+DBC comes precompiled (:mod:`captures.dbctable`), so decoding with it does not load cantools.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
-from pathlib import Path
+from typing import Any, NamedTuple
 
-import cantools
 import numpy as np
 
+from dbc import STAND_DBC
 from dbc.profile import SYNC_COB_ID
 
+from .codecs import MessageCodec, SignalCodec  # noqa: F401 (SignalCodec re-exported)
+from .dbctable import precompiled_codecs
 from .frames import ERROR, EXTENDED, REMOTE, CaptureError, FrameChunk
 
 #: frame id -> a shorter length that is the same message too. CiA 301's SYNC carries a 1-byte
@@ -34,139 +38,28 @@ from .frames import ERROR, EXTENDED, REMOTE, CaptureError, FrameChunk
 #: never takes (it runs from 1).
 SHORTER_FORMS = {SYNC_COB_ID: 0}
 
-DEFAULT_DBC = Path(__file__).resolve().parent.parent / "dbc" / "stand.dbc"
+DEFAULT_DBC = STAND_DBC
 
 
-def load_dbc(dbc: str | Path | cantools.database.can.Database | None = None):
-    """A cantools database (default: the stand's ``dbc/stand.dbc``)."""
+def load_dbc(dbc: str | os.PathLike | Any = None):
+    """A cantools database (default: the stand's ``dbc/stand.dbc``); a database is returned as is.
+
+    cantools is imported here, not with this module: ``import cantools`` imports python-can
+    (``cantools.tester``), and with it every python-can log format (``.mf4``'s asammdf and
+    pandas among them)."""
     if dbc is None:
         dbc = DEFAULT_DBC
-    if isinstance(dbc, cantools.database.can.Database):
-        return dbc
+    if not isinstance(dbc, (str, os.PathLike)):
+        if hasattr(dbc, "messages"):
+            return dbc
+        raise CaptureError(f"a DBC is a file path or a cantools database, not {type(dbc).__name__}")
+    import cantools
     try:
         return cantools.database.load_file(str(dbc))
     except FileNotFoundError:
         raise CaptureError(f"DBC file {dbc} does not exist") from None
     except Exception as exc:  # cantools raises many parser-specific errors
         raise CaptureError(f"cannot read DBC file {dbc}: {exc}") from None
-
-
-@dataclass(frozen=True)
-class SignalCodec:
-    """How to pull one signal out of a frame's payload."""
-
-    name: str
-    byte0: int          #: first byte of the 8-byte window holding the signal
-    shift: int          #: right shift of the window word
-    big_endian: bool
-    length: int
-    signed: bool
-    is_float: bool
-    scale: float
-    offset: float
-    mux_ids: tuple[int, ...] | None
-    integer: bool       #: physical value is an integer (scale 1, offset 0, not float)
-
-    @classmethod
-    def from_cantools(cls, sig, message_length: int) -> "SignalCodec":
-        length = sig.length
-        if sig.byte_order == "little_endian":
-            first = sig.start // 8
-            last = (sig.start + length - 1) // 8
-            byte0 = first if message_length > 8 else 0
-            shift = sig.start - 8 * byte0
-        else:
-            msb = 8 * (sig.start // 8) + 7 - sig.start % 8
-            first, last = msb // 8, (msb + length - 1) // 8
-            byte0 = first if message_length > 8 else 0
-            shift = 64 - (msb - 8 * byte0) - length
-        if last - byte0 >= 8 or shift < 0:
-            raise CaptureError(f"signal {sig.name} spans more than 8 bytes; not supported")
-        integer = (not sig.is_float and sig.scale == 1 and sig.offset == 0
-                   and not (length == 64 and not sig.is_signed))
-        mux = tuple(sig.multiplexer_ids) if sig.multiplexer_ids else None
-        return cls(sig.name, byte0, shift, sig.byte_order == "big_endian", length, sig.is_signed,
-                   sig.is_float, sig.scale, sig.offset, mux, integer)
-
-    def raw(self, words: dict) -> np.ndarray:
-        """Raw value (uint64 bit pattern, or int64 when signed) from the window words."""
-        word = words[(self.byte0, self.big_endian)]
-        raw = word >> np.uint64(self.shift) if self.shift else word
-        if self.length < 64:
-            raw = raw & np.uint64((1 << self.length) - 1)
-        if self.signed and not self.is_float:
-            if self.length < 64:
-                s = 64 - self.length
-                return (raw << np.uint64(s)).view(np.int64) >> np.int64(s)
-            return raw.view(np.int64)
-        return raw
-
-    def physical(self, raw: np.ndarray) -> np.ndarray:
-        if self.is_float:
-            with np.errstate(invalid="ignore", over="ignore"):   # NaN/inf payloads stay NaN/inf
-                value = (raw.astype(np.uint32).view(np.float32).astype(np.float64) if self.length == 32
-                         else raw.view(np.float64))
-                return value * self.scale + self.offset
-        if self.integer:
-            return raw.astype(np.int64)
-        return raw.astype(np.float64) * self.scale + self.offset
-
-
-@dataclass
-class MessageCodec:
-    name: str
-    frame_id: int
-    extended: bool
-    length: int
-    signals: list[SignalCodec]
-    multiplexer: str | None = None
-
-    @classmethod
-    def from_cantools(cls, msg) -> "MessageCodec":
-        sigs = [SignalCodec.from_cantools(s, msg.length) for s in msg.signals]
-        mux = next((s.name for s in msg.signals if s.is_multiplexer), None)
-        return cls(msg.name, msg.frame_id, bool(msg.is_extended_frame), msg.length, sigs, mux)
-
-    def signal(self, name: str) -> SignalCodec:
-        for s in self.signals:
-            if s.name == name:
-                return s
-        raise KeyError(f"message {self.name} has no signal {name}")
-
-    def words(self, data: np.ndarray) -> dict:
-        """The 64-bit window words every signal of this message needs."""
-        out = {}
-        width = data.shape[1]
-        for s in self.signals:
-            key = (s.byte0, s.big_endian)
-            if key in out:
-                continue
-            if s.byte0 + 8 <= width:
-                win = data[:, s.byte0:s.byte0 + 8]
-            else:
-                win = np.zeros((len(data), 8), np.uint8)
-                win[:, :width - s.byte0] = data[:, s.byte0:]
-            win = np.ascontiguousarray(win)
-            out[key] = win.view(">u8" if s.big_endian else "<u8").ravel().astype(np.uint64)
-        return out
-
-    def decode(self, data: np.ndarray, names: list[str] | None = None) -> tuple[dict, dict]:
-        """(raw, physical) arrays per signal for payload rows ``data`` (m, w)."""
-        words = self.words(data)
-        raw = {}
-        phys = {}
-        for s in self.signals:
-            if names is not None and s.name not in names and s.name != self.multiplexer:
-                continue
-            raw[s.name] = r = s.raw(words)
-            phys[s.name] = s.physical(r)
-        if self.multiplexer is not None:
-            mux = raw[self.multiplexer].astype(np.int64)
-            for s in self.signals:
-                if s.mux_ids is not None and s.name in phys:
-                    keep = np.isin(mux, s.mux_ids)
-                    phys[s.name] = np.where(keep, phys[s.name].astype(np.float64), np.nan)
-        return raw, phys
 
 
 @dataclass
@@ -210,24 +103,45 @@ class DecodeStats:
         return dict(self.__dict__)
 
 
+class _Message(NamedTuple):
+    """What classifying a frame needs to know of a DBC message."""
+
+    name: str
+    frame_id: int
+    extended: bool
+    length: int
+
+
 class FrameDecoder:
-    """Decode chunks with a DBC: ``decode(chunk) -> {message name: DecodedMessage}``."""
+    """Decode chunks with a DBC: ``decode(chunk) -> {message name: DecodedMessage}``.
+
+    ``dbc``: a DBC file (default: the stand's), or a cantools database. The stand's DBC is
+    decoded from its precompiled codecs (:mod:`captures.dbctable`) without loading cantools;
+    any other DBC is read with cantools."""
 
     def __init__(self, dbc=None, messages: list[str] | None = None, channel: str | None = None) -> None:
-        self.db = load_dbc(dbc)
-        self.codecs: list[MessageCodec] = []
-        self._fallback: dict[int, object] = {}
-        for msg in self.db.messages:
-            try:
-                self.codecs.append(MessageCodec.from_cantools(msg))
-            except CaptureError:
-                self.codecs.append(None)
-                self._fallback[len(self.codecs) - 1] = msg
+        #: per DBC message, in DBC order: its codec, or None where cantools decodes it (_fallback)
+        self.codecs: list[MessageCodec | None] = []
+        self._fallback: dict[int, Any] = {}
+        self._messages: list[_Message] = []
+        precompiled = precompiled_codecs(dbc)
+        if precompiled is not None:
+            self.codecs = list(precompiled)
+            self._messages = [_Message(c.name, c.frame_id, c.extended, c.length) for c in precompiled]
+        else:
+            for msg in load_dbc(dbc).messages:
+                try:
+                    self.codecs.append(MessageCodec.from_cantools(msg))
+                except CaptureError:
+                    self.codecs.append(None)
+                    self._fallback[len(self.codecs) - 1] = msg
+                self._messages.append(_Message(msg.name, msg.frame_id, bool(msg.is_extended_frame),
+                                               msg.length))
         self.wanted = None if messages is None else set(messages)
         self._std = np.full(2048, -1, np.int32)
         ext_ids, ext_idx = [], []
-        for i, msg in enumerate(self.db.messages):
-            if msg.is_extended_frame:
+        for i, msg in enumerate(self._messages):
+            if msg.extended:
                 ext_ids.append(msg.frame_id)
                 ext_idx.append(i)
             elif msg.frame_id < 2048:
@@ -240,7 +154,7 @@ class FrameDecoder:
         self._last_ts: float | None = None
 
     def message(self, name: str) -> MessageCodec:
-        for c, msg in zip(self.codecs, self.db.messages):
+        for c, msg in zip(self.codecs, self._messages):
             if msg.name == name:
                 if c is None:
                     raise CaptureError(f"message {name} cannot be decoded vectorized")
@@ -328,11 +242,11 @@ class FrameDecoder:
                 continue
             rows = order[pos:pos + count]
             pos += count
-            msg = self.db.messages[m]
+            msg = self._messages[m]
             codec = self.codecs[m]
             st.per_message[msg.name] = st.per_message.get(msg.name, 0) + count
             good = chunk.dlc[rows] == msg.length
-            if msg.frame_id in SHORTER_FORMS and not msg.is_extended_frame:
+            if msg.frame_id in SHORTER_FORMS and not msg.extended:
                 good |= chunk.dlc[rows] == SHORTER_FORMS[msg.frame_id]
             if not good.all():
                 bad = int((~good).sum())
@@ -346,7 +260,7 @@ class FrameDecoder:
             if not len(rows):
                 continue
             if codec is None:
-                out[msg.name] = self._decode_slow(msg, chunk, rows)
+                out[msg.name] = self._decode_slow(self._fallback[m], chunk, rows)
                 continue
             raw, phys = codec.decode(chunk.data[rows], None if signals is None else signals[msg.name])
             out[msg.name] = DecodedMessage(codec, rows, chunk.ts[rows], raw, phys)

@@ -6,6 +6,10 @@ directory of part files that pyarrow.dataset, DuckDB, Polars and Spark read as o
     signals.parquet/part-00001.parquet
 
 ``pq.read_table`` (and so :func:`gateway.load_run`) reads either form.
+
+Columns are handed to pyarrow as buffers (:func:`arrow_column`), not through ``pa.array``: for
+a numpy array ``pa.array`` asks pandas whether it is a pandas object, and imports pandas to ask
+when it is installed (0.3 s; it is, with ``hydrostand[mf4]``: asammdf needs it).
 """
 from __future__ import annotations
 
@@ -16,6 +20,27 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 GROUP_ROWS = 1 << 16
+
+#: arrow types whose values are the bytes of a numpy array of this dtype
+_FIXED_WIDTH = {pa.float64(): np.dtype(np.float64), pa.float32(): np.dtype(np.float32),
+                pa.int64(): np.dtype(np.int64), pa.int32(): np.dtype(np.int32),
+                pa.int16(): np.dtype(np.int16), pa.int8(): np.dtype(np.int8),
+                pa.uint64(): np.dtype(np.uint64), pa.uint32(): np.dtype(np.uint32),
+                pa.uint16(): np.dtype(np.uint16), pa.uint8(): np.dtype(np.uint8)}
+
+
+def arrow_column(values: np.ndarray, type: pa.DataType) -> pa.Array:
+    """``values`` as an arrow array of ``type``, without nulls: the same array as
+    ``pa.array(values, type=type)``, built from the numpy buffer (no pandas check, no copy) when
+    the dtype is already the type's; other dtypes and types go through ``pa.array`` (which casts
+    safely)."""
+    values = np.asarray(values)
+    if values.ndim == 1 and type == pa.bool_() and values.dtype == np.bool_:
+        bits = np.packbits(values, bitorder="little")
+        return pa.Array.from_buffers(type, len(values), [None, pa.py_buffer(bits)])
+    if values.ndim == 1 and _FIXED_WIDTH.get(type) == values.dtype:
+        return pa.Array.from_buffers(type, len(values), [None, pa.py_buffer(np.ascontiguousarray(values))])
+    return pa.array(values, type=type)
 
 
 class PartWriter:
@@ -63,7 +88,7 @@ class PartWriter:
                 self._buf.append({k: v[start:] for k, v in cols.items()})
                 self._buffered = total - start
                 return
-            table = pa.table({k: pa.array(cols[k][start:stop], type=self.schema.field(k).type)
+            table = pa.table({k: arrow_column(cols[k][start:stop], self.schema.field(k).type)
                               for k in names}, schema=self.schema)
             self._writer_for_part().write_table(table)
             self.rows += stop - start

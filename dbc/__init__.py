@@ -4,6 +4,8 @@
 - ``dynamometer.eds``: force transducer, CiA 404 (node 2 by default)
 - ``stand.dbc``: every frame on the bus (NMT, SYNC, EMCY, PDOs, SDO, heartbeats); the force
   signal ``Force`` is in kgf and the valve command ``Command`` in %.
+- ``stand.codecs.json``: ``stand.dbc``'s signal codecs, precompiled so a capture is decoded
+  without loading cantools (written by ``python -m captures.dbctable``)
 """
 from pathlib import Path
 
@@ -11,5 +13,6 @@ HERE = Path(__file__).resolve().parent
 VALVE_EDS = HERE / "servo_valve.eds"
 DYNAMOMETER_EDS = HERE / "dynamometer.eds"
 STAND_DBC = HERE / "stand.dbc"
+STAND_CODECS = HERE / "stand.codecs.json"
 
-__all__ = ["DYNAMOMETER_EDS", "HERE", "STAND_DBC", "VALVE_EDS"]
+__all__ = ["DYNAMOMETER_EDS", "HERE", "STAND_CODECS", "STAND_DBC", "VALVE_EDS"]

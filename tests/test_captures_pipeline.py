@@ -8,6 +8,7 @@ import sys
 import tracemalloc
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.dataset as ds
 import pytest
 
@@ -69,6 +70,25 @@ def test_partitioned_parquet_is_one_table_for_pyarrow_dataset(tmp_path):
     assert force.num_rows == run.cycles + 1
     assert np.array_equal(force.column("Force").to_numpy(), run.y_counts * FORCE_SCALE)
     assert set(force.column_names) == {"ts", "Force", "ForceStatus"}
+
+
+def test_parquet_columns_are_the_arrays_pa_array_makes():
+    """Columns reach pyarrow as numpy buffers (pa.array would import pandas to inspect them)."""
+    from captures.parquet import arrow_column
+    rng = np.random.default_rng(1)
+    cases = [(rng.normal(size=1001), pa.float64()),
+             (rng.integers(-2**40, 2**40, 1001), pa.int64()),
+             (rng.integers(-2**31, 2**31, 1001).astype(np.int32), pa.int32()),
+             (rng.integers(0, 2**16, 1001).astype(np.uint16), pa.uint16()),
+             (rng.random(1001) < 0.3, pa.bool_()),                       # 1001 bits: a partial byte
+             (np.arange(3000, dtype=np.int64)[::3], pa.int64()),         # a strided view
+             (np.arange(10, dtype=np.int64), pa.int32())]                # another dtype: cast by pa.array
+    for values, type in cases:
+        column = arrow_column(values, type)
+        assert column.type == type and column.null_count == 0
+        assert column.equals(pa.array(values, type=type)), type
+    with pytest.raises(pa.ArrowInvalid):                                 # and as safely as pa.array
+        arrow_column(np.array([0.5]), pa.int64())
 
 
 def test_every_analysis_reads_a_capture_directly(tmp_path):
