@@ -235,16 +235,26 @@ def load_plant_config(path: str | Path | None = None, model_spec: str | None = N
     """Emulator configuration from an optional TOML file, an optional model spec (which effects)
     and ``--set NAME=VALUE`` overrides (``g``, ``reversal.boost``, ``sensor.noise_kgf``,
     ``initial.force_kgf``)."""
-    data: dict[str, Any] = read_toml(path) if path else {}
-    where = str(path) if path else "defaults"
-    unknown_tables = set(data) - {"base", "effects", "sensor", "initial", "model", "plugins"}
+    if not path:
+        return plant_config_from_mapping(None, "defaults", None, model_spec, overrides)
+    return plant_config_from_mapping(read_toml(path), str(path), Path(path).parent, model_spec,
+                                     overrides)
+
+
+def plant_config_from_mapping(data: Mapping[str, Any] | None, where: str,
+                              base_dir: str | Path | None = None, model_spec: str | None = None,
+                              overrides: Mapping[str, Any] | None = None) -> PlantConfig:
+    """Emulator configuration from the tables of a parsed plant file (``[base]``,
+    ``[effects.NAME]``, ``[sensor]``, ``[initial]``; None: the default plant), then a model spec
+    and overrides as :func:`load_plant_config` takes them."""
+    unknown_tables = set(data or {}) - {"base", "effects", "sensor", "initial", "model", "plugins"}
     if unknown_tables:
         raise ModelError(f"{where}: unknown table(s) {', '.join(sorted(unknown_tables))}; "
                          "expected [base], [effects.NAME], [sensor], [initial]")
-    if path:
-        model = model_from_mapping(data, where, Path(path).parent)
+    if data is None:
+        model, data = PlantModel.from_spec(DEFAULT_MODEL, DEFAULT_VALUES), {}
     else:
-        model = PlantModel.from_spec(DEFAULT_MODEL, DEFAULT_VALUES)
+        model = model_from_mapping(data, where, base_dir)
     sensor = _table(data, "sensor", where)
     initial = _table(data, "initial", where)
     known_initial = {p.name for p in INITIAL_PARAMS}

@@ -16,6 +16,7 @@ LEVELS = [
     {"standbus"},
     {"dbc"},
     {"plant"},
+    {"rig"},
     {"plant_emulator", "loading"},
     {"gateway"},
     {"captures"},
@@ -65,7 +66,8 @@ PART_LEVELS = {
         {"reports"},
     ],
     # the effect contract at the bottom, the built-ins and the loader above it, the model above
-    # them, then what loads a user's plug-ins (it checks them by simulating) and the files
+    # them, then what loads a user's plug-ins (it checks them by simulating), the rig's coupled
+    # channels, and the files
     "plant": [
         {"params", "evidence"},
         {"signals", "start_grids", "sensor"},
@@ -73,7 +75,7 @@ PART_LEVELS = {
         {"effects", "loader"},
         {"catalogue"},
         {"model"},
-        {"plugins"},
+        {"plugins", "rig"},
         {"config", "skeleton"},
     ],
 }

@@ -1,0 +1,227 @@
+r"""A rig of N loading channels on one structure: the paper's model as a matrix.
+
+.. math::  \dot y_i = \sum_j G_{ij}\, w_j(t - \tau_j) + \Delta_i + D_i(y_i, t)
+
+``w_j`` is channel j's flow after its own valve and flow effects (the one-channel model's
+``g·q·ΠG`` is ``G_jj·w_j``), ``G`` is N×N in kgf/(%·s): ``G_ii`` the paper's g of channel i,
+``G_ij`` what channel j's flow does to channel i's force through the structure. Physically
+``G = K·diag(c/A)``, ``K`` the structure's stiffness at the attachment points (symmetric
+positive definite, kgf/mm) and ``c_j/A_j`` actuator j's flow gain over its piston area
+(mm/(%·s)); :func:`physical_check` says whether a G can be that (../shared/notes/rig.md).
+
+Each channel is a :class:`~plant.model.PlantModel` of its own (delay, valve and flow effects,
+trend, force terms, sensor) whose ``g`` is ``G_ii``. An uncoupled rig (G diagonal) simulates each
+channel exactly as the one-channel model does, bit for bit; a coupled one steps the channels
+together (:meth:`RigModel.advance`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from .model import PlantModel, PlantState
+from .params import ModelError
+
+
+# ------------------------------------------------------------------------------------------
+# is there a structure behind G?
+# ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PhysicalCheck:
+    """Whether ``G = K·diag(c/A)`` with ``K`` symmetric positive definite and ``c/A > 0``.
+
+    ``G_ij·d_j = G_ji·d_i`` with ``d_j = A_j/c_j``: the ratios of the flow gains follow from
+    the pairs ``G_ij, G_ji``, and ``K = G·diag(d)`` (up to one scale per group of coupled
+    channels) must then be symmetric positive definite."""
+
+    physical: bool
+    reason: str                   #: why not (empty when physical)
+    #: ``d`` normalised to 1 on each group's first channel: A_j/c_j relative to it
+    scales: np.ndarray = field(repr=False)
+    #: ``G·diag(scales)``, symmetrised: the stiffness up to each group's unknown scale
+    stiffness: np.ndarray = field(repr=False)
+    #: largest |(G·D)_ij − (G·D)_ji| / max |G·D|: 0 for an exact structure
+    asymmetry: float
+    #: smallest eigenvalue of the symmetrised ``G·D`` over the largest (> 0: positive definite)
+    min_eigenvalue_ratio: float
+
+    def text(self) -> str:
+        head = "physical" if self.physical else f"not physical: {self.reason}"
+        return (f"{head} (asymmetry {100 * self.asymmetry:.2g} % after scaling, smallest "
+                f"eigenvalue {self.min_eigenvalue_ratio:.3g} of the largest)")
+
+
+def physical_check(G: np.ndarray, asymmetry_tol: float = 1e-6) -> PhysicalCheck:
+    """Is there a symmetric positive definite ``K`` and positive ``c/A`` with ``G = K·diag(c/A)``?
+    (see :class:`PhysicalCheck`). ``asymmetry_tol``: how far from symmetric ``G·D`` may be
+    (an emulated structure: numerical; an identified G: its uncertainty, the caller's)."""
+    G = np.asarray(G, float)
+    n = G.shape[0]
+    if G.shape != (n, n) or not np.all(np.isfinite(G)):
+        raise ModelError(f"G must be a square matrix of finite numbers, got shape {G.shape}")
+    scales = np.ones(n)
+    reasons: list[str] = []
+    if np.any(np.diag(G) <= 0):
+        bad = np.flatnonzero(np.diag(G) <= 0)
+        reasons.append(f"G_ii <= 0 for channel(s) {', '.join(str(i + 1) for i in bad)}: a "
+                       "channel's own flow must raise its own force")
+    tiny = 1e-12 * max(np.max(np.abs(G)), 1e-300)
+    for i in range(n):
+        for j in range(i + 1, n):
+            a, b = G[i, j], G[j, i]
+            if (abs(a) <= tiny) != (abs(b) <= tiny):
+                reasons.append(f"G[{i + 1},{j + 1}] = {a:g} but G[{j + 1},{i + 1}] = {b:g}: a "
+                               "structure couples both ways or neither")
+            elif abs(a) > tiny and np.sign(a) != np.sign(b):
+                reasons.append(f"G[{i + 1},{j + 1}] = {a:g} and G[{j + 1},{i + 1}] = {b:g} have "
+                               "opposite signs: a stiffness is symmetric, so they cannot")
+    if not reasons:
+        scales = _flow_gain_ratios(G, tiny)
+    GD = G * scales[None, :]
+    norm = float(np.max(np.abs(GD))) or 1.0
+    asymmetry = float(np.max(np.abs(GD - GD.T))) / norm
+    K = 0.5 * (GD + GD.T)
+    eig = np.linalg.eigvalsh(K)
+    ratio = float(eig[0] / eig[-1]) if eig[-1] > 0 else -math.inf
+    if not reasons and asymmetry > asymmetry_tol:
+        reasons.append(f"no flow gains make G·diag(A/c) symmetric: {100 * asymmetry:.2g} % "
+                       "asymmetric at best (the products G_ij·G_jk·G_ki and G_ik·G_kj·G_ji of "
+                       "three channels differ)")
+    if not reasons and eig[0] <= 0:
+        reasons.append(f"the stiffness behind G is not positive definite (smallest eigenvalue "
+                       f"{ratio:.3g} of the largest): a load pattern would move the structure "
+                       "with no force")
+    return PhysicalCheck(not reasons, "; ".join(reasons), scales, K, asymmetry, ratio)
+
+
+def _flow_gain_ratios(G: np.ndarray, tiny: float) -> np.ndarray:
+    """``d`` with ``G_ij·d_j ≈ G_ji·d_i`` for every coupled pair: ``log d_j − log d_i =
+    log(G_ji/G_ij)`` solved by least squares on each group of coupled channels, the group's
+    first channel at 1."""
+    n = G.shape[0]
+    rows, rhs = [], []
+    for i in range(n):
+        for j in range(i + 1, n):
+            if abs(G[i, j]) > tiny and abs(G[j, i]) > tiny:
+                r = np.zeros(n)
+                r[j], r[i] = 1.0, -1.0
+                rows.append(r)
+                rhs.append(math.log(G[j, i] / G[i, j]))
+    # pin the first channel of each group at log d = 0
+    group = list(range(n))
+
+    def find(x: int) -> int:
+        while group[x] != x:
+            group[x] = group[group[x]]
+            x = group[x]
+        return x
+
+    for r in rows:
+        i, j = np.flatnonzero(r)
+        group[find(int(i))] = find(int(j))
+    for root in sorted({find(i) for i in range(n)}):
+        first = min(i for i in range(n) if find(i) == root)
+        r = np.zeros(n)
+        r[first] = 1.0
+        rows.append(r)
+        rhs.append(0.0)
+    logd, *_ = np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=None)
+    return np.exp(logd)
+
+
+# ------------------------------------------------------------------------------------------
+# the rig's plant
+# ------------------------------------------------------------------------------------------
+class RigModel:
+    """N channels' :class:`PlantModel`\\ s coupled by ``G`` (see the module docstring)."""
+
+    def __init__(self, channels: Sequence[PlantModel], G: np.ndarray | None = None,
+                 names: Sequence[str] | None = None) -> None:
+        channels = list(channels)
+        n = len(channels)
+        if n == 0:
+            raise ModelError("a rig needs at least one channel")
+        if G is None:
+            G = np.diag([m.g for m in channels])
+        G = np.array(G, float)
+        if G.shape != (n, n) or not np.all(np.isfinite(G)):
+            raise ModelError(f"G must be {n}x{n} finite numbers for {n} channel(s), got shape "
+                             f"{G.shape}")
+        # each channel's own gain is G_ii
+        self.channels = [m if m.g == G[i, i] else m.with_params({"g": float(G[i, i])})
+                         for i, m in enumerate(channels)]
+        self.G = G
+        self.names = list(names) if names is not None else [f"ch{i + 1}" for i in range(n)]
+        if len(self.names) != n:
+            raise ModelError(f"{len(self.names)} names for {n} channels")
+        self.coupling = G - np.diag(np.diag(G))
+        self.coupled = bool(np.any(self.coupling != 0.0))
+
+    @property
+    def n(self) -> int:
+        return len(self.channels)
+
+    def __repr__(self) -> str:
+        return f"RigModel({', '.join(f'{n}: {m.spec}' for n, m in zip(self.names, self.channels))})"
+
+    def new_state(self, dt: float, y0: Sequence[float] | float = 0.0,
+                  u0: Sequence[float] | float = 0.0, t0: float = 0.0) -> list[PlantState]:
+        """Each channel's state (one trajectory each) at forces ``y0`` with commands ``u0``
+        held before."""
+        y0 = np.broadcast_to(np.asarray(y0, float), (self.n,))
+        u0 = np.broadcast_to(np.asarray(u0, float), (self.n,))
+        return [m.new_state(1, dt, y0[i], u0[i], t0) for i, m in enumerate(self.channels)]
+
+    def advance(self, states: list[PlantState], u: np.ndarray, dt: float) -> np.ndarray:
+        """Advance every channel by the command block ``u`` (N, K); returns the dynamometers'
+        readings after each step (N, K). This is what the rig's emulator calls."""
+        u = np.asarray(u, float)
+        if u.shape[0] != self.n:
+            raise ModelError(f"commands for {u.shape[0]} channels, the rig has {self.n}")
+        if not self.coupled:
+            return np.concatenate([m.advance(st, u[i:i + 1], dt)
+                                   for i, (m, st) in enumerate(zip(self.channels, states))])
+        drives = [m.drive(u[i:i + 1], dt, st)
+                  for i, (m, st) in enumerate(zip(self.channels, states))]
+        y = self._integrate(drives, np.array([st.y[0] for st in states]), dt)
+        out = np.empty((self.n, u.shape[1]))
+        for i, (m, st) in enumerate(zip(self.channels, states)):
+            traj = y[i:i + 1]
+            st.y = traj[:, -1].copy()
+            if m.has_sensor_effects:
+                traj = m.sense(traj, dt, st.reading, st.effects)
+            st.reading = traj[:, -1].copy()
+            out[i] = traj[0, 1:]
+        return out
+
+    def simulate(self, u: np.ndarray, dt: float, y0: Sequence[float] | float = 0.0,
+                 u_before: Sequence[float] | float | None = None) -> np.ndarray:
+        """Free-run simulation of one run of the rig: readings (N, K) for commands ``u`` (N, K),
+        the commands before the run held at ``u_before`` (default: the first ones)."""
+        u = np.asarray(u, float)
+        states = self.new_state(dt, y0, u[:, 0] if u_before is None else u_before)
+        y0 = np.broadcast_to(np.asarray(y0, float), (self.n,))
+        readings = self.advance(states, u, dt)
+        return np.concatenate([y0[:, None], readings[:, :-1]], axis=1)
+
+    def _integrate(self, drives: list, y0: np.ndarray, dt: float) -> np.ndarray:
+        """The forces (N, K+1) from ``y0`` under the channels' drives, coupled: step by step,
+        ``y[k+1] = y[k] + dt·(G·w(y[k]) + a(y[k]))`` with each channel's flow ``w`` and its own
+        terms ``a`` (Δ, disturbances, force terms) from its own model."""
+        n, K = self.n, drives[0].q.shape[1]
+        out = np.empty((n, K + 1))
+        out[:, 0] = y = y0.copy()
+        for k in range(K):
+            w = np.empty(n)
+            a = np.empty(n)
+            for i, (m, drv) in enumerate(zip(self.channels, drives)):
+                yi = y[i:i + 1]
+                w[i] = m.flow(drv.q[:, k], [None if x is None else x[:, k] for x in drv.aux], yi)[0]
+                a[i] = m.rate_terms(None if drv.dist is None else drv.dist[:, k], yi)[0]
+            y = y + dt * (self.G @ w + a)
+            out[:, k + 1] = y
+        return out
+
