@@ -1,8 +1,11 @@
 """How to reach and drive the stand (:class:`GatewayConfig`): bus, node ids, period, clock,
-limits. Nothing here describes the plant; nothing here opens the bus."""
+limits; or a rig's buses and channels (:class:`rig.config.RigConfig`). Nothing here describes
+the plant; nothing here opens the bus."""
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from dbc import profile as P
 from standbus.realtime import DEFAULT_PRIORITY
@@ -11,6 +14,12 @@ from standbus.spec import DEFAULT_BUS, BusSpec, BusSpecError
 from .errors import ParameterError
 from .experiments.base import check_range
 from .supervisor import SafetyLimits
+
+if TYPE_CHECKING:
+    from rig.config import ChannelConfig, RigConfig
+
+#: what a channel's communication or valve fault does to a rig's other channels
+FAULT_ACTIONS = ("hold", "unload")
 
 
 @dataclass
@@ -29,8 +38,26 @@ class GatewayConfig:
     #: real time: SCHED_FIFO priority of the process's threads (loop, bus reader, recorder,
     #: capture) during a run where the host allows it (standbus.realtime); 0: ordinary scheduling
     rt_priority: int = DEFAULT_PRIORITY
+    #: a rig: its buses and channels (then ``bus``, the node ids, ``period_s`` and
+    #: ``heartbeat_ms`` come from it, and each channel's force limit from its channel)
+    rig: "RigConfig | None" = None
+    #: a rig: what a channel's communication or valve fault does to the other channels: hold
+    #: them all, or unload them keeping the load ratios (docs/safety.md)
+    fault_action: str = "hold"
+
+    def __post_init__(self) -> None:
+        if self.rig is not None:
+            self.period_s = self.rig.period_s
+            self.heartbeat_ms = self.rig.heartbeat_ms
+
+    def channel_limits(self, channel: "ChannelConfig") -> SafetyLimits:
+        """A rig channel's limits: the shared ones with the channel's own force limit."""
+        return dataclasses.replace(self.limits, force_limit_kgf=channel.limit_kgf)
 
     def validate(self) -> None:
+        if self.fault_action not in FAULT_ACTIONS:
+            raise ParameterError(f"fault_action = {self.fault_action!r}: choose one of "
+                                 f"{', '.join(FAULT_ACTIONS)}")
         check_range("period_s", self.period_s, 0.0005, 0.1, "s")
         check_range("rt_priority", self.rt_priority, 0, 99, integer=True)
         check_range("valve_id", self.valve_id, 1, 127, integer=True)

@@ -22,6 +22,13 @@ that cycle is recorded with it, and the run ends — or, for a controlled unload
 supervisor's unload loop drives the remaining cycles until the force is about zero, then hold.
 Every command sent is either the experiment's command shaped by the supervisor or a safe one.
 
+**A rig** (many channels on one or several buses) runs in the same loop: each cycle one SYNC per
+bus (the same counter, sent back to back, so the buses' cycles are aligned), every channel's two
+TPDOs awaited, every channel's supervisor asked, N commands sent, one row recorded. A trip on
+any channel acts on every channel: hold all, zero all, or unload all keeping the load ratios
+(:mod:`gateway.unload`), the channel whose valve or communication failed held apart
+(:class:`RigSafety`). A one-channel stand is the rig of one channel.
+
 The TPDO callbacks decode with the precompiled PDO layouts and hand the values over through a
 queue. In real time they run on the canopen Notifier thread. In lockstep the loop takes the bus
 over (:class:`standbus.HandoverNotifier`) and receives on its own thread, polling briefly
@@ -42,12 +49,14 @@ import can
 
 from dbc import profile as P
 from standbus import LOCKSTEP_BUSY_POLL_S
+from standbus.handover import handover_many
 
 from .capture import TappedNetwork
 from .experiments import Experiment
 from .master import StandMaster
 from .recorder import RunRecorder
-from .supervisor import Supervisor, Trip, Unloader
+from .supervisor import Supervisor, Trip
+from .unload import RatioUnloader
 
 log = logging.getLogger(__name__)
 
@@ -89,77 +98,146 @@ class LoopOutcome:
     stats: LoopStats
     #: how the run was brought to its safe state (run.json ``safety``), None if it completed
     safety: dict | None = None
+    #: a rig: what the loop counted per channel (run.json ``rig.loop``), None for one channel
+    rig: dict | None = None
+
+
+@dataclass
+class LoopChannel:
+    """One loading channel as the loop drives it: its nodes' master, its supervisor (its own
+    limits and detectors), the bus it is on (index into the loop's networks)."""
+
+    name: str
+    master: StandMaster
+    supervisor: Supervisor
+    bus: int = 0
+    range_kgf: float = math.nan
+
+
+@dataclass
+class RigSafety:
+    """What a trip on one channel does to the rig (docs/safety.md, "A rig").
+
+    ``fault_action``: what a channel's communication or valve fault (heartbeat, EMCY, stale
+    reading, valve fault, no answer) does to the other channels: ``hold`` them all, or
+    ``unload`` them keeping the load ratios while the faulty channel, whose valve is in (or is
+    left to) its own safe state, holds. Force-limit and error trips act with their own actions
+    (``--limit-action``, ``--error-action``) on every channel. ``G``: the rig's coupling, if
+    known (the unload's gains and feedforward, :mod:`gateway.unload`)."""
+
+    fault_action: str = "hold"
+    G: object = None
+
+
+#: trips after which the channel cannot take part in an unload: its valve is in its own safe
+#: state, or its readings or its commands do not get through
+CHANNEL_FAULTS = frozenset({"force_pdo_stale", "heartbeat_lost", "nmt_state", "emcy", "valve_fault",
+                            "valve_not_active", "no_answer_to_sync"})
+#: bus key stride: a TPDO's key is its COB-ID + bus index × this (bus 0: the COB-ID itself)
+KEY_STRIDE = 0x800
 
 
 class ControlLoop:
-    """Runs experiments against the stand behind ``master`` (configured and booted)."""
+    """Runs experiments against the stand behind ``master`` (configured and booted), or, with
+    ``channels``/``networks``, against every channel of a rig at once: one SYNC per bus per
+    cycle (the same counter, sent back to back), N forces in, N commands out, one row.
+
+    A one-channel stand is the rig of one channel on one bus (``channels=None``)."""
 
     def __init__(self, network: TappedNetwork, master: StandMaster, supervisor: Supervisor,
-                 period_s: float, lockstep: bool, lockstep_timeout_s: float = 2.0) -> None:
-        self.network = network
-        self.master = master
-        self.supervisor = supervisor
+                 period_s: float, lockstep: bool, lockstep_timeout_s: float = 2.0, *,
+                 channels: list[LoopChannel] | None = None,
+                 networks: list[TappedNetwork] | None = None,
+                 rig_safety: RigSafety | None = None) -> None:
+        if channels is None:
+            channels = [LoopChannel("", master, supervisor, 0)]
+            networks = [network]
+        self.channels = channels
+        self.networks = networks or [network]
+        self.rig = len(channels) > 1 or bool(channels[0].name)
+        self.rig_safety = rig_safety or RigSafety()
+        self.network = self.networks[0]
+        self.master = channels[0].master
+        self.supervisor = channels[0].supervisor
         self.period_s = period_s
         self.lockstep = lockstep
         self.lockstep_timeout_s = lockstep_timeout_s
         self._arrivals: queue.SimpleQueue = queue.SimpleQueue()
-        self._force_layout = master.force_tpdo
-        self._valve_layout = master.valve_tpdo
-        self._force_pos = self._force_layout.position(*P.PV_INT32)
-        self._status_pos = self._valve_layout.position(P.STATUS_WORD, 0)
-        self._spool_pos = self._valve_layout.position(*P.ACTUAL_VALUE)
+        #: TPDO key (COB-ID + bus × KEY_STRIDE) → (channel index, is the force)
+        self._route: dict[int, tuple[int, bool]] = {}
+        self._layouts: list[dict[int, object]] = [{} for _ in self.networks]
+        self._force_pos, self._status_pos, self._spool_pos = [], [], []
+        for i, ch in enumerate(channels):
+            m = ch.master
+            for layout, is_force in ((m.force_tpdo, True), (m.valve_tpdo, False)):
+                self._route[layout.cob_id + ch.bus * KEY_STRIDE] = (i, is_force)
+                self._layouts[ch.bus][layout.cob_id] = layout
+            self._force_pos.append(m.force_tpdo.position(*P.PV_INT32))
+            self._status_pos.append(m.valve_tpdo.position(P.STATUS_WORD, 0))
+            self._spool_pos.append(m.valve_tpdo.position(*P.ACTUAL_VALUE))
+        self._callbacks = [self._tpdo_callback(b) for b in range(len(self.networks))]
         self.stats = LoopStats()
         self._subscribed = False
-        #: lockstep: receives one frame on the loop's own thread (the reader thread parked)
+        #: lockstep: receives one frame on the loop's own thread (the reader threads parked)
         self._pump = None
 
-    # -- frames from the Notifier thread ----------------------------------------------------------
-    def _on_tpdo(self, can_id: int, data: bytes, timestamp: float) -> None:
-        layout = self._force_layout if can_id == self._force_layout.cob_id else self._valve_layout
-        try:
-            values = layout.decode(data)
-        except struct.error:
-            self.stats.bad_frames += 1      # wrong DLC for a known frame: counted, never decoded
-            return
-        self._arrivals.put((can_id, values, timestamp))
+    # -- frames from the Notifier threads ---------------------------------------------------------
+    def _tpdo_callback(self, bus: int):
+        layouts = self._layouts[bus]
+        offset = bus * KEY_STRIDE
+        put = self._arrivals.put
+
+        def on_tpdo(can_id: int, data: bytes, timestamp: float) -> None:
+            try:
+                values = layouts[can_id].decode(data)
+            except struct.error:
+                self.stats.bad_frames += 1      # wrong DLC for a known frame: counted, never decoded
+                return
+            put((can_id + offset, values, timestamp))
+        return on_tpdo
 
     def _subscribe(self) -> None:
         if not self._subscribed:
-            self.network.subscribe(self._force_layout.cob_id, self._on_tpdo)
-            self.network.subscribe(self._valve_layout.cob_id, self._on_tpdo)
+            for net, layouts, callback in zip(self.networks, self._layouts, self._callbacks):
+                for cob in layouts:
+                    net.subscribe(cob, callback)
             self._subscribed = True
 
     def close(self) -> None:
         if self._subscribed:
-            self.network.unsubscribe(self._force_layout.cob_id, self._on_tpdo)
-            self.network.unsubscribe(self._valve_layout.cob_id, self._on_tpdo)
+            for net, layouts, callback in zip(self.networks, self._layouts, self._callbacks):
+                for cob in layouts:
+                    net.unsubscribe(cob, callback)
             self._subscribed = False
 
     # -- helpers ---------------------------------------------------------------------------------
-    def send_command(self, control_word: int, u_pct: float) -> float:
-        """Send the valve RPDO; returns the command as it went on the wire (quantized, %)."""
+    def send_command(self, control_word: int, u_pct: float, channel: int = 0) -> float:
+        """Send a valve RPDO; returns the command as it went on the wire (quantized, %)."""
         counts = P.percent_to_counts(u_pct)
-        self.master.send_valve_command(control_word, counts)
+        self.channels[channel].master.send_valve_command(control_word, counts)
         return P.counts_to_percent(counts)
 
-    def safe_state(self, action: str = "hold") -> float:
-        """Zero setpoint and the valve to HOLD (its hold setpoint: zero flow) or, for the
-        ``zero`` action, to DISABLED (spool to its fail-safe position); sent twice in case one
-        frame is lost. Returns the wall-clock time of the first send (NaN if the bus failed)."""
+    def safe_state(self, action: str = "hold", channels=None) -> float:
+        """Zero setpoint and every valve (or those of ``channels``) to HOLD (its hold setpoint:
+        zero flow) or, for the ``zero`` action, to DISABLED (spool to its fail-safe position);
+        sent twice in case one frame is lost. Returns the wall-clock time of the first send
+        (NaN if no bus took it)."""
         word = P.CW_DISABLED if action == "zero" else P.CW_HOLD
         sent = math.nan
+        which = range(len(self.channels)) if channels is None else channels
         for _ in range(2):
-            try:
-                self.send_command(word, 0.0)
-                if sent != sent:
-                    sent = time.time()
-            except can.CanError:
-                pass
+            for i in which:
+                try:
+                    self.send_command(word, 0.0, i)
+                    if sent != sent:
+                        sent = time.time()
+                except can.CanError:
+                    pass
         return sent
 
     def _next_arrival(self, timeout: float):
-        """The next decoded TPDO ``(cob_id, values, stamp)``; raises ``queue.Empty`` after
-        ``timeout`` s. With the bus handed over (lockstep) this thread receives the frames
+        """The next decoded TPDO ``(key, values, stamp)``; raises ``queue.Empty`` after
+        ``timeout`` s. With the buses handed over (lockstep) this thread receives the frames
         itself, every one of them reaching all listeners (heartbeats, EMCY, capture) on the way."""
         pump = self._pump
         if pump is None:
@@ -184,52 +262,100 @@ class ControlLoop:
             self.stats.late_frames += 1
 
     def _filter_counts(self) -> dict[str, int]:
-        flt = getattr(self.network, "frame_filter", None)
-        return flt.counts() if flt is not None else {}
+        out: dict[str, int] = {}
+        for net in self.networks:
+            flt = getattr(net, "frame_filter", None)
+            for key, value in (flt.counts() if flt is not None else {}).items():
+                out[key] = out.get(key, 0) + value
+        return out
+
+    def _check_nodes(self) -> Trip | None:
+        """Every channel's communication watchdogs (EMCY, heartbeat, NMT state)."""
+        for i, ch in enumerate(self.channels):
+            trip = ch.supervisor.check_nodes()
+            if trip is not None:
+                return self._named(trip, i)
+        return None
+
+    def _named(self, trip: Trip, channel: int | None) -> Trip:
+        if self.rig and channel is not None:
+            trip.channel = self.channels[channel].name
+        return trip
+
+    def _handover(self, stack: contextlib.ExitStack) -> None:
+        """Lockstep: take the buses from their reader threads for the run."""
+        nets = self.networks
+        if not all(hasattr(net, "handover") for net in nets):
+            return
+        if len(nets) == 1:
+            # each answer follows its SYNC within ~0.1 ms: poll for it before sleeping
+            self._pump = stack.enter_context(nets[0].handover(LOCKSTEP_BUSY_POLL_S))
+        else:
+            self._pump = stack.enter_context(
+                handover_many([net.notifier for net in nets], LOCKSTEP_BUSY_POLL_S))
 
     # -- the loop --------------------------------------------------------------------------------
-    def run(self, experiment: Experiment, recorder: RunRecorder | None, progress=None) -> LoopOutcome:
-        """Run ``experiment`` to its end or until the supervisor stops it. The valve is left
-        in HOLD (or DISABLED after a ``zero`` trip) with zero command either way. Call it inside
+    def run(self, experiment: Experiment, recorder: RunRecorder | None, progress=None,
+            drivers: dict[int, Experiment] | None = None) -> LoopOutcome:
+        """Run ``experiment`` to its end or until a supervisor stops it. On a rig ``drivers``
+        maps the channels the experiment drives to their own copy of it (default: channel 0
+        runs ``experiment``); every other channel holds a zero command. The valves are left in
+        HOLD (or DISABLED after a ``zero`` trip) with zero command either way. Call it inside
         :func:`steady_heap` entered before the nodes start (as :meth:`Gateway.run` does)."""
         self._subscribe()
         with contextlib.ExitStack() as stack:
-            if self.lockstep and hasattr(self.network, "handover"):
-                # each answer follows its SYNC within ~0.1 ms: poll for it before sleeping
-                self._pump = stack.enter_context(self.network.handover(LOCKSTEP_BUSY_POLL_S))
+            if self.lockstep:
+                self._handover(stack)
             try:
-                return self._run(experiment, recorder, progress)
+                return self._run(drivers or {0: experiment}, recorder, progress)
             finally:
                 self._pump = None
 
-    def _run(self, experiment: Experiment, recorder: RunRecorder | None, progress) -> LoopOutcome:
-        sup = self.supervisor
-        sup.reset(getattr(experiment, "max_command_pct", None))
-        sup.wait_s = WAIT_SLICE_S if self.lockstep else 0.8 * self.period_s
-        experiment.abort = None
-        experiment.configure(self.period_s, sup.limits.force_limit_kgf)
+    def _run(self, drivers: dict[int, Experiment], recorder: RunRecorder | None,
+             progress) -> LoopOutcome:
+        chans = self.channels
+        n = len(chans)
+        sups = [c.supervisor for c in chans]
+        wait_s = WAIT_SLICE_S if self.lockstep else 0.8 * self.period_s
+        for i, sup in enumerate(sups):
+            exp = drivers.get(i)
+            sup.reset(getattr(exp, "max_command_pct", None) if exp is not None else None)
+            sup.wait_s = wait_s
+        driven = sorted(drivers)
+        for i in driven:
+            drivers[i].abort = None
+            drivers[i].configure(self.period_s, sups[i].limits.force_limit_kgf)
         stats = self.stats = LoopStats()
         filter0 = self._filter_counts()
         T = self.period_s
         lockstep = self.lockstep
-        force_cob = self._force_layout.cob_id
-        scale = self.master.force_scale_kgf
+        route = self._route
+        scales = [c.master.force_scale_kgf for c in chans]
+        force_pos, status_pos, spool_pos = self._force_pos, self._status_pos, self._spool_pos
+        masters = [c.master for c in chans]
+        networks = self.networks
         next_arrival = self._next_arrival
-        overrun_limit = sup.limits.overrun_limit_s
+        overrun_limit = sups[0].limits.overrun_limit_s
+        percent_to_counts, counts_to_percent = P.percent_to_counts, P.counts_to_percent
+        CW_ACTIVE = P.CW_ACTIVE
         wall_stamps: bool | None = None
         counter = 0
-        y = math.nan
-        y_counts = 0
-        spool = math.nan
-        status = 0
+        ys = [math.nan] * n
+        y_counts = [0] * n
+        spools = [math.nan] * n
+        statuses = [0] * n
+        stale_by_channel = [0] * n
         trip: Trip | None = None          # what ended (or is unloading) the run
-        unloader: Unloader | None = None
+        unloader: RatioUnloader | None = None
         unload_note: str | None = None
+        excluded: list[int] = []
         final_action = "hold"
+        all_channels = range(n)
         self._drain()
         stats.late_frames = 0
-        # Enable the valve with a zero command before the first SYNC.
-        self.send_command(P.CW_ACTIVE, 0.0)
+        # Enable the valves with a zero command before the first SYNC.
+        for i in all_channels:
+            self.send_command(CW_ACTIVE, 0.0, i)
         wall0 = time.monotonic()
         t_start = time.perf_counter()
         next_sync = t_start
@@ -247,7 +373,7 @@ class ControlLoop:
                         stats.overruns += missed
                         next_sync += missed * T
                     if late > overrun_limit:
-                        late_trip = sup.overrun(late, time.time() - late)
+                        late_trip = sups[0].overrun(late, time.time() - late)
                     t = next_sync - t_start
                     deadline = next_sync + 0.8 * T
                 else:
@@ -256,19 +382,23 @@ class ControlLoop:
                 self._drain()
                 counter = counter % P.SYNC_COUNTER_OVERFLOW + 1
                 sync_wall = time.time()
-                self.network.send_message(SYNC_COB_ID, bytes((counter,)))
-                got_force = got_valve = False
+                sync = bytes((counter,))
+                for net in networks:          # every bus's SYNC, back to back
+                    net.send_message(SYNC_COB_ID, sync)
+                got_force = [False] * n
+                got_valve = [False] * n
+                missing = 2 * n
                 wait_trip = None
-                while not (got_force and got_valve):
+                while missing:
                     remaining = deadline - time.perf_counter()
                     if remaining <= 0:
                         break
                     try:
-                        cob, values, stamp = next_arrival(min(remaining, WAIT_SLICE_S))
+                        key, values, stamp = next_arrival(min(remaining, WAIT_SLICE_S))
                     except queue.Empty:
                         if recorder is not None:
                             recorder.poll()
-                        wait_trip = sup.check_nodes()
+                        wait_trip = self._check_nodes()
                         if wait_trip is not None:
                             break
                         continue
@@ -277,68 +407,113 @@ class ControlLoop:
                     if wall_stamps and stamp < sync_wall - STAMP_SKEW_S:
                         stats.late_frames += 1   # sent before this SYNC: an old answer, delayed
                         continue
-                    if cob == force_cob:
-                        y_counts = values[self._force_pos]
-                        y = y_counts * scale
-                        got_force = True
+                    i, is_force = route[key]
+                    if is_force:
+                        y_counts[i] = c = values[force_pos[i]]
+                        ys[i] = c * scales[i]
+                        if not got_force[i]:
+                            got_force[i] = True
+                            missing -= 1
                     else:
-                        status = values[self._status_pos]
-                        spool = P.counts_to_percent(values[self._spool_pos])
-                        got_valve = True
-                stale = not got_force
-                if stale:
-                    stats.stale_cycles += 1
-                r = math.nan
-                new = late_trip or wait_trip or sup.check(y, stale, status, sync_wall,
-                                                          force=unloader is None)
-                if new is None and lockstep and not (got_force and got_valve):
-                    link = self.master.valve if got_force else self.master.dynamometer
-                    new = sup.make_trip("no_answer_to_sync",
-                                    f"{link.role} node {link.id} did not answer SYNC within "
-                                    f"{self.lockstep_timeout_s:g} s (is the emulator running with "
-                                    "--lockstep on this bus?)", sync_wall)
+                        statuses[i] = values[status_pos[i]]
+                        spools[i] = counts_to_percent(values[spool_pos[i]])
+                        if not got_valve[i]:
+                            got_valve[i] = True
+                            missing -= 1
+                stale = [not g for g in got_force]
+                if missing:
+                    any_stale = False
+                    for i in all_channels:
+                        if stale[i]:
+                            any_stale = True
+                            stale_by_channel[i] += 1
+                    if any_stale:
+                        stats.stale_cycles += 1
+                rs = [math.nan] * n
+                new = late_trip or wait_trip
+                if new is None:
+                    for i in all_channels:
+                        new = sups[i].check(ys[i], stale[i], statuses[i], sync_wall,
+                                            force=unloader is None)
+                        if new is not None:
+                            self._named(new, i)
+                            break
+                if new is None and lockstep and missing:
+                    i = next(k for k in all_channels if not (got_force[k] and got_valve[k]))
+                    link = masters[i].valve if got_force[i] else masters[i].dynamometer
+                    new = self._named(sups[i].make_trip(
+                        "no_answer_to_sync", f"{link.role} node {link.id} did not answer SYNC "
+                        f"within {self.lockstep_timeout_s:g} s (is the emulator running with "
+                        "--lockstep on this bus?)", sync_wall), i)
                     new.bound_s = self.lockstep_timeout_s + T
                 if unloader is not None:
-                    # -- controlled unload: the supervisor's loop drives, any fault → hold
+                    # -- controlled unload: the supervisors' loop drives, any fault → hold all
                     if new is not None:
                         unload_note = f"unload interrupted after {unloader.t:.2f} s: {new.message}"
+                        if new.channel is not None:
+                            unload_note += f" (channel {new.channel})"
                         log.warning("%s; hold", unload_note)
                         unloader.outcome = "interrupted"
-                        u = self._end(trip, "hold")
+                        us = self._end(trip, "hold")
                     else:
-                        u_un, r = unloader.step(y)
+                        fresh = not any(stale[i] for i in all_channels if unloader.active[i])
+                        u_un, rs = unloader.step(ys, fresh)
                         if unloader.done:
-                            u = self._end(trip, "hold")
+                            us = self._end(trip, "hold")
                         else:
-                            u = self.send_command(P.CW_ACTIVE, u_un)
+                            us = self._send_unload(u_un, unloader.active)
                 elif trip is None and new is None:
-                    # -- the experiment drives
+                    # -- the experiment drives its channels, the others hold a zero command
                     if cycle == 0:
-                        experiment.begin(y)
-                    if experiment.finished(t, y):
+                        for i in driven:
+                            drivers[i].begin(ys[i])
+                    if all(drivers[i].finished(t, ys[i]) for i in driven):
                         break
-                    u_req, r = experiment.step(t, y)
-                    if experiment.abort is not None:
-                        reason, message = experiment.abort
-                        new = sup.make_trip(str(reason), str(message), sync_wall)
-                    else:
-                        new = sup.check_error(r, y, stale, sync_wall)
+                    us_req = [0.0] * n
+                    for i in driven:
+                        exp = drivers[i]
+                        if len(driven) > 1 and exp.finished(t, ys[i]):
+                            continue
+                        us_req[i], rs[i] = exp.step(t, ys[i])
+                        if exp.abort is not None:
+                            reason, message = exp.abort
+                            new = self._named(sups[i].make_trip(str(reason), str(message),
+                                                                sync_wall), i)
+                            break
+                        new = sups[i].check_error(rs[i], ys[i], stale[i], sync_wall)
+                        if new is not None:
+                            self._named(new, i)
+                            break
                     if new is None:
-                        u = self.send_command(P.CW_ACTIVE, sup.shape_command(u_req))
+                        us = [0.0] * n
+                        for i in all_channels:
+                            counts = percent_to_counts(sups[i].shape_command(us_req[i]))
+                            masters[i].send_valve_command(CW_ACTIVE, counts)
+                            us[i] = counts_to_percent(counts)
                 if trip is None and new is not None:
                     trip = new
-                    log.warning("cycle %d (t = %.3f s): %s: %s -> %s", cycle, t, trip.reason,
+                    log.warning("cycle %d (t = %.3f s): %s%s: %s -> %s", cycle, t,
+                                f"channel {trip.channel}: " if trip.channel else "", trip.reason,
                                 trip.message, trip.action)
-                    if trip.action == "unload" and not stale:
-                        unloader = sup.unloader(y)
-                        u_un, r = unloader.step(y)
-                        u = self.send_command(P.CW_ACTIVE, u_un)
+                    excluded = self._excluded(trip)
+                    action = self._rig_action(trip, excluded)
+                    active = [i not in excluded for i in all_channels]
+                    if action == "unload" and any(active) and \
+                            not any(stale[i] for i in all_channels if active[i]):
+                        trip.action = "unload"
+                        unloader = RatioUnloader(list(ys), active, [s.limits for s in sups], T,
+                                                 [c.name for c in chans], self._coupling())
+                        if excluded:
+                            self.safe_state("hold", excluded)
+                        u_un, rs = unloader.step(ys)
+                        us = self._send_unload(u_un, active)
                         trip.safe_wall = time.time()
                     else:
                         final_action = trip.action if trip.action == "zero" else "hold"
-                        u = self._end(trip, final_action)
+                        us = self._end(trip, final_action)
                 if recorder is not None:
-                    recorder.append(t, u, y, r, cycle, y_counts, spool, status, stale, sync_wall)
+                    recorder.append_cycle(t, cycle, sync_wall, us, ys, rs, y_counts, spools,
+                                          statuses, stale)
                 cycle += 1
                 stats.cycles = cycle
                 if progress is not None:
@@ -353,34 +528,111 @@ class ControlLoop:
         stats.wall_s = time.monotonic() - wall0
         if stats.sync_jitter_s:
             stats.max_lateness_s = max(stats.sync_jitter_s)
-        stats.shaped_commands = sup.clamped
-        stats.limit_events = len(sup.events)
+        stats.shaped_commands = sum(s.clamped for s in sups)
+        stats.limit_events = sum(len(s.events) for s in sups)
         after = self._filter_counts()
         stats.unexpected_frames = after.get("unexpected_id", 0) - filter0.get("unexpected_id", 0)
         stats.wrong_dlc_frames = (after.get("wrong_dlc", 0) - filter0.get("wrong_dlc", 0)) + stats.bad_frames
         stats.not_classic_frames = after.get("not_classic", 0) - filter0.get("not_classic", 0)
+        rig = {"stale_cycles": {c.name: k for c, k in zip(chans, stale_by_channel)}} if self.rig else None
         if trip is None:
-            return LoopOutcome("complete", None, None, stats)
+            return LoopOutcome("complete", None, None, stats, rig=rig)
         safety = trip.record()
         message = trip.message
+        if trip.channel is not None:
+            message = f"channel {trip.channel}: {message}"
+        if self.rig:
+            safety["rig"] = self._rig_record(trip, excluded, ys, statuses)
         if unloader is not None:
-            safety["unload"] = unloader.record(y)
+            safety["unload"] = unloader.record(ys, [c.range_kgf for c in chans])
             if unload_note:
                 safety["unload"]["note"] = unload_note
                 message += f"; {unload_note}"
-            elif unloader.outcome == "unloaded":
-                message += f"; unloaded to {y:.0f} kgf in {unloader.t:.2f} s, then hold"
+            elif n == 1:
+                y = ys[0]
+                if unloader.outcome == "unloaded":
+                    message += f"; unloaded to {y:.0f} kgf in {unloader.t:.2f} s, then hold"
+                else:
+                    message += f"; unload ended ({unloader.outcome}) at {y:.0f} kgf after {unloader.t:.2f} s, hold"
             else:
-                message += f"; unload ended ({unloader.outcome}) at {y:.0f} kgf after {unloader.t:.2f} s, hold"
-        return LoopOutcome("stopped", trip.reason, message, stats, safety)
+                message += "; " + _unload_text(safety["unload"], unloader, excluded, chans)
+        elif self.rig:
+            message += f"; every channel held ({final_action})"
+        return LoopOutcome("stopped", trip.reason, message, stats, safety, rig=rig)
 
-    def _end(self, trip: Trip, action: str) -> float:
-        """Send the safe command for ``trip`` (first time only: note when); returns the
-        command as recorded (0 %)."""
+    # -- the rig's reaction to one channel's trip -------------------------------------------------
+    def _excluded(self, trip: Trip) -> list[int]:
+        """The channels that cannot unload: the one whose valve or communication failed."""
+        if trip.channel is None or trip.reason not in CHANNEL_FAULTS:
+            return []
+        return [i for i, c in enumerate(self.channels) if c.name == trip.channel]
+
+    def _rig_action(self, trip: Trip, excluded: list[int]) -> str:
+        if trip.action in ("unload", "zero"):
+            return trip.action
+        if self.rig and self.rig_safety.fault_action == "unload" and excluded \
+                and len(excluded) < len(self.channels):
+            return "unload"
+        return trip.action
+
+    def _coupling(self):
+        G = self.rig_safety.G
+        return None if G is None or len(self.channels) < 2 else G
+
+    def _send_unload(self, u_un: list[float], active: list[bool]) -> list[float]:
+        """The unload's commands to the unloading channels; the excluded ones are kept in HOLD
+        (their valves fed, so none drops out by its RPDO timeout meanwhile). Returns the
+        commands as recorded."""
+        us = [0.0] * len(u_un)
+        for i, a in enumerate(active):
+            if a:
+                us[i] = self.send_command(P.CW_ACTIVE, u_un[i], i)
+            else:
+                self.send_command(P.CW_HOLD, 0.0, i)
+        return us
+
+    def _rig_record(self, trip: Trip, excluded: list[int], ys: list[float],
+                    statuses: list[int]) -> dict:
+        chans = self.channels
+        out = {"action": trip.action, "acted_on": "every channel",
+               "fault_action": self.rig_safety.fault_action,
+               "forces_at_end_kgf": {c.name: ys[i] for i, c in enumerate(chans)}}
+        if excluded:
+            out["excluded"] = [{"channel": chans[i].name, "reason": trip.reason,
+                                "valve_state": _state_name(statuses[i]),
+                                "why": "its valve dropped to (or is held in) its own safe state, "
+                                       "or it could not be read or commanded: it holds while "
+                                       "the others unload"} for i in excluded]
+        return out
+
+    def _end(self, trip: Trip, action: str) -> list[float]:
+        """Send the safe command for ``trip`` to every channel (first time only: note when);
+        returns the commands as recorded (0 %)."""
         sent = self.safe_state(action)
         if trip.safe_wall is None:
             trip.safe_wall = sent
-        return 0.0
+        return [0.0] * len(self.channels)
+
+
+def _state_name(status: int) -> str:
+    state = status & 0xF
+    return P.ValveState(state).name if state in P.ValveState._value2member_map_ else f"0x{status:04X}"
+
+
+def _unload_text(record: dict, unloader: RatioUnloader, excluded: list[int],
+                 chans: list[LoopChannel]) -> str:
+    n = sum(unloader.active)
+    text = (f"unloaded {n} channel(s) keeping the load ratios" if unloader.outcome == "unloaded"
+            else f"unload of {n} channel(s) ended ({unloader.outcome})")
+    text += f" in {unloader.t:.2f} s"
+    big = record.get("largest_deviation")
+    if big:
+        text += (f", largest deviation from the ratios {big['kgf']:.1f} kgf "
+                 f"({big['pct_of_range']:.2f} % of its range) on {big['channel']} at "
+                 f"{big['at_s']:.2f} s")
+    if excluded:
+        text += f"; {', '.join(chans[i].name for i in excluded)} excluded (held)"
+    return text + ", then hold"
 
 
 @contextlib.contextmanager

@@ -100,31 +100,7 @@ class StandMaster:
     # -- 1. boot ----------------------------------------------------------------------------------
     def boot(self, timeout_s: float = 5.0) -> None:
         """Reset both nodes and wait for their boot-up messages."""
-        for link in self.links:
-            link.booted.clear()
-        for link in self.links:
-            link.node.nmt.send_command(NMT_RESET_NODE)
-        deadline = time.monotonic() + timeout_s
-        resend = time.monotonic() + 1.0
-        while time.monotonic() < deadline:
-            missing = [l for l in self.links if not l.booted.is_set()]
-            if not missing:
-                return
-            if time.monotonic() >= resend:  # a node that came up after our reset
-                for link in missing:
-                    link.node.nmt.send_command(NMT_RESET_NODE)
-                resend = time.monotonic() + 1.0
-            missing[0].booted.wait(0.05)
-        missing = [l for l in self.links if not l.booted.is_set()]
-        if missing:
-            link = missing[0]
-            heard = link.nmt_state is not None
-            raise NodeError(
-                link.id,
-                f"{link.role} node {link.id} did not boot within {timeout_s:g} s"
-                + (" (it sends heartbeats but ignored NMT reset)" if heard else
-                   " (nothing heard from it: is it powered, on this bus, with this node id? "
-                   "For the emulator run `stand emulate` with the same --bus)"))
+        boot_links(self.links, timeout_s)
 
     # -- 2. identity --------------------------------------------------------------------------------
     def check_identity(self) -> None:
@@ -237,11 +213,7 @@ class StandMaster:
     def start(self, timeout_s: float = 2.0, keepalive_s: float = 0.02) -> None:
         """NMT start both nodes and wait for OPERATIONAL; a hold command with zero setpoint goes
         to the valve every ``keepalive_s`` meanwhile (its RPDO timeout runs from OPERATIONAL)."""
-        commanded = time.monotonic()
-        for link in self.links:
-            link.node.nmt.send_command(NMT_START)
-        self.wait_state(5, timeout_s, keepalive=self.hold_command if self.valve_rpdo else None,
-                        keepalive_s=keepalive_s, since=commanded)
+        start_all([self], timeout_s, keepalive_s)
 
     def send_valve_command(self, control_word: int, setpoint_counts: int) -> None:
         """One valve RPDO: control word and setpoint (the rest of the mapping zero)."""
@@ -290,20 +262,81 @@ class StandMaster:
         """Wait until every node's heartbeat reports ``state``; with ``since`` (monotonic time
         of the NMT command) only heartbeats received after it count: one already on its way
         may still carry the state before the command."""
-        deadline = time.monotonic() + timeout_s
-        next_keepalive = time.monotonic()
-        fresh = (lambda l: True) if since is None else (
-            lambda l: l.last_heartbeat is not None and l.last_heartbeat > since)
-        while time.monotonic() < deadline:
-            if keepalive is not None and time.monotonic() >= next_keepalive:
-                keepalive()
-                next_keepalive += keepalive_s
-            if all(l.nmt_state == state and fresh(l) for l in self.links):
-                return
-            time.sleep(0.001)
-        for link in self.links:
-            if link.nmt_state != state:
-                raise NodeError(link.id, f"{link.role} node {link.id} did not report "
-                                         f"{_NMT_NAMES.get(state, state)} within {timeout_s:g} s "
-                                         f"(last heartbeat state: {_NMT_NAMES.get(link.nmt_state, link.nmt_state)})")
+        wait_links(self.links, state, timeout_s, keepalive, keepalive_s, since)
 
+
+# -- every channel of a bus (or of a rig) at once ------------------------------------------------
+def boot_links(links, timeout_s: float = 5.0) -> None:
+    """Reset every node of ``links`` (NMT reset node) and wait for all their boot-up messages:
+    the nodes of all channels boot together, not one channel after the other."""
+    for link in links:
+        link.booted.clear()
+    for link in links:
+        link.node.nmt.send_command(NMT_RESET_NODE)
+    deadline = time.monotonic() + timeout_s
+    resend = time.monotonic() + 1.0
+    while time.monotonic() < deadline:
+        missing = [l for l in links if not l.booted.is_set()]
+        if not missing:
+            return
+        if time.monotonic() >= resend:  # a node that came up after our reset
+            for link in missing:
+                link.node.nmt.send_command(NMT_RESET_NODE)
+            resend = time.monotonic() + 1.0
+        missing[0].booted.wait(0.05)
+    missing = [l for l in links if not l.booted.is_set()]
+    if missing:
+        link = missing[0]
+        heard = link.nmt_state is not None
+        raise NodeError(
+            link.id,
+            f"{link.role} node {link.id} did not boot within {timeout_s:g} s"
+            + (" (it sends heartbeats but ignored NMT reset)" if heard else
+               " (nothing heard from it: is it powered, on this bus, with this node id? "
+               "For the emulator run `stand emulate` with the same --bus)"))
+
+
+def boot_all(masters: "list[StandMaster]", timeout_s: float = 5.0) -> None:
+    """Boot the nodes of every channel together (:func:`boot_links`)."""
+    boot_links([l for m in masters for l in m.links], timeout_s)
+
+
+def start_all(masters: "list[StandMaster]", timeout_s: float = 2.0,
+              keepalive_s: float = 0.02) -> None:
+    """NMT start every node of every channel and wait until all report OPERATIONAL; meanwhile
+    a hold command with zero setpoint goes to every valve every ``keepalive_s`` (each valve's
+    RPDO timeout runs from its OPERATIONAL, so none may wait for the others' start)."""
+    commanded = time.monotonic()
+    for m in masters:
+        for link in m.links:
+            link.node.nmt.send_command(NMT_START)
+    holds = [m.hold_command for m in masters if m.valve_rpdo]
+
+    def keepalive() -> None:
+        for hold in holds:
+            hold()
+
+    wait_links([l for m in masters for l in m.links], 5, timeout_s,
+               keepalive if holds else None, keepalive_s, since=commanded)
+
+
+def wait_links(links, state: int, timeout_s: float, keepalive=None, keepalive_s: float = 0.02,
+               since: float | None = None) -> None:
+    """Wait until the heartbeat of every node of ``links`` reports ``state`` (see
+    :meth:`StandMaster.wait_state`)."""
+    deadline = time.monotonic() + timeout_s
+    next_keepalive = time.monotonic()
+    fresh = (lambda l: True) if since is None else (
+        lambda l: l.last_heartbeat is not None and l.last_heartbeat > since)
+    while time.monotonic() < deadline:
+        if keepalive is not None and time.monotonic() >= next_keepalive:
+            keepalive()
+            next_keepalive += keepalive_s
+        if all(l.nmt_state == state and fresh(l) for l in links):
+            return
+        time.sleep(0.001)
+    for link in links:
+        if link.nmt_state != state:
+            raise NodeError(link.id, f"{link.role} node {link.id} did not report "
+                                     f"{_NMT_NAMES.get(state, state)} within {timeout_s:g} s "
+                                     f"(last heartbeat state: {_NMT_NAMES.get(link.nmt_state, link.nmt_state)})")

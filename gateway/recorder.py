@@ -30,8 +30,8 @@ import pyarrow.ipc
 import pyarrow.parquet as pq
 
 from .errors import DataError, StandError
-from .runs import (CAPTURE_FILE, COLUMNS, FORMAT, META_FILE, SCHEMA, SIGNALS_FILE, STREAM_FILE,
-                   TRUTH_FILE)
+from .runs import (CAPTURE_FILE, CHANNEL_COLUMNS, COLUMNS, FORMAT, META_FILE,
+                   SCHEMA, SIGNALS_FILE, STREAM_FILE, TRUTH_FILE, rig_schema)
 
 
 @functools.lru_cache(maxsize=1)
@@ -89,19 +89,28 @@ def prepare_run_dir(out: str | Path) -> Path:
 
 
 class RunRecorder:
-    """Append one row per cycle; :meth:`close` finalises the run."""
+    """Append one row per cycle; :meth:`close` finalises the run. ``channels``: a rig run's
+    channel names (the signals then have each channel's columns, :func:`gateway.runs.rig_schema`);
+    ``files``: run.json ``files`` (default: the one-channel signals and capture)."""
 
-    def __init__(self, out: str | Path, meta: dict[str, Any], flush_s: float = 0.5) -> None:
+    def __init__(self, out: str | Path, meta: dict[str, Any], flush_s: float = 0.5,
+                 channels: list[str] | None = None, files: dict[str, Any] | None = None) -> None:
         self.dir = prepare_run_dir(out)
         self.meta = {"format": FORMAT, "status": "running", "started": now_iso(),
                      "versions": versions(), "command": sys.argv, **meta,
-                     "files": {"signals": SIGNALS_FILE, "capture": CAPTURE_FILE}}
+                     "files": files or {"signals": SIGNALS_FILE, "capture": CAPTURE_FILE}}
         write_json(self.dir / META_FILE, self.meta)
         _warm_up_arrow()
-        self._buf: dict[str, list] = {name: [] for name in COLUMNS}
+        self.schema = SCHEMA if channels is None else rig_schema(channels)
+        self.columns = COLUMNS if channels is None else tuple(self.schema.names)
+        #: a rig: the column names of each channel column kind, in CHANNEL_COLUMNS order
+        self._groups = None if channels is None else \
+            [[f"{col}.{ch}" for ch in channels] for col in CHANNEL_COLUMNS]
+        self.append_cycle = self._append_one if channels is None else self._append_rig
+        self._buf: dict[str, list] = {name: [] for name in self.columns}
         self._stream_path = self.dir / STREAM_FILE
         self._sink = pa.OSFile(str(self._stream_path), "wb")
-        self._writer = pa.ipc.new_stream(self._sink, SCHEMA)
+        self._writer = pa.ipc.new_stream(self._sink, self.schema)
         self._sink.flush()
         self._flush_s = flush_s
         self._last_flush = time.monotonic()
@@ -118,6 +127,10 @@ class RunRecorder:
     def capture_path(self) -> Path:
         return self.dir / CAPTURE_FILE
 
+    def capture_path_of(self, bus: str) -> Path:
+        """A rig run's capture of ``bus``."""
+        return self.dir / self.meta["files"]["captures"][bus]
+
     @property
     def truth_path(self) -> Path:
         return self.dir / TRUTH_FILE
@@ -129,6 +142,31 @@ class RunRecorder:
         b["cycle"].append(cycle); b["y_counts"].append(y_counts); b["spool"].append(spool)
         b["valve_status"].append(valve_status); b["stale"].append(stale)
         b["sync_time"].append(sync_time)
+        self.rows += 1
+        if time.monotonic() - self._last_flush >= self._flush_s:
+            self.flush()
+
+    #: one cycle of every channel: ``append_cycle(t, cycle, sync_time, u, y, r, y_counts, spool,
+    #: valve_status, stale)``, the channel values as sequences in the channels' order
+    append_cycle = None
+
+    def _append_one(self, t: float, cycle: int, sync_time: float, u, y, r, y_counts, spool,
+                    valve_status, stale) -> None:
+        b = self._buf
+        b["t"].append(t); b["u"].append(u[0]); b["y"].append(y[0]); b["r"].append(r[0])
+        b["cycle"].append(cycle); b["y_counts"].append(y_counts[0]); b["spool"].append(spool[0])
+        b["valve_status"].append(valve_status[0]); b["stale"].append(stale[0])
+        b["sync_time"].append(sync_time)
+        self.rows += 1
+        if time.monotonic() - self._last_flush >= self._flush_s:
+            self.flush()
+
+    def _append_rig(self, t: float, cycle: int, sync_time: float, *channel_values) -> None:
+        b = self._buf
+        b["t"].append(t); b["cycle"].append(cycle); b["sync_time"].append(sync_time)
+        for names, values in zip(self._groups, channel_values):
+            for name, v in zip(names, values):
+                b[name].append(v)
         self.rows += 1
         if time.monotonic() - self._last_flush >= self._flush_s:
             self.flush()
@@ -145,7 +183,7 @@ class RunRecorder:
             raise DataError(f"{self._stream_path}: the recorder cannot write: {self._error}")
         if not self._buf["t"]:
             return
-        rows, self._buf = self._buf, {name: [] for name in COLUMNS}
+        rows, self._buf = self._buf, {name: [] for name in self.columns}
         self._batches.put(rows)
 
     def _write_batches(self) -> None:
@@ -159,8 +197,9 @@ class RunRecorder:
             if self._error is not None:
                 continue
             try:
-                batch = pa.record_batch([pa.array(rows[name], type=SCHEMA.field(name).type)
-                                         for name in COLUMNS], schema=SCHEMA)
+                schema = self.schema
+                batch = pa.record_batch([pa.array(rows[name], type=schema.field(name).type)
+                                         for name in self.columns], schema=schema)
                 self._writer.write_batch(batch)
                 self._sink.flush()
                 try:

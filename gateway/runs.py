@@ -35,6 +35,15 @@ valve_status   uint16    the valve's status word at this SYNC
 stale          bool      no fresh force PDO this cycle (y repeats the last reading)
 sync_time      float64   wall-clock time the SYNC was sent (s since the epoch)
 =============  ========  =====================================================================
+
+**A rig run** (many channels, :mod:`rig`) keeps ``t``, ``cycle`` and ``sync_time`` (the first
+bus's SYNC; every bus's SYNC goes out right after it with the same counter) and the channel
+columns once per channel, named ``<column>.<channel>`` (``u.root_left``, ``y.root_left``, ...);
+one capture per bus, ``capture-<bus>.log``; run.json has a ``rig`` section (name, period, G if
+known, buses with their capture and budget, channels with bus, node ids, identities, range,
+force limit and whether the experiment drove them). ``load_run(path, channel=NAME)`` gives one
+channel as a one-channel run (the columns above, the metadata of that channel), which is what
+the analysis reads (``--channel NAME``).
 """
 from __future__ import annotations
 
@@ -63,6 +72,22 @@ SCHEMA = pa.schema([
     ("valve_status", pa.uint16()), ("stale", pa.bool_()), ("sync_time", pa.float64()),
 ])
 COLUMNS = tuple(SCHEMA.names)
+#: the columns a rig run has once per channel (``<name>.<channel>``), and once per run
+CHANNEL_COLUMNS = ("u", "y", "r", "y_counts", "spool", "valve_status", "stale")
+RIG_RUN_COLUMNS = ("t", "cycle", "sync_time")
+
+
+def capture_file(bus: str) -> str:
+    """A rig run's capture of one bus."""
+    return f"capture-{bus}.log"
+
+
+def rig_schema(channels: list[str]) -> pa.Schema:
+    """The signals of a rig run: ``t, cycle, sync_time``, then each channel's columns."""
+    types = {f.name: f.type for f in SCHEMA}
+    fields = [(name, types[name]) for name in RIG_RUN_COLUMNS]
+    fields += [(f"{col}.{ch}", types[col]) for col in CHANNEL_COLUMNS for ch in channels]
+    return pa.schema(fields)
 
 
 @dataclass
@@ -88,6 +113,54 @@ class Run:
     def experiment(self) -> str | None:
         return (self.meta.get("experiment") or {}).get("name")
 
+    @property
+    def channels(self) -> list[str]:
+        """A rig run's channels (empty for a one-channel run)."""
+        return rig_channels(self.meta)
+
+    def channel(self, name: str) -> "Run":
+        """One channel of a rig run as a one-channel run (see the module docstring)."""
+        return channel_view(self, name)
+
+
+def rig_channels(meta: dict[str, Any]) -> list[str]:
+    return [c["name"] for c in (meta.get("rig") or {}).get("channels", [])]
+
+
+def channel_view(run: Run, name: str) -> Run:
+    """Channel ``name`` of the rig run ``run``: the one-channel columns and metadata (its bus,
+    nodes, limits; the experiment only if it drove this channel)."""
+    rig = run.meta.get("rig")
+    if not rig:
+        raise DataError(f"{run.path} is a one-channel run, not a rig run: it has no channel "
+                        f"{name!r} (leave --channel out)")
+    entry = next((c for c in rig.get("channels", []) if c["name"] == name), None)
+    if entry is None:
+        raise DataError(f"{run.path}: rig {rig.get('name')!r} has no channel {name!r}; its "
+                        f"channels: {', '.join(rig_channels(run.meta))}")
+    sig = run.signals
+    signals = {}
+    for col in COLUMNS:
+        key = col if col in RIG_RUN_COLUMNS else f"{col}.{name}"
+        if key in sig:
+            signals[col] = sig[key]
+    meta = {k: v for k, v in run.meta.items() if k not in ("rig", "files")}
+    bus = next((b for b in rig.get("buses", []) if b["name"] == entry["bus"]), {})
+    meta.update(channel=name, bus=bus.get("spec"), nodes=entry.get("nodes"),
+                files={"signals": SIGNALS_FILE, "capture": bus.get("capture")},
+                rig_run={"name": rig.get("name"), "channels": rig_channels(run.meta),
+                         "driven": rig.get("driven", []), "bus": entry["bus"]})
+    limits = dict(meta.get("limits") or {})
+    limits["force_limit_kgf"] = entry.get("force_limit_kgf")
+    meta["limits"] = limits
+    if name not in rig.get("driven", []):
+        meta["experiment"] = {"name": None, "params": {},
+                              "note": f"channel {name} held a zero command while "
+                                      f"{', '.join(rig.get('driven', []))} ran "
+                                      f"{(run.meta.get('experiment') or {}).get('name')}"}
+    return Run(path=run.path, meta=meta, signals=signals, recovered=run.recovered,
+               notes=list(run.notes))
+
 
 def is_run_dir(path: str | Path) -> bool:
     path = Path(path)
@@ -98,9 +171,11 @@ def read_stream(path: Path) -> tuple[pa.Table, str | None]:
     """All complete record batches of a (possibly truncated) Arrow IPC stream."""
     batches = []
     problem = None
+    schema = SCHEMA
     try:
         with pa.OSFile(str(path), "rb") as fh:
             reader = pa.ipc.open_stream(fh)
+            schema = reader.schema
             while True:
                 try:
                     batches.append(reader.read_next_batch())
@@ -108,11 +183,12 @@ def read_stream(path: Path) -> tuple[pa.Table, str | None]:
                     break
     except (pa.ArrowInvalid, OSError) as exc:
         problem = f"stream ends in an incomplete chunk after {sum(len(b) for b in batches)} rows ({exc})"
-    return pa.Table.from_batches(batches, schema=SCHEMA), problem
+    return pa.Table.from_batches(batches, schema=schema), problem
 
 
-def load_run(path: str | Path) -> Run:
-    """Read a run directory (also one whose recorder was killed: see :data:`STREAM_FILE`)."""
+def load_run(path: str | Path, channel: str | None = None) -> Run:
+    """Read a run directory (also one whose recorder was killed: see :data:`STREAM_FILE`);
+    ``channel``: one channel of a rig run, as a one-channel run (:func:`channel_view`)."""
     path = Path(path)
     meta_path = path / META_FILE
     if not meta_path.exists():
@@ -138,7 +214,8 @@ def load_run(path: str | Path) -> Run:
     else:
         raise DataError(f"{path} has no signals ({SIGNALS_FILE} or {STREAM_FILE})")
     signals = {name: table.column(name).to_numpy(zero_copy_only=False) for name in table.column_names}
-    return Run(path=path, meta=meta, signals=signals, recovered=recovered, notes=notes)
+    run = Run(path=path, meta=meta, signals=signals, recovered=recovered, notes=notes)
+    return run if channel is None else channel_view(run, channel)
 
 
 def read_truth(path: str | Path) -> dict[str, Any] | None:

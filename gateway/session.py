@@ -13,9 +13,10 @@
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from tqdm import tqdm
 
@@ -23,12 +24,13 @@ from standbus import BusSpecError, open_bus
 from standbus.realtime import process_threads, realtime_threads, short_gil_slices
 
 from .capture import BusCapture, TappedNetwork
-from .errors import StandError
+from .errors import NodeError, ParameterError, StandError
 from .config import GatewayConfig
 from .experiments import Experiment
-from .loop import ControlLoop, LoopOutcome, steady_heap
-from .master import StandMaster
+from .loop import ControlLoop, LoopChannel, LoopOutcome, RigSafety, steady_heap
+from .master import StandMaster, boot_all, start_all
 from .recorder import RunRecorder
+from .runs import SIGNALS_FILE, capture_file
 from .supervisor import Supervisor
 
 
@@ -47,14 +49,33 @@ class RunResult:
 
 
 class Gateway:
-    """Connects (open bus, boot, identify, configure the nodes) on enter; runs experiments."""
+    """Connects (open bus, boot, identify, configure the nodes) on enter; runs experiments.
+
+    With ``config.rig`` it is the master of a rig: before anything is opened each bus's load per
+    cycle is checked against the rig's limit (:mod:`rig.budget`; over it the rig is refused with
+    the figures and what would fit), then every bus is opened, every channel's nodes boot
+    together, and one loop drives them all (:class:`ControlLoop`), one SYNC per bus per cycle."""
 
     def __init__(self, config: GatewayConfig | None = None) -> None:
         self.config = config or GatewayConfig()
         self.config.validate()
-        self.network: TappedNetwork | None = None
-        self.master: StandMaster | None = None
+        self.networks: list[TappedNetwork] = []
+        self.masters: list[StandMaster] = []
         self.loop: ControlLoop | None = None
+        #: a rig: each bus's budget, checked before anything is opened
+        self.budgets: list | None = None
+
+    @property
+    def network(self) -> TappedNetwork | None:
+        return self.networks[0] if self.networks else None
+
+    @property
+    def master(self) -> StandMaster | None:
+        return self.masters[0] if self.masters else None
+
+    @property
+    def rig(self):
+        return self.config.rig
 
     def __enter__(self) -> "Gateway":
         self.open()
@@ -63,45 +84,118 @@ class Gateway:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    # -- connect ---------------------------------------------------------------------------------
+    def _bus_specs(self) -> list[str]:
+        rig = self.rig
+        return [self.config.bus] if rig is None else [b.spec for b in rig.buses]
+
+    def check_budget(self) -> None:
+        """A rig: refuse it, before any bus is opened, if a bus cannot carry its channels at
+        the rig's period (:func:`rig.budget.bus_budgets`)."""
+        if self.rig is None:
+            return
+        from rig.budget import bus_budgets
+        self.budgets = bus_budgets(self.rig)
+        problems = [b.problem() for b in self.budgets if not b.fits]
+        if problems:
+            raise StandError(f"{self.rig.where}: the rig does not fit its buses; nothing was "
+                             "started:\n  " + "\n  ".join(problems))
+
     def open(self) -> None:
         cfg = self.config
+        self.check_budget()
         try:
-            bus = open_bus(cfg.bus)
-        except BusSpecError as exc:
-            raise StandError(str(exc)) from None
-        # lockstep: the loop takes the bus from the reader thread at every run (<= one cycle)
-        self.network = TappedNetwork(bus, notifier_cycle_s=0.005 if cfg.lockstep else None)
-        self.network.connect()
-        try:
-            self.master = StandMaster(self.network, cfg.valve_id, cfg.dynamometer_id)
-            self.master.boot(cfg.boot_timeout_s)
-            self.master.check_identity()
-            self.master.configure(cfg.period_s, cfg.heartbeat_ms, cfg.rpdo_timeout_ms)
-            if cfg.lockstep and not self.master.lockstep_capable:
-                raise StandError(
-                    "--lockstep needs a stand that advances one period per SYNC (the emulator "
-                    "started with --lockstep); this stand runs in real time. Drop --lockstep.")
-            supervisor = Supervisor(self.master, cfg.limits, cfg.period_s, cfg.lockstep)
-            self.loop = ControlLoop(self.network, self.master, supervisor, cfg.period_s, cfg.lockstep)
+            for spec in self._bus_specs():
+                try:
+                    bus = open_bus(spec)
+                except BusSpecError as exc:
+                    raise StandError(str(exc)) from None
+                # lockstep: the loop takes the bus from the reader thread at every run (<= one cycle)
+                network = TappedNetwork(bus, notifier_cycle_s=0.005 if cfg.lockstep else None)
+                self.networks.append(network)
+                network.connect()
+            self._connect()
         except BaseException:
             self.close()
             raise
+
+    def _channels(self) -> list[tuple[str, int, int, int]]:
+        """(name, bus index, valve id, dynamometer id) of every channel."""
+        rig = self.rig
+        if rig is None:
+            return [("", 0, self.config.valve_id, self.config.dynamometer_id)]
+        index = {b.name: i for i, b in enumerate(rig.buses)}
+        return [(c.name, index[c.bus], c.valve_id, c.dynamometer_id) for c in rig.channels]
+
+    def _connect(self) -> None:
+        cfg = self.config
+        plan = self._channels()
+        self.masters = [StandMaster(self.networks[bus], valve, dyn) for _, bus, valve, dyn in plan]
+        with self._naming_channel(None):
+            boot_all(self.masters, cfg.boot_timeout_s)
+        for i, master in enumerate(self.masters):
+            with self._naming_channel(i):
+                master.check_identity()
+                master.configure(cfg.period_s, cfg.heartbeat_ms, cfg.rpdo_timeout_ms)
+        if cfg.lockstep and not all(m.lockstep_capable for m in self.masters):
+            raise StandError(
+                "--lockstep needs a stand that advances one period per SYNC (the emulator "
+                "started with --lockstep); this stand runs in real time. Drop --lockstep.")
+        if self.rig is None:
+            supervisor = Supervisor(self.master, cfg.limits, cfg.period_s, cfg.lockstep)
+            self.loop = ControlLoop(self.network, self.master, supervisor, cfg.period_s, cfg.lockstep)
+            return
+        channels = []
+        for (name, bus, _, _), master, ch in zip(plan, self.masters, self.rig.channels):
+            sup = Supervisor(master, cfg.channel_limits(ch), cfg.period_s, cfg.lockstep)
+            channels.append(LoopChannel(name, master, sup, bus, ch.range_kgf))
+        self.loop = ControlLoop(self.network, self.master, channels[0].supervisor, cfg.period_s,
+                                cfg.lockstep, channels=channels, networks=self.networks,
+                                rig_safety=RigSafety(cfg.fault_action, self.rig.G))
+
+    def _naming_channel(self, index: int | None):
+        """A rig: a node error names the channel (and its bus) it belongs to."""
+        gw = self
+
+        class _Naming:
+            def __enter__(self):
+                return self
+
+            def __exit__(self, kind, exc, tb):
+                if gw.rig is None or not isinstance(exc, NodeError):
+                    return False
+                i = index
+                if i is None:    # booting: the first channel with a node that did not boot
+                    i = next((k for k, m in enumerate(gw.masters)
+                              if any(not l.booted.is_set() for l in m.links)), None)
+                if i is None:
+                    return False
+                ch = gw.rig.channels[i]
+                raise NodeError(exc.node_id, f"channel {ch.name} (bus {ch.bus}): {exc}") from None
+
+        return _Naming()
 
     def close(self) -> None:
         if self.loop is not None:
             self.loop.close()
             self.loop = None
-        if self.network is not None:
+        for master in self.masters if self.networks else ():
             try:
-                if self.master is not None:
-                    self.master.enter_preoperational()
+                master.enter_preoperational()
             except Exception:
                 pass
-            self.network.disconnect()
-            self.network = None
+        for network in self.networks:
+            try:
+                network.disconnect()
+            except Exception:
+                pass
+        self.networks = []
 
-    def metadata(self, experiment: Experiment) -> dict[str, Any]:
+    # -- run -------------------------------------------------------------------------------------
+    def metadata(self, experiment: Experiment, driven: Sequence[str] = ()) -> dict[str, Any]:
         cfg = self.config
+        if self.rig is not None:
+            return self._rig_metadata(experiment, driven)
         m = self.master
         return {
             "experiment": {"name": experiment.name, "params": experiment.params()},
@@ -113,30 +207,105 @@ class Gateway:
             "limits": asdict(cfg.limits.resolved(cfg.lockstep)),
         }
 
-    def reset_faults(self) -> str | None:
+    def _rig_metadata(self, experiment: Experiment, driven: Sequence[str]) -> dict[str, Any]:
+        cfg, rig = self.config, self.rig
+        budgets = {b.bus.name: b.to_dict() for b in (self.budgets or [])}
+        limits = asdict(cfg.limits.resolved(cfg.lockstep))
+        limits["force_limit_kgf"] = None      # per channel: rig.channels[].force_limit_kgf
+        channels = []
+        for ch, m in zip(rig.channels, self.masters):
+            channels.append({
+                "name": ch.name, "bus": ch.bus,
+                "nodes": {link.role: {"id": link.id, "identity": link.identity} for link in m.links},
+                "range_kgf": ch.range_kgf, "force_limit_kgf": ch.limit_kgf,
+                "force_scale_kgf_per_count": m.force_scale_kgf, "driven": ch.name in driven})
+        return {
+            "experiment": {"name": experiment.name, "params": experiment.params()},
+            "clock": "lockstep" if cfg.lockstep else "realtime",
+            "period_s": cfg.period_s,
+            "limits": limits,
+            "rig": {
+                "name": rig.name, "file": str(rig.path) if rig.path else None,
+                "period_s": rig.period_s, "heartbeat_ms": rig.heartbeat_ms,
+                "G": rig.G.tolist() if rig.G is not None else None,
+                "structure_from": rig.structure_from,
+                "bus_load_limit_pct": 100 * rig.bus_load_limit,
+                "fault_action": cfg.fault_action,
+                "buses": [{"name": b.name, "spec": b.spec, "bitrate": b.bitrate, "fd": b.fd,
+                           "data_bitrate": b.data_bitrate, "capture": capture_file(b.name),
+                           "budget": budgets.get(b.name)} for b in rig.buses],
+                "channels": channels,
+                "driven": list(driven),
+            },
+        }
+
+    def reset_faults(self) -> str | dict[str, str] | None:
         """Reset a fault the valve latched (RPDO timeout, ...), as an operator would after
         removing its cause: CiA 408 reset-fault edge. Returns what was reset, None if nothing
-        was latched; raises :class:`NodeError` if the fault stays."""
-        if self.master is None:
+        was latched (a rig: per channel, only those that had one); raises :class:`NodeError`
+        if the fault stays."""
+        if not self.masters:
             raise StandError("the gateway is not connected; use it as a context manager")
-        return self.master.reset_valve_fault()
+        if self.rig is None:
+            return self.master.reset_valve_fault()
+        done = {}
+        for ch, m in zip(self.rig.channels, self.masters):
+            with self._naming_channel(self.rig.channels.index(ch)):
+                what = m.reset_valve_fault()
+            if what is not None:
+                done[ch.name] = what
+        return done or None
+
+    def drivers(self, experiment: Experiment, channels: Sequence[str] | None) -> dict[int, Experiment]:
+        """Which channels run ``experiment`` (each its own copy); the others hold a zero
+        command. One channel: channel 0, ``channels`` must be None."""
+        rig = self.rig
+        if rig is None:
+            if channels:
+                raise ParameterError("--channel names a channel of a rig: give --rig RIG.toml too "
+                                     "(a one-channel stand has no channels to choose)")
+            return {0: experiment}
+        if not channels:
+            raise ParameterError(f"{rig.where}: choose the channel(s) the experiment drives with "
+                                 f"--channel NAME (repeat it for several); the others hold a zero "
+                                 f"command. The rig's channels: {', '.join(rig.names)}")
+        out: dict[int, Experiment] = {}
+        for name in channels:
+            rig.channel(name)          # a clear error for an unknown name
+            i = rig.names.index(name)
+            if i in out:
+                raise ParameterError(f"--channel {name} given twice")
+            out[i] = experiment if not out else copy.deepcopy(experiment)
+        return out
 
     def run(self, experiment: Experiment, out: str | Path, progress: bool | None = None,
             on_progress: Callable[[float], None] | None = None,
-            reset_faults: bool = False) -> RunResult:
+            reset_faults: bool = False, channels: Sequence[str] | None = None) -> RunResult:
         """Run one experiment and record it in the run directory ``out``.
 
         ``progress``: True/False forces the progress bar on/off; None shows it for runs of more
         than a few seconds of stand time when stderr is a terminal. ``reset_faults``: first
-        reset a fault the valve latched (:meth:`reset_faults`; run.json ``fault_reset``)."""
+        reset a fault the valve latched (:meth:`reset_faults`; run.json ``fault_reset``).
+        ``channels``: a rig's channels the experiment drives (each its own copy of it); every
+        other channel holds a zero command."""
         if self.loop is None:
             raise StandError("the gateway is not connected; use it as a context manager")
+        drivers = self.drivers(experiment, channels)
+        driven = [self.rig.names[i] for i in sorted(drivers)] if self.rig is not None else []
         fault_reset = self.reset_faults() if reset_faults else None
-        recorder = RunRecorder(out, self.metadata(experiment))
-        capture = BusCapture(recorder.capture_path)
-        # first in line, so frames reach the capture in the order they were received
-        self.network.notifier.listeners.insert(0, capture)
-        self.network.capture = capture
+        if self.rig is None:
+            recorder = RunRecorder(out, self.metadata(experiment))
+            captures = [BusCapture(recorder.capture_path)]
+        else:
+            files = {"signals": SIGNALS_FILE,
+                     "captures": {b.name: capture_file(b.name) for b in self.rig.buses}}
+            recorder = RunRecorder(out, self.metadata(experiment, driven), channels=self.rig.names,
+                                   files=files)
+            captures = [BusCapture(recorder.capture_path_of(b.name)) for b in self.rig.buses]
+        for network, capture in zip(self.networks, captures):
+            # first in line, so frames reach the capture in the order they were received
+            network.notifier.listeners.insert(0, capture)
+            network.capture = capture
         bar = None
         if progress or (progress is None and experiment.duration_s > 3.0):
             bar = tqdm(total=round(experiment.max_duration_s, 1), unit="s", unit_scale=False,
@@ -155,16 +324,17 @@ class Gateway:
         scheduling: dict | None = None
         failure: BaseException | None = None
         try:
-            self.master.declare_run(self.config.period_s)
-            with steady_heap():   # before the valve's RPDO timeout starts running
-                self.master.start()
+            for master in self.masters:
+                master.declare_run(self.config.period_s)
+            with steady_heap():   # before the valves' RPDO timeouts start running
+                start_all(self.masters)
                 if self.config.lockstep:     # wall-clock timing does not matter
-                    outcome = self.loop.run(experiment, recorder, tick)
+                    outcome = self.loop.run(experiment, recorder, tick, drivers=drivers)
                 else:
                     # every thread of the process, not only the loop's (see process_threads)
                     with realtime_threads(self.config.rt_priority, process_threads()) as scheduling, \
                             short_gil_slices():
-                        outcome = self.loop.run(experiment, recorder, tick)
+                        outcome = self.loop.run(experiment, recorder, tick, drivers=drivers)
         except BaseException as exc:
             failure = exc
             raise
@@ -174,37 +344,60 @@ class Gateway:
                     bar.update(bar.total - bar.n)
                 bar.close()
             try:
-                self.master.enter_preoperational()
+                for master in self.masters:
+                    master.enter_preoperational()
             finally:
-                self.network.capture = None
-                self.network.notifier.remove_listener(capture)
-                capture.stop()
-                stats = self.loop.stats
-                supervisor = self.loop.supervisor
-                if outcome is not None:
-                    status, reason, message = outcome.status, outcome.reason, outcome.message
-                elif isinstance(failure, KeyboardInterrupt):
-                    status, reason = "aborted", "interrupted"
-                    message = "interrupted (Ctrl-C or SIGTERM); the valve was set to hold, zero command"
-                else:
-                    status, reason = "aborted", "gateway_error"
-                    message = ("the gateway raised an error"
-                               + (f": {type(failure).__name__}: {failure}" if failure else "")
-                               + "; the valve was set to hold, zero command")
-                extra = {}
-                if fault_reset is not None:
-                    extra["fault_reset"] = fault_reset
-                if scheduling is not None:
-                    extra["realtime"] = scheduling
-                if outcome is not None and outcome.safety is not None:
-                    extra["safety"] = outcome.safety
-                if capture.write_errors:
-                    extra["capture_write_errors"] = capture.write_errors
-                recorder.close(status=status, end_reason=reason, end_message=message,
-                               stats=_stats_dict(stats), capture_frames=capture.frames,
-                               emcy=list(supervisor.emcy_log), events=list(supervisor.events),
-                               **extra)
+                for network, capture in zip(self.networks, captures):
+                    network.capture = None
+                    network.notifier.remove_listener(capture)
+                    capture.stop()
+                self._close_run(recorder, captures, outcome, failure, fault_reset, scheduling)
         return RunResult(recorder.dir, outcome)
+
+    def _close_run(self, recorder: RunRecorder, captures: list[BusCapture],
+                   outcome: LoopOutcome | None, failure: BaseException | None,
+                   fault_reset, scheduling: dict | None) -> None:
+        loop = self.loop
+        stats = loop.stats
+        if outcome is not None:
+            status, reason, message = outcome.status, outcome.reason, outcome.message
+        elif isinstance(failure, KeyboardInterrupt):
+            status, reason = "aborted", "interrupted"
+            message = "interrupted (Ctrl-C or SIGTERM); the valve was set to hold, zero command"
+        else:
+            status, reason = "aborted", "gateway_error"
+            message = ("the gateway raised an error"
+                       + (f": {type(failure).__name__}: {failure}" if failure else "")
+                       + "; the valve was set to hold, zero command")
+        if self.rig is not None and outcome is None:
+            message = message.replace("the valve was set", "every valve was set")
+        extra: dict[str, Any] = {}
+        if fault_reset is not None:
+            extra["fault_reset"] = fault_reset
+        if scheduling is not None:
+            extra["realtime"] = scheduling
+        if outcome is not None and outcome.safety is not None:
+            extra["safety"] = outcome.safety
+        write_errors = sum(c.write_errors for c in captures)
+        if write_errors:
+            extra["capture_write_errors"] = write_errors
+        stats_dict = _stats_dict(stats)
+        if self.rig is None:
+            sup = loop.supervisor
+            frames: Any = captures[0].frames
+            emcy, events = list(sup.emcy_log), list(sup.events)
+        else:
+            frames = {b.name: c.frames for b, c in zip(self.rig.buses, captures)}
+            emcy, events = [], []
+            for ch in loop.channels:
+                emcy += [dict(e, channel=ch.name) for e in ch.supervisor.emcy_log]
+                events += [dict(e, channel=ch.name) for e in ch.supervisor.events]
+            emcy.sort(key=lambda e: e.get("time", 0.0))
+            events.sort(key=lambda e: e.get("time", 0.0))
+            if outcome is not None and outcome.rig:
+                stats_dict["stale_cycles_by_channel"] = outcome.rig["stale_cycles"]
+        recorder.close(status=status, end_reason=reason, end_message=message,
+                       stats=stats_dict, capture_frames=frames, emcy=emcy, events=events, **extra)
 
 
 def _stats_dict(stats) -> dict[str, Any]:

@@ -136,12 +136,16 @@ class Trip:
     bound_s: float                    #: stated bound from onset to the safe command, s
     detected_wall: float = field(default_factory=time.time)
     safe_wall: float | None = None    #: when the safe-state command went out
+    #: a rig: the channel whose detector fired (None: the loop's own, e.g. an overrun)
+    channel: str | None = None
 
     def record(self) -> dict[str, Any]:
         """The ``safety`` block of run.json."""
         out = {"reason": self.reason, "action": self.action, "message": self.message,
                "onset": self.onset_wall, "detected": self.detected_wall,
                "safe_state": self.safe_wall, "bound_s": self.bound_s}
+        if self.channel is not None:
+            out["channel"] = self.channel
         if self.safe_wall is not None:
             out["reaction_s"] = self.safe_wall - self.onset_wall
         return out

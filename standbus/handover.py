@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import select
 import threading
 import time
 from typing import Callable, Iterator
@@ -110,3 +111,58 @@ class HandoverNotifier(can.Notifier):
                 self._want_bus.clear()
                 self._parked.clear()
                 self._resume.set()
+
+
+@contextlib.contextmanager
+def handover_many(notifiers: "list[HandoverNotifier]", spin_s: float = 0.0,
+                  idle_poll_s: float = 0.001) -> Iterator[Callable[[float], can.Message | None]]:
+    """:meth:`HandoverNotifier.handover` over several buses at once (a rig's buses): every
+    reader thread parks, and the one ``pump(timeout)`` receives a frame from whichever bus has
+    one (round robin, so no bus starves), handing it to that bus's listeners. It polls all buses
+    for ``spin_s`` before it sleeps, then waits in ``select`` on the buses' file descriptors
+    (at most ``idle_poll_s`` at a time, so a bus whose frames do not wake its descriptor, e.g.
+    one delaying frames on purpose, is still polled); a bus without a descriptor is polled."""
+    with contextlib.ExitStack() as stack:
+        pumps = [stack.enter_context(n.handover(0.0)) for n in notifiers]
+        if len(pumps) == 1 and spin_s == 0.0:
+            yield pumps[0]
+            return
+        descriptors = []
+        for n in notifiers:
+            try:
+                fd = n.bus.fileno()
+            except (AttributeError, NotImplementedError, OSError, ValueError):
+                fd = -1
+            descriptors.append(fd)
+        waitable = all(fd is not None and fd >= 0 for fd in descriptors)
+        clock = time.perf_counter
+        yield_cpu = getattr(os, "sched_yield", lambda: None)
+        count = len(pumps)
+        first = [0]
+
+        def pump(timeout: float) -> can.Message | None:
+            start = clock()
+            end = start + timeout
+            spin_end = start + min(spin_s, timeout)
+            while True:
+                k0 = first[0]
+                for j in range(count):
+                    k = (k0 + j) % count
+                    msg = pumps[k](0.0)
+                    if msg is not None:
+                        first[0] = (k + 1) % count
+                        return msg
+                now = clock()
+                if now >= end:
+                    return None
+                if now < spin_end:
+                    yield_cpu()
+                elif waitable:
+                    try:
+                        select.select(descriptors, [], [], min(end - now, idle_poll_s))
+                    except (OSError, ValueError):
+                        time.sleep(min(end - now, idle_poll_s))
+                else:
+                    time.sleep(min(end - now, idle_poll_s / 10))
+
+        yield pump
