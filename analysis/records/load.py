@@ -8,17 +8,27 @@ from pathlib import Path
 from typing import Iterable
 
 from gateway.errors import DataError
-from gateway.runs import is_run_dir, load_run
+from gateway.runs import is_run_dir, load_run, rig_channels
 
 from .record import Record, make_record, split_at_gaps
 from .tables import TABLE_SUFFIXES, open_path, read_csv, type_suffix
 
 
-def read_run(path: str | Path) -> Record:
+def read_run(path: str | Path, channel: str | None = None) -> Record:
+    """A run directory as a record; a rig run needs ``channel`` (one of its channels)."""
     run = load_run(path)
+    if channel is None and run.channels:
+        rig = run.meta["rig"]
+        raise DataError(f"{path} is a run of the rig {rig.get('name')!r} with {len(run.channels)} "
+                        f"channels: choose one with --channel NAME (channels: "
+                        f"{', '.join(run.channels)}; the experiment drove "
+                        f"{', '.join(rig.get('driven') or []) or 'none'})")
+    if channel is not None:
+        run = run.channel(channel)
     if len(run) == 0:
         raise DataError(f"{path}: the run has no samples")
-    rec = make_record(run.t, run.u, run.y, run.r, source=str(path), experiment=run.experiment,
+    source = str(path) if channel is None else f"{path}#{channel}"
+    rec = make_record(run.t, run.u, run.y, run.r, source=source, experiment=run.experiment,
                       meta=run.meta)
     rec.notes = run.notes + rec.notes
     return rec
@@ -57,15 +67,20 @@ def load_capture(path: str | Path, strict: bool = False, **options) -> Record:
     return rec
 
 
-def load(path: str | Path) -> Record:
-    """Load one input: run directory, CSV ``t,u,y[,r]``, or a bus capture (decoded with the DBC)."""
+def load(path: str | Path, channel: str | None = None) -> Record:
+    """Load one input: run directory, CSV ``t,u,y[,r]``, or a bus capture (decoded with the DBC).
+    ``channel``: the channel of a rig run to read (a rig run needs it; other inputs refuse it)."""
     path = Path(path)
     if not path.exists():
         raise DataError(f"{path} does not exist")
     if path.is_dir():
         if is_run_dir(path):
-            return read_run(path)
+            return read_run(path, channel)
         raise DataError(f"{path} is a directory but not a run (no run.json)")
+    if channel is not None:
+        raise DataError(f"--channel {channel}: {path} is not a rig run; --channel names a channel "
+                        "of a rig run directory (decode a rig's capture per channel with "
+                        "`stand decode RIG_RUN --channel NAME`)")
     if _is_capture(path):
         return load_capture(path)
     if type_suffix(path) in TABLE_SUFFIXES:
@@ -75,9 +90,10 @@ def load(path: str | Path) -> Record:
                     "each optionally .gz")
 
 
-def load_all(paths: Iterable[str | Path]) -> list[Record]:
-    """Load every input as :func:`load` does, each split at its gaps (:func:`split_at_gaps`)."""
-    records = [part for p in paths for part in split_at_gaps(load(p))]
+def load_all(paths: Iterable[str | Path], channel: str | None = None) -> list[Record]:
+    """Load every input as :func:`load` does, each split at its gaps (:func:`split_at_gaps`);
+    ``channel``: the channel of every rig run among them."""
+    records = [part for p in paths for part in split_at_gaps(load(p, channel))]
     if not records:
         raise DataError("no input given")
     return records

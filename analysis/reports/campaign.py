@@ -88,13 +88,14 @@ def expand_inputs(paths: Iterable[str | Path]) -> list[Path]:
 
 
 def estimate_inputs(paths: Iterable[str | Path], options: EstimateOptions | None = None,
-                    keep_records: bool = True) -> list[ReportInput]:
-    """Estimate every input; failures are kept with their message, never as numbers."""
+                    keep_records: bool = True, channel: str | None = None) -> list[ReportInput]:
+    """Estimate every input; failures are kept with their message, never as numbers.
+    ``channel``: the channel of a rig run."""
     items = []
     for path in expand_inputs(paths):
-        item = ReportInput(str(path))
+        item = ReportInput(str(path) if channel is None else f"{path}#{channel}")
         try:
-            rec = load(path)
+            rec = load(path, channel)
             item.estimate = estimate_record(rec, options)
             item.record = rec if keep_records else None
         except StandError as exc:

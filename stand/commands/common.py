@@ -28,7 +28,8 @@ def add_node_ids(p: argparse.ArgumentParser) -> None:
 def add_gateway(p: argparse.ArgumentParser) -> None:
     add_bus(p)
     add_node_ids(p)
-    p.add_argument("--period-ms", type=float, default=2.0, metavar="MS", help="control period, ms (default %(default)s)")
+    p.add_argument("--period-ms", type=float, default=None, metavar="MS",
+                   help="control period, ms (default 2; a rig: its file's period_ms)")
     p.add_argument("--lockstep", action="store_true",
                    help="send the next SYNC as soon as a cycle is done (needs the emulator with --lockstep)")
     p.add_argument("--boot-timeout", type=float, default=5.0, metavar="S",
@@ -47,8 +48,9 @@ def add_safety(p: argparse.ArgumentParser) -> None:
     """The supervisor's limits and reactions (docs/safety.md)."""
     d = SafetyLimits()
     g = p.add_argument_group("safety (see docs/safety.md)")
-    g.add_argument("--force-limit", type=float, default=d.force_limit_kgf, metavar="KGF",
-                   help="force limit ±KGF (default %(default)s)")
+    g.add_argument("--force-limit", type=float, default=None, metavar="KGF",
+                   help=f"force limit ±KGF (default {d.force_limit_kgf:g}; a rig: each channel's "
+                        "force_limit_kgf in the rig file)")
     g.add_argument("--limit-action", choices=ACTIONS, default=d.force_action,
                    help="what the force limit does: indicate (log, go on), hold (valve HOLD, zero "
                         "command), unload (ramp the force to ~0, then hold), zero (zero command, "
@@ -81,8 +83,9 @@ def add_safety(p: argparse.ArgumentParser) -> None:
 def safety_limits(args: argparse.Namespace) -> SafetyLimits:
     d = SafetyLimits()
     get = lambda name, default: getattr(args, name, default)  # noqa: E731
+    force_limit = get("force_limit", None)
     return SafetyLimits(
-        force_limit_kgf=get("force_limit", d.force_limit_kgf),
+        force_limit_kgf=d.force_limit_kgf if force_limit is None else force_limit,
         force_action=get("limit_action", d.force_action),
         command_limit_pct=get("command_limit", d.command_limit_pct),
         slew_pct_per_s=get("slew_limit", d.slew_pct_per_s),
@@ -95,13 +98,51 @@ def safety_limits(args: argparse.Namespace) -> SafetyLimits:
         unload_rate_kgf_per_s=get("unload_rate", d.unload_rate_kgf_per_s))
 
 
+def add_rig(p: argparse.ArgumentParser) -> None:
+    """--rig, --channel, --fault-action: run on a rig of many channels (docs/rig.md)."""
+    g = p.add_argument_group("a rig of many channels (see docs/rig.md)")
+    g.add_argument("--rig", metavar="RIG.toml",
+                   help="drive a rig: its buses, channels (node ids, force limits) and period come "
+                        "from the file (--bus, --valve-id, --dynamometer-id are not used); every "
+                        "channel is recorded, one capture per bus")
+    g.add_argument("--channel", action="append", default=None, metavar="NAME",
+                   help="with --rig: the channel the experiment drives; the others hold a zero "
+                        "command (a column of G, docs/rig.md). Repeat it to drive several with "
+                        "the same experiment (each its own copy: the same excitation, so their "
+                        "columns of G cannot be told apart from such a run)")
+    g.add_argument("--fault-action", choices=("hold", "unload"), default="hold",
+                   help="with --rig: what a channel's communication or valve fault (heartbeat, "
+                        "EMCY, stale reading, valve fault) does to the others: hold them all, or "
+                        "unload them keeping the load ratios while the faulty channel holds "
+                        "(default %(default)s; force and error limits act with --limit-action "
+                        "and --error-action on every channel)")
+
+
 def gateway_config(args: argparse.Namespace) -> GatewayConfig:
+    rig_path = getattr(args, "rig", None)
+    rig = None
+    period_ms = getattr(args, "period_ms", None)
+    if rig_path is not None:
+        from rig.config import load_rig_file
+        rig = load_rig_file(rig_path)
+        if period_ms is not None and abs(period_ms / 1e3 - rig.period_s) > 1e-9:
+            raise ParameterError(f"--period-ms {period_ms:g}: the rig {rig_path} runs at "
+                                 f"{rig.period_s * 1e3:g} ms (period_ms in the file); leave "
+                                 "--period-ms out or change the file")
+        if getattr(args, "force_limit", None) is not None:
+            raise ParameterError("--force-limit: a rig's force limits are per channel "
+                                 f"(force_limit_kgf of each [[channel]] in {rig_path}, default 95 % "
+                                 "of its range_kgf); leave --force-limit out")
+    elif getattr(args, "channel", None):
+        raise ParameterError("--channel names a channel of a rig: give --rig RIG.toml too")
     return GatewayConfig(bus=args.bus, valve_id=args.valve_id, dynamometer_id=args.dynamometer_id,
-                         period_s=args.period_ms / 1000.0, lockstep=args.lockstep,
+                         period_s=(2.0 if period_ms is None else period_ms) / 1000.0,
+                         lockstep=args.lockstep,
                          boot_timeout_s=args.boot_timeout,
                          rt_priority=getattr(args, "rt_priority", DEFAULT_PRIORITY),
                          rpdo_timeout_ms=getattr(args, "rpdo_timeout", GatewayConfig.rpdo_timeout_ms),
-                         limits=safety_limits(args))
+                         limits=safety_limits(args), rig=rig,
+                         fault_action=getattr(args, "fault_action", "hold"))
 
 
 def add_effects(p: argparse.ArgumentParser) -> None:
@@ -138,11 +179,19 @@ def parse_assignments(items: list[str] | None, what: str = "--set") -> dict[str,
     return out
 
 
-def load_records(paths) -> list:
+def add_rig_channel(p: argparse.ArgumentParser) -> None:
+    """--channel for the analysis commands: which channel of a rig run to read."""
+    p.add_argument("--channel", metavar="NAME",
+                   help="a rig run: the channel to read (each channel is read as a one-channel "
+                        "run; a rig run without it is refused with the list of its channels)")
+
+
+def load_records(paths, channel: str | None = None) -> list:
     """The data sets of ``paths`` (CSV, run directories, captures), each one's notes (rows
-    dropped, resampling, glitches replaced) printed to stderr: what was changed is said."""
+    dropped, resampling, glitches replaced) printed to stderr: what was changed is said.
+    ``channel``: the channel of a rig run."""
     from analysis import load_all
-    records = load_all(paths)
+    records = load_all(paths, channel)
     for rec in records:
         for note in rec.notes:
             print(f"note: {rec.source}: {note}", file=sys.stderr)

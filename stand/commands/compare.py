@@ -37,7 +37,7 @@ def main(args: argparse.Namespace) -> int:
     from analysis.identification.compare import metrics_table, params_table
     from analysis.reports import plots
     check_window(args)
-    records = load_records(args.data)
+    records = load_records(args.data, getattr(args, "channel", None))
     c = compare(records, args.model, window_s=args.window_s, fit=not args.as_given)
     files = []
     if not args.no_plots:

@@ -62,7 +62,7 @@ def main(args: argparse.Namespace) -> int:
     if args.jobs is not None and args.jobs < 1:
         from gateway.errors import ParameterError
         raise ParameterError(f"--jobs {args.jobs} is out of range: give 1 or more")
-    records = load_records(args.data)
+    records = load_records(args.data, getattr(args, "channel", None))
     model, _ = resolve_model(args.model)
     effects = ([e.strip() for e in args.candidates.split(",") if e.strip()]
                if args.candidates else None)

@@ -32,6 +32,8 @@ def register(sub) -> None:
     p.add_argument("--gain", type=float, metavar="K", help="P feedback: k, %%/kgf (default: from the run, else fitted)")
     p.add_argument("--transitional-ms", type=float, metavar="MS",
                    help="meander: transitional window after each reversal (default: detected)")
+    p.add_argument("--channel", metavar="NAME",
+                   help="a rig run: the channel to read (the one the experiment drove)")
     p.set_defaults(func=main)
 
 
@@ -43,7 +45,7 @@ def main(args: argparse.Namespace) -> int:
         control_period_s=args.period_ms / 1000.0 if args.period_ms else None,
         omega_rad_s=args.omega, gain=args.gain,
         transitional_s=args.transitional_ms / 1000.0 if args.transitional_ms else None)
-    items = estimate_inputs(args.data, options, keep_records=bool(args.out))
+    items = estimate_inputs(args.data, options, keep_records=bool(args.out), channel=args.channel)
     if args.json:
         docs = [result_json(i.estimate) | {"source": i.source} if i.estimate else error_json(i.source, i.error)
                 for i in items]

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 
-from .common import add_effects, load_records
+from .common import add_effects, add_rig_channel, load_records
 
 
 def add_data_args(p: argparse.ArgumentParser, model_required: bool = True) -> None:
@@ -23,6 +23,7 @@ def add_data_args(p: argparse.ArgumentParser, model_required: bool = True) -> No
                         + ("" if model_required else " (default: %(default)s)"))
     p.add_argument("--window-s", type=float, default=WINDOW_S, metavar="S",
                    help="length of the free-run windows, s (default %(default)s)")
+    add_rig_channel(p)
     add_effects(p)
 
 
@@ -59,7 +60,7 @@ def main(args: argparse.Namespace) -> int:
     from analysis.identification.compare import metrics_table, params_table
     from plant import model_to_toml
     check_window(args)
-    records = load_records(args.data)
+    records = load_records(args.data, args.channel)
     model, path = resolve_model(args.model)
     result = fit_model(records, model, window_s=args.window_s, fixed=args.fix)
     ev = evaluate(result.model, records, args.window_s)

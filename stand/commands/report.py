@@ -30,7 +30,7 @@ def register(sub) -> None:
 def main(args: argparse.Namespace) -> int:
     from analysis import diagnose, write_report
     check_window(args)
-    records = load_records(args.data)
+    records = load_records(args.data, getattr(args, "channel", None))
     out = args.out or default_out(args.data, "report")
     d = None
     res = write_report(records, args.model, out, fit=not args.as_given, window_s=args.window_s,

@@ -8,7 +8,7 @@ import signal
 
 from gateway.experiments import EXPERIMENTS, make_experiment
 
-from .common import add_gateway, gateway_config
+from .common import add_gateway, add_rig, gateway_config
 
 
 def register(sub) -> None:
@@ -29,6 +29,7 @@ def register(sub) -> None:
                            default=default, metavar=metavar(pname),
                            help=f"{helps.get(pname, pname.replace('_', ' '))} (default {shown})".replace("%", "%%"))
         add_gateway(e)
+        add_rig(e)
         e.add_argument("--out", required=True, metavar="DIR", help="run directory to create")
         e.add_argument("--no-progress", action="store_true", help="no progress bar")
         e.add_argument("--reset-faults", action="store_true",
@@ -62,6 +63,15 @@ def param_help(doc: str) -> dict[str, str]:
     return out
 
 
+def load_meta(path) -> dict:
+    import json
+    from gateway.runs import META_FILE
+    try:
+        return json.loads((path / META_FILE).read_text())
+    except (OSError, ValueError):
+        return {}
+
+
 def _terminate(signum, frame) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
@@ -77,7 +87,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         with Gateway(config) as gw:
             result = gw.run(experiment, args.out, progress=False if args.no_progress else None,
-                            reset_faults=args.reset_faults)
+                            reset_faults=args.reset_faults, channels=args.channel)
     finally:
         signal.signal(signal.SIGTERM, previous)
     stats = result.outcome.stats
@@ -88,6 +98,11 @@ def main(args: argparse.Namespace) -> int:
         print(f"ignored {ignored} frames: {stats.unexpected_frames} from unexpected ids, "
               f"{stats.wrong_dlc_frames} with a wrong DLC, {stats.not_classic_frames} error/remote/"
               "extended/FD")
+    if config.rig is not None:
+        stale = (load_meta(result.path).get("stats") or {}).get("stale_cycles_by_channel") or {}
+        print(f"rig {config.rig.name}: " + ", ".join(
+            f"{c.name} ({c.bus}{', driven' if c.name in args.channel else ''}"
+            f"{f', {stale[c.name]} stale' if stale.get(c.name) else ''})" for c in config.rig.channels))
     if stats.limit_events:
         print(f"{stats.limit_events} limit events indicated (see run.json 'events')")
     if result.reason:

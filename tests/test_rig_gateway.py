@@ -1,0 +1,112 @@
+"""The gateway as master of a rig: 4 channels on 2 real loopback buses, one emulator process per
+channel (uncoupled), lockstep. One loop, one SYNC per bus per cycle, every channel recorded, a
+capture per bus; the analysis reads a channel; a rig over its bus budget never starts."""
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from analysis import load_all
+from gateway import Gateway, GatewayConfig, load_run
+from gateway.errors import DataError, StandError
+from gateway.experiments import Meander
+from tests.support.rig import FOUR, node_ids, rpdo_words, start_channels, syncs, sniff, write_rig
+
+pytestmark = pytest.mark.e2e
+
+
+def stand(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "stand", *args], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def test_a_meander_on_one_channel_records_every_channel_and_a_capture_per_bus(tmp_path, start_emulator):
+    channels = [dataclasses.replace(c, initial_kgf=k) for c, k in zip(FOUR, (0, 1500, -1000, 500))]
+    rig = write_rig(tmp_path / "rig.toml", channels)
+    start_channels(start_emulator, rig, channels)
+    out = tmp_path / "run"
+    done = stand("run", "meander", "--rig", str(tmp_path / "rig.toml"), "--channel", "a",
+                 "--amplitude-pct", "5", "--period-s", "2", "--cycles", "3", "--lockstep",
+                 "--no-progress", "--out", str(out))
+    assert done.returncode == 0, done.stderr + done.stdout
+    assert "rig test rig" in done.stdout and "a (can0, driven)" in done.stdout
+    meta = json.loads((out / "run.json").read_text())
+    assert meta["status"] == "complete" and meta["rig"]["driven"] == ["a"]
+    assert [b["capture"] for b in meta["rig"]["buses"]] == ["capture-can0.log", "capture-can1.log"]
+    assert all(b["budget"]["load_pct"] < 70 for b in meta["rig"]["buses"])
+    run = load_run(out)
+    assert run.channels == ["a", "b", "c", "d"]
+    n = len(run)
+    assert n == 3 * 2 / 0.002
+    for name, y0 in zip("abcd", (0, 1500, -1000, 500)):
+        assert len(run.signals[f"y.{name}"]) == n and not run.signals[f"stale.{name}"].any()
+        assert abs(run.signals[f"y.{name}"][0] - y0) < 20, name
+    # the driven channel runs the meander, the others hold a zero command (their force only drifts)
+    assert set(np.round(np.abs(run.signals["u.a"][1:]), 2)) == {5.0}
+    for name in "bcd":
+        assert not run.signals[f"u.{name}"].any()
+        assert np.ptp(run.signals[f"y.{name}"]) < 60, name          # 8 kgf/s trend, noise
+    assert np.ptp(run.signals["y.a"]) > 500
+    # one capture per bus, each with its own channels' nodes only
+    assert node_ids(out / "capture-can0.log") == {1, 2, 3, 4} == node_ids(out / "capture-can1.log")
+    # SYNCs aligned: the same counter on both buses, sent back to back (in lockstep a cycle is
+    # the same instant of stand time on both; a GIL hand-off inside the second send may take
+    # CPython's 5 ms switch interval: real time shortens it, test_rig_realtime)
+    (t0, k0), (t1, k1) = syncs(out / "capture-can0.log"), syncs(out / "capture-can1.log")
+    assert len(t0) == len(t1) >= n and (k0 == k1).all()
+    gap = t1 - t0
+    assert gap.min() >= 0 and np.median(gap) < 0.1e-3 and np.percentile(gap, 90) < 1e-3, \
+        (np.median(gap), np.percentile(gap, 90))
+    # ... and both SYNCs of cycle k go out before any command of cycle k, after all of k - 1
+    rpdo = np.sort(np.concatenate([[s for s, _, _ in rpdo_words(out / f"capture-{b}.log", v)]
+                                   for b in ("can0", "can1") for v in (1, 3)]))
+    first_after = np.searchsorted(rpdo, np.maximum(t0, t1))
+    last_before = np.searchsorted(rpdo, np.minimum(t0, t1))
+    assert (first_after == last_before).all(), "no command between the buses' SYNCs of a cycle"
+    # the analysis reads one channel of it
+    est = stand("estimate", str(out), "--channel", "a", "--json")
+    assert est.returncode == 0, est.stderr
+    doc = json.loads(est.stdout)[0]
+    assert doc["experiment"] == "meander" and abs(doc["estimates"]["g"] / 120 - 1) < 0.03, doc
+    assert doc["source"].endswith("run#a")
+    fit = stand("fit", str(out), "--channel", "a", "--model", "base", "--json")
+    assert fit.returncode == 0, fit.stderr
+    params = json.loads(fit.stdout)["params"]
+    assert abs(params["g"] / 120 - 1) < 0.03 and abs(params["tau"] - 0.05) < 0.005, params
+    # without --channel: a clear error listing the channels
+    bad = stand("estimate", str(out))
+    assert bad.returncode == 2 and "--channel" in bad.stderr and "a, b, c, d" in bad.stderr, bad.stderr
+    with pytest.raises(DataError, match="a, b, c, d"):
+        load_all([out])
+    assert [len(r) for r in load_all([out], channel="b")] == [n]
+
+
+def test_a_rig_over_its_bus_budget_is_refused_before_any_nmt_start(tmp_path):
+    from tests.support.rig import Channel
+    six = [Channel(f"ch{i}", "can0", 2 * i + 1, 2 * i + 2) for i in range(6)]
+    rig = write_rig(tmp_path / "rig.toml", six, buses=("can0",))
+    listener = sniff(rig.buses[0].spec)
+    try:
+        done = stand("run", "meander", "--rig", str(tmp_path / "rig.toml"), "--channel", "ch0",
+                     "--lockstep", "--out", str(tmp_path / "run"))
+        time.sleep(0.2)
+        heard = []
+        while (m := listener.recv(0.05)) is not None:
+            heard.append(m)
+    finally:
+        listener.shutdown()
+    assert done.returncode == 2
+    assert "the rig does not fit its buses; nothing was started" in done.stderr
+    assert ("bus can0: 6 channel(s) at 500 Hz need 0.93 Mbit/s of 1.00 Mbit/s (classic CAN, 93 %, "
+            "the limit is 70 %); at most 4 channel(s) per bus at 500 Hz, or a period of 2.7 ms") \
+        in done.stderr, done.stderr
+    assert heard == [], "not a frame on the bus: no NMT reset, no start"
+    assert not (tmp_path / "run").exists()
+    with pytest.raises(StandError, match="at most 4 channel"):
+        Gateway(GatewayConfig(rig=rig, lockstep=True)).open()
