@@ -269,9 +269,11 @@ class ControlLoop:
                 out[key] = out.get(key, 0) + value
         return out
 
-    def _check_nodes(self) -> Trip | None:
-        """Every channel's communication watchdogs (EMCY, heartbeat, NMT state)."""
+    def _check_nodes(self, watched=None) -> Trip | None:
+        """Every (watched) channel's communication watchdogs (EMCY, heartbeat, NMT state)."""
         for i, ch in enumerate(self.channels):
+            if watched is not None and not watched[i]:
+                continue
             trip = ch.supervisor.check_nodes()
             if trip is not None:
                 return self._named(trip, i)
@@ -349,6 +351,9 @@ class ControlLoop:
         unloader: RatioUnloader | None = None
         unload_note: str | None = None
         excluded: list[int] = []
+        #: the channels still watched and awaited: all until a trip excludes one
+        watched = [True] * n
+        expected = 2 * n
         final_action = "hold"
         all_channels = range(n)
         self._drain()
@@ -387,7 +392,7 @@ class ControlLoop:
                     net.send_message(SYNC_COB_ID, sync)
                 got_force = [False] * n
                 got_valve = [False] * n
-                missing = 2 * n
+                missing = expected
                 wait_trip = None
                 while missing:
                     remaining = deadline - time.perf_counter()
@@ -398,7 +403,7 @@ class ControlLoop:
                     except queue.Empty:
                         if recorder is not None:
                             recorder.poll()
-                        wait_trip = self._check_nodes()
+                        wait_trip = self._check_nodes(watched)
                         if wait_trip is not None:
                             break
                         continue
@@ -413,15 +418,15 @@ class ControlLoop:
                         ys[i] = c * scales[i]
                         if not got_force[i]:
                             got_force[i] = True
-                            missing -= 1
+                            missing -= watched[i]
                     else:
                         statuses[i] = values[status_pos[i]]
                         spools[i] = counts_to_percent(values[spool_pos[i]])
                         if not got_valve[i]:
                             got_valve[i] = True
-                            missing -= 1
+                            missing -= watched[i]
                 stale = [not g for g in got_force]
-                if missing:
+                if missing or expected < 2 * n:
                     any_stale = False
                     for i in all_channels:
                         if stale[i]:
@@ -433,13 +438,16 @@ class ControlLoop:
                 new = late_trip or wait_trip
                 if new is None:
                     for i in all_channels:
+                        if not watched[i]:
+                            continue
                         new = sups[i].check(ys[i], stale[i], statuses[i], sync_wall,
                                             force=unloader is None)
                         if new is not None:
                             self._named(new, i)
                             break
                 if new is None and lockstep and missing:
-                    i = next(k for k in all_channels if not (got_force[k] and got_valve[k]))
+                    i = next(k for k in all_channels
+                             if watched[k] and not (got_force[k] and got_valve[k]))
                     link = masters[i].valve if got_force[i] else masters[i].dynamometer
                     new = self._named(sups[i].make_trip(
                         "no_answer_to_sync", f"{link.role} node {link.id} did not answer SYNC "
@@ -498,6 +506,9 @@ class ControlLoop:
                     excluded = self._excluded(trip)
                     action = self._rig_action(trip, excluded)
                     active = [i not in excluded for i in all_channels]
+                    if action == "unload":       # the excluded: no longer watched nor awaited
+                        watched = active
+                        expected = 2 * sum(active)
                     if action == "unload" and any(active) and \
                             not any(stale[i] for i in all_channels if active[i]):
                         trip.action = "unload"
@@ -599,10 +610,8 @@ class ControlLoop:
                "forces_at_end_kgf": {c.name: ys[i] for i, c in enumerate(chans)}}
         if excluded:
             out["excluded"] = [{"channel": chans[i].name, "reason": trip.reason,
-                                "valve_state": _state_name(statuses[i]),
-                                "why": "its valve dropped to (or is held in) its own safe state, "
-                                       "or it could not be read or commanded: it holds while "
-                                       "the others unload"} for i in excluded]
+                                "last_valve_state": _state_name(statuses[i]),
+                                "why": _why_excluded(trip.reason)} for i in excluded]
         return out
 
     def _end(self, trip: Trip, action: str) -> list[float]:
@@ -612,6 +621,15 @@ class ControlLoop:
         if trip.safe_wall is None:
             trip.safe_wall = sent
         return [0.0] * len(self.channels)
+
+
+def _why_excluded(reason: str) -> str:
+    if reason in ("valve_fault", "emcy", "valve_not_active"):
+        return ("its valve left ACTIVE for its own safe state (or reported a fault): it is held "
+                "(HOLD, zero setpoint) while the others unload")
+    return ("it cannot be read or does not answer: it is sent HOLD (zero setpoint) and its valve's "
+            "own RPDO watchdog takes it to its safe state if the commands do not reach it; the "
+            "others unload")
 
 
 def _state_name(status: int) -> str:
