@@ -58,6 +58,9 @@ class DecodeOptions:
     run: int | None = None
     on_damage: str = "stop"
     chunk_bytes: int | None = None
+    #: a rig's bus: read the channel whose valve and dynamometer have these node ids
+    #: (:mod:`captures.nodes`); None: the stand's nodes 1 and 2
+    nodes: tuple[int, int] | None = None
     signals: StandSignals = field(default_factory=StandSignals)
 
     def validate(self) -> None:
@@ -70,6 +73,12 @@ class DecodeOptions:
             raise CaptureError(f"on_damage must be 'stop' or 'skip', not {self.on_damage!r}")
         if self.run is not None and self.run < 0:
             raise CaptureError(f"run {self.run}: runs are numbered from 0")
+        if self.nodes is not None:
+            from .nodes import node_table
+            try:
+                node_table(*self.nodes)
+            except (TypeError, ValueError) as exc:
+                raise CaptureError(f"nodes {self.nodes!r}: {exc}") from None
 
 
 @dataclass
@@ -104,6 +113,10 @@ class DecodeResult:
     def notes(self, run: RunInfo | None = None) -> list[str]:
         """Human-readable findings (damage, skipped frames, stale cycles)."""
         f, out = self.frames, []
+        if self.options.nodes is not None:
+            valve, dyn = self.options.nodes
+            out.append(f"read the channel of valve node {valve} and dynamometer node {dyn}; the "
+                       "other nodes' frames are counted as unknown ids")
         if self.damage is not None:
             out.append(f"capture damaged at {self.damage}; everything before it was decoded")
         if self.read.damaged:
@@ -146,7 +159,10 @@ class DecodeResult:
             "source": "capture",
             "capture": {"path": str(self.path.resolve()), "format": self.format,
                         "bytes": _size(self.path), "dbc": str(self.options.dbc or DEFAULT_DBC),
-                        "run": run.index, "runs_in_capture": len(self.runs_with_rows())},
+                        "run": run.index, "runs_in_capture": len(self.runs_with_rows()),
+                        **({} if self.options.nodes is None else
+                           {"nodes": {"valve": self.options.nodes[0],
+                                      "dynamometer": self.options.nodes[1]}})},
             "experiment": None,
             "clock": run.clock,
             "period_s": run.period_s,
@@ -350,10 +366,16 @@ def decode_capture(path: str | Path, out: str | Path | None = None, *, collect: 
             if outputs is not None:
                 outputs.write(run, rows)
 
+    table = None
+    if opts.nodes is not None:
+        from .nodes import node_table, remap_nodes
+        table = node_table(*opts.nodes)
     t0 = time.perf_counter()
     try:
         done = 0
         for chunk in reader:
+            if table is not None:
+                remap_nodes(chunk, table)
             assembler.choose_channel(chunk)
             decoded = decoder.decode(chunk, wanted)
             if frames_out is not None:

@@ -581,8 +581,8 @@ class ControlLoop:
     def _rig_action(self, trip: Trip, excluded: list[int]) -> str:
         if trip.action in ("unload", "zero"):
             return trip.action
-        if self.rig and self.rig_safety.fault_action == "unload" and excluded \
-                and len(excluded) < len(self.channels):
+        if self.rig and self.rig_safety.fault_action == "unload" and len(excluded) < len(self.channels) \
+                and (trip.reason in CHANNEL_FAULTS or trip.reason == "overrun"):
             return "unload"
         return trip.action
 

@@ -224,3 +224,28 @@ def read_truth(path: str | Path) -> dict[str, Any] | None:
     if not truth.exists():
         return None
     return json.loads(truth.read_text())
+
+
+def channel_capture(path: str | Path, channel: str | None) -> tuple[Path, tuple[int, int]]:
+    """A rig run's channel: the capture of its bus and its (valve, dynamometer) node ids, which
+    :func:`captures.decode.decode_capture` reads with ``nodes=``. Without ``channel``, a clear
+    error listing the channels."""
+    path = Path(path)
+    try:
+        meta = json.loads((path / META_FILE).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DataError(f"{path}: not a readable run directory ({exc})") from None
+    rig = meta.get("rig")
+    if not rig:
+        raise DataError(f"{path} is a one-channel run: its capture is {path / CAPTURE_FILE}")
+    names = rig_channels(meta)
+    if channel is None:
+        raise DataError(f"{path} is a run of the rig {rig.get('name')!r}: choose a channel with "
+                        f"--channel NAME ({', '.join(names)})")
+    entry = next((c for c in rig["channels"] if c["name"] == channel), None)
+    if entry is None:
+        raise DataError(f"{path}: rig {rig.get('name')!r} has no channel {channel!r}; its "
+                        f"channels: {', '.join(names)}")
+    bus = next(b for b in rig["buses"] if b["name"] == entry["bus"])
+    nodes = entry["nodes"]
+    return path / bus["capture"], (int(nodes["valve"]["id"]), int(nodes["dynamometer"]["id"]))

@@ -85,6 +85,19 @@ def test_a_meander_on_one_channel_records_every_channel_and_a_capture_per_bus(tm
     with pytest.raises(DataError, match="a, b, c, d"):
         load_all([out])
     assert [len(r) for r in load_all([out], channel="b")] == [n]
+    # a channel decoded from its bus's capture at its node ids is the channel as recorded
+    dec = stand("decode", str(out), "--channel", "d", "-o", str(tmp_path / "d"), "--no-progress")
+    assert dec.returncode == 0, dec.stderr + dec.stdout
+    decoded, recorded = load_run(tmp_path / "d"), load_run(out, channel="d")
+    assert json.loads((tmp_path / "d" / "run.json").read_text())["capture"]["nodes"] == \
+        {"valve": 3, "dynamometer": 4}
+    k = min(len(decoded), len(recorded))
+    assert k >= n - 1
+    np.testing.assert_array_equal(decoded.y_counts[:k], recorded.y_counts[:k])
+    np.testing.assert_array_equal(decoded.u[:k], recorded.u[:k])
+    from captures.trace import force_trace
+    trace = force_trace(out / "capture-can1.log", nodes=(3, 4))
+    np.testing.assert_array_equal(trace.counts[:k], recorded.y_counts[:k])
 
 
 def test_a_rig_over_its_bus_budget_is_refused_before_any_nmt_start(tmp_path):

@@ -112,8 +112,8 @@ def add_rig(p: argparse.ArgumentParser) -> None:
                         "columns of G cannot be told apart from such a run)")
     g.add_argument("--fault-action", choices=("hold", "unload"), default="hold",
                    help="with --rig: what a channel's communication or valve fault (heartbeat, "
-                        "EMCY, stale reading, valve fault) does to the others: hold them all, or "
-                        "unload them keeping the load ratios while the faulty channel holds "
+                        "EMCY, stale reading, valve fault) or an overrun does: hold every channel, "
+                        "or unload them keeping the load ratios while the faulty channel holds "
                         "(default %(default)s; force and error limits act with --limit-action "
                         "and --error-action on every channel)")
 

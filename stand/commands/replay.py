@@ -27,7 +27,14 @@ def register(sub) -> None:
                                    "the dynamometer instead: the dynamometer answers the k-th SYNC of "
                                    "each run with the k-th recorded force (regression tests of the "
                                    "gateway against recorded bench behaviour).")
-    p.add_argument("capture", metavar="CAPTURE", help="capture file (.log, .blf, .asc, ...)")
+    p.add_argument("capture", metavar="CAPTURE",
+                   help="capture file (.log, .blf, .asc, ...), or a rig run directory with --channel")
+    p.add_argument("--channel", metavar="NAME",
+                   help="a rig run: the channel to replay (its bus's capture; --as-plant: its "
+                        "recorded force, read at its node ids)")
+    p.add_argument("--nodes", metavar="VALVE,DYN",
+                   help="--as-plant on a capture of a rig's bus: the node ids of the channel whose "
+                        "force to replay (default 1,2)")
     add_bus(p)
     timing = p.add_mutually_exclusive_group()
     timing.add_argument("--speed", type=float, default=1.0, metavar="X",
@@ -50,6 +57,18 @@ def main(args: argparse.Namespace) -> int:
     from captures.replay import Replayer
     if args.loop < 1:
         raise StandError("--loop must be at least 1")
+    from pathlib import Path
+    from .decode import parse_nodes
+    args.read_nodes = parse_nodes(args.nodes)
+    if Path(args.capture).is_dir():
+        from gateway.runs import channel_capture
+        if args.read_nodes is not None:
+            raise StandError("--nodes: a rig run knows its channels' node ids; give --channel NAME")
+        capture, args.read_nodes = channel_capture(args.capture, args.channel)
+        args.capture = str(capture)
+    elif args.channel is not None:
+        raise StandError("--channel names a channel of a rig run directory; for a capture of a "
+                         "rig's bus give --nodes VALVE,DYN")
     if args.as_plant:
         return as_plant(args)
     bus = open_bus(args.bus)
@@ -83,7 +102,7 @@ def as_plant(args: argparse.Namespace) -> int:
     from plant_emulator.replayed import ReplayedStand
     from plant_emulator import EmulatorOptions
     from plant_emulator.process import serve_until_signalled
-    trace = force_trace(args.capture, run=args.run)
+    trace = force_trace(args.capture, run=args.run, nodes=args.read_nodes)
     options = EmulatorOptions(lockstep=True, valve_id=args.valve_id, dynamometer_id=args.dynamometer_id)
     stand = serve_until_signalled(
         lambda bus: ReplayedStand(bus, trace, options), args.bus,
