@@ -173,9 +173,16 @@ class TappedNetwork(canopen.Network):
 
     def _channel(self):
         """The bus's channel name for captured frames (some interfaces keep other objects in
-        ``bus.channel``: python-can's ``virtual`` keeps its receiver list there)."""
-        channel = getattr(self.bus, "channel", None)
-        return channel if isinstance(channel, (str, int)) else None
+        ``bus.channel``: python-can's ``virtual`` keeps its receiver list there); looked up
+        once per bus."""
+        bus = self.bus
+        cached = self.__dict__.get("_channel_of")
+        if cached is not None and cached[0] is bus:
+            return cached[1]
+        channel = getattr(bus, "channel", None)
+        channel = channel if isinstance(channel, (str, int)) else None
+        self._channel_of = (bus, channel)
+        return channel
 
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         msg = can.Message(is_extended_id=can_id > 0x7FF, arbitration_id=can_id, data=data,

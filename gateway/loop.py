@@ -254,6 +254,8 @@ class ControlLoop:
             pump(remaining)
 
     def _drain(self) -> None:
+        if self._arrivals.empty():
+            return
         while True:
             try:
                 self._arrivals.get_nowait()
@@ -353,7 +355,11 @@ class ControlLoop:
         excluded: list[int] = []
         #: the channels still watched and awaited: all until a trip excludes one
         watched = [True] * n
-        expected = 2 * n
+        watched_idx = list(range(n))
+        full = expected = 2 * n
+        fresh_row = [False] * n           # stale flags of a cycle that got every answer
+        drive_list = [(i, drivers[i]) for i in driven]
+        one_driver = drive_list[0] if len(drive_list) == 1 else None
         final_action = "hold"
         all_channels = range(n)
         self._drain()
@@ -425,8 +431,8 @@ class ControlLoop:
                         if not got_valve[i]:
                             got_valve[i] = True
                             missing -= watched[i]
-                stale = [not g for g in got_force]
-                if missing or expected < 2 * n:
+                if missing or expected < full:
+                    stale = [not g for g in got_force]
                     any_stale = False
                     for i in all_channels:
                         if stale[i]:
@@ -434,12 +440,12 @@ class ControlLoop:
                             stale_by_channel[i] += 1
                     if any_stale:
                         stats.stale_cycles += 1
+                else:
+                    stale = fresh_row
                 rs = [math.nan] * n
                 new = late_trip or wait_trip
                 if new is None:
-                    for i in all_channels:
-                        if not watched[i]:
-                            continue
+                    for i in watched_idx:
                         new = sups[i].check(ys[i], stale[i], statuses[i], sync_wall,
                                             force=unloader is None)
                         if new is not None:
@@ -473,14 +479,16 @@ class ControlLoop:
                 elif trip is None and new is None:
                     # -- the experiment drives its channels, the others hold a zero command
                     if cycle == 0:
-                        for i in driven:
-                            drivers[i].begin(ys[i])
-                    if all(drivers[i].finished(t, ys[i]) for i in driven):
+                        for i, exp in drive_list:
+                            exp.begin(ys[i])
+                    if one_driver is not None:
+                        if one_driver[1].finished(t, ys[one_driver[0]]):
+                            break
+                    elif all(exp.finished(t, ys[i]) for i, exp in drive_list):
                         break
                     us_req = [0.0] * n
-                    for i in driven:
-                        exp = drivers[i]
-                        if len(driven) > 1 and exp.finished(t, ys[i]):
+                    for i, exp in drive_list:
+                        if one_driver is None and exp.finished(t, ys[i]):
                             continue
                         us_req[i], rs[i] = exp.step(t, ys[i])
                         if exp.abort is not None:
@@ -508,6 +516,7 @@ class ControlLoop:
                     active = [i not in excluded for i in all_channels]
                     if action == "unload":       # the excluded: no longer watched nor awaited
                         watched = active
+                        watched_idx = [i for i in all_channels if active[i]]
                         expected = 2 * sum(active)
                     if action == "unload" and any(active) and \
                             not any(stale[i] for i in all_channels if active[i]):
