@@ -16,7 +16,7 @@ from analysis import load_all
 from gateway import Gateway, GatewayConfig, load_run
 from gateway.errors import DataError, StandError
 from gateway.experiments import Meander
-from tests.support.rig import FOUR, node_ids, rpdo_words, start_channels, syncs, sniff, write_rig
+from tests.support.rig_channels import FOUR, node_ids, rpdo_words, start_channels, syncs, sniff, write_rig
 
 pytestmark = pytest.mark.e2e
 
@@ -101,7 +101,7 @@ def test_a_meander_on_one_channel_records_every_channel_and_a_capture_per_bus(tm
 
 
 def test_a_rig_over_its_bus_budget_is_refused_before_any_nmt_start(tmp_path):
-    from tests.support.rig import Channel
+    from tests.support.rig_channels import Channel
     six = [Channel(f"ch{i}", "can0", 2 * i + 1, 2 * i + 2) for i in range(6)]
     rig = write_rig(tmp_path / "rig.toml", six, buses=("can0",))
     listener = sniff(rig.buses[0].spec)

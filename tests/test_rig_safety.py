@@ -15,7 +15,7 @@ import pytest
 from dbc import profile as P
 from gateway import Gateway, GatewayConfig, SafetyLimits, load_run
 from tests.support.faults import Const
-from tests.support.rig import FOUR, ratio_deviation, rpdo_words, start_channels, write_rig
+from tests.support.rig_channels import FOUR, ratio_deviation, rpdo_words, start_channels, write_rig
 
 pytestmark = pytest.mark.e2e
 
