@@ -193,3 +193,25 @@ class TappedNetwork(canopen.Network):
                 msg.timestamp = time.time()
                 capture.on_sent(msg)
             self.bus.send(msg)
+
+
+def send_together(networks: "list[TappedNetwork]", can_id: int, data: bytes) -> None:
+    """The same frame on every network, as close together as this host allows: every message
+    is built first, then each is stamped, captured and handed to its bus in turn (a rig's SYNCs:
+    between two sends only the capture's queue put and the lock). A bus that fails does not keep
+    the frame from the others; the first failure is raised after all were tried."""
+    msgs = [can.Message(is_extended_id=can_id > 0x7FF, arbitration_id=can_id, data=data,
+                        is_rx=False, channel=net._channel()) for net in networks]
+    failure = None
+    for net, msg in zip(networks, msgs):
+        try:
+            with net.send_lock:
+                capture = net.capture
+                if capture is not None:
+                    msg.timestamp = time.time()
+                    capture.on_sent(msg)
+                net.bus.send(msg)
+        except can.CanError as exc:
+            failure = failure or exc
+    if failure is not None:
+        raise failure

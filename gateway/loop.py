@@ -51,7 +51,7 @@ from dbc import profile as P
 from standbus import LOCKSTEP_BUSY_POLL_S
 from standbus.handover import handover_many
 
-from .capture import TappedNetwork
+from .capture import TappedNetwork, send_together
 from .experiments import Experiment
 from .master import StandMaster
 from .recorder import RunRecorder
@@ -338,6 +338,7 @@ class ControlLoop:
         force_pos, status_pos, spool_pos = self._force_pos, self._status_pos, self._spool_pos
         masters = [c.master for c in chans]
         networks = self.networks
+        one_bus = len(networks) == 1
         next_arrival = self._next_arrival
         overrun_limit = sups[0].limits.overrun_limit_s
         percent_to_counts, counts_to_percent = P.percent_to_counts, P.counts_to_percent
@@ -393,9 +394,10 @@ class ControlLoop:
                 self._drain()
                 counter = counter % P.SYNC_COUNTER_OVERFLOW + 1
                 sync_wall = time.time()
-                sync = bytes((counter,))
-                for net in networks:          # every bus's SYNC, back to back
-                    net.send_message(SYNC_COB_ID, sync)
+                if one_bus:
+                    networks[0].send_message(SYNC_COB_ID, bytes((counter,)))
+                else:                         # every bus's SYNC, back to back
+                    send_together(networks, SYNC_COB_ID, bytes((counter,)))
                 got_force = [False] * n
                 got_valve = [False] * n
                 missing = expected

@@ -259,24 +259,9 @@ class Gateway:
     def drivers(self, experiment: Experiment, channels: Sequence[str] | None) -> dict[int, Experiment]:
         """Which channels run ``experiment`` (each its own copy); the others hold a zero
         command. One channel: channel 0, ``channels`` must be None."""
-        rig = self.rig
-        if rig is None:
-            if channels:
-                raise ParameterError("--channel names a channel of a rig: give --rig RIG.toml too "
-                                     "(a one-channel stand has no channels to choose)")
-            return {0: experiment}
-        if not channels:
-            raise ParameterError(f"{rig.where}: choose the channel(s) the experiment drives with "
-                                 f"--channel NAME (repeat it for several); the others hold a zero "
-                                 f"command. The rig's channels: {', '.join(rig.names)}")
-        out: dict[int, Experiment] = {}
-        for name in channels:
-            rig.channel(name)          # a clear error for an unknown name
-            i = rig.names.index(name)
-            if i in out:
-                raise ParameterError(f"--channel {name} given twice")
-            out[i] = experiment if not out else copy.deepcopy(experiment)
-        return out
+        indices = driven_channels(self.rig, channels)
+        return {i: experiment if k == 0 else copy.deepcopy(experiment)
+                for k, i in enumerate(indices)}
 
     def run(self, experiment: Experiment, out: str | Path, progress: bool | None = None,
             on_progress: Callable[[float], None] | None = None,
@@ -398,6 +383,29 @@ class Gateway:
                 stats_dict["stale_cycles_by_channel"] = outcome.rig["stale_cycles"]
         recorder.close(status=status, end_reason=reason, end_message=message,
                        stats=stats_dict, capture_frames=frames, emcy=emcy, events=events, **extra)
+
+
+def driven_channels(rig, channels: Sequence[str] | None) -> list[int]:
+    """The indices of the channels an experiment drives on ``rig`` (None: the one-channel
+    stand, channel 0); a clear :class:`ParameterError` for a missing, unknown or repeated name,
+    so a command line can check it before anything is connected."""
+    if rig is None:
+        if channels:
+            raise ParameterError("--channel names a channel of a rig: give --rig RIG.toml too "
+                                 "(a one-channel stand has no channels to choose)")
+        return [0]
+    if not channels:
+        raise ParameterError(f"{rig.where}: choose the channel(s) the experiment drives with "
+                             f"--channel NAME (repeat it for several); the others hold a zero "
+                             f"command. The rig's channels: {', '.join(rig.names)}")
+    out: list[int] = []
+    for name in channels:
+        rig.channel(name)          # a clear error for an unknown name
+        i = rig.names.index(name)
+        if i in out:
+            raise ParameterError(f"--channel {name} given twice")
+        out.append(i)
+    return out
 
 
 def _stats_dict(stats) -> dict[str, Any]:

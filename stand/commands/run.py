@@ -81,6 +81,8 @@ def main(args: argparse.Namespace) -> int:
     params = {k[2:]: v for k, v in vars(args).items() if k.startswith("x_")}
     experiment = make_experiment(args.experiment, params)
     config = gateway_config(args)
+    from gateway.session import driven_channels
+    driven_channels(config.rig, args.channel)     # before anything is connected
     # SIGTERM (kill, systemd, a test harness) ends the run like Ctrl-C: valve to hold with zero
     # command, run closed with end_reason "interrupted" -- never a half-written run.
     previous = signal.signal(signal.SIGTERM, _terminate)
