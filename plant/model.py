@@ -234,14 +234,11 @@ class PlantModel:
 
     def integrate(self, drv: Drive, y0: np.ndarray, dt: float) -> np.ndarray:
         """Force trajectory (n, K+1) from ``y0`` (n,) under the block's drive."""
-        force = self._force
         y0 = np.asarray(y0, float)
         n, K = drv.q.shape
-        needs_y = any(e.depends_on_force for e in self._flow) or any(
-            e.decay_rate() is None for e in force)
-        if not needs_y:   # the force terms are -λ·y: integrated exactly below
+        lam = self.force_decay()
+        if lam is not None:   # the force terms are -λ·y: integrated exactly below
             rate = self._rate(drv.q, drv.aux, drv.dist, None, force_terms=False)
-            lam = sum(e.decay_rate() for e in force)
             out = np.empty((n, K + 1))
             out[:, 0] = y0
             if lam == 0.0:
@@ -252,6 +249,17 @@ class PlantModel:
                 out[:, 1:], _ = lfilter([dt], [1.0, -a], rate, axis=1, zi=(a * y0)[:, None])
             return out
         return self._integrate_in_blocks(drv, y0, dt)
+
+    def force_decay(self) -> float | None:
+        """``λ`` (1/s) when the force rate is linear in the force, ``r(t) − λ·y``: no FLOW
+        effect reads the force and every FORCE term is a decay (0 without FORCE effects);
+        None when the rate depends on the force otherwise (integrated step by step)."""
+        if any(e.depends_on_force for e in self._flow):
+            return None
+        rates = [e.decay_rate() for e in self._force]
+        if any(r is None for r in rates):
+            return None
+        return sum(rates)
 
     def _integrate_in_blocks(self, drv: Drive, y0: np.ndarray, dt: float) -> np.ndarray:
         r"""The force when its rate depends on it: the explicit recursion
