@@ -7,8 +7,8 @@ Time:
 
 * **lockstep** — the plant advances exactly one communication cycle period (0x1006, written by
   the master, read from the first channel's valve) when the SYNC of that cycle has arrived on
-  *every* bus (the master sends one SYNC per bus per cycle, back to back); then every bus's
-  synchronous TPDOs go out. SYNCs are counted per bus: a bus whose SYNC came early waits for the
+  *every* bus with a channel on it (the master sends one SYNC per bus per cycle, back to
+  back); then every bus's synchronous TPDOs go out. SYNCs are counted per bus: a bus whose SYNC came early waits for the
   others (its surplus counts towards the next cycle), and a master that stops sending SYNC on
   one bus stops the whole rig, as lockstep stops a stand. The command received after cycle k's
   SYNC acts over [t_k, t_k+1]; a channel's command travels on its own bus before that bus's next
@@ -60,6 +60,10 @@ _MAX_DEFERRAL_S = 0.02
 
 @dataclass
 class EmulatorOptions:
+    """How the emulator runs: lockstep or real time, the noise seed, the one-channel stand's
+    node ids, the plant's integration step ``step_s`` (s) and the real-time watchdog's poll
+    ``watchdog_poll_s`` (s)."""
+
     lockstep: bool = False
     seed: int | None = None
     #: the one-channel stand's node ids (a rig's come from its file)
@@ -106,7 +110,9 @@ class EmulatedRig:
             ch.dynamometer.started_listeners.append(functools.partial(self._started, ch))
         for b in self.buses:
             b.network.subscribe(P.SYNC_COB_ID, functools.partial(self._on_sync, b))
-        self._several_buses = len(self.buses) > 1
+        #: lockstep: the buses whose SYNC a cycle waits for (a bus without channels has none)
+        self._gated = [b for b in self.buses if b.channels]
+        self._several_buses = len(self._gated) > 1
         self._period_node = self.channels[0].valve
         self._plant_dt = options.step_s
         y0 = [c.initial_force_kgf for c in channels]
@@ -247,12 +253,14 @@ class EmulatedRig:
     def _complete_cycle(self, on_bus: EmulatedBus) -> Sequence[EmulatedBus]:
         """Lockstep: count this bus's SYNC; the buses to answer when every bus's SYNC of the
         cycle is in (all of them), else none."""
-        on_bus.pending_syncs += 1
-        if self._several_buses and any(b.pending_syncs == 0 for b in self.buses):
+        if not on_bus.channels:
             return ()
-        for b in self.buses:
+        on_bus.pending_syncs += 1
+        if self._several_buses and any(b.pending_syncs == 0 for b in self._gated):
+            return ()
+        for b in self._gated:
             b.pending_syncs -= 1
-        return self.buses
+        return self._gated
 
     def _command_changed(self, channel: EmulatedChannel) -> None:
         """Called by a valve after its effective command may have changed."""

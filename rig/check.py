@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from plant.rig import PhysicalCheck, physical_check
-from standbus.spec import BusSpec
+from standbus.spec import BusSpec, known_interfaces
 
 from .budget import BusBudget, bus_budgets
 from .config import RigConfig
@@ -152,7 +152,6 @@ def check_rig(rig: RigConfig) -> RigCheck:
 
 
 def _bus_problems(rig: RigConfig) -> list[str]:
-    from standbus.spec import known_interfaces
     out = []
     known = set(known_interfaces())
     seen: dict[tuple[str, str | None], str] = {}

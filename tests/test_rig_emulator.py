@@ -18,27 +18,11 @@ from plant_emulator.lockstep_plant import LockstepRig
 from plant_emulator.process import RigEmulatorProcess
 from rig.config import load_rig_file
 from rig.emulated import emulated_plant
-from tests.support.rig import RigMaster, example_rig_text, write_rig
+from tests.support.rig import RigMaster, example_rig_text, with_spare_bus, write_rig
 
 pytestmark = pytest.mark.e2e
 T = 0.002
 ALL = ("root", "inner", "outer", "tip")
-
-
-@pytest.fixture
-def start_rig(tmp_path, channel):
-    """Factory: write a rig file (the example on this test's private buses unless given) and
-    start ``stand emulate --rig`` on it; returns the file's path."""
-    started: list[RigEmulatorProcess] = []
-
-    def start(text: str | None = None, lockstep: bool = True, quiet: bool = False):
-        path = write_rig(tmp_path / "rig.toml", text or example_rig_text(channel, quiet))
-        started.append(RigEmulatorProcess(path, lockstep=lockstep, seed=3).start())
-        return path
-
-    yield start
-    for proc in started:
-        proc.stop()
 
 
 def identity_of(eds) -> tuple[int, int]:
@@ -46,14 +30,14 @@ def identity_of(eds) -> tuple[int, int]:
     return info.vendor_number, info.product_number
 
 
-def test_every_node_of_every_channel_boots_and_identifies_over_sdo_on_its_own_bus(start_rig, channel):
+def test_every_node_of_every_channel_boots_and_identifies_over_sdo_on_its_own_bus(start_rig_emulator, channel):
     # the second bus's channels on node ids 11-14: a node answering on the wrong bus would show
     text = example_rig_text(channel)
     for name, (v, d) in {"outer": (11, 12), "tip": (13, 14)}.items():
         text, n = re.subn(rf'(name = "{name}"\nbus = "can1"\n)valve_id = \d+\ndynamometer_id = \d+',
                           rf"\1valve_id = {v}\ndynamometer_id = {d}", text)
         assert n == 1
-    path = start_rig(text)
+    path = start_rig_emulator(text)
     with RigMaster(path) as master:
         assert master.reset_and_collect_boot_ups() == {"can0": {1, 2, 3, 4}, "can1": {11, 12, 13, 14}}
         for c in master.rig.channels:
@@ -77,13 +61,14 @@ def offline_forces(path, commands: list[dict[str, float]]) -> np.ndarray:
     return np.array(out)
 
 
-def test_in_lockstep_the_plant_advances_once_every_buses_sync_of_the_cycle_came(start_rig):
+def test_in_lockstep_the_plant_advances_once_every_buses_sync_of_the_cycle_came(start_rig_emulator, channel):
     """Cycles 1-60 back to back; then a cycle whose SYNC comes on can0 only (no answer on
     either bus, and none while it waits), completed by can1's; one the other way round; and
     three SYNCs on can0 before three on can1 (three cycles, one at each of can1's). Every
     answer is the offline plant's force after exactly one more period, on all four channels
-    (the dynamometers without noise: readings to 0.1 N)."""
-    path = start_rig(quiet=True)
+    (the dynamometers without noise: readings to 0.1 N). A third bus without channels gets no
+    SYNC at all: a cycle does not wait for it."""
+    path = start_rig_emulator(with_spare_bus(example_rig_text(channel, quiet=True), channel))
     drive = {"root": 10.0, "inner": 0.0, "outer": -4.0, "tip": 0.0}
     commands = []
     with RigMaster(path) as master:
@@ -114,12 +99,12 @@ def test_in_lockstep_the_plant_advances_once_every_buses_sync_of_the_cycle_came(
     assert readings[-1, 0] > 50 and readings[-1, 2] < -10     # root pushed, outer pulled
 
 
-def test_driving_one_channel_moves_its_neighbours_at_the_rate_G_says_and_two_away_not(start_rig):
+def test_driving_one_channel_moves_its_neighbours_at_the_rate_G_says_and_two_away_not(start_rig_emulator):
     """The example rig as it is (noise 1.5-2 kgf): inner's valve at +10 %, the others at zero
     command. Over 0.6 s from 0.2 s on, each force's rate is G[:, inner]·u + Δ within five
     standard errors of its slope: root (same bus) and outer (the other bus) at 30 % of inner's
     rate, tip (two away) only its own trend, zero."""
-    path = start_rig()
+    path = start_rig_emulator()
     drive = {"root": 0.0, "inner": 10.0, "outer": 0.0, "tip": 0.0}
     with RigMaster(path) as master:
         master.start()
@@ -139,11 +124,11 @@ def test_driving_one_channel_moves_its_neighbours_at_the_rate_G_says_and_two_awa
     assert rig.G[0, 1] == rig.G[2, 1] == pytest.approx(0.3 * rig.G[1, 1]) and want[3] == 0.0
 
 
-def test_a_channel_whose_commands_stop_faults_alone_and_the_others_go_on(start_rig):
+def test_a_channel_whose_commands_stop_faults_alone_and_the_others_go_on(start_rig_emulator):
     """Lockstep: tip's commands stop after cycle 20. 100 ms of stand time later (its RPDO
     timeout) tip's valve alone sends EMCY 0x8250 and reports FAULT_HOLD with its spool at
     zero; the three others stay ACTIVE and root's force keeps rising."""
-    path = start_rig()
+    path = start_rig_emulator()
     drive = {"root": 5.0, "inner": 0.0, "outer": 0.0, "tip": 3.0}
     with RigMaster(path) as master:
         master.start()
@@ -166,11 +151,11 @@ def test_a_channel_whose_commands_stop_faults_alone_and_the_others_go_on(start_r
     assert last["root"].force_kgf > rising[0] + 10
 
 
-def test_in_real_time_a_silent_master_leaves_every_valve_of_every_bus_safe(start_rig):
+def test_in_real_time_a_silent_master_leaves_every_valve_of_every_bus_safe(start_rig_emulator):
     """Real time: the master commands every valve, then goes silent. Each valve's own RPDO
     watchdog (100 ms) brings it to FAULT_HOLD with EMCY 0x8250, on both buses; a SYNC on one
     bus is then answered on that bus only, sampled on the wall clock."""
-    path = start_rig(lockstep=False)
+    path = start_rig_emulator(lockstep=False)
     with RigMaster(path) as master:
         master.start()
         master.command({n: 1.0 for n in ALL})

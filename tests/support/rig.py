@@ -38,6 +38,13 @@ def example_rig_text(channel: str, quiet: bool = False) -> str:
     return text
 
 
+def with_spare_bus(text: str, channel: str) -> str:
+    """The rig ``text`` with one more bus, ``spare``, that carries no channel."""
+    head, sep, rest = text.partition("[[channel]]")
+    return (head + f'[[bus]]\nname = "spare"\nspec = "udp_loopback:{channel}-spare"\n\n'
+            + sep + rest)
+
+
 def write_rig(path: Path, text: str) -> Path:
     path.write_text(text)
     return path
@@ -136,7 +143,8 @@ class RigMaster:
 
     # -- the cycle -------------------------------------------------------------------------------
     def sync(self, buses: list[str] | None = None) -> None:
-        for bus in buses or list(self.networks):
+        """A SYNC on each of ``buses`` (default: every bus with a channel), back to back."""
+        for bus in buses or [b.name for b in self.rig.buses if self.rig.channels_on(b.name)]:
             self.send(bus, P.SYNC_COB_ID, b"")
 
     def command(self, commands_pct: dict[str, float], control_word: int = P.CW_ACTIVE) -> None:
