@@ -8,7 +8,8 @@ wrong once it runs:
   would fit, :mod:`rig.budget`); two buses that are one python-can bus (same interface and
   channel); a bus whose interface python-can does not know here; a bus whose spec sets a bit
   rate or CAN FD other than the rig file says (the budget would count the wrong bus); a
-  structure no symmetric positive definite stiffness gives (:func:`plant.rig.physical_check`);
+  structure no symmetric positive definite stiffness gives, or a given K that is not
+  symmetric (:mod:`rig.structure`);
   an emulated plant whose dynamometer range differs from its channel's, or that starts beyond
   its channel's force limit;
 * **notes** (said, not failed): no structure given (the channels are taken as uncoupled), a
@@ -24,12 +25,12 @@ from typing import Any
 
 import numpy as np
 
-from plant.rig import PhysicalCheck, physical_check
 from standbus.spec import BusSpec, known_interfaces
 
 from .budget import BusBudget, bus_budgets
 from .config import RigConfig
 from .emulated import sensor_range_conflict
+from .structure import StructureVerdict, judge_structure
 
 
 @dataclass(frozen=True)
@@ -38,8 +39,8 @@ class RigCheck:
 
     rig: RigConfig
     budgets: list[BusBudget]
-    #: the structure's verdict (None: the rig gives no structure)
-    structure: PhysicalCheck | None
+    #: the structure's verdict (its ``check`` None: the rig gives no structure)
+    structure: StructureVerdict
     problems: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
 
@@ -51,11 +52,13 @@ class RigCheck:
         """The check as ``stand rig check --json`` prints it."""
         rig = self.rig
         structure = None
-        if rig.G is not None and self.structure is not None:
+        check = self.structure.check
+        if rig.G is not None and check is not None:
             structure = {"from": rig.structure_from, "G": rig.G.tolist(),
+                         "K": rig.K.tolist() if rig.K is not None else None,
                          "physical": self.structure.physical, "reason": self.structure.reason,
-                         "asymmetry": self.structure.asymmetry,
-                         "min_eigenvalue_ratio": self.structure.min_eigenvalue_ratio}
+                         "asymmetry": check.asymmetry,
+                         "min_eigenvalue_ratio": check.min_eigenvalue_ratio}
         return {
             "rig": rig.name,
             "path": str(rig.path) if rig.path is not None else None,
@@ -101,7 +104,8 @@ class RigCheck:
                          f"{c.range_kgf:g}", f"{c.limit_kgf:g}", plant))
         out += _table(rows, right={2, 3, 4, 5})
         out.append("")
-        if rig.G is None or self.structure is None:
+        check = self.structure.check
+        if rig.G is None or check is None:
             out.append("structure: none given")
         else:
             source = {"G": "G as given", "K": "K with the flow gains, G = K·diag(c/A)",
@@ -111,7 +115,9 @@ class RigCheck:
             rows = [("",) + tuple(rig.names)]
             rows += [(name,) + tuple(f"{v:g}" for v in row) for name, row in zip(rig.names, rig.G)]
             out += _table(rows, right=set(range(1, len(rig.names) + 1)))
-            out.append(f"  {self.structure.text()}")
+            out.append(f"  {check.text()}")
+            if check.physical and self.structure.reason:
+                out.append(f"  but {self.structure.reason}")
         out.append("")
         if self.problems:
             out.append(f"problems ({len(self.problems)})")
@@ -133,22 +139,21 @@ def check_rig(rig: RigConfig) -> RigCheck:
     problems += [p for p in (b.problem() for b in budgets) if p]
     problems += _bus_problems(rig)
     notes += [f"bus {b.bus.name} carries no channel" for b in budgets if not b.channels]
-    structure = None
+    verdict = judge_structure(rig)
     if rig.G is None:
         notes.append("no structure given ([structure] G, or K with flow_gain_mm_per_pct_s, or a "
                      "plant for every channel): the channels are taken as uncoupled")
     else:
-        structure = physical_check(rig.G)
-        if not structure.physical:
+        if verdict.reason:
             problems.append(f"the structure (from {rig.structure_from}) is not one a structure "
-                            f"can give: {structure.reason}")
+                            f"can give: {verdict.reason}")
         notes += _dominance_notes(rig)
     problems += _plant_problems(rig)
     missing = [c.name for c in rig.channels if c.plant is None]
     if missing and len(missing) < len(rig.channels):
         notes.append(f"channel(s) {', '.join(missing)} have no emulated plant: `stand emulate "
                      "--rig` needs one for every channel")
-    return RigCheck(rig, budgets, structure, problems, notes)
+    return RigCheck(rig, budgets, verdict, problems, notes)
 
 
 def _bus_problems(rig: RigConfig) -> list[str]:

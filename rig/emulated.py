@@ -20,6 +20,7 @@ from plant.params import ModelError
 from plant.rig import PhysicalCheck, RigModel, physical_check
 
 from .config import ChannelConfig, RigConfig, RigError
+from .structure import judge_structure
 
 
 @dataclass(frozen=True)
@@ -69,11 +70,12 @@ def emulated_plant(rig: RigConfig) -> EmulatedRigPlant:
     without a plant, a range given twice differently, a structure no symmetric positive
     definite stiffness gives)."""
     plants = [channel_plant(c) for c in rig.channels]
-    G = rig.G if rig.G is not None else np.diag([p.model.g for p in plants])
-    check = physical_check(G)
-    if not check.physical:
+    verdict = judge_structure(rig)
+    if verdict.reason:
         raise RigError(f"{rig.where}: the structure (from {rig.structure_from}) cannot be "
-                       f"emulated: {check.reason}")
+                       f"emulated: {verdict.reason}")
+    G = rig.G if rig.G is not None else np.diag([p.model.g for p in plants])
+    check = verdict.check or physical_check(G)
     try:
         model = RigModel([p.model for p in plants], G, rig.names)
     except ModelError as exc:

@@ -32,6 +32,7 @@ def test_the_example_rig_passes_with_its_two_buses_and_a_physical_structure():
     assert result.ok, result.problems
     assert [b.channels for b in result.budgets] == [["root", "inner"], ["outer", "tip"]]
     assert result.structure.physical and result.rig.structure_from == "K"
+    assert result.to_dict()["structure"]["K"][0] == [10.0, 3.0, 0.0, 0.0]
     G = result.rig.G
     # neighbours coupled 30 % of the driving channel's own gain, two away not at all
     assert np.allclose(G[[0, 1, 2], [1, 2, 3]], 0.3 * np.diag(G)[[1, 2, 3]])
@@ -76,6 +77,20 @@ def test_a_structure_no_stiffness_can_give_fails_the_check_with_the_reason(tmp_p
     res = stand("rig", "check", str(path))
     assert res.returncode == 1
     assert "is not one a structure can give" in res.stdout and "opposite signs" in res.stdout
+
+
+def test_a_given_stiffness_that_is_not_symmetric_is_a_problem_though_some_stiffness_gives_its_G(tmp_path):
+    """A chain of channels: other flow gains could make any G of the chain symmetric, so G
+    alone passes; but the file states K, and a stiffness is symmetric."""
+    bad = EXAMPLE_RIG.read_text().replace("[ 0.0,  0.0,  3.0, 10.0]", "[ 0.0,  0.0, 30.0, 10.0]")
+    path = tmp_path / "asym.toml"
+    path.write_text(bad)
+    result = check_rig(load_rig_file(path))
+    assert result.structure.check.physical and not result.ok
+    assert result.problems == ["the structure (from K) is not one a structure can give: K is not "
+                               "symmetric: K[3,4] = 3 but K[4,3] = 30 (outer, tip): a stiffness is"]
+    assert "  but K is not symmetric" in result.text()
+    assert result.to_dict()["structure"]["physical"] is False
 
 
 def test_a_stiffness_that_is_not_positive_definite_is_a_problem():
