@@ -238,12 +238,11 @@ class PlantModel:
         trajectory of the same shape near the answer (the last one of a fit, whose next
         simulation moves one parameter a little), where the force-dependent integration starts
         (:meth:`_integrate_in_blocks`); the answer does not depend on it."""
-        force = self._force
         y0 = np.asarray(y0, float)
         n, K = drv.q.shape
-        if not self.depends_on_force:   # the force terms are -λ·y: integrated exactly below
+        lam = self.force_decay()
+        if lam is not None:   # the force terms are -λ·y: integrated exactly below
             rate = self._rate(drv.q, drv.aux, drv.dist, None, force_terms=False)
-            lam = sum(e.decay_rate() for e in force)
             out = np.empty((n, K + 1))
             out[:, 0] = y0
             if lam == 0.0:
@@ -254,6 +253,17 @@ class PlantModel:
                 out[:, 1:], _ = lfilter([dt], [1.0, -a], rate, axis=1, zi=(a * y0)[:, None])
             return out
         return self._integrate_in_blocks(drv, y0, dt, guess)
+
+    def force_decay(self) -> float | None:
+        """``λ`` (1/s) when the force rate is linear in the force, ``r(t) − λ·y``: no FLOW
+        effect reads the force and every FORCE term is a decay (0 without FORCE effects);
+        None when the rate depends on the force otherwise (:attr:`depends_on_force`)."""
+        if any(e.depends_on_force for e in self._flow):
+            return None
+        rates = [e.decay_rate() for e in self._force]
+        if any(r is None for r in rates):
+            return None
+        return sum(rates)
 
     def _integrate_in_blocks(self, drv: Drive, y0: np.ndarray, dt: float,
                              guess: np.ndarray | None = None) -> np.ndarray:
@@ -415,8 +425,7 @@ class PlantModel:
         """True if the force rate depends on the force (a FLOW law of the force, or a FORCE term
         that is not a plain decay): the integration then solves for it
         (:meth:`_integrate_in_blocks`)."""
-        return any(e.depends_on_force for e in self._flow) or any(
-            e.decay_rate() is None for e in self._force)
+        return self.force_decay() is None
 
     @property
     def has_sensor_effects(self) -> bool:
