@@ -61,6 +61,7 @@ from loading.compensation import Compensation
 from loading.controller import PIFeedforward
 from loading.design import ControllerDesign
 from loading.feedforward import Feedforward, feedback_scale, feedforward
+from loading.minimum_time import FEEDFORWARD_SHARE
 from loading.programme import Programme, check_programme
 from loading.report import TrackingReport, load_summary, plot_tracking, tracking_report
 
@@ -69,8 +70,6 @@ from .runs import load_run
 
 #: the supervisor's tracking-error limit when none is set: this share of the programme's range
 ERROR_LIMIT_SHARE = 0.10
-#: the feedforward may use at most this share of the command limit (the rest is the feedback's)
-FEEDFORWARD_SHARE = 0.9
 #: the pre-roll into the programme's first level: this share of its range (at least three
 #: times the approach's tolerance), in this time (s)
 PRE_ROLL_SHARE = 0.02

@@ -7,6 +7,8 @@ import json
 import signal
 import sys
 
+from core.errors import ParameterError
+
 from .common import add_effects, add_gateway, gateway_config
 
 
@@ -23,7 +25,12 @@ def register(sub) -> None:
     p.add_argument("program", metavar="PROGRAM", help="the loading programme")
     p.add_argument("--controller", required=True, metavar="CONTROLLER.toml",
                    help="a controller file written by stand design")
-    p.add_argument("--out", required=True, metavar="DIR", help="directory for the passes and the report")
+    p.add_argument("--out", metavar="DIR", help="directory for the passes and the report (required "
+                                                 "unless --plan)")
+    p.add_argument("--plan", action="store_true",
+                   help="print the programme's time beside its valve-limited minimum (every "
+                        "segment at the largest rate the controller's model says the valve can "
+                        "deliver) and exit; the stand is not touched")
     p.add_argument("--repeat", type=int, default=1, metavar="N",
                    help="run the programme N times in a row, learning the peak/valley corrections "
                         "between passes (default %(default)s)")
@@ -49,6 +56,23 @@ def _terminate(signum, frame) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
+def _plan(args, programme, controller, config) -> int:
+    """``--plan``: the programme's time beside its valve-limited minimum."""
+    from loading.minimum_time import programme_timing
+    limit = min(controller.command_limit_pct, config.limits.command_limit_pct)
+    timing = programme_timing(programme, controller.model, limit)
+    if args.json:
+        json.dump({"programme": programme.source, "turning_points": int(len(programme.turning_idx)),
+                   "range_kgf": programme.range_kgf, "command_limit_pct": limit, **timing.to_dict()},
+                  sys.stdout, indent=2)
+        sys.stdout.write("\n")
+        return 0
+    print(f"{programme.source}: {len(programme.turning_idx)} turning points, range "
+          f"{programme.range_kgf:.0f} kgf, command limit ±{limit:g} %")
+    print(timing.text("at the requested rate"))
+    return 0
+
+
 def main(args: argparse.Namespace) -> int:
     from gateway import Gateway
     from gateway.load import LoadProgramme, run_load
@@ -58,6 +82,11 @@ def main(args: argparse.Namespace) -> int:
     config = gateway_config(args)
     controller = load_controller(args.controller, config.period_s)
     programme = load_programme(args.program, config.period_s, args.rate, args.frequency)
+    if args.plan:
+        return _plan(args, programme, controller, config)
+    if not args.out:
+        raise ParameterError("give --out DIR for the passes and the report (or --plan to see the "
+                             "programme's time and its valve-limited minimum without loading)")
     comp = Compensation.load(args.compensation) if args.compensation else None
     # everything that can be refused is refused before the stand is touched
     LoadProgramme(programme, controller, comp, args.unload_to).check(
