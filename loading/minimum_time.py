@@ -27,7 +27,7 @@ model says the valve can deliver, in the programme's own shape. A ramp at ``R`` 
 
 What this does not count: the valve's dynamics (a lag, a slew limit, a resonance) and a sag
 that has not settled; where they matter, the feedforward's check
-(:func:`loading.time_scaling.fit_to_valve`) lengthens the segments the valve cannot follow.
+(:func:`loading.time_scaling.stretch_to_valve`) lengthens the segments the valve cannot follow.
 """
 from __future__ import annotations
 

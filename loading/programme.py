@@ -414,6 +414,16 @@ def load_programme(spec: str, period_s: float, rate_kgf_s: float | None = None,
                     "point sequence) nor 't,r' (a time history in s, kgf)")
 
 
+def is_sequence(spec: str) -> bool:
+    """True if ``spec`` names a turning-point sequence (a CSV of levels), whose segments take
+    their time from a rate or a frequency (the other forms carry their own)."""
+    path = Path(spec)
+    if _SINE.match(spec.strip()) or not path.is_file() or path.suffix.lower() == ".toml":
+        return False
+    header, rows = _read_rows(path)
+    return header == ["level"] or (header is None and bool(rows) and len(rows[0][1]) == 1)
+
+
 def _keyvalues(text: str, spec: str) -> dict[str, float]:
     out = {}
     for part in filter(None, (p.strip() for p in text.split(","))):

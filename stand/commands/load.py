@@ -11,6 +11,9 @@ from core.errors import ParameterError
 
 from .common import add_effects, add_gateway, gateway_config
 
+#: loading.pacing.PACING_MODES, written out: `stand --help` imports no numerics
+PACING_MODES = ("off", "static", "dynamic")
+
 
 def register(sub) -> None:
     p = sub.add_parser("load", help="run a loading programme with the designed controller",
@@ -31,9 +34,9 @@ def register(sub) -> None:
                    help="print the programme's time beside its valve-limited minimum (every "
                         "segment at the largest rate the controller's model says the valve can "
                         "deliver) and exit; the stand is not touched")
-    p.add_argument("--repeat", type=int, default=1, metavar="N",
+    p.add_argument("--repeat", type=int, default=None, metavar="N",
                    help="run the programme N times in a row, learning the peak/valley corrections "
-                        "between passes (default %(default)s)")
+                        "between passes (default 1)")
     p.add_argument("--rate", type=float, metavar="KGF_PER_S",
                    help="turning-point sequence: peak rate of the haversines between points, kgf/s")
     p.add_argument("--frequency", type=float, metavar="HZ",
@@ -42,6 +45,18 @@ def register(sub) -> None:
                    help="start from peak/valley corrections learned before (compensation.toml of "
                         "an earlier stand load)")
     p.add_argument("--no-learn", action="store_true", help="keep the corrections as they are")
+    g = p.add_argument_group("null pacing (docs/loading.md)")
+    g.add_argument("--pacing", choices=PACING_MODES, default="off",
+                   help="null pacing: static waits at a turning point the force has not reached; "
+                        "dynamic also slows the programme while the force lags (default %(default)s)")
+    g.add_argument("--pacing-tolerance", type=float, metavar="KGF",
+                   help="how far the force may be from the reference or a turning point before the "
+                        "programme paces (default 0.5 %% of the programme's range)")
+    g.add_argument("--pacing-min-speed", type=float, default=0.2, metavar="SHARE",
+                   help="dynamic pacing: the slowest share of the programme's speed (default %(default)s)")
+    g.add_argument("--pacing-timeout", type=float, default=10.0, metavar="S",
+                   help="stop the pass when the programme waits longer than S at one turning point "
+                        "(default %(default)s)")
     p.add_argument("--unload-to", type=float, default=0.0, metavar="KGF",
                    help="force to unload to at the end, kgf (default %(default)s)")
     p.add_argument("--json", action="store_true",
@@ -75,9 +90,10 @@ def _plan(args, programme, controller, config) -> int:
 
 def main(args: argparse.Namespace) -> int:
     from gateway import Gateway
-    from gateway.load import LoadProgramme, run_load
+    from gateway.load import LoadProgramme, run_load, timing_text
     from loading.compensation import Compensation
     from loading.design import load_controller
+    from loading.pacing import PacingOptions
     from loading.programme import load_programme
     config = gateway_config(args)
     controller = load_controller(args.controller, config.period_s)
@@ -87,26 +103,29 @@ def main(args: argparse.Namespace) -> int:
     if not args.out:
         raise ParameterError("give --out DIR for the passes and the report (or --plan to see the "
                              "programme's time and its valve-limited minimum without loading)")
+    repeat = args.repeat if args.repeat is not None else 1
+    pacing = PacingOptions(args.pacing, args.pacing_tolerance, args.pacing_min_speed, args.pacing_timeout)
+    pacing.check()
     comp = Compensation.load(args.compensation) if args.compensation else None
     # everything that can be refused is refused before the stand is touched
-    LoadProgramme(programme, controller, comp, args.unload_to).check(
+    LoadProgramme(programme, controller, comp, args.unload_to, pacing=pacing).check(
         config.period_s, config.limits.force_limit_kgf, config.limits.command_limit_pct)
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         with Gateway(config) as gw:
-            result = run_load(gw, programme, controller, args.out, args.repeat, comp,
+            result = run_load(gw, programme, controller, args.out, repeat, comp,
                               learn=not args.no_learn, unload_kgf=args.unload_to,
-                              progress=False if args.no_progress else None)
+                              progress=False if args.no_progress else None, pacing=pacing)
     finally:
         signal.signal(signal.SIGTERM, previous)
     if args.json:
         json.dump(result.summary(), sys.stdout, indent=2)
         sys.stdout.write("\n")
     else:
-        for i, p in enumerate(result.passes, start=1):
+        for i, (p, timing) in enumerate(zip(result.passes, result.timings), start=1):
             print(f"pass {i}: peak/valley error p95 {p.peak_valley_error_pct['p95']:.2f} %, max "
                   f"{p.peak_valley_error_pct['max']:.2f} %, RMS {p.rms_error_pct:.2f} %, extra cycles "
-                  f"{p.extra_cycles:g}")
+                  f"{p.extra_cycles:g}; {timing_text(timing)}")
         if result.passes:
             print(result.passes[-1].text())
         print(f"-> {result.out} (report.txt, report.json, tracking.png, pass-N/)")
