@@ -9,7 +9,10 @@ force and the peak/valley compensation learns from it before the next. ``out`` a
 controller used, the learned corrections (``compensation.toml``), the report (``report.json``,
 ``report.txt``) and a figure of the last pass (``tracking.png``).
 
-Every pass reports the programme's time (without the approach, the
+**Time scaling** (``scaling``, :mod:`loading.time_scaling`): the segment durations change
+from pass to pass, each on its own, until every turning point holds the accuracy as fast as it
+can; ``out/schedule.toml`` keeps the fastest schedule whose pass met the accuracy. A
+``schedule`` replays one. Every pass reports the programme's time (without the approach, the
 pre-roll and the unload), the valve-limited minimum (:mod:`loading.minimum_time`) and the time
 spent pacing (:mod:`loading.pacing`).
 
@@ -30,6 +33,8 @@ from loading.minimum_time import minimum_durations_s, programme_valve_limit
 from loading.pacing import PacingOptions
 from loading.programme import Programme
 from loading.report import TrackingReport, load_summary, plot_tracking, tracking_report
+from loading.time_scaling import (ScalingOptions, Schedule, TimeScaler, meets, ringing_turning_points,
+                                  stretch_to_valve)
 
 from .load_experiment import (FEEDFORWARD_SHARE, PRE_ROLL_S, PRE_ROLL_SHARE,  # noqa: F401 (re-exported)
                               LoadProgramme, OneWayApproach, _pre_roll, _unload_tail)
@@ -37,6 +42,8 @@ from .runs import load_run
 
 #: the supervisor's tracking-error limit when none is set: this share of the programme's range
 ERROR_LIMIT_SHARE = 0.10
+#: time scaling: at most this many stretches of the segments the valve cannot follow, per pass
+STRETCH_TRIES = 6
 
 
 @dataclass
@@ -47,6 +54,7 @@ class PassTiming:
     minimum_time_s: float             #: the valve-limited minimum of the same programme
     pacing_s: float = 0.0             #: time on the stand beyond the programme's, pacing
     pacing: dict | None = None        #: the pacing record (waits, slowed time), None: pacing off
+    scaling: dict | None = None       #: time scaling: segments landed / held / missed
 
     def figures(self) -> dict:
         d = {"programme_time_s": self.programme_time_s, "minimum_time_s": self.minimum_time_s,
@@ -54,6 +62,8 @@ class PassTiming:
              "pacing_s": self.pacing_s}
         if self.pacing is not None:
             d["pacing"] = self.pacing
+        if self.scaling is not None:
+            d["scaling"] = self.scaling
         return d
 
 
@@ -66,6 +76,10 @@ class LoadResult:
     end_message: str | None = None
     compensation: Compensation | None = None
     timings: list[PassTiming] = field(default_factory=list)
+    #: time scaling: the fastest schedule whose pass met the accuracy (None: none did)
+    schedule: Schedule | None = None
+    #: time scaling: did the last pass run every segment settled and meet the accuracy
+    converged: bool | None = None
 
     def summary(self) -> dict:
         d = load_summary(self.passes, self.end_reason or "complete",
@@ -73,6 +87,11 @@ class LoadResult:
         d["runs"] = [str(p) for p in self.run_dirs]
         if self.end_message:
             d["end_message"] = self.end_message
+        if self.converged is not None:
+            d["schedule"] = ({"time_s": self.schedule.time_s, "minimum_time_s": self.schedule.minimum_time_s,
+                              "accuracy_pct": self.schedule.accuracy_pct, "verified": self.schedule.verified}
+                             if self.schedule is not None else None)
+            d["converged"] = self.converged
         return d
 
 
@@ -117,14 +136,22 @@ class _Pass:
 def run_load(gw, programme: Programme, controller: ControllerDesign, out: str | Path,
              repeat: int = 1, compensation: Compensation | None = None, learn: bool = True,
              unload_kgf: float = 0.0, progress: bool | None = None,
-             error_limit_kgf: float | None = None, pacing: PacingOptions | None = None) -> LoadResult:
+             error_limit_kgf: float | None = None, pacing: PacingOptions | None = None,
+             scaling: ScalingOptions | None = None, schedule: Schedule | None = None) -> LoadResult:
     """Run ``repeat`` passes of ``programme`` on the gateway ``gw`` (module docstring).
     ``error_limit_kgf``: the tracking-error limit for these passes (default: the supervisor's,
     else :data:`ERROR_LIMIT_SHARE` of the programme's range). ``pacing``: null pacing
-    (:mod:`loading.pacing`)."""
+    (:mod:`loading.pacing`). ``schedule``: the segment durations to run (a ``schedule.toml``).
+    ``scaling``: time scaling, at most ``repeat`` passes (:mod:`loading.time_scaling`)."""
     if not (1 <= repeat <= 1000):
         raise ParameterError(f"repeat = {repeat}: it must be from 1 to 1000")
+    if scaling is not None:
+        scaling.check()
+        if schedule is None and programme.turning_idx.size < 2:
+            raise ParameterError("time scaling needs a programme with turning points")
     out = Path(out)
+    if schedule is not None:
+        programme = schedule.apply(programme)
     comp = compensation if compensation is not None else (Compensation() if learn and repeat > 1 else None)
     shared = _Pass(gw, controller, comp, unload_kgf, pacing)
     first = shared.experiment(programme)
@@ -137,6 +164,8 @@ def run_load(gw, programme: Programme, controller: ControllerDesign, out: str | 
     if error_limit_kgf is not None:             # this programme's, for these passes only
         supervisor.limits = replace(own_limits, error_limit_kgf=error_limit_kgf)
     try:
+        if scaling is not None:
+            return _scaled_passes(shared, programme, minimum, out, repeat, learn, progress, scaling)
         return _passes(shared, programme, minimum, out, repeat, first, learn, progress)
     finally:
         supervisor.limits = own_limits
@@ -186,6 +215,71 @@ def _passes(shared: _Pass, programme, minimum, out, repeat, first, learn, progre
     return result
 
 
+def _scaled_passes(shared: _Pass, programme, minimum, out, repeat, learn, progress,
+                   options: ScalingOptions) -> LoadResult:
+    """Time scaling, pass by pass (loading.time_scaling)."""
+    out.mkdir(parents=True, exist_ok=True)
+    controller = shared.controller
+    (out / "controller.toml").write_text(controller.to_toml(out / "controller.toml"))
+    result = LoadResult(out, compensation=shared.compensation, converged=False)
+    scaler = TimeScaler(programme, minimum, programme.segment_durations_s, options)
+    share_limit = FEEDFORWARD_SHARE * shared.command_limit_pct
+    base = programme
+    last = None
+    for i in range(1, repeat + 1):
+        for _ in range(STRETCH_TRIES):           # lengthen what the valve cannot follow
+            current = base.with_durations(scaler.durations, f"{base.source}, scaled pass {i}")
+            experiment = shared.experiment(current, check=False)
+            stretched = stretch_to_valve(scaler.durations, _segment_peaks(experiment), share_limit)
+            if stretched is None:
+                break
+            scaler.durations = np.maximum(stretched, scaler.floor)
+        settled = scaler.all_settled
+        limits = shared.gw.config.limits
+        experiment.check(shared.gw.config.period_s, limits.force_limit_kgf, limits.command_limit_pct)
+        done = _run_pass(shared, experiment, current, minimum, out / f"pass-{i}", result, learn, progress)
+        if done is None:
+            break
+        report, last, paced = done
+        last = (current, last)
+        ok = meets(report, options.accuracy_pct)
+        verdicts = scaler.verdicts(current, report, ringing_turning_points(current, *last[1]), paced)
+        result.timings[-1].scaling = {**scaler.last, "met_accuracy": ok, "all_settled_before": settled}
+        if ok and (result.schedule is None or current.duration_s < result.schedule.time_s):
+            result.schedule = Schedule(base.levels_kgf, current.segment_durations_s, base.period_s,
+                                       options.accuracy_pct, float(np.sum(minimum)), base.source,
+                                       verified=True, notes=[f"pass {i} of {out}"])
+            result.schedule.save(out / "schedule.toml")
+        if ok and settled:
+            result.converged = True
+            break
+        scaler.update(verdicts)
+    if result.schedule is None:                  # none met it: the last durations, unverified
+        Schedule(base.levels_kgf, scaler.durations, base.period_s, options.accuracy_pct,
+                 float(np.sum(minimum)), base.source, verified=False,
+                 notes=["no pass met the accuracy: these durations are the next pass's"]
+                 ).save(out / "schedule.toml")
+    if last is not None:
+        _write_reports(result, last[0], last[1])
+    else:
+        _write_reports(result, programme, None)
+    return result
+
+
+def _segment_peaks(e: LoadProgramme) -> np.ndarray:
+    """Each segment's largest feedforward command (%), both ways into the programme."""
+    programme = e.commanded
+    m = int(round(e.controller.model.tau / programme.period_s))
+    idx = e.lead + programme.turning_idx - m
+    peaks = np.zeros(len(idx) - 1)
+    for plan in e.plans.values():
+        u = np.abs(plan.ff.u_pct)
+        for j in range(len(peaks)):
+            a, b = max(idx[j], 0), max(idx[j + 1], 1)
+            peaks[j] = max(peaks[j], float(u[a:b].max()))
+    return peaks
+
+
 def _write_reports(result: LoadResult, programme: Programme, last) -> None:
     out = result.out
     if last is not None:
@@ -206,4 +300,7 @@ def timing_text(timing: PassTiming) -> str:
     if timing.pacing is not None:
         text += (f", pacing {timing.pacing_s:.2f} s ({timing.pacing['waits']} waits, "
                  f"{timing.pacing['slowed_s']:.2f} s slowed)")
+    if timing.scaling is not None:
+        s = timing.scaling
+        text += f"; segments landed {s.get('land', 0)}, held {s.get('hold', 0)}, missed {s.get('miss', 0)}"
     return text

@@ -9,10 +9,17 @@ import sys
 
 from core.errors import ParameterError
 
-from .common import add_effects, add_gateway, gateway_config
-
 #: loading.pacing.PACING_MODES, written out: `stand --help` imports no numerics
 PACING_MODES = ("off", "static", "dynamic")
+
+#: time scaling's passes unless --repeat says
+SCALING_PASSES = 10
+DEFAULT_ACCURACY_PCT = 0.5
+#: a turning-point sequence without --rate under --fastest or --schedule is read at this rate,
+#: then given its durations
+PLACEHOLDER_RATE_KGF_S = 1000.0
+
+from .common import add_effects, add_gateway, gateway_config
 
 
 def register(sub) -> None:
@@ -36,7 +43,8 @@ def register(sub) -> None:
                         "deliver) and exit; the stand is not touched")
     p.add_argument("--repeat", type=int, default=None, metavar="N",
                    help="run the programme N times in a row, learning the peak/valley corrections "
-                        "between passes (default 1)")
+                        "between passes (default 1; with --accuracy/--fastest: at most N passes, "
+                        f"default {SCALING_PASSES})")
     p.add_argument("--rate", type=float, metavar="KGF_PER_S",
                    help="turning-point sequence: peak rate of the haversines between points, kgf/s")
     p.add_argument("--frequency", type=float, metavar="HZ",
@@ -45,7 +53,18 @@ def register(sub) -> None:
                    help="start from peak/valley corrections learned before (compensation.toml of "
                         "an earlier stand load)")
     p.add_argument("--no-learn", action="store_true", help="keep the corrections as they are")
-    g = p.add_argument_group("null pacing (docs/loading.md)")
+    g = p.add_argument_group("time scaling and null pacing (docs/loading.md)")
+    g.add_argument("--accuracy", type=float, metavar="PCT",
+                   help="time scaling: shorten each segment pass by pass while its turning point "
+                        "holds PCT %% of the range (p95 <= PCT, max <= 2 PCT, no extra cycle), "
+                        "lengthen those that miss; the fastest schedule that met it is saved as "
+                        "OUT/schedule.toml")
+    g.add_argument("--fastest", action="store_true",
+                   help=f"time scaling at --accuracy (default {DEFAULT_ACCURACY_PCT} %%), starting "
+                        "from --rate, or from twice the valve-limited minimum without one")
+    g.add_argument("--schedule", metavar="SCHEDULE.toml",
+                   help="run the segment durations of a schedule made by --fastest/--accuracy "
+                        "(a production run)")
     g.add_argument("--pacing", choices=PACING_MODES, default="off",
                    help="null pacing: static waits at a turning point the force has not reached; "
                         "dynamic also slows the programme while the force lags (default %(default)s)")
@@ -93,17 +112,37 @@ def main(args: argparse.Namespace) -> int:
     from gateway.load import LoadProgramme, run_load, timing_text
     from loading.compensation import Compensation
     from loading.design import load_controller
+    from loading.minimum_time import minimum_durations_s, programme_valve_limit
     from loading.pacing import PacingOptions
-    from loading.programme import load_programme
+    from loading.programme import is_sequence, load_programme
+    from loading.time_scaling import ScalingOptions, Schedule
     config = gateway_config(args)
     controller = load_controller(args.controller, config.period_s)
-    programme = load_programme(args.program, config.period_s, args.rate, args.frequency)
+    scaling = None
+    if args.fastest or args.accuracy is not None:
+        if args.schedule:
+            raise ParameterError("--schedule replays a schedule; --fastest/--accuracy make one: give "
+                                 "one or the other")
+        scaling = ScalingOptions(accuracy_pct=args.accuracy if args.accuracy is not None else DEFAULT_ACCURACY_PCT)
+        scaling.check()
+    untimed = (args.rate is None and args.frequency is None and (scaling is not None or args.schedule)
+               and is_sequence(args.program))
+    programme = load_programme(args.program, config.period_s,
+                               PLACEHOLDER_RATE_KGF_S if untimed else args.rate, args.frequency)
+    schedule = Schedule.load(args.schedule) if args.schedule else None
+    if schedule is not None:
+        programme = schedule.apply(programme)
+    command_limit = min(controller.command_limit_pct, config.limits.command_limit_pct)
+    if untimed and scaling is not None:
+        limit = programme_valve_limit(programme, controller.model, command_limit)
+        programme = programme.with_durations(2 * minimum_durations_s(programme, limit),
+                                             f"{programme.source.split(',')[0]}, from twice the minimum")
     if args.plan:
         return _plan(args, programme, controller, config)
     if not args.out:
         raise ParameterError("give --out DIR for the passes and the report (or --plan to see the "
                              "programme's time and its valve-limited minimum without loading)")
-    repeat = args.repeat if args.repeat is not None else 1
+    repeat = args.repeat if args.repeat is not None else (SCALING_PASSES if scaling else 1)
     pacing = PacingOptions(args.pacing, args.pacing_tolerance, args.pacing_min_speed, args.pacing_timeout)
     pacing.check()
     comp = Compensation.load(args.compensation) if args.compensation else None
@@ -115,7 +154,8 @@ def main(args: argparse.Namespace) -> int:
         with Gateway(config) as gw:
             result = run_load(gw, programme, controller, args.out, repeat, comp,
                               learn=not args.no_learn, unload_kgf=args.unload_to,
-                              progress=False if args.no_progress else None, pacing=pacing)
+                              progress=False if args.no_progress else None, pacing=pacing,
+                              scaling=scaling)
     finally:
         signal.signal(signal.SIGTERM, previous)
     if args.json:
@@ -128,7 +168,15 @@ def main(args: argparse.Namespace) -> int:
                   f"{p.extra_cycles:g}; {timing_text(timing)}")
         if result.passes:
             print(result.passes[-1].text())
-        print(f"-> {result.out} (report.txt, report.json, tracking.png, pass-N/)")
+        if result.converged is not None:
+            s = result.schedule
+            print(f"schedule: {s.time_s:.1f} s, {s.time_s / s.minimum_time_s:.2f}x the valve-limited "
+                  f"minimum {s.minimum_time_s:.1f} s, met {s.accuracy_pct:g} % "
+                  + ("(converged)" if result.converged else f"(not converged in {repeat} passes: the "
+                     "fastest that met it)") if s is not None else
+                  f"schedule: no pass met {scaling.accuracy_pct:g} % in {repeat} passes")
+        print(f"-> {result.out} (report.txt, report.json, tracking.png, pass-N/"
+              + (", schedule.toml" if scaling else "") + ")")
     if result.end_reason not in (None, "complete"):
         print(f"stand load: stopped ({result.end_reason}): {result.end_message}", file=sys.stderr)
         return 1
