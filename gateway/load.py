@@ -29,6 +29,7 @@ import numpy as np
 from core.errors import ParameterError
 from loading.compensation import Compensation
 from loading.design import ControllerDesign
+from loading.gain_monitor import GainMonitor, MonitorOptions, margin_table
 from loading.minimum_time import minimum_durations_s, programme_valve_limit
 from loading.pacing import PacingOptions
 from loading.programme import Programme
@@ -55,6 +56,7 @@ class PassTiming:
     pacing_s: float = 0.0             #: time on the stand beyond the programme's, pacing
     pacing: dict | None = None        #: the pacing record (waits, slowed time), None: pacing off
     scaling: dict | None = None       #: time scaling: segments landed / held / missed
+    gain_blocks: list | None = None   #: the gain monitor's blocks of this pass (dicts)
 
     def figures(self) -> dict:
         d = {"programme_time_s": self.programme_time_s, "minimum_time_s": self.minimum_time_s,
@@ -64,6 +66,8 @@ class PassTiming:
             d["pacing"] = self.pacing
         if self.scaling is not None:
             d["scaling"] = self.scaling
+        if self.gain_blocks is not None:
+            d["gain_blocks"] = self.gain_blocks
         return d
 
 
@@ -80,6 +84,8 @@ class LoadResult:
     schedule: Schedule | None = None
     #: time scaling: did the last pass run every segment settled and meet the accuracy
     converged: bool | None = None
+    #: the gain monitor of the test (None: off)
+    monitor: GainMonitor | None = None
 
     def summary(self) -> dict:
         d = load_summary(self.passes, self.end_reason or "complete",
@@ -92,6 +98,8 @@ class LoadResult:
                               "accuracy_pct": self.schedule.accuracy_pct, "verified": self.schedule.verified}
                              if self.schedule is not None else None)
             d["converged"] = self.converged
+        if self.monitor is not None:
+            d["gain"] = self.monitor.summary()
         return d
 
 
@@ -120,9 +128,11 @@ class _Pass:
     compensation: Compensation | None
     unload_kgf: float
     pacing: PacingOptions | None
+    monitor: GainMonitor | None = None
 
     def experiment(self, programme: Programme, check: bool = True) -> LoadProgramme:
-        e = LoadProgramme(programme, self.controller, self.compensation, self.unload_kgf, pacing=self.pacing)
+        e = LoadProgramme(programme, self.controller, self.compensation, self.unload_kgf, pacing=self.pacing,
+                          monitor=self.monitor, unload_limits=self.gw.config.limits)
         if check:
             limits = self.gw.config.limits
             e.check(self.gw.config.period_s, limits.force_limit_kgf, limits.command_limit_pct)
@@ -137,12 +147,15 @@ def run_load(gw, programme: Programme, controller: ControllerDesign, out: str | 
              repeat: int = 1, compensation: Compensation | None = None, learn: bool = True,
              unload_kgf: float = 0.0, progress: bool | None = None,
              error_limit_kgf: float | None = None, pacing: PacingOptions | None = None,
-             scaling: ScalingOptions | None = None, schedule: Schedule | None = None) -> LoadResult:
+             scaling: ScalingOptions | None = None, schedule: Schedule | None = None,
+             monitor: MonitorOptions | None = None) -> LoadResult:
     """Run ``repeat`` passes of ``programme`` on the gateway ``gw`` (module docstring).
     ``error_limit_kgf``: the tracking-error limit for these passes (default: the supervisor's,
     else :data:`ERROR_LIMIT_SHARE` of the programme's range). ``pacing``: null pacing
     (:mod:`loading.pacing`). ``schedule``: the segment durations to run (a ``schedule.toml``).
-    ``scaling``: time scaling, at most ``repeat`` passes (:mod:`loading.time_scaling`)."""
+    ``scaling``: time scaling, at most ``repeat`` passes (:mod:`loading.time_scaling`).
+    ``monitor``: the stand's g estimated block by block, followed by the feedforward and
+    watched for a fall or a rise (:mod:`loading.gain_monitor`)."""
     if not (1 <= repeat <= 1000):
         raise ParameterError(f"repeat = {repeat}: it must be from 1 to 1000")
     if scaling is not None:
@@ -153,7 +166,14 @@ def run_load(gw, programme: Programme, controller: ControllerDesign, out: str | 
     if schedule is not None:
         programme = schedule.apply(programme)
     comp = compensation if compensation is not None else (Compensation() if learn and repeat > 1 else None)
-    shared = _Pass(gw, controller, comp, unload_kgf, pacing)
+    watcher = None
+    if monitor is not None:
+        monitor.check()
+        model = controller.model
+        watcher = GainMonitor(model.g, model.tau, model.delta, gw.config.period_s, monitor,
+                              margin_table(controller.kp_pct_per_kgf, controller.ti_s, model.g, model.tau,
+                                           gw.config.period_s, controller.boost))
+    shared = _Pass(gw, controller, comp, unload_kgf, pacing, watcher)
     first = shared.experiment(programme)
     limit = programme_valve_limit(programme, controller.model, shared.command_limit_pct)
     minimum = minimum_durations_s(programme, limit)
@@ -177,10 +197,16 @@ def _run_pass(shared: _Pass, experiment: LoadProgramme, programme: Programme, mi
     if the pass ended early (result.end_reason says why)."""
     res = shared.gw.run(experiment, path, progress=progress)
     result.run_dirs.append(res.path)
+    monitor = shared.monitor
+    blocks = None
+    if monitor is not None and monitor.end_pass():
+        blocks = [b.to_dict() for b in monitor.blocks if b.pass_index == monitor.pass_index]
+        (res.path / "gain.json").write_text(json.dumps({**monitor.summary(), "blocks": blocks}, indent=2) + "\n")
+        result.monitor = monitor
     clock = experiment.clock
     timing = PassTiming(programme.duration_s, float(np.sum(minimum_s)),
                         clock.record.pacing_s if clock is not None else 0.0,
-                        clock.record.to_dict() if clock is not None else None)
+                        clock.record.to_dict() if clock is not None else None, gain_blocks=blocks)
     result.timings.append(timing)
     if res.status != "complete" or experiment.main_start_s is None:
         result.end_reason = res.reason or res.status
@@ -286,6 +312,8 @@ def _write_reports(result: LoadResult, programme: Programme, last) -> None:
         lines = []
         for i, (p, timing) in enumerate(zip(result.passes, result.timings), start=1):
             lines.append(f"pass {i}:\n{timing_text(timing)}\n{p.text()}")
+        if result.monitor is not None:
+            lines.append(gain_text(result.monitor))
         (out / "report.txt").write_text("\n\n".join(lines) + "\n")
         t, y = last
         plot_tracking(programme, t, y, result.passes[-1], out / "tracking.png",
@@ -304,3 +332,18 @@ def timing_text(timing: PassTiming) -> str:
         s = timing.scaling
         text += f"; segments landed {s.get('land', 0)}, held {s.get('hold', 0)}, missed {s.get('miss', 0)}"
     return text
+
+
+def gain_text(monitor: GainMonitor) -> str:
+    """The gain monitor's blocks in a few lines: the estimates' span, the last, the alarm."""
+    est = [b for b in monitor.blocks if b.g is not None]
+    if not est:
+        return f"gain: no block had enough steady motion for an estimate ({len(monitor.blocks)} blocks)"
+    last = est[-1]
+    lines = [f"gain: {len(est)} of {len(monitor.blocks)} blocks estimated, g from {min(b.g for b in est):.1f} "
+             f"to {max(b.g for b in est):.1f} kgf/(%·s) (model {monitor.g_ref:.1f}); last "
+             f"{last.g:.1f} [{last.low:.1f}, {last.high:.1f}] ({last.change_pct:+.1f} %), feedforward at "
+             f"g = {monitor.g_follow:.1f}"]
+    if monitor.alarm is not None:
+        lines.append(f"gain alarm ({monitor.alarm[0]}, action {monitor.options.action}): {monitor.alarm[1]}")
+    return "\n".join(lines)

@@ -51,11 +51,13 @@ from loading.compensation import Compensation
 from loading.controller import PIFeedforward
 from loading.design import ControllerDesign
 from loading.feedforward import Feedforward, feedback_scale, feedforward
+from loading.gain_monitor import GAIN_ALARM, GainMonitor
 from loading.minimum_time import FEEDFORWARD_SHARE
 from loading.pacing import DEFAULT_TOLERANCE_SHARE, PACING_TIMEOUT, PacingOptions, ProgrammeClock
 from loading.programme import Programme, check_programme
 
 from .experiments.phases import PhasedExperiment, SetPointApproach
+from .supervisor import SafetyLimits, Unloader
 
 #: the pre-roll into the programme's first level: this share of its range (at least three
 #: times the approach's tolerance), in this time (s)
@@ -136,7 +138,8 @@ class LoadProgramme(PhasedExperiment):
                  compensation: Compensation | None = None, unload_kgf: float = 0.0,
                  settle_gain: float = 0.02, settle_limit_pct: float = 20.0,
                  settle_tolerance_kgf: float = 20.0, settle_max_s: float = 20.0,
-                 guard_fraction: float = 0.95, pacing: PacingOptions | None = None) -> None:
+                 guard_fraction: float = 0.95, pacing: PacingOptions | None = None,
+                 monitor: GainMonitor | None = None, unload_limits: SafetyLimits | None = None) -> None:
         self.programme = programme
         self.controller = controller
         self.compensation = compensation
@@ -146,6 +149,11 @@ class LoadProgramme(PhasedExperiment):
         self.clock: ProgrammeClock | None = None
         #: with pacing: the clock's position per cycle of the main phase (samples of reference)
         self.positions: list[float] = []
+        #: the gain monitor of the test (loading.gain_monitor), shared by its passes
+        self.monitor = monitor
+        self.unload_limits = unload_limits or SafetyLimits()
+        #: a gain alarm's controlled unload, once it began
+        self.unloader: Unloader | None = None
         kinds = programme.kinds()
         self.commanded = (programme.with_levels(compensation.levels(programme.levels_kgf, kinds))
                           if compensation is not None else programme)
@@ -243,6 +251,9 @@ class LoadProgramme(PhasedExperiment):
         self.law.reset()
         self.positions = []
         self.clock = None
+        self.unloader = None
+        if self.monitor is not None:
+            self.monitor.begin_pass()
         if self.pacing.on:
             T = self.programme.period_s
             kinds = self.commanded.kinds()
@@ -265,14 +276,48 @@ class LoadProgramme(PhasedExperiment):
         return (u, r) if self.main_start_s is not None else (u, math.nan)
 
     def main_step(self, tm: float, y: float) -> tuple[float, float]:
+        if self.unloader is not None:
+            return self._unload_step(y)
         if self.clock is not None:
-            return self._paced_step(y)
-        k = min(int(round(tm / self.programme.period_s)), len(self.reference) - 1)
-        r = float(self.reference[k])
-        plan = self.plan
-        return self.law.step(r, y, float(plan.ff.u_pct[k]), float(plan.scale[k]), float(plan.way[k])), r
+            u, r, k = self._paced_step(y)
+        else:
+            k = min(int(round(tm / self.programme.period_s)), len(self.reference) - 1)
+            r = float(self.reference[k])
+            plan = self.plan
+            u = self.law.step(r, y, self.ff_scale * float(plan.ff.u_pct[k]), float(plan.scale[k]),
+                              float(plan.way[k]))
+        if self.monitor is not None and self.abort is None:
+            self._watch(y, u, k)
+        return u, r
 
-    def _paced_step(self, y: float) -> tuple[float, float]:
+    @property
+    def ff_scale(self) -> float:
+        """The feedforward's factor: 1, or the model's g over the gain monitor's estimate."""
+        return self.monitor.ff_scale if self.monitor is not None else 1.0
+
+    def _watch(self, y: float, u: float, k: int) -> None:
+        """The gain monitor's cycle (loading.gain_monitor), and its alarm's action."""
+        monitor = self.monitor
+        factor = self.plan.ff.flow_factor
+        before = monitor.alarm
+        monitor.add(y, u, float(factor[k]) if factor is not None else 1.0)
+        if monitor.alarm is None or before is not None:
+            return
+        action = monitor.options.action
+        if action == "hold":
+            self.abort = (GAIN_ALARM, monitor.alarm[1] + "; the valve holds")
+        elif action == "unload":
+            self.unloader = Unloader(y, self.unload_limits, self.programme.period_s)
+
+    def _unload_step(self, y: float) -> tuple[float, float]:
+        """A gain alarm's controlled unload (the supervisor's), then the pass ends in hold."""
+        u, r = self.unloader.step(y)
+        if self.unloader.done:
+            self.abort = (GAIN_ALARM, f"{self.monitor.alarm[1]}; unloaded ({self.unloader.outcome}) to "
+                                      f"{y:.0f} kgf in {self.unloader.t:.2f} s, then hold")
+        return u, r
+
+    def _paced_step(self, y: float) -> tuple[float, float, int]:
         """One cycle on the programme's clock (loading.pacing): the reference and the
         feedforward at its position, slowed by its speed; while it waits at a turning point the
         feedback drives the predicted force to the level, only toward it."""
@@ -287,14 +332,14 @@ class LoadProgramme(PhasedExperiment):
                           f"{self.pacing_tolerance_kgf:.0f} kgf in {self.pacing.timeout_s:g} s of waiting "
                           f"(at {y:.0f} kgf): the stand cannot reach it; check the stand, the model "
                           "and the programme's levels")
-            return 0.0, r
+            return 0.0, r, int(p)
         plan = self.plan
         k = int(p)
         f = p - k
         k1 = min(k + 1, len(self.reference) - 1)
         ff = plan.ff.u_pct
         s = clock.step_taken
-        u_ff = s * float(ff[k] + f * (ff[k1] - ff[k])) + (1.0 - s) * self.u_hold
+        u_ff = self.ff_scale * (s * float(ff[k] + f * (ff[k1] - ff[k])) + (1.0 - s) * self.u_hold)
         if clock.waiting:
             gate = clock.gate
             if clock.wait_began:
@@ -303,4 +348,4 @@ class LoadProgramme(PhasedExperiment):
         else:
             u = self.law.step(r, y, u_ff, float(plan.scale[k]), float(plan.way[k]), integrate=s >= 1.0)
         clock.sent(u, u_ff)
-        return u, r
+        return u, r, k

@@ -9,8 +9,11 @@ import sys
 
 from core.errors import ParameterError
 
-#: loading.pacing.PACING_MODES, written out: `stand --help` imports no numerics
+#: loading.pacing.PACING_MODES and loading.gain_monitor.ALARM_ACTIONS, written out: `stand
+#: --help` imports no numerics
 PACING_MODES = ("off", "static", "dynamic")
+ALARM_ACTIONS = ("note", "hold", "unload")
+GAIN_MODES = ("off", "watch", "adapt")
 
 #: time scaling's passes unless --repeat says
 SCALING_PASSES = 10
@@ -76,6 +79,20 @@ def register(sub) -> None:
     g.add_argument("--pacing-timeout", type=float, default=10.0, metavar="S",
                    help="stop the pass when the programme waits longer than S at one turning point "
                         "(default %(default)s)")
+    g = p.add_argument_group("the stand's gain, estimated and watched (docs/loading.md)")
+    g.add_argument("--gain", choices=GAIN_MODES, default="off",
+                   help="watch: re-estimate g block by block from the tracking data and raise an "
+                        "alarm when it falls (a crack) or rises (a jammed part); adapt: also let the "
+                        "feedforward follow it (default %(default)s)")
+    g.add_argument("--gain-block-s", type=float, default=10.0, metavar="S",
+                   help="stand time per estimate (default %(default)s)")
+    g.add_argument("--gain-fall", type=float, default=2.0, metavar="PCT",
+                   help="alarm when g falls more than PCT %% below the model's (default %(default)s)")
+    g.add_argument("--gain-rise", type=float, default=5.0, metavar="PCT",
+                   help="alarm when g rises more than PCT %% above the model's (default %(default)s)")
+    g.add_argument("--gain-alarm-action", choices=ALARM_ACTIONS, default="note",
+                   help="note (recorded, the test goes on), hold (the valve holds) or unload (a "
+                        "controlled unload, then hold) (default %(default)s)")
     p.add_argument("--unload-to", type=float, default=0.0, metavar="KGF",
                    help="force to unload to at the end, kgf (default %(default)s)")
     p.add_argument("--json", action="store_true",
@@ -109,9 +126,10 @@ def _plan(args, programme, controller, config) -> int:
 
 def main(args: argparse.Namespace) -> int:
     from gateway import Gateway
-    from gateway.load import LoadProgramme, run_load, timing_text
+    from gateway.load import LoadProgramme, gain_text, run_load, timing_text
     from loading.compensation import Compensation
     from loading.design import load_controller
+    from loading.gain_monitor import MonitorOptions
     from loading.minimum_time import minimum_durations_s, programme_valve_limit
     from loading.pacing import PacingOptions
     from loading.programme import is_sequence, load_programme
@@ -145,6 +163,11 @@ def main(args: argparse.Namespace) -> int:
     repeat = args.repeat if args.repeat is not None else (SCALING_PASSES if scaling else 1)
     pacing = PacingOptions(args.pacing, args.pacing_tolerance, args.pacing_min_speed, args.pacing_timeout)
     pacing.check()
+    monitor = None
+    if args.gain != "off":
+        monitor = MonitorOptions(block_s=args.gain_block_s, fall_pct=args.gain_fall, rise_pct=args.gain_rise,
+                                 action=args.gain_alarm_action, follow=args.gain == "adapt")
+        monitor.check()
     comp = Compensation.load(args.compensation) if args.compensation else None
     # everything that can be refused is refused before the stand is touched
     LoadProgramme(programme, controller, comp, args.unload_to, pacing=pacing).check(
@@ -155,7 +178,7 @@ def main(args: argparse.Namespace) -> int:
             result = run_load(gw, programme, controller, args.out, repeat, comp,
                               learn=not args.no_learn, unload_kgf=args.unload_to,
                               progress=False if args.no_progress else None, pacing=pacing,
-                              scaling=scaling)
+                              scaling=scaling, monitor=monitor)
     finally:
         signal.signal(signal.SIGTERM, previous)
     if args.json:
@@ -175,8 +198,12 @@ def main(args: argparse.Namespace) -> int:
                   + ("(converged)" if result.converged else f"(not converged in {repeat} passes: the "
                      "fastest that met it)") if s is not None else
                   f"schedule: no pass met {scaling.accuracy_pct:g} % in {repeat} passes")
+        if result.monitor is not None:
+            print(gain_text(result.monitor))
         print(f"-> {result.out} (report.txt, report.json, tracking.png, pass-N/"
               + (", schedule.toml" if scaling else "") + ")")
+    if result.monitor is not None and result.monitor.alarm is not None:
+        print(f"stand load: gain alarm ({result.monitor.alarm[0]}): {result.monitor.alarm[1]}", file=sys.stderr)
     if result.end_reason not in (None, "complete"):
         print(f"stand load: stopped ({result.end_reason}): {result.end_message}", file=sys.stderr)
         return 1
