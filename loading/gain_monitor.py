@@ -56,7 +56,7 @@ class MonitorOptions:
 
     block_s: float = 10.0
     chunk_s: float = 0.05
-    steady_factor: float = 1.1
+    steady_factor: float = 1.03
     min_flow_pct: float = 2.0
     fall_pct: float = 2.0
     rise_pct: float = 5.0

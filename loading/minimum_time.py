@@ -74,7 +74,7 @@ class ValveLimit:
             lo, hi = float(a.min()), float(a.max())
             return f"{lo:,.0f}" if math.isclose(lo, hi, rel_tol=1e-3) else f"{lo:,.0f}-{hi:,.0f}"
         return (f"up to {span(self.up_kgf_s)} kgf/s rising, {span(self.down_kgf_s)} kgf/s falling "
-                f"by the model {self.model_spec} with the feedforward's command up to ±{self.command_pct:.3g} %)")
+                f"by the model {self.model_spec} with the feedforward's command up to ±{self.command_pct:.3g} %")
 
 
 def steady_rate_kgf_s(model: PlantModel, command_pct: np.ndarray, force_kgf: float) -> np.ndarray:

@@ -51,7 +51,7 @@ def test_a_stable_stand_gives_no_false_alarm_over_50_blocks(bus_spec, start_emul
     assert res.end_reason is None, res.end_message
     blocks = res.monitor.blocks
     est = [b for b in blocks if b.g is not None]
-    assert len(blocks) >= 50 and len(est) >= 40, (len(blocks), len(est))
+    assert len(blocks) >= 50 and len(est) >= 30, (len(blocks), len(est))
     assert res.monitor.alarm is None and not any(b.alarm for b in blocks)
     assert max(abs(b.g - 120.0) for b in est) < 0.015 * 120, [round(b.g, 1) for b in est]
     assert np.mean([b.low <= 120.0 <= b.high for b in est]) >= 0.85
