@@ -251,7 +251,7 @@ def _scaled_passes(shared: _Pass, programme, minimum, out, repeat, learn, progre
     scaler = TimeScaler(programme, minimum, programme.segment_durations_s, options)
     share_limit = FEEDFORWARD_SHARE * shared.command_limit_pct
     base = programme
-    last = None
+    last = None                                  # (the programme, its forces) of the last pass
     for i in range(1, repeat + 1):
         for _ in range(STRETCH_TRIES):           # lengthen what the valve cannot follow
             current = base.with_durations(scaler.durations, f"{base.source}, scaled pass {i}")
@@ -266,10 +266,10 @@ def _scaled_passes(shared: _Pass, programme, minimum, out, repeat, learn, progre
         done = _run_pass(shared, experiment, current, minimum, out / f"pass-{i}", result, learn, progress)
         if done is None:
             break
-        report, last, paced = done
-        last = (current, last)
+        report, forces, paced = done
+        last = (current, forces)
         ok = meets(report, options.accuracy_pct)
-        verdicts = scaler.verdicts(current, report, ringing_turning_points(current, *last[1]), paced)
+        verdicts = scaler.verdicts(current, report, ringing_turning_points(current, *forces), paced)
         result.timings[-1].scaling = {**scaler.last, "met_accuracy": ok, "all_settled_before": settled}
         if ok and (result.schedule is None or current.duration_s < result.schedule.time_s):
             result.schedule = Schedule(base.levels_kgf, current.segment_durations_s, base.period_s,
@@ -285,10 +285,7 @@ def _scaled_passes(shared: _Pass, programme, minimum, out, repeat, learn, progre
                  float(np.sum(minimum)), base.source, verified=False,
                  notes=["no pass met the accuracy: these durations are the next pass's"]
                  ).save(out / "schedule.toml")
-    if last is not None:
-        _write_reports(result, last[0], last[1])
-    else:
-        _write_reports(result, programme, None)
+    _write_reports(result, *(last or (programme, None)))
     return result
 
 

@@ -11,8 +11,10 @@ with ``q̃_k = (1 − f)·u_{k−m} + f·u_{k−m−1}`` the commands actually s
 boost, an asymmetry: :attr:`loading.feedforward.Feedforward.flow_factor`) and ``κ`` the stand's
 gain over the model's. Only chunks where the model says the stand is steady count: ``G`` within
 :data:`MonitorOptions.steady_factor` along the whole chunk (away from a reversal's boost) and
-the flow one way, at least ``min_flow_pct``. Per block (``block_s`` of stand time) the least
-squares estimate and its 95 % interval are
+the flow one way, at least ``min_flow_pct``. A block lasts ``block_s`` of stand time, or
+longer until it holds ``min_chunks`` such chunks (a fast programme of short segments is
+rarely steady), at most :data:`LONGEST_BLOCK` times as long. Per block the least squares
+estimate and its 95 % interval are
 
 .. math::  \hat\kappa = \frac{\sum a b}{\sum b^2},\qquad
            s^2 = \frac{\sum (a - \hat\kappa b)^2}{n - 1},\qquad
@@ -43,6 +45,8 @@ from dataclasses import asdict, dataclass, field
 from core.errors import ParameterError
 
 ALARM_ACTIONS = ("note", "hold", "unload")
+#: a block with too few steady chunks goes on, up to this many times its length
+LONGEST_BLOCK = 10
 #: the design puts the phase margin on its requirement (45°): a block's may be this much below
 #: (about 10 % more gain) before its margins count as below the design's
 PHASE_MARGIN_SLACK_DEG = 5.0
@@ -160,6 +164,7 @@ class GainMonitor:
         self.margins = margins
         self.chunk_cycles = max(2, int(round(options.chunk_s / period_s)))
         self.block_cycles = max(self.chunk_cycles * 2, int(round(options.block_s / period_s)))
+        self.longest_block_cycles = LONGEST_BLOCK * self.block_cycles
         self._tq = _t_quantiles()
         self.blocks: list[GainBlock] = []
         self.alarm: tuple[str, str] | None = None
@@ -235,7 +240,8 @@ class GainMonitor:
         self._sign = sign
         self._b += g[-1 - self.m] * q
         self._k += 1
-        if self._cycle - self._block_start >= self.block_cycles:
+        length = self._cycle - self._block_start
+        if length >= self.block_cycles and (self._n >= o.min_chunks or length >= self.longest_block_cycles):
             self._close_block()
 
     # -- per block -------------------------------------------------------------------------------

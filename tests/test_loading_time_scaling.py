@@ -124,3 +124,28 @@ def test_fastest_ends_near_the_valve_limit_at_the_accuracy_and_the_schedule_repl
     again = res.summary()
     assert again["programme_time_s"] == pytest.approx(schedule.time_s, abs=T)
     assert again["peak_valley_error_pct"]["p95"] <= 0.5 and again["extra_cycles"] == 0
+
+
+def test_scaling_and_a_schedule_are_checked_before_the_stand_is_touched(tmp_path, capsys):
+    ctl = tmp_path / "c.toml"
+    ctl.write_text(design(PlantModel.from_spec("base+reversal", MODEL), T).to_toml())
+    seq = tmp_path / "tp.csv"
+    seq.write_text("level\n500\n5000\n1000\n")
+    s = Schedule(np.array([500.0, 5000.0, 1000.0]), np.array([0.8, 0.7]), T, 0.5, 1.0, "tp", True)
+    s.save(tmp_path / "schedule.toml")
+    other = tmp_path / "other.csv"
+    other.write_text("level\n500\n5000\n1200\n")
+    cases = [(["--fastest", "--schedule", str(tmp_path / "schedule.toml")], "one or the other"),
+             (["--accuracy", "0"], "accuracy 0.0 %"),
+             (["--schedule", str(tmp_path / "schedule.toml")], None)]
+    for extra, message in cases:
+        capsys.readouterr()
+        rc = stand(["load", str(seq), "--controller", str(ctl), "--plan", *extra])
+        out, err = capsys.readouterr()
+        if message is None:       # a sequence needs no --rate with a schedule: its time is the schedule's
+            assert rc == 0 and "the schedule:" in out and "1.5 s" in out, (out, err)
+        else:
+            assert rc == 2 and message in err and "Traceback" not in err, err
+    rc = stand(["load", str(other), "--controller", str(ctl), "--plan", "--schedule", str(tmp_path / "schedule.toml")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "made for another programme" in err

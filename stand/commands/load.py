@@ -120,7 +120,10 @@ def _plan(args, programme, controller, config) -> int:
         return 0
     print(f"{programme.source}: {len(programme.turning_idx)} turning points, range "
           f"{programme.range_kgf:.0f} kgf, command limit ±{limit:g} %")
-    print(timing.text("at the requested rate"))
+    label = ("the schedule" if args.schedule else "the starting schedule"
+             if (args.fastest or args.accuracy is not None) and args.rate is None and args.frequency is None
+             else "at the requested rate")
+    print(timing.text(label))
     return 0
 
 
