@@ -219,6 +219,8 @@ class LoadProgramme(PhasedExperiment):
                 "pacing": self.pacing.mode,
                 **({"pacing_tolerance_kgf": self.pacing_tolerance_kgf, "pacing_min_speed": self.pacing.min_speed,
                     "pacing_timeout_s": self.pacing.timeout_s} if self.pacing.on else {}),
+                **({"gain_monitor": {k: v for k, v in vars(self.monitor.options).items()},
+                    "feedforward_g": self.monitor.g_follow} if self.monitor is not None else {}),
                 **self.phase_params()}
 
     def check(self, period_s: float, force_limit_kgf: float, command_limit_pct: float) -> None:
