@@ -32,7 +32,7 @@ def test_a_slow_valve_misses_turning_points_without_pacing_and_none_with_it(bus_
     start_emulator(plant({**MODEL, "saturation.limit": 25.0}, model="base+reversal+saturation"),
                    lockstep=True, seed=3)
     controller = design(PlantModel.from_spec("base+reversal", MODEL), T)
-    levels = random_sequence(12, 400, 6200, seed=3)
+    levels = random_sequence(9, 400, 6200, seed=3)
     out = {}
     with Gateway(GatewayConfig(bus=bus_spec, lockstep=True)) as gw:
         for mode in ("off", "static"):      # the pass without pacing may lag: let it finish, measured
