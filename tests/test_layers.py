@@ -61,7 +61,7 @@ PART_LEVELS = {
     "analysis": [
         {"defaults", "parallel"},
         {"records"},
-        {"estimators", "identification"},
+        {"estimators", "identification", "rig"},
         {"diagnosis"},
         {"reports"},
     ],
