@@ -83,13 +83,19 @@ def project_gain_trend(spec: str, values: Mapping[str, float], pieces: Sequence[
         return vals, float(r @ r)
     specs = dict(PlantModel.from_spec(spec, vals).param_specs())
     s1, A, beta0 = gain_trend_columns(spec, vals, pieces, fit_g, fit_delta)
-    step, *_ = np.linalg.lstsq(A, -s1, rcond=None)
+    ok = np.isfinite(s1) & np.all(np.isfinite(A), axis=1)
+    if ok.sum() < max(A.shape[1] + 1, 0.5 * len(s1)):
+        # the simulation failed at this trial (a force-dependent law stepped across its
+        # discontinuity by the integrator's difference quotient): a start not to take
+        return vals, math.inf
+    step, *_ = np.linalg.lstsq(A[ok], -s1[ok], rcond=None)
     names = ["g"] * fit_g + ["delta"] * fit_delta
     for n, b in zip(names, beta0 + step):
         p = specs[n]
         vals[n] = float(min(max(b, p.lower), p.upper)) if math.isfinite(b) else p.default
     r = residual(PlantModel.from_spec(spec, vals), pieces)
-    return vals, float(r @ r)
+    sse = float(r @ r)
+    return vals, sse if math.isfinite(sse) else math.inf
 
 
 def _trend_basis(pieces: Sequence[Piece]) -> np.ndarray:

@@ -38,8 +38,12 @@ class ChannelTiming:
     tau_s: float
     tau_ci_s: tuple[float, float]       #: distribution-free interval of the median
     reversals: int                      #: reversals whose turn was found
-    transitional_s: float               #: the reversal boost's window (meander estimator)
-    transitional_detected: bool         #: False: none found, the nominal window was used
+    transitional_s: float               #: the reversal boost's window (90 % of its extra force)
+    transitional_detected: bool         #: False: none found
+    #: the boost's extra force per reversal over the steady ``G_jj·u_j`` (s; 0: none found)
+    boost_extra_s: float = 0.0
+    #: the command's median |u| at the reversals, %
+    amplitude_pct: float = 0.0
 
 
 def turn_delays(u: np.ndarray, y: np.ndarray, dt: float) -> np.ndarray:
@@ -111,10 +115,11 @@ def median_interval(values: np.ndarray, level: float = 0.95) -> tuple[float, flo
 
 
 def boost_window(u: np.ndarray, y: np.ndarray, rate: np.ndarray, own_gain: float, tau_s: float,
-                 dt: float) -> float | None:
-    """The transitional window of one run (s): where the median excess force after the turns
+                 dt: float) -> tuple[float, float] | None:
+    """The transitional window of one run (s), where the median excess force after the turns
     (module docstring; ``rate``: the predicted steady force rate, kgf/s, per sample) reaches
-    90 % of its final value; None when the final value is not clearly above the noise."""
+    90 % of its final value, and that final value (s of the steady rate); None when the final
+    value is not clearly above the noise."""
     changes, reversal = command_events(u)
     ends = np.concatenate([changes[1:], [len(u)]])
     lag = int(round(tau_s / dt))
@@ -144,7 +149,7 @@ def boost_window(u: np.ndarray, y: np.ndarray, rate: np.ndarray, own_gain: float
     if abs(final) < max(5 * float(np.median(noise)), 2 * dt):
         return None
     reached = np.flatnonzero(np.abs(med) >= 0.9 * abs(final))
-    return float(reached[0] * dt) if len(reached) else None
+    return (float(reached[0] * dt), final) if len(reached) else None
 
 
 def channel_timing(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, float, float]],
@@ -152,18 +157,22 @@ def channel_timing(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, 
     """τ_j and the transitional window of channel ``name`` from the runs it moved in, each
     ``(u_j, cleaned y_j, the predicted steady rate of the cleaned force or None, Ĝ_jj, dt)``
     (module docstring); without a prediction the window is not read (0, not detected)."""
-    delays, windows = [], []
+    delays, windows, extras, amps = [], [], [], []
     for u, y, rate, own_gain, dt in parts:
         d = turn_delays(u, y, dt)
         delays.append(d)
+        changes, reversal = command_events(u)
+        amps += [abs(u[e]) for e, rev in zip(changes, reversal) if rev and u[e] != 0]
         if rate is not None and len(d):
             w = boost_window(u, y, rate, own_gain, float(np.median(d)), dt)
             if w is not None:
-                windows.append(w)
+                windows.append(w[0])
+                extras.append(w[1])
     d = np.concatenate(delays) if delays else np.array([])
     if len(d) == 0:
         raise DataError(f"channel {name}: no turn of its force found after its reversals (is "
                         "its valve connected? does its force move with its command?)")
     trans = float(np.median(windows)) if windows else 0.0
     return ChannelTiming(float(np.median(d)), median_interval(d, level), len(d), trans,
-                         bool(windows))
+                         bool(windows), float(np.median(extras)) if extras else 0.0,
+                         float(np.median(amps)) if amps else 0.0)

@@ -139,6 +139,10 @@ def estimate_rig(records: Sequence[RigRecord], guard_s: float | None = None,
         tau_ci_s=tau_ci, transitional_s=trans,
         transitional_detected=[bool(timing[j].transitional_detected) if j in timing else False
                                for j in range(N)],
+        boost_extra_s=np.array([timing[j].boost_extra_s if j in timing else math.nan
+                                for j in range(N)]),
+        amplitude_pct=np.array([timing[j].amplitude_pct if j in timing else math.nan
+                                for j in range(N)]),
         reversals=[timing[j].reversals if j in timing else 0 for j in range(N)],
         design=design, moving={rec.source: [names[j] for j in m] for rec, m in zip(records, moving)},
         inflation=vif[:N], stretches=[f.stretches for f in fits],

@@ -101,6 +101,10 @@ class RigEstimate:
     tau_ci_s: np.ndarray                #: (N, 2)
     transitional_s: np.ndarray          #: (N,) each channel's reversal-boost window
     transitional_detected: list[bool]
+    #: (N,) the reversal boost's extra force per reversal over the steady rate ``G_jj·u_j``, s
+    #: (the paper's transitional portion: 0 when none was found)
+    boost_extra_s: np.ndarray
+    amplitude_pct: np.ndarray           #: (N,) the meander's |u| at the reversals, %
     reversals: list[int]                #: reversals whose turn gave τ, per channel
     design: str                         #: "per-column" | "simultaneous" | "mixed"
     moving: dict[str, list[str]]        #: per run: the channels that moved
@@ -132,6 +136,8 @@ class RigEstimate:
             "delta_ci_kgf_s": [[_num(lo), _num(hi)] for lo, hi in self.delta_ci],
             "transitional_s": rows(self.transitional_s),
             "transitional_detected": list(self.transitional_detected),
+            "boost_extra_s": rows(self.boost_extra_s),
+            "amplitude_pct": rows(self.amplitude_pct),
             "reversals": list(self.reversals),
             "physical": self.physical.to_dict(),
             "design": self.design,
@@ -142,3 +148,32 @@ class RigEstimate:
             "notes": list(self.notes),
             "sources": list(self.sources),
         }
+
+
+def starting_models(est: RigEstimate) -> "RigModel":
+    """The rig model an estimate gives, to start the channels' diagnoses from (``stand estimate
+    --save``): G, and per channel the paper's base model (``g = G_ii``, τ, Δ), with the
+    reversal boost where the estimate found a transitional portion. An exponential boost
+    ``b·(10 %/|u|)^p·e^{−s/T_r}`` adds ``b·(10/|u|)^p·T_r`` times the steady rate per reversal
+    and 90 % of it within ``ln(10)·T_r``: so ``T_r`` = window/ln 10 and ``b`` from the extra at
+    the catalogue's ``p`` (one amplitude cannot tell ``p``; at that amplitude any ``p`` with
+    its ``b`` is the same flow). The diagnoses refine all of it."""
+    from plant import PlantModel
+    from plant.effects.reversal import Reversal
+    from plant.rig import RigModel
+    models = []
+    for j in range(est.n):
+        values = {"tau": float(est.tau_s[j]) if math.isfinite(est.tau_s[j]) else 0.05,
+                  "delta": float(est.delta_kgf_s[j])}
+        extra, window = float(est.boost_extra_s[j]), float(est.transitional_s[j])
+        if est.transitional_detected[j] and extra > 0 and window > 0:
+            p = Reversal.params[2].default
+            decay = window / math.log(10.0)
+            scale = (Reversal.U_REF / max(float(est.amplitude_pct[j]), 0.5)) ** p
+            boost = min(Reversal.params[0].upper, extra / (scale * decay))
+            values.update({"reversal.boost": boost, "reversal.decay": decay,
+                           "reversal.exponent": p})
+            models.append(PlantModel.from_spec("base+reversal", values))
+        else:
+            models.append(PlantModel.from_spec("base", values))
+    return RigModel(models, est.G, est.names)
