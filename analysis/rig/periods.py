@@ -18,8 +18,8 @@ commands were orthogonal, :func:`.regression.collinearity`). Two square waves:
 A good set gives every channel a period with its own power of two, all within a factor of two
 of each other (so each has about as many reversals and segments long enough for the reversal
 boost to die out), far enough apart that the run lasts at least about one beat
-``1/|1/P_a − 1/P_b|`` of every pair: four channels from 8 s get 8, 9, 10 and 12 s (``2³, 3²,
-2·5, 2²·3``; beats 60-90 s; over 120 s every VIF ≤ 1.013). :func:`separating_periods` gives such
+``1/|1/P_a − 1/P_b|`` of every pair: four channels from 8 s get 8, 10, 12 and 15 s (``2³, 2·5,
+2²·3, 3·5``; beats 17-60 s; over 120 s every VIF ≤ 1.01). :func:`separating_periods` gives such
 a set, :func:`sharing_pairs` names the pairs of a set that share harmonics, and
 :func:`planned_inflation` says what a plan gives before it is run.
 
@@ -66,11 +66,13 @@ def sharing_pairs(periods_s: Sequence[float]) -> list[tuple[int, int]]:
 
 def separating_periods(n: int, shortest_s: float = 8.0, cycle_s: float = 0.002) -> list[float]:
     """``n`` periods from ``shortest_s`` up to below twice it whose square waves are pairwise
-    orthogonal (module docstring): ``P_k = 2^k·o_k·unit`` for ``k = n−1 … 0``, ``o_k`` the
-    smallest odd number with ``P_k ≥ shortest_s``, the unit ``shortest_s / 2^(n−1)`` rounded
-    up to a whole number of ``2·cycle_s`` (so every half period is a whole number of control
-    cycles). Four channels from 8 s: 8, 9, 10, 12 s. Many channels need long periods
-    (``2^(n−1)`` units): sixteen need at least 131 s at 2 ms; refused with that figure."""
+    orthogonal (module docstring): ``P_k = 2^k·o_k·unit`` for ``k = n−1 … 0`` with ``o_k`` odd,
+    the unit ``shortest_s / 2^(n−1)`` rounded up to a whole number of ``2·cycle_s`` (so every
+    half period is a whole number of control cycles). Each ``o_k`` is chosen, the fewest
+    choices first, to keep the periods as far apart as it can (the largest smallest ratio to
+    those already chosen: short beats). Four channels from 8 s: 8, 10, 12 and 15 s. Many
+    channels need long periods (``2^(n−1)`` units): sixteen need at least 131 s at 2 ms;
+    refused with that figure."""
     if n < 1:
         raise ParameterError(f"{n} channels: give at least one")
     step = 2 * cycle_s
@@ -82,14 +84,18 @@ def separating_periods(n: int, shortest_s: float = 8.0, cycle_s: float = 0.002) 
             f"ms control period the shortest is at least {need:g} s (asked for {shortest_s:g} s); "
             "or identify G column by column (one meander per channel, the others at zero)")
     unit = units * step
-    lo = shortest_s / unit
-    out = []
+    lo, hi = shortest_s / unit - 1e-9, 2 * shortest_s / unit
+    chosen: list[int] = []
     for k in range(n - 1, -1, -1):
-        o = math.ceil(lo / 2 ** k - 1e-9)
-        if o % 2 == 0:
-            o += 1
-        out.append(round(2 ** k * o * unit, 9))
-    return sorted(out)
+        first = math.ceil(lo / 2 ** k)
+        options = [2 ** k * o for o in range(first | 1, math.ceil(hi / 2 ** k) + 1, 2)
+                   if 2 ** k * o < hi]
+        if not options:
+            raise ParameterError(f"no period for the {n - k}th channel between {shortest_s:g} "
+                                 f"and {2 * shortest_s:g} s: give a longer shortest period")
+        chosen.append(max(options, key=lambda v: (min((abs(math.log(v / c)) for c in chosen),
+                                                      default=0.0), -v)))
+    return sorted(round(v * unit, 9) for v in chosen)
 
 
 def planned_inflation(periods_s: Sequence[float], duration_s: float,

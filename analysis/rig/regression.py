@@ -12,11 +12,15 @@ start ``a_p``, is weighted least squares on the stretches' slopes:
 stretch share its start and whatever the model misses there, so the covariance is the
 cluster-robust (sandwich) one with the stretches as clusters,
 
-.. math::  V = \frac{P}{P - q}\, M^{-1}\Big(\sum_p w_p^2 r_p^2\, x_p x_p^T\Big) M^{-1},\qquad
-           M = \sum_p w_p x_p x_p^T,\quad r_p = \hat s_p - x_p^T\hat\beta,
+.. math::  V = M^{-1}\Big(\sum_p \frac{w_p^2 r_p^2}{1 - h_p}\, x_p x_p^T\Big) M^{-1},\qquad
+           M = \sum_p w_p x_p x_p^T,\quad r_p = \hat s_p - x_p^T\hat\beta,\quad
+           h_p = w_p x_p^T M^{-1} x_p
 
-(P stretches, q parameters), and the intervals are Student t with ``P − q`` degrees of freedom,
-as the meander estimator's are over its segments. A column no stretch moves (all its
+(P stretches, q parameters; ``h_p`` the stretch's leverage: the small-sample correction of
+Bell and McCaffrey's CR2, unbiased when the stretches' errors are alike; the plain sandwich
+covered 82-85 % of a synthetic rig's entries with its 95 % intervals at 25-35 stretches), and
+the intervals are Student t with ``P − q`` degrees of freedom, as the meander estimator's are
+over its segments. A column no stretch moves (all its
 ``u_{j,p}`` zero) is left out: its entries are unknown, not zero.
 """
 from __future__ import annotations
@@ -79,11 +83,12 @@ def fit_row(X: np.ndarray, sl: Slopes, fitted: np.ndarray, level: float = 0.95) 
     M = (Xf * w[:, None]).T @ Xf
     coef_f = np.linalg.solve(M, (Xf * w[:, None]).T @ sl.slope)
     r = sl.slope - Xf @ coef_f
-    score = Xf * (w * r)[:, None]
     Minv = np.linalg.inv(M)
+    # each stretch's leverage: its residual is shrunk by (1 − h_p) on average, HC2 undoes it
+    lev = np.clip(w * np.einsum("pi,ij,pj->p", Xf, Minv, Xf), 0.0, 0.999)
+    score = Xf * (w * r / np.sqrt(1.0 - lev))[:, None]
     dof = P - qf
-    scale = P / dof if dof > 0 else math.nan
-    V = scale * Minv @ (score.T @ score) @ Minv
+    V = Minv @ (score.T @ score) @ Minv if dof > 0 else np.full((qf, qf), math.nan)
     half = stats.t.ppf(0.5 + level / 2, dof) * np.sqrt(np.diag(V)) if dof > 0 \
         else np.full(qf, math.inf)
     coef = np.full(q, math.nan)
