@@ -10,8 +10,9 @@ turns are read ("cleaned" force), so the turn is the channel's own.
 The transitional window (how long the reversal boost lasts) is read as the meander estimator
 reads it, from the excess force after the turns, but against the steady rate the estimate
 predicts, ``E(θ) = y_j(a + θ) − y_j(a) − ∫_a^{a+θ} (Σ_k Ĝ_jk u_k(t − τ_k) + Δ̂_j) dt`` (a: the
-turn): zero for the main portions, it settles at the extra force the boost adds. The window
-ends where the median of ``E/(Ĝ_jj·u_j)`` (positive for a boost, negative for a
+turn): zero for the main portions, it settles at the extra force the boost adds (each curve
+cut where a reversal of a channel that moves this force arrives: its boost is not this one's).
+The window ends where the median of ``E/(Ĝ_jj·u_j)`` (positive for a boost, negative for a
 slow start) over the reversals reaches 90 % of its final value
 (:func:`boost_window`).
 """
@@ -115,11 +116,13 @@ def median_interval(values: np.ndarray, level: float = 0.95) -> tuple[float, flo
 
 
 def boost_window(u: np.ndarray, y: np.ndarray, rate: np.ndarray, own_gain: float, tau_s: float,
-                 dt: float) -> tuple[float, float] | None:
+                 dt: float, cuts: np.ndarray | None = None) -> tuple[float, float] | None:
     """The transitional window of one run (s), where the median excess force after the turns
     (module docstring; ``rate``: the predicted steady force rate, kgf/s, per sample) reaches
     90 % of its final value, and that final value (s of the steady rate); None when the final
-    value is not clearly above the noise."""
+    value is not clearly above the noise. ``cuts``: samples where another channel's reversal
+    reaches this force (its boost, through G, is no part of this one's): each curve ends
+    there."""
     changes, reversal = command_events(u)
     ends = np.concatenate([changes[1:], [len(u)]])
     lag = int(round(tau_s / dt))
@@ -132,6 +135,7 @@ def boost_window(u: np.ndarray, y: np.ndarray, rate: np.ndarray, own_gain: float
         return None
     step = np.concatenate([[0.0], np.cumsum(rate)]) * dt      # ∫ rate from sample 0
     theta = np.arange(n) * dt
+    cuts = np.sort(np.asarray(cuts if cuts is not None else [], int))
     curves, noise = [], []
     for e, end in segs:
         a = e + lag
@@ -139,32 +143,49 @@ def boost_window(u: np.ndarray, y: np.ndarray, rate: np.ndarray, own_gain: float
             continue
         scale = own_gain * u[e] or 1.0         # signed: a boost's excess is positive
         ex = (y[a:a + n] - y[a] - (step[a:a + n] - step[a])) / scale
+        nxt = cuts[np.searchsorted(cuts, a, side="right"):]
+        if len(nxt) and nxt[0] < a + n:
+            ex[nxt[0] - a:] = np.nan
         curves.append(ex)
         late = ex[n // 2:]
-        noise.append(np.std(late - np.polyval(np.polyfit(theta[n // 2:], late, 1), theta[n // 2:])))
+        ok = np.isfinite(late)
+        if ok.sum() > 8:
+            fit = np.polyval(np.polyfit(theta[n // 2:][ok], late[ok], 1), theta[n // 2:][ok])
+            noise.append(np.std(late[ok] - fit))
     if len(curves) < 2:
         return None
-    med = np.median(np.vstack(curves), axis=0)
-    final = float(np.median(med[n // 2:]))
+    stack = np.vstack(curves)
+    count = np.isfinite(stack).sum(axis=0)
+    n = int(np.flatnonzero(count >= max(2, len(curves) // 3))[-1]) + 1 \
+        if (count >= max(2, len(curves) // 3)).any() else 0
+    if n < 8:
+        return None
+    with np.errstate(all="ignore"):
+        med = np.nanmedian(stack[:, :n], axis=0)
+    final = float(np.nanmedian(med[n // 2:]))
+    if not noise:
+        return None
     if abs(final) < max(5 * float(np.median(noise)), 2 * dt):
         return None
     reached = np.flatnonzero(np.abs(med) >= 0.9 * abs(final))
     return (float(reached[0] * dt), final) if len(reached) else None
 
 
-def channel_timing(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, float, float]],
+def channel_timing(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, float, float,
+                                     np.ndarray | None]],
                    name: str, level: float = 0.95) -> ChannelTiming:
     """τ_j and the transitional window of channel ``name`` from the runs it moved in, each
-    ``(u_j, cleaned y_j, the predicted steady rate of the cleaned force or None, Ĝ_jj, dt)``
-    (module docstring); without a prediction the window is not read (0, not detected)."""
+    ``(u_j, cleaned y_j, the predicted steady rate of the cleaned force or None, Ĝ_jj, dt,
+    the samples where the other channels' reversals reach it)`` (module docstring); without a
+    prediction the window is not read (0, not detected)."""
     delays, windows, extras, amps = [], [], [], []
-    for u, y, rate, own_gain, dt in parts:
+    for u, y, rate, own_gain, dt, cuts in parts:
         d = turn_delays(u, y, dt)
         delays.append(d)
         changes, reversal = command_events(u)
         amps += [abs(u[e]) for e, rev in zip(changes, reversal) if rev and u[e] != 0]
         if rate is not None and len(d):
-            w = boost_window(u, y, rate, own_gain, float(np.median(d)), dt)
+            w = boost_window(u, y, rate, own_gain, float(np.median(d)), dt, cuts)
             if w is not None:
                 windows.append(w[0])
                 extras.append(w[1])

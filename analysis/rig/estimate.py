@@ -58,6 +58,9 @@ MIN_STRETCH_S = 0.1
 VIF_REFUSE = 20.0
 #: above this the estimate notes the inflation
 VIF_NOTE = 2.0
+#: another channel whose part of a force is above this share of the channel's own gain ends
+#: that channel's excess-force curves at its reversals (its boost arrives through G)
+COUPLED_SHARE = 0.01
 #: a command that changes on more than this share of samples is not a meander (a closed loop)
 MAX_CHANGE_SHARE = 0.05
 
@@ -165,15 +168,19 @@ def _timing(records: list[RigRecord], moving: list[list[int]], names: list[str],
             if j not in m:
                 continue
             usable = _open_loop(rec)
-            y, rate, own = rec.y[j].copy(), None, math.nan
+            y, rate, own, cuts = rec.y[j].copy(), None, math.nan, []
             if G is not None and before is not None and delta is not None:
                 for k in m:
                     if k != j and np.isfinite(G[j, k]):
                         uk = delayed(rec.u[k], rec.dt, before[k].tau_s)
                         y -= G[j, k] * np.concatenate([[0.0], np.cumsum(uk[:-1])]) * rec.dt
+                        if abs(G[j, k]) > COUPLED_SHARE * abs(G[j, j]):
+                            e, rev = command_events(rec.u[k])
+                            cuts += list(e[rev] + int(round(before[k].tau_s / rec.dt)))
                 own = float(G[j, j])
                 rate = own * delayed(rec.u[j], rec.dt, before[j].tau_s) + delta[j]
-            parts.append((np.where(usable, rec.u[j], 0.0), y, rate, own, rec.dt))
+            parts.append((np.where(usable, rec.u[j], 0.0), y, rate, own, rec.dt,
+                          np.array(cuts, int)))
         out[j] = channel_timing(parts, names[j], level)
     return out
 
@@ -181,8 +188,9 @@ def _timing(records: list[RigRecord], moving: list[list[int]], names: list[str],
 def _fit(records: list[RigRecord], timing: dict[int, ChannelTiming], guard_s: float | None,
          margin_s: float, level: float, coupled: np.ndarray | None
          ) -> tuple[np.ndarray, list[RowFit], np.ndarray]:
-    """Every row of G by eq. (2') on the runs' steady stretches; the design's variance
-    inflation per column (refused above :data:`VIF_REFUSE`). ``coupled[i, j]``: row i is left
+    """Every row of G by eq. (2') on the runs' steady stretches; each column's largest
+    variance inflation over the rows (a row's design that cannot separate a column, above
+    :data:`VIF_REFUSE`, is refused). ``coupled[i, j]``: row i is left
     out after channel j's reversals (None: after every channel's; a channel that does not move
     channel i's force cannot bias its slopes with its boost), the margins around every command
     change stay."""
@@ -194,22 +202,10 @@ def _fit(records: list[RigRecord], timing: dict[int, ChannelTiming], guard_s: fl
     fitted = np.array([j in timing for j in range(N)] + [True])
     shortest = [max(3, int(round(MIN_STRETCH_S / rec.dt))) for rec in records]
     ud = [np.vstack([delayed(rec.u[j], rec.dt, taus[j]) for j in range(N)]) for rec in records]
-    # the design as a row that every channel moves sees it: the separability of the columns
-    X_all, w_all = [], []
-    for rec, d, m in zip(records, ud, shortest):
-        for a, b in stretches(steady_mask(rec.u, rec.dt, taus, guards, margin_s, _open_loop(rec)), m):
-            X_all.append(np.append(d[:, (a + b) // 2], 1.0))
-            tt = rec.t[a:b] - rec.t[a:b].mean()
-            w_all.append(float(tt @ tt))
-    if len(X_all) < N + 2:
-        raise DataError(f"only {len(X_all)} steady stretch(es) of at least "
-                        f"{MIN_STRETCH_S:g} s in the runs: too few for {N} channels (longer runs, "
-                        "longer periods, or a shorter guard after the reversals)")
-    vif, corr = collinearity(np.array(X_all), np.array(w_all), fitted)
-    worst = int(np.nanargmax(np.where(fitted[:N], vif[:N], -1.0))) if fitted[:N].any() else 0
-    if vif[worst] > VIF_REFUSE:
-        raise DataError(_inseparable(names, worst, vif, corr, fitted))
+    # each row's own design decides whether it separates the columns: rows are guarded only
+    # after the reversals of the channels that move them (second look), so they see more
     fits = []
+    inflation = np.full(N + 1, np.nan)
     for i in range(N):
         row_guards = guards if coupled is None else np.where(coupled[i], guards, 0.0)
         X, parts = [], []
@@ -223,11 +219,19 @@ def _fit(records: list[RigRecord], timing: dict[int, ChannelTiming], guard_s: fl
         sl = Slopes(*(np.concatenate([getattr(p, f) for p in parts])
                       for f in ("slope", "weight", "sse", "samples")))
         if len(X) < fitted.sum() + 1:
-            raise DataError(f"channel {names[i]}: only {len(X)} steady stretch(es) where its "
-                            "force is not clipped or held at a limit: too few for its row of G")
-        fits.append(fit_row(np.array(X), sl, fitted, level))
+            raise DataError(f"channel {names[i]}: only {len(X)} steady stretch(es) of at least "
+                            f"{MIN_STRETCH_S:g} s where its force is not clipped or held at a "
+                            "limit: too few for its row of G (longer runs, longer periods, or a "
+                            "shorter guard after the reversals)")
+        X = np.array(X)
+        vif, corr = collinearity(X, sl.weight, fitted)
+        worst = int(np.nanargmax(np.where(fitted[:N], vif[:N], -1.0))) if fitted[:N].any() else 0
+        if vif[worst] > VIF_REFUSE:
+            raise DataError(_inseparable(names, worst, vif, corr, fitted))
+        inflation = np.fmax(inflation, vif)
+        fits.append(fit_row(X, sl, fitted, level))
     G = np.stack([f.coef[:N] for f in fits])
-    return G, fits, vif
+    return G, fits, inflation
 
 
 def _guard(timing: ChannelTiming) -> float:
@@ -249,6 +253,6 @@ def _inseparable(names: list[str], j: int, vif: np.ndarray, corr: np.ndarray,
             f"command moves with {with_} (correlation {corr[j, k]:+.3f}; variance inflation "
             f"{inflation}, at most {VIF_REFUSE:g} is accepted). Give every channel a meander "
             "period of its own that does not share harmonics with the others' (not equal, not "
-            "a ratio of odd numbers such as 1:3; e.g. 8, 9, 10 and 12 s for four channels: "
+            "a ratio of odd numbers such as 1:3; e.g. 8, 10, 12 and 15 s for four channels: "
             "analysis.rig.periods.separating_periods), or identify G column by column (one "
             "channel's meander per run, the other valves at a zero command)")

@@ -15,11 +15,16 @@ commands were orthogonal, :func:`.regression.collinearity`). Two square waves:
   period**, and over a shorter run correlated only by the beat not yet averaged out: 8 and 8.1 s
   over 48 s are 85 % correlated (VIF 3.6), over 360 s, a third of their 649 s beat, 9 %.
 
-A good set gives every channel a period with its own power of two, all within a factor of two
-of each other (so each has about as many reversals and segments long enough for the reversal
-boost to die out), far enough apart that the run lasts at least about one beat
+The estimator leaves out a guard after every reversal (4 times the channel's transitional
+window: 1.4 s for a boost decaying in 0.15 s); half periods only a few times that long lose
+whole phases of the pattern to the guards: 8, 10, 12 and 15 s over 120 s planned a VIF of 1.00
+and measured 3.2 on the steady parts, 12, 15, 18 and 22.5 s 1.9. So: half periods several times
+the guard, then a good set gives every channel a period with its own power of two, all within a
+factor of two of each other (each has about as many reversals), far enough apart that the run
+lasts at least about one beat
 ``1/|1/P_a − 1/P_b|`` of every pair: four channels from 8 s get 8, 10, 12 and 15 s (``2³, 2·5,
-2²·3, 3·5``; beats 17-60 s; over 120 s every VIF ≤ 1.01). :func:`separating_periods` gives such
+2²·3, 3·5``; beats 17-60 s; over 120 s every VIF ≤ 1.01), from 12 s 12, 15, 18 and 22.5 s.
+:func:`separating_periods` gives such
 a set, :func:`sharing_pairs` names the pairs of a set that share harmonics, and
 :func:`planned_inflation` says what a plan gives before it is run.
 
