@@ -232,16 +232,17 @@ class PlantModel:
         prev = np.concatenate([last[:, None], v[:, :-1]], axis=1)
         return (1.0 - f) * v + f * prev
 
-    def integrate(self, drv: Drive, y0: np.ndarray, dt: float) -> np.ndarray:
-        """Force trajectory (n, K+1) from ``y0`` (n,) under the block's drive."""
-        force = self._force
+    def integrate(self, drv: Drive, y0: np.ndarray, dt: float,
+                  guess: np.ndarray | None = None) -> np.ndarray:
+        """Force trajectory (n, K+1) from ``y0`` (n,) under the block's drive. ``guess``: a
+        trajectory of the same shape near the answer (the last one of a fit, whose next
+        simulation moves one parameter a little), where the force-dependent integration starts
+        (:meth:`_integrate_in_blocks`); the answer does not depend on it."""
         y0 = np.asarray(y0, float)
         n, K = drv.q.shape
-        needs_y = any(e.depends_on_force for e in self._flow) or any(
-            e.decay_rate() is None for e in force)
-        if not needs_y:   # the force terms are -λ·y: integrated exactly below
+        lam = self.force_decay()
+        if lam is not None:   # the force terms are -λ·y: integrated exactly below
             rate = self._rate(drv.q, drv.aux, drv.dist, None, force_terms=False)
-            lam = sum(e.decay_rate() for e in force)
             out = np.empty((n, K + 1))
             out[:, 0] = y0
             if lam == 0.0:
@@ -251,9 +252,21 @@ class PlantModel:
                 a = 1.0 - lam * dt
                 out[:, 1:], _ = lfilter([dt], [1.0, -a], rate, axis=1, zi=(a * y0)[:, None])
             return out
-        return self._integrate_in_blocks(drv, y0, dt)
+        return self._integrate_in_blocks(drv, y0, dt, guess)
 
-    def _integrate_in_blocks(self, drv: Drive, y0: np.ndarray, dt: float) -> np.ndarray:
+    def force_decay(self) -> float | None:
+        """``λ`` (1/s) when the force rate is linear in the force, ``r(t) − λ·y``: no FLOW
+        effect reads the force and every FORCE term is a decay (0 without FORCE effects);
+        None when the rate depends on the force otherwise (:attr:`depends_on_force`)."""
+        if any(e.depends_on_force for e in self._flow):
+            return None
+        rates = [e.decay_rate() for e in self._force]
+        if any(r is None for r in rates):
+            return None
+        return sum(rates)
+
+    def _integrate_in_blocks(self, drv: Drive, y0: np.ndarray, dt: float,
+                             guess: np.ndarray | None = None) -> np.ndarray:
         r"""The force when its rate depends on it: the explicit recursion
         ``y[k+1] = y[k] + dt·f_k(y[k])`` of every step, solved a block of steps at a time.
 
@@ -294,14 +307,18 @@ class PlantModel:
 
         out = np.empty((n, K + 1))
         out[:, 0] = y0
-        a, block = 0, INTEGRATION_FIRST_BLOCK
+        warm = guess is not None and guess.shape == out.shape and bool(np.all(np.isfinite(guess)))
+        a, block = 0, K if warm else INTEGRATION_FIRST_BLOCK
         with np.errstate(all="ignore"):   # a guess may stray where the law is steep
             while a < K:
                 b = min(K, a + block)
                 seg = out[:, a:b + 1]            # a view: seg[:, 0] is known
                 start = seg[:, :1]
-                # first guess: the rate at the block's start, held (explicit Euler over the block)
-                seg[:, 1:] = start + rate(a, a + 1, start) * (dt * np.arange(1, b - a + 1))
+                if warm:
+                    seg[:, 1:] = guess[:, 1:]
+                    warm = False
+                else:  # the rate at the block's start, held (explicit Euler over the block)
+                    seg[:, 1:] = start + rate(a, a + 1, start) * (dt * np.arange(1, b - a + 1))
                 for _ in range(b - a + 1):   # each pass makes one more step exact, at least
                     guess = seg[:, :-1]
                     size = np.max(np.abs(seg)) + 1.0
@@ -389,14 +406,26 @@ class PlantModel:
     def integrate_from_readings(self, drv: Drive, readings: np.ndarray, dt: float,
                                 sensor: list[dict] | None) -> np.ndarray:
         """Readings along windows (n, K+1) that start from measured ``readings`` (n,): the force
-        trajectories from the force under each reading, through the SENSOR filters whose states
-        at the starts are ``sensor`` (None: no SENSOR effect)."""
-        if sensor is None:
-            return self.integrate(drv, readings, dt)
+        trajectories from the force under each reading (:meth:`force_under`), through the
+        SENSOR filters whose states at the starts are ``sensor`` (None: no SENSOR effect)."""
+        y = self.integrate(drv, self.force_under(readings, sensor), dt)
+        return y if sensor is None else self.sense(y, dt, readings, sensor)
+
+    def force_under(self, readings: np.ndarray, sensor: list[dict] | None) -> np.ndarray:
+        """The force under the dynamometer's ``readings`` (n,) for the SENSOR filters' states
+        ``sensor`` (None: no SENSOR effect, the readings themselves)."""
         y0 = np.asarray(readings, float)
-        for i in self._sensor:
-            y0 = y0 + self.effects[i].force_minus_reading(sensor[i])
-        return self.sense(self.integrate(drv, y0, dt), dt, readings, sensor)
+        if sensor is not None:
+            for i in self._sensor:
+                y0 = y0 + self.effects[i].force_minus_reading(sensor[i])
+        return y0
+
+    @property
+    def depends_on_force(self) -> bool:
+        """True if the force rate depends on the force (a FLOW law of the force, or a FORCE term
+        that is not a plain decay): the integration then solves for it
+        (:meth:`_integrate_in_blocks`)."""
+        return self.force_decay() is None
 
     @property
     def has_sensor_effects(self) -> bool:

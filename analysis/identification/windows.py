@@ -146,9 +146,9 @@ def subset_pieces(full: Sequence[Piece], max_windows: int = 150, chunk_windows: 
     if total <= max_windows:
         return full, False
     n_chunks = max(1, max_windows // chunk_windows)
-    # chunks per piece in proportion to its windows
+    # chunks per piece in proportion to its windows, one at least (every record is screened)
     share = np.array([p.n_windows for p in full], float)
-    alloc = np.floor(n_chunks * share / share.sum()).astype(int)
+    alloc = np.maximum(np.floor(n_chunks * share / share.sum()).astype(int), 1)
     out: list[Piece] = []
     for p, n in zip(full, alloc):
         if n <= 0:
@@ -174,6 +174,9 @@ def subset_pieces(full: Sequence[Piece], max_windows: int = 150, chunk_windows: 
 #: parameter the drive does not read (g, Δ, a force-dependent law, a sensor)
 _DRIVES: "OrderedDict[tuple, tuple[Piece, Drive, Drive]]" = OrderedDict()
 _DRIVES_KEPT = 16
+#: the last force trajectories of groups of pieces whose model depends on the force, by the
+#: pieces: where the next simulation's integration starts
+_FORCES: dict[tuple, tuple[list, np.ndarray]] = {}
 
 
 def _piece_drive(model: PlantModel, piece: Piece) -> tuple[Drive, Drive]:
@@ -247,7 +250,22 @@ def simulate_pieces(model: PlantModel, pieces: Sequence[Piece]) -> list[np.ndarr
             sensor = None if cuts[0][2] is None else [
                 {k: np.concatenate([c[2][j][k] for c in cuts]) for k in cuts[0][2][j]}
                 for j in range(len(cuts[0][2]))]
-        yy = model.integrate_from_readings(drv, starts, dt, sensor)[:, :-1]
+        if model.depends_on_force:
+            # solved from the last solution for these windows: a fit's next simulation moves
+            # one parameter a little (the answer does not depend on where it starts)
+            key = (tuple(id(pieces[i]) for i in idx), dt, W)
+            hit = _FORCES.get(key)
+            force = model.integrate(drv, model.force_under(starts, sensor), dt,
+                                    guess=hit[1] if hit is not None and all(
+                                        a is b for a, b in zip(hit[0], (pieces[i] for i in idx)))
+                                    else None)
+            _FORCES[key] = ([pieces[i] for i in idx], force)
+            if len(_FORCES) > _DRIVES_KEPT:
+                _FORCES.pop(next(iter(_FORCES)))
+            yy = force if sensor is None else model.sense(force, dt, starts, sensor)
+        else:
+            yy = model.integrate_from_readings(drv, starts, dt, sensor)
+        yy = yy[:, :-1]
         row = 0
         for i, (d, _, _) in zip(idx, cuts):
             k = d.q.shape[0]
