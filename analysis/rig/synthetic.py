@@ -68,9 +68,10 @@ def per_column_meanders(rig: RigModel, amplitude_pct: float = 5.0, period_s: flo
 
 
 def rig_truth(rig: RigModel) -> dict:
-    """What ``truth.json`` says of a rig: G, and each channel's model and parameters."""
-    return {"G": rig.G.tolist(), "channels": rig.names,
-            "models": {n: {"model": m.spec, "params": m.params()}
+    """What ``truth.json`` says of a rig, as the rig emulator writes it
+    (``rig.emulated.rig_truth``): the channels, G, and each channel's plant by name."""
+    return {"channels": rig.names, "G": rig.G.tolist(), "structure_from": "G",
+            "plants": {n: {"model": m.spec, "params": m.params()}
                        for n, m in zip(rig.names, rig.channels)}}
 
 
