@@ -13,7 +13,7 @@ import pytest
 from analysis.rig.periods import separating_periods
 from analysis.rig.synthetic import rig_meander, rig_truth, write_rig_run
 from plant.rig_config import load_rig_model
-from tests.support.rigs import CHANNELS3, chain_rig
+from tests.support.rig_models import CHANNELS3, chain_rig
 
 
 def stand(*args, timeout=300):

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from analysis import fit_model, make_record
+from analysis import fit_model
 from analysis.identification.windows import Piece, simulate_pieces
 from analysis.rig.coupling import channel_records, coupling_rates
 from analysis.rig.record import make_rig_record
@@ -16,7 +16,7 @@ from analysis.rig.synthetic import rig_meander
 from plant import PlantModel
 from plant.params import ModelError
 from plant.rig_config import load_rig_model, rig_model_from_mapping, rig_model_to_toml
-from tests.support.rigs import chain_rig, two_channel_rig
+from tests.support.rig_models import chain_rig, two_channel_rig
 
 DT = 0.002
 

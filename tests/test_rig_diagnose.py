@@ -14,7 +14,7 @@ from plant import PlantModel, plugins
 from plant.catalogue import CATALOGUE
 from plant.rig import RigModel
 from tests.support.plugins import RIPPLE, isolated_catalogue
-from tests.support.rigs import two_channel_rig
+from tests.support.rig_models import two_channel_rig
 
 CANDIDATES = ["reversal", "lag"]
 

@@ -16,7 +16,7 @@ from analysis.rig.record import make_rig_record
 from analysis.rig.result import physical_note, starting_models
 from analysis.rig.synthetic import per_column_meanders, rig_meander, rig_truth, write_rig_run
 from core.errors import DataError, ParameterError
-from tests.support.rigs import CHANNELS3, chain_rig, within
+from tests.support.rig_models import CHANNELS3, chain_rig, within
 
 
 @pytest.fixture(scope="module")

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from plant.rig import PhysicalCheck, physical_check
+from plant.rig import PhysicalCheck, RigModel, physical_check
 
 
 @dataclass
@@ -150,7 +150,7 @@ class RigEstimate:
         }
 
 
-def starting_models(est: RigEstimate) -> "RigModel":
+def starting_models(est: RigEstimate) -> RigModel:
     """The rig model an estimate gives, to start the channels' diagnoses from (``stand estimate
     --save``): G, and per channel the paper's base model (``g = G_ii``, τ, Δ), with the
     reversal boost where the estimate found a transitional portion. An exponential boost
@@ -160,7 +160,6 @@ def starting_models(est: RigEstimate) -> "RigModel":
     its ``b`` is the same flow). The diagnoses refine all of it."""
     from plant import PlantModel
     from plant.effects.reversal import Reversal
-    from plant.rig import RigModel
     models = []
     for j in range(est.n):
         values = {"tau": float(est.tau_s[j]) if math.isfinite(est.tau_s[j]) else 0.05,

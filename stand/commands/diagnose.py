@@ -80,7 +80,7 @@ def main(args: argparse.Namespace) -> int:
     if args.jobs is not None and args.jobs < 1:
         from gateway.errors import ParameterError
         raise ParameterError(f"--jobs {args.jobs} is out of range: give 1 or more")
-    from .rigs import main_diagnose, rig_inputs
+    from .rig_analysis import main_diagnose, rig_inputs
     if args.rig_model:
         if not rig_inputs(args.data):
             from gateway.errors import ParameterError

@@ -1,5 +1,5 @@
 """``stand estimate DATA...``: the paper's estimates of g and τ from recorded runs or CSV files;
-on rig runs G, each channel's τ and Δ (:mod:`stand.commands.rigs`)."""
+on rig runs G, each channel's τ and Δ (:mod:`stand.commands.rig_analysis`)."""
 from __future__ import annotations
 
 import argparse
@@ -51,7 +51,7 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from .rigs import main_estimate, rig_inputs
+    from .rig_analysis import main_estimate, rig_inputs
     if rig_inputs(args.data):
         return main_estimate(args)
     if args.save or args.guard_ms is not None:
