@@ -1,38 +1,5 @@
-"""Loading programmes on the stand: the load experiment and passes that learn (``stand load``).
-
-A pass is one run of the gateway like any experiment (same supervisor, limits, recorder, run
-directory, capture)::
-
-    approach   the force is brought to the pre-roll's start by a short P loop that moves the
-               rod one way only (holding rather than reversing it)
-    pre-roll   a haversine into the first level (:data:`PRE_ROLL_SHARE` of the range, in
-               :data:`PRE_ROLL_S`), moving the way the valve holds the force against the
-               model's trend Δ (down for Δ > 0)
-    programme  u = feedforward through the model's inverse + PI (loading.controller)
-    unload     a haversine from the last level to the unload level, tracked the same way
-
-**No reversal the model does not plan.** With a reversal effect the stand's gain right after
-the rod reverses at a small command is many times the steady one (17× at b = 2, p = 0.7, where
-the design's margins hold up to ``ρ`` = 3); on the emulated stands a reversal brings 100-200 kgf
-of force the steady gain does not predict. The feedforward plans it at every turning point of
-the programme; a reversal it does not plan throws the force off by as much, and a feedback that
-reverses the valve near a turning point, where the planned command is small, rings (the extra
-cycles of the tracking report). So: wherever the model predicts a gain above ``ρ`` (the
-feedback is scaled down there, see :func:`loading.feedforward.feedback_scale`) and during the
-pre-roll, the command keeps the feedforward's sign or holds (0): the feedback slows the rod, it
-does not reverse it, and the rod reverses where and when the feedforward plans.
-
-**The approach and the pre-roll** give the programme a start the model plans. A plain P loop
-ends holding the force with small commands of either sign (its noise, and with a reversal
-effect a limit cycle), so the way the rod last moved would be unknown. Here the approach moves
-the rod one way only, so that way is known, and the feedforward is computed knowing it (both
-ways are planned before the run; the one the force starts on is used). The pre-roll moves the
-way a held force's command points (against the trend: a held force needs ``q = −Δ/g``), so the
-command keeps one sign from the pre-roll into the hold at the first level: the programme's
-first motion is a single planned reversal or none, never a brief reversal back and forth at a
-small command. The programme's first commands, due a delay before it starts, go out during the
-pre-roll: a programme that starts at full rate (a sine) starts on time. A pre-roll that would
-cross 0 kgf starts at 0 kgf.
+"""Loading programmes on the stand, pass by pass (``stand load``): the load experiment
+(:mod:`gateway.load_experiment`) run ``repeat`` times, learning between passes.
 
 The supervisor's tracking-error limit, when none is set, is :data:`ERROR_LIMIT_SHARE` of the
 programme's range for these passes: a pass that cannot track stops safely and says why.
@@ -42,211 +9,66 @@ force and the peak/valley compensation learns from it before the next. ``out`` a
 controller used, the learned corrections (``compensation.toml``), the report (``report.json``,
 ``report.txt``) and a figure of the last pass (``tracking.png``).
 
-Everything that can be checked is checked before anything moves: the controller's period
-against the loop's, the programme against the force limit, the feedforward's peak command
-against the command limit.
+**Time scaling** (``scaling``, :mod:`loading.time_scaling`): the segment durations change
+from pass to pass, each on its own, until every turning point holds the accuracy as fast as it
+can; ``out/schedule.toml`` keeps the fastest schedule whose pass met the accuracy. A
+``schedule`` replays one. Every pass reports the programme's time (without the approach, the
+pre-roll and the unload), the valve-limited minimum (:mod:`loading.minimum_time`) and the time
+spent pacing (:mod:`loading.pacing`).
+
+Everything that can be checked is checked before anything moves (:meth:`LoadProgramme.check`).
 """
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from core.errors import ParameterError
 from loading.compensation import Compensation
-from loading.controller import PIFeedforward
 from loading.design import ControllerDesign
-from loading.feedforward import Feedforward, feedback_scale, feedforward
-from loading.programme import Programme, check_programme
+from loading.gain_monitor import GainMonitor, MonitorOptions, margin_table
+from loading.minimum_time import minimum_durations_s, programme_valve_limit
+from loading.pacing import PacingOptions
+from loading.programme import Programme
 from loading.report import TrackingReport, load_summary, plot_tracking, tracking_report
+from loading.time_scaling import (ScalingOptions, Schedule, TimeScaler, meets, ringing_turning_points,
+                                  stretch_to_valve)
 
-from .experiments.phases import PhasedExperiment, SetPointApproach
+from .load_experiment import (FEEDFORWARD_SHARE, PRE_ROLL_S, PRE_ROLL_SHARE,  # noqa: F401 (re-exported)
+                              LoadProgramme, OneWayApproach, _pre_roll, _unload_tail)
 from .runs import load_run
 
 #: the supervisor's tracking-error limit when none is set: this share of the programme's range
 ERROR_LIMIT_SHARE = 0.10
-#: the feedforward may use at most this share of the command limit (the rest is the feedback's)
-FEEDFORWARD_SHARE = 0.9
-#: the pre-roll into the programme's first level: this share of its range (at least three
-#: times the approach's tolerance), in this time (s)
-PRE_ROLL_SHARE = 0.02
-PRE_ROLL_S = 0.6
-
-
-def _unload_tail(last_kgf: float, unload_kgf: float, rate_kgf_s: float, period_s: float) -> np.ndarray:
-    """A haversine from the last level to the unload level at a peak rate (samples after the
-    programme's last)."""
-    span = unload_kgf - last_kgf
-    if abs(span) < 1e-9:
-        return np.zeros(0)
-    n = max(int(round(math.pi * abs(span) / (2 * rate_kgf_s) / period_s)), 1)
-    s = np.arange(1, n + 1) / n
-    return last_kgf + span * (1 - np.cos(np.pi * s)) / 2
-
-
-def _pre_roll(programme: Programme, trend_kgf_s: float, tolerance_kgf: float) -> np.ndarray:
-    """The pre-roll's samples before the programme's first (module docstring): a haversine
-    into the first level, moving the way a held force's command points (against the trend; the
-    programme's first way without one)."""
-    r = programme.r_kgf
-    if trend_kgf_s:
-        way = -math.copysign(1.0, trend_kgf_s)
-    else:
-        moves = np.flatnonzero(r != r[0])
-        way = float(np.sign(r[moves[0]] - r[0])) if len(moves) else 1.0
-    start = r[0] - way * max(PRE_ROLL_SHARE * programme.range_kgf, 3 * tolerance_kgf)
-    if np.sign(start) != np.sign(r[0]):
-        start = 0.0
-    n = max(int(round(PRE_ROLL_S / programme.period_s)), 1)
-    s = np.arange(n) / n
-    return start + (r[0] - start) * (1 - np.cos(np.pi * s)) / 2
+#: time scaling: at most this many stretches of the segments the valve cannot follow, per pass
+STRETCH_TRIES = 6
 
 
 @dataclass
-class _Plan:
-    """What one pass commands, for one way into the programme (module docstring)."""
+class PassTiming:
+    """How long a pass's programme took beside its minimum, and what pacing did."""
 
-    reference: np.ndarray     #: pre-roll, programme, unload (kgf per cycle)
-    ff: Feedforward
-    scale: np.ndarray         #: the share of the feedback gain per cycle
-    way: np.ndarray           #: the sign the command must keep per cycle (0: free)
+    programme_time_s: float           #: the scheduled programme, without approach/pre-roll/unload
+    minimum_time_s: float             #: the valve-limited minimum of the same programme
+    pacing_s: float = 0.0             #: time on the stand beyond the programme's, pacing
+    pacing: dict | None = None        #: the pacing record (waits, slowed time), None: pacing off
+    scaling: dict | None = None       #: time scaling: segments landed / held / missed
+    gain_blocks: list | None = None   #: the gain monitor's blocks of this pass (dicts)
 
-
-def _plan(controller: ControllerDesign, reference: np.ndarray, lead: int, period_s: float,
-          way: float) -> _Plan:
-    """The pass's commands when the rod last moved ``way`` before the pre-roll."""
-    if controller.feedforward:
-        ff = feedforward(controller.model, reference, period_s, direction=way)
-    else:
-        ff = Feedforward(np.zeros_like(reference), np.zeros_like(reference), [], ["all: feedback alone"])
-    # feedback alone (P control) runs as it was given: scale 1, and its sign is never held
-    scale = feedback_scale(ff, controller.boost)
-    held = scale < 1.0
-    held[:lead] = True
-    return _Plan(reference, ff, scale, np.where(held, np.sign(ff.u_pct), 0.0))
-
-
-class OneWayApproach(SetPointApproach):
-    """The set-point approach moving the rod one way only (``way``, ±1: toward the set point
-    from where the force starts); a command the other way is held at 0."""
-
-    way = 1.0
-
-    def step(self, t: float, y: float) -> float | None:
-        u = super().step(t, y)
-        return 0.0 if u is not None and self.way * u < 0 else u
-
-
-class LoadProgramme(PhasedExperiment):
-    """One pass of a loading programme under the designed controller (module docstring)."""
-
-    name = "load"
-
-    def __init__(self, programme: Programme, controller: ControllerDesign,
-                 compensation: Compensation | None = None, unload_kgf: float = 0.0,
-                 settle_gain: float = 0.02, settle_limit_pct: float = 20.0,
-                 settle_tolerance_kgf: float = 20.0, settle_max_s: float = 20.0,
-                 guard_fraction: float = 0.95) -> None:
-        self.programme = programme
-        self.controller = controller
-        self.compensation = compensation
-        kinds = programme.kinds()
-        self.commanded = (programme.with_levels(compensation.levels(programme.levels_kgf, kinds))
-                          if compensation is not None else programme)
-        peak_rate = float(np.max(np.abs(programme.rate_kgf_s()))) or 1000.0
-        tail = _unload_tail(float(self.commanded.r_kgf[-1]), unload_kgf, min(peak_rate, 2500.0),
-                            programme.period_s)
-        pre = _pre_roll(self.commanded, controller.model.delta, settle_tolerance_kgf)
-        #: cycles of the main phase before the programme's start (the pre-roll)
-        self.lead = len(pre)
-        reference = np.r_[pre, self.commanded.r_kgf, tail]
-        #: by the way the approach moves the rod (+1: up to the pre-roll's start)
-        self.plans = {way: _plan(controller, reference, self.lead, programme.period_s, way)
-                      for way in (1.0, -1.0)}
-        self.plan = self.plans[1.0]
-        self.unload_kgf = unload_kgf
-        self.max_command_pct = controller.command_limit_pct
-        self.law = PIFeedforward(controller.kp_pct_per_kgf, controller.ti_s, programme.period_s,
-                                 controller.command_limit_pct)
-        self._init_phases(float(self.reference[0]), settle_gain, settle_limit_pct,
-                          settle_tolerance_kgf, settle_max_s, guard_fraction)
-        self.approach = OneWayApproach(float(self.reference[0]), settle_gain, settle_limit_pct,
-                                       settle_tolerance_kgf, max_s=settle_max_s)
-
-    @property
-    def reference(self) -> np.ndarray:
-        return self.plan.reference
-
-    @property
-    def ff(self) -> Feedforward:
-        return self.plan.ff
-
-    @property
-    def main_duration_s(self) -> float:
-        return len(self.reference) * self.programme.period_s
-
-    @property
-    def programme_start_s(self) -> float | None:
-        """The run's time at the programme's start (None before the approach ended)."""
-        if self.main_start_s is None:
-            return None
-        return self.main_start_s + self.lead * self.programme.period_s
-
-    def params(self) -> dict[str, Any]:
-        return {"programme": self.programme.source, "turning_points": int(len(self.programme.turning_idx)),
-                "range_kgf": self.programme.range_kgf, "controller_model": self.controller.model_spec,
-                "kp_pct_per_kgf": self.controller.kp_pct_per_kgf, "ti_s": self.controller.ti_s,
-                "feedforward_inverts": self.ff.inverted, "feedforward_does_not_invert": self.ff.not_inverted,
-                "feedback_scale_min": float(self.plan.scale.min()),
-                "sign_held_share": float(np.mean(self.plan.way != 0)),
-                "pre_roll_from_kgf": float(self.reference[0]),
-                "compensated": self.compensation is not None, "unload_kgf": self.unload_kgf,
-                **self.phase_params()}
-
-    def check(self, period_s: float, force_limit_kgf: float, command_limit_pct: float) -> None:
-        """Refuse what the stand must not be asked for, before anything moves."""
-        if abs(self.controller.period_s - period_s) > 1e-9:
-            raise ParameterError(
-                f"the controller was designed for a period of {self.controller.period_s * 1e3:g} ms but "
-                f"the loop runs at {period_s * 1e3:g} ms; design it again with --period-ms "
-                f"{period_s * 1e3:g}")
-        check_programme(self.programme, force_limit_kgf)
-        check_programme(self.commanded, force_limit_kgf)
-        limit = min(command_limit_pct, self.controller.command_limit_pct)
-        ff = max((plan.ff for plan in self.plans.values()), key=lambda f: f.peak_pct)
-        peak = ff.peak_pct
-        if peak > FEEDFORWARD_SHARE * limit:
-            k = int(np.argmax(np.abs(ff.u_pct)))
-            raise ParameterError(
-                f"{self.programme.source}: at t = {(k - self.lead) * period_s:.2f} s the programme needs a valve "
-                f"command of {peak:.1f} % by the model, over {FEEDFORWARD_SHARE:.0%} of the command "
-                f"limit ±{limit:g} %: the valve cannot follow this rate; lower --rate or --frequency")
-
-    def begin(self, y0: float) -> None:
-        # the approach moves the rod one way, to the pre-roll's start (module docstring)
-        way = 1.0 if y0 <= self.reference[0] else -1.0
-        self.plan = self.plans[way]
-        self.approach.way = way
-        super().begin(y0)
-
-    def begin_main(self, y0: float) -> None:
-        self.law.reset()
-
-    def step(self, t: float, y: float) -> tuple[float, float]:
-        u, r = super().step(t, y)
-        # during the approach the reference is not recorded: the supervisor's error limit is
-        # for tracking the programme, not for the way to its first level
-        return (u, r) if self.main_start_s is not None else (u, math.nan)
-
-    def main_step(self, tm: float, y: float) -> tuple[float, float]:
-        k = min(int(round(tm / self.programme.period_s)), len(self.reference) - 1)
-        r = float(self.reference[k])
-        plan = self.plan
-        return self.law.step(r, y, float(plan.ff.u_pct[k]), float(plan.scale[k]), float(plan.way[k])), r
+    def figures(self) -> dict:
+        d = {"programme_time_s": self.programme_time_s, "minimum_time_s": self.minimum_time_s,
+             "time_over_minimum": self.programme_time_s / self.minimum_time_s if self.minimum_time_s else None,
+             "pacing_s": self.pacing_s}
+        if self.pacing is not None:
+            d["pacing"] = self.pacing
+        if self.scaling is not None:
+            d["scaling"] = self.scaling
+        if self.gain_blocks is not None:
+            d["gain_blocks"] = self.gain_blocks
+        return d
 
 
 @dataclass
@@ -257,36 +79,104 @@ class LoadResult:
     end_reason: str | None = None
     end_message: str | None = None
     compensation: Compensation | None = None
+    timings: list[PassTiming] = field(default_factory=list)
+    #: time scaling: the fastest schedule whose pass met the accuracy (None: none did)
+    schedule: Schedule | None = None
+    #: time scaling: did the last pass run every segment settled and meet the accuracy
+    converged: bool | None = None
+    #: the gain monitor of the test (None: off)
+    monitor: GainMonitor | None = None
 
     def summary(self) -> dict:
-        d = load_summary(self.passes, self.end_reason or "complete")
+        d = load_summary(self.passes, self.end_reason or "complete",
+                         [t.figures() for t in self.timings[:len(self.passes)]])
         d["runs"] = [str(p) for p in self.run_dirs]
         if self.end_message:
             d["end_message"] = self.end_message
+        if self.converged is not None:
+            d["schedule"] = ({"time_s": self.schedule.time_s, "minimum_time_s": self.schedule.minimum_time_s,
+                              "accuracy_pct": self.schedule.accuracy_pct, "verified": self.schedule.verified}
+                             if self.schedule is not None else None)
+            d["converged"] = self.converged
+        if self.monitor is not None:
+            d["gain"] = self.monitor.summary()
         return d
 
 
 def achieved(run_dir: Path, experiment: LoadProgramme) -> tuple[np.ndarray, np.ndarray]:
-    """The recorded force on the programme's time base (t = 0 at its start)."""
+    """The recorded force on the programme's clock (t = 0 at its start): with pacing, each
+    sample of the main phase at the clock's position then (a wait's samples share a time)."""
     run = load_run(run_dir)
+    t = np.asarray(run.t, float)
     t0 = experiment.programme_start_s or 0.0
-    return np.asarray(run.t) - t0, np.asarray(run.y)
+    if not experiment.positions or experiment.main_start_s is None:
+        return t - t0, np.asarray(run.y)
+    T = experiment.programme.period_s
+    i = np.round((t - experiment.main_start_s) / T).astype(int)
+    pos = np.asarray(experiment.positions)
+    inside = (i >= 0) & (i < len(pos))
+    prog = np.where(inside, (pos[np.clip(i, 0, len(pos) - 1)] - experiment.lead) * T, t - t0)
+    return prog, np.asarray(run.y)
+
+
+@dataclass
+class _Pass:
+    """What every pass of one ``run_load`` shares."""
+
+    gw: object
+    controller: ControllerDesign
+    compensation: Compensation | None
+    unload_kgf: float
+    pacing: PacingOptions | None
+    monitor: GainMonitor | None = None
+
+    def experiment(self, programme: Programme, check: bool = True) -> LoadProgramme:
+        e = LoadProgramme(programme, self.controller, self.compensation, self.unload_kgf, pacing=self.pacing,
+                          monitor=self.monitor, unload_limits=self.gw.config.limits)
+        if check:
+            limits = self.gw.config.limits
+            e.check(self.gw.config.period_s, limits.force_limit_kgf, limits.command_limit_pct)
+        return e
+
+    @property
+    def command_limit_pct(self) -> float:
+        return min(self.controller.command_limit_pct, self.gw.config.limits.command_limit_pct)
 
 
 def run_load(gw, programme: Programme, controller: ControllerDesign, out: str | Path,
              repeat: int = 1, compensation: Compensation | None = None, learn: bool = True,
              unload_kgf: float = 0.0, progress: bool | None = None,
-             error_limit_kgf: float | None = None) -> LoadResult:
+             error_limit_kgf: float | None = None, pacing: PacingOptions | None = None,
+             scaling: ScalingOptions | None = None, schedule: Schedule | None = None,
+             monitor: MonitorOptions | None = None) -> LoadResult:
     """Run ``repeat`` passes of ``programme`` on the gateway ``gw`` (module docstring).
     ``error_limit_kgf``: the tracking-error limit for these passes (default: the supervisor's,
-    else :data:`ERROR_LIMIT_SHARE` of the programme's range)."""
+    else :data:`ERROR_LIMIT_SHARE` of the programme's range). ``pacing``: null pacing
+    (:mod:`loading.pacing`). ``schedule``: the segment durations to run (a ``schedule.toml``).
+    ``scaling``: time scaling, at most ``repeat`` passes (:mod:`loading.time_scaling`).
+    ``monitor``: the stand's g estimated block by block, followed by the feedforward and
+    watched for a fall or a rise (:mod:`loading.gain_monitor`)."""
     if not (1 <= repeat <= 1000):
         raise ParameterError(f"repeat = {repeat}: it must be from 1 to 1000")
+    if scaling is not None:
+        scaling.check()
+        if schedule is None and programme.turning_idx.size < 2:
+            raise ParameterError("time scaling needs a programme with turning points")
     out = Path(out)
-    limits = gw.config.limits
+    if schedule is not None:
+        programme = schedule.apply(programme)
     comp = compensation if compensation is not None else (Compensation() if learn and repeat > 1 else None)
-    first = LoadProgramme(programme, controller, comp, unload_kgf)
-    first.check(gw.config.period_s, limits.force_limit_kgf, limits.command_limit_pct)
+    watcher = None
+    if monitor is not None:
+        monitor.check()
+        model = controller.model
+        watcher = GainMonitor(model.g, model.tau, model.delta, gw.config.period_s, monitor,
+                              margin_table(controller.kp_pct_per_kgf, controller.ti_s, model.g, model.tau,
+                                           gw.config.period_s, controller.boost))
+    shared = _Pass(gw, controller, comp, unload_kgf, pacing, watcher)
+    first = shared.experiment(programme)
+    limit = programme_valve_limit(programme, controller.model, shared.command_limit_pct)
+    minimum = minimum_durations_s(programme, limit)
     supervisor = gw.loop.supervisor
     own_limits = supervisor.limits
     if error_limit_kgf is None and own_limits.error_limit_kgf is None:
@@ -294,40 +184,163 @@ def run_load(gw, programme: Programme, controller: ControllerDesign, out: str | 
     if error_limit_kgf is not None:             # this programme's, for these passes only
         supervisor.limits = replace(own_limits, error_limit_kgf=error_limit_kgf)
     try:
-        return _passes(gw, programme, controller, out, repeat, comp, first, learn, unload_kgf, progress)
+        if scaling is not None:
+            return _scaled_passes(shared, programme, minimum, out, repeat, learn, progress, scaling)
+        return _passes(shared, programme, minimum, out, repeat, first, learn, progress)
     finally:
         supervisor.limits = own_limits
 
 
-def _passes(gw, programme, controller, out, repeat, comp, first, learn, unload_kgf, progress) -> LoadResult:
-    limits = gw.config.limits
+def _run_pass(shared: _Pass, experiment: LoadProgramme, programme: Programme, minimum_s: np.ndarray,
+              path: Path, result: LoadResult, learn: bool, progress):
+    """One pass: run, report, learn. Returns (report, (t, y), paced per turning point) or None
+    if the pass ended early (result.end_reason says why)."""
+    res = shared.gw.run(experiment, path, progress=progress)
+    result.run_dirs.append(res.path)
+    monitor = shared.monitor
+    blocks = None
+    if monitor is not None and monitor.end_pass():
+        blocks = [b.to_dict() for b in monitor.blocks if b.pass_index == monitor.pass_index]
+        (res.path / "gain.json").write_text(json.dumps({**monitor.summary(), "blocks": blocks}, indent=2) + "\n")
+        result.monitor = monitor
+    clock = experiment.clock
+    timing = PassTiming(programme.duration_s, float(np.sum(minimum_s)),
+                        clock.record.pacing_s if clock is not None else 0.0,
+                        clock.record.to_dict() if clock is not None else None, gain_blocks=blocks)
+    result.timings.append(timing)
+    if res.status != "complete" or experiment.main_start_s is None:
+        result.end_reason = res.reason or res.status
+        result.end_message = res.outcome.message if res.outcome else None
+        return None
+    t, y = achieved(res.path, experiment)
+    report = tracking_report(programme, t, y)
+    result.passes.append(report)
+    comp = shared.compensation
+    if comp is not None and learn:
+        comp.learn(report.turning_points, programme.range_kgf)
+        comp.save(result.out / "compensation.toml")
+    paced = {}
+    if clock is not None:
+        paced = {int(k) - experiment.lead: v for k, v in clock.paced_by_turning.items()}
+    return report, (t, y), paced
+
+
+def _passes(shared: _Pass, programme, minimum, out, repeat, first, learn, progress) -> LoadResult:
     out.mkdir(parents=True, exist_ok=True)
+    controller = shared.controller
     (out / "controller.toml").write_text(controller.to_toml(out / "controller.toml"))
-    result = LoadResult(out, compensation=comp)
-    experiment = first
+    result = LoadResult(out, compensation=shared.compensation)
     last = None
     for i in range(1, repeat + 1):
-        if i > 1:
-            experiment = LoadProgramme(programme, controller, comp, unload_kgf)
-            experiment.check(gw.config.period_s, limits.force_limit_kgf, limits.command_limit_pct)
-        res = gw.run(experiment, out / f"pass-{i}", progress=progress)
-        result.run_dirs.append(res.path)
-        if res.status != "complete" or experiment.main_start_s is None:
-            result.end_reason = res.reason or res.status
-            result.end_message = res.outcome.message if res.outcome else None
+        experiment = first if i == 1 else shared.experiment(programme)
+        done = _run_pass(shared, experiment, programme, minimum, out / f"pass-{i}", result, learn, progress)
+        if done is None:
             break
-        t, y = achieved(res.path, experiment)
-        report = tracking_report(programme, t, y)
-        result.passes.append(report)
-        last = (t, y)
-        if comp is not None and learn:
-            comp.learn(report.turning_points, programme.range_kgf)
-            comp.save(out / "compensation.toml")
+        last = done[1]
+    _write_reports(result, programme, last)
+    return result
+
+
+def _scaled_passes(shared: _Pass, programme, minimum, out, repeat, learn, progress,
+                   options: ScalingOptions) -> LoadResult:
+    """Time scaling, pass by pass (loading.time_scaling)."""
+    out.mkdir(parents=True, exist_ok=True)
+    controller = shared.controller
+    (out / "controller.toml").write_text(controller.to_toml(out / "controller.toml"))
+    result = LoadResult(out, compensation=shared.compensation, converged=False)
+    scaler = TimeScaler(programme, minimum, programme.segment_durations_s, options)
+    share_limit = FEEDFORWARD_SHARE * shared.command_limit_pct
+    base = programme
+    last = None                                  # (the programme, its forces) of the last pass
+    for i in range(1, repeat + 1):
+        for _ in range(STRETCH_TRIES):           # lengthen what the valve cannot follow
+            current = base.with_durations(scaler.durations, f"{base.source}, scaled pass {i}")
+            experiment = shared.experiment(current, check=False)
+            stretched = stretch_to_valve(scaler.durations, _segment_peaks(experiment), share_limit)
+            if stretched is None:
+                break
+            scaler.durations = np.maximum(stretched, scaler.floor)
+        settled = scaler.all_settled
+        limits = shared.gw.config.limits
+        experiment.check(shared.gw.config.period_s, limits.force_limit_kgf, limits.command_limit_pct)
+        done = _run_pass(shared, experiment, current, minimum, out / f"pass-{i}", result, learn, progress)
+        if done is None:
+            break
+        report, forces, paced = done
+        last = (current, forces)
+        ok = meets(report, options.accuracy_pct)
+        verdicts = scaler.verdicts(current, report, ringing_turning_points(current, *forces), paced)
+        result.timings[-1].scaling = {**scaler.last, "met_accuracy": ok, "all_settled_before": settled}
+        if ok and (result.schedule is None or current.duration_s < result.schedule.time_s):
+            result.schedule = Schedule(base.levels_kgf, current.segment_durations_s, base.period_s,
+                                       options.accuracy_pct, float(np.sum(minimum)), base.source,
+                                       verified=True, notes=[f"pass {i} of {out}"])
+            result.schedule.save(out / "schedule.toml")
+        if ok and settled:
+            result.converged = True
+            break
+        scaler.update(verdicts)
+    if result.schedule is None:                  # none met it: the last durations, unverified
+        Schedule(base.levels_kgf, scaler.durations, base.period_s, options.accuracy_pct,
+                 float(np.sum(minimum)), base.source, verified=False,
+                 notes=["no pass met the accuracy: these durations are the next pass's"]
+                 ).save(out / "schedule.toml")
+    _write_reports(result, *(last or (programme, None)))
+    return result
+
+
+def _segment_peaks(e: LoadProgramme) -> np.ndarray:
+    """Each segment's largest feedforward command (%), both ways into the programme."""
+    programme = e.commanded
+    m = int(round(e.controller.model.tau / programme.period_s))
+    idx = e.lead + programme.turning_idx - m
+    peaks = np.zeros(len(idx) - 1)
+    for plan in e.plans.values():
+        u = np.abs(plan.ff.u_pct)
+        for j in range(len(peaks)):
+            a, b = max(idx[j], 0), max(idx[j + 1], 1)
+            peaks[j] = max(peaks[j], float(u[a:b].max()))
+    return peaks
+
+
+def _write_reports(result: LoadResult, programme: Programme, last) -> None:
+    out = result.out
     if last is not None:
-        (out / "report.txt").write_text(
-            "\n\n".join(f"pass {i}:\n{p.text()}" for i, p in enumerate(result.passes, start=1)) + "\n")
+        lines = []
+        for i, (p, timing) in enumerate(zip(result.passes, result.timings), start=1):
+            lines.append(f"pass {i}:\n{timing_text(timing)}\n{p.text()}")
+        if result.monitor is not None:
+            lines.append(gain_text(result.monitor))
+        (out / "report.txt").write_text("\n\n".join(lines) + "\n")
         t, y = last
         plot_tracking(programme, t, y, result.passes[-1], out / "tracking.png",
                       title=f"{programme.source}: pass {len(result.passes)}")
     (out / "report.json").write_text(json.dumps(result.summary(), indent=2) + "\n")
-    return result
+
+
+def timing_text(timing: PassTiming) -> str:
+    """One line: the programme's time, the minimum, their ratio, pacing."""
+    text = (f"programme {timing.programme_time_s:.1f} s, valve-limited minimum {timing.minimum_time_s:.1f} s "
+            f"({timing.programme_time_s / timing.minimum_time_s:.2f}x)")
+    if timing.pacing is not None:
+        text += (f", pacing {timing.pacing_s:.2f} s ({timing.pacing['waits']} waits, "
+                 f"{timing.pacing['slowed_s']:.2f} s slowed)")
+    if timing.scaling is not None:
+        s = timing.scaling
+        text += f"; segments landed {s.get('land', 0)}, held {s.get('hold', 0)}, missed {s.get('miss', 0)}"
+    return text
+
+
+def gain_text(monitor: GainMonitor) -> str:
+    """The gain monitor's blocks in a few lines: the estimates' span, the last, the alarm."""
+    est = [b for b in monitor.blocks if b.g is not None]
+    if not est:
+        return f"gain: no block had enough steady motion for an estimate ({len(monitor.blocks)} blocks)"
+    last = est[-1]
+    lines = [f"gain: {len(est)} of {len(monitor.blocks)} blocks estimated, g from {min(b.g for b in est):.1f} "
+             f"to {max(b.g for b in est):.1f} kgf/(%·s) (model {monitor.g_ref:.1f}); last "
+             f"{last.g:.1f} [{last.low:.1f}, {last.high:.1f}] ({last.change_pct:+.1f} %), feedforward at "
+             f"g = {monitor.g_follow:.1f}"]
+    if monitor.alarm is not None:
+        lines.append(f"gain alarm ({monitor.alarm[0]}, action {monitor.options.action}): {monitor.alarm[1]}")
+    return "\n".join(lines)

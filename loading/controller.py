@@ -12,6 +12,12 @@ by ``s_k ≤ 1``, precomputed with the feedforward. With a ``way`` (±1) the com
 rod only that way or hold it (0), the integral not growing against it (the load experiment
 keeps the feedforward's sign where the model's gain is above ρ: no reversal it does not plan).
 Plain floats: a cycle costs a few operations.
+
+While the programme waits for the force at a turning point (null pacing,
+:mod:`loading.pacing`), :meth:`PIFeedforward.wait_step` is a P law on the force predicted past
+the delay, ``u = u_hold + K_p·(L − ŷ)``, moving the rod only toward the level; the integral
+is cleared when a wait begins (it wound up while the force lagged) and left alone during it,
+and while the programme runs slowed for a lagging force it does not grow either.
 """
 from __future__ import annotations
 
@@ -32,9 +38,11 @@ class PIFeedforward:
         self.integral = integral_pct
 
     def step(self, r_kgf: float, y_kgf: float, u_ff_pct: float, scale: float = 1.0,
-             way: float = 0.0) -> float:
+             way: float = 0.0, integrate: bool = True) -> float:
+        """One cycle's command (%); ``integrate=False`` leaves the integral as it is (while the
+        programme slows for a lagging force, the lag is the pacing's to take up)."""
         e = r_kgf - y_kgf
-        integral = self.integral + scale * self.ki * e
+        integral = self.integral + scale * self.ki * e if integrate else self.integral
         u = u_ff_pct + scale * self.kp * e + integral
         if way * u < 0:
             if way * e > 0:
@@ -51,3 +59,11 @@ class PIFeedforward:
         else:
             self.integral = integral
         return u
+
+    def wait_step(self, error_kgf: float, u_hold_pct: float, way: float) -> float:
+        """The command while the programme waits (module docstring): ``error_kgf`` is the level
+        minus the predicted force, ``way`` (±1) the only way the rod may move."""
+        u = u_hold_pct + self.kp * error_kgf
+        if way * u < 0:
+            return 0.0
+        return max(-self.limit, min(self.limit, u))

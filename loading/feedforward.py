@@ -58,6 +58,9 @@ class Feedforward:
     #: FLOW effects raise the stand's gain to a change of the command, from a delay before to
     #: a delay after the cycle's command acts (1 without FLOW effects)
     gain_factor: np.ndarray | None = None
+    #: per cycle, aligned with ``u_pct``: the model's FLOW factor ``ΠG`` on the planned flow
+    #: where the cycle's command acts (1: steady; the gain monitor reads the stand there)
+    flow_factor: np.ndarray | None = None
 
     @property
     def peak_pct(self) -> float:
@@ -73,14 +76,16 @@ def _flow(flows, aux, q: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 
 def _flow_inverse(model: PlantModel, v: np.ndarray, r: np.ndarray, dt: float,
-                  t: np.ndarray, direction: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  t: np.ndarray, direction: float | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Solve ``q·ΠG(q) = v`` for q per sample through the model's FLOW effects' hooks; also
-    the local gain factor along q (see the module docstring). ``direction``: the way the rod
-    last moved before the programme (±1; default: the way it first moves)."""
+    the local gain factor along q and the factor ``ΠG`` itself (see the module docstring).
+    ``direction``: the way the rod last moved before the programme (±1; default: the way it
+    first moves)."""
     flows = [e for e in model.effects if e.stage is Stage.FLOW]
     q = v.copy()
     if not flows:
-        return q, np.ones_like(q)
+        return q, np.ones_like(q), np.ones_like(q)
     # the flow of the first m steps was commanded before the programme began and is never
     # sent: the inversion starts at step m, the rod moving already the way it goes there (or
     # the way it is known to have moved)
@@ -124,7 +129,10 @@ def _flow_inverse(model: PlantModel, v: np.ndarray, r: np.ndarray, dt: float,
     h = SECANT_PCT
     at = _flow(flows, aux, q, r)
     gain = np.maximum(_flow(flows, aux, q + h, r) - at, at - _flow(flows, aux, q - h, r)) / h
-    return np.r_[head, q], np.r_[np.ones(len(head)), np.maximum(gain, 0.0)]
+    moving = np.abs(q) > 1e-9
+    factor = np.where(moving, at / np.where(moving, q, 1.0), _flow(flows, aux, np.full_like(q, 1e-3), r) / 1e-3)
+    ones = np.ones(len(head))
+    return np.r_[head, q], np.r_[ones, np.maximum(gain, 0.0)], np.r_[ones, factor]
 
 
 def feedforward(model: PlantModel, r_kgf: np.ndarray, period_s: float,
@@ -144,7 +152,7 @@ def feedforward(model: PlantModel, r_kgf: np.ndarray, period_s: float,
             rate = rate - e.force_rate(r[None, :])[0]
             inverted.append(e.name)
     v = rate / model.g
-    q, gain = _flow_inverse(model, v, r, dt, t, direction)
+    q, gain, factor = _flow_inverse(model, v, r, dt, t, direction)
     u = q.copy()
     for e in reversed([e for e in model.effects if e.stage is Stage.VALVE]):
         before = e.invert(u, dt)
@@ -167,7 +175,10 @@ def feedforward(model: PlantModel, r_kgf: np.ndarray, period_s: float,
     acts = np.r_[np.ones(m), gain, np.ones(3 * m + 2)]
     acts = np.maximum(acts[:-1], acts[1:])
     window = np.lib.stride_tricks.sliding_window_view(acts, 2 * m + 1)[m:m + len(u)].max(axis=1)
-    return Feedforward(ahead, q, inverted, skipped, window)
+    # the FLOW factor where each cycle's command acts (a delay later)
+    flow = np.r_[factor, np.full(m + 2, factor[-1] if len(factor) else 1.0)]
+    flow_ahead = (1 - f) * flow[m:m + len(u)] + f * flow[m + 1:m + 1 + len(u)]
+    return Feedforward(ahead, q, inverted, skipped, window, flow_ahead)
 
 
 def feedback_scale(ff: Feedforward, rho: float) -> np.ndarray:

@@ -48,6 +48,8 @@ class Programme:
         valley, last point), increasing
     period_s : the sampling period
     source : what it was made from, for reports
+    haversine : True where every segment between two turning points is a haversine (turning-
+        point sequences, block programmes): :meth:`with_durations` then makes them exactly
     """
 
     t_s: np.ndarray
@@ -57,6 +59,7 @@ class Programme:
     source: str
     #: the reference's rate where the shape gives it exactly (kgf/s), else None
     _rate: np.ndarray | None = field(default=None, repr=False, compare=False)
+    haversine: bool = field(default=False, compare=False)
 
     @property
     def levels_kgf(self) -> np.ndarray:
@@ -69,6 +72,11 @@ class Programme:
     @property
     def duration_s(self) -> float:
         return float(self.t_s[-1])
+
+    @property
+    def segment_durations_s(self) -> np.ndarray:
+        """How long each segment between two turning points lasts (s), in programme order."""
+        return np.diff(self.turning_idx) * self.period_s
 
     def rate_kgf_s(self) -> np.ndarray:
         """dr/dt per sample (kgf/s): exact for the generated shapes, else central differences."""
@@ -111,7 +119,42 @@ class Programme:
             r[a:b + 1] = new[j] + (self.r_kgf[a:b + 1] - old[j]) * scale
             if rate is not None:
                 rate[a:b + 1] = self._rate[a:b + 1] * scale
-        return Programme(self.t_s, r, self.turning_idx, self.period_s, self.source, rate)
+        return Programme(self.t_s, r, self.turning_idx, self.period_s, self.source, rate,
+                         self.haversine)
+
+    def with_durations(self, durations_s, source: str | None = None) -> "Programme":
+        """The same turning points with each segment lasting ``durations_s`` (s, one per
+        segment, rounded to whole periods, at least one): time scaling. Haversine segments are
+        made anew; any other shape is stretched or squeezed (cubic interpolation of the
+        segment's shape over its share of the segment, and its rate scaled by the same
+        factor)."""
+        d = np.asarray(durations_s, float)
+        if d.shape != (len(self.turning_idx) - 1,) or not (np.isfinite(d).all() and (d > 0).all()):
+            raise ParameterError(f"{len(self.turning_idx) - 1} positive segment durations expected, "
+                                 f"got {d.shape[0] if d.ndim == 1 else d.shape}")
+        label = source or self.source
+        if self.haversine:
+            t, r, rate, idx = _haversine(self.levels_kgf, d, self.period_s)
+            return Programme(t, r, idx, self.period_s, label, rate, True)
+        from scipy.interpolate import CubicSpline
+        steps = np.maximum(np.round(d / self.period_s).astype(int), 1)
+        idx = np.r_[0, np.cumsum(steps)]
+        r = np.empty(idx[-1] + 1)
+        rate = np.empty_like(r)
+        old_rate = self.rate_kgf_s()
+        for j, k in enumerate(steps):
+            a, b = self.turning_idx[j], self.turning_idx[j + 1]
+            s_old = np.linspace(0.0, 1.0, b - a + 1)
+            s_new = np.arange(k) / k
+            if b - a >= 2:
+                r[idx[j]:idx[j + 1]] = CubicSpline(s_old, self.r_kgf[a:b + 1])(s_new)
+                rate[idx[j]:idx[j + 1]] = CubicSpline(s_old, old_rate[a:b + 1])(s_new) * (b - a) / k
+            else:
+                r[idx[j]:idx[j + 1]] = np.interp(s_new, s_old, self.r_kgf[a:b + 1])
+                rate[idx[j]:idx[j + 1]] = np.interp(s_new, s_old, old_rate[a:b + 1]) * (b - a) / k
+        r[-1] = self.r_kgf[-1]
+        rate[-1] = old_rate[-1] * (self.turning_idx[-1] - self.turning_idx[-2]) / steps[-1]
+        return Programme(np.arange(len(r)) * self.period_s, r, idx, self.period_s, label, rate)
 
 
 # -- making programmes ----------------------------------------------------------------------------
@@ -159,7 +202,7 @@ def from_levels(levels_kgf, period_s: float, rate_kgf_s: float | None = None,
         durations = np.full(len(levels) - 1, 1 / (2 * frequency_hz))
         how = f"{frequency_hz:g} Hz"
     t, r, rate, idx = _haversine(levels, durations, period_s)
-    return Programme(t, r, idx, period_s, f"{source}, {how}", rate)
+    return Programme(t, r, idx, period_s, f"{source}, {how}", rate, True)
 
 
 def sine(mean_kgf: float, amplitude_kgf: float, frequency_hz: float, cycles: float,
@@ -218,7 +261,7 @@ def blocks(table: list[dict], period_s: float, source: str = "blocks") -> Progra
     levels.append(last_mean)
     durations.append(1 / (4 * last_freq))
     t, r, rate, idx = _haversine(np.asarray(levels, float), np.asarray(durations, float), period_s)
-    return Programme(t, r, idx, period_s, source, rate)
+    return Programme(t, r, idx, period_s, source, rate, True)
 
 
 def from_history(t_s, r_kgf, period_s: float, source: str = "history") -> Programme:
@@ -284,6 +327,45 @@ def random_sequence(n: int, low_kgf: float, high_kgf: float, seed: int = 0,
     return np.asarray(levels)
 
 
+def flight_by_flight(flights: int, seed: int = 0, ground_kgf: float = 500.0,
+                     flight_kgf: float = 3500.0, gust_max_kgf: float = 2500.0,
+                     gust_min_kgf: float = 150.0, gusts_per_flight: tuple[int, int] = (10, 30)
+                     ) -> np.ndarray:
+    r"""Turning points of a synthetic flight-by-flight sequence: each flight goes from the
+    ground level up to the 1 g flight level, through gust cycles about it and back to the
+    ground (a ground-air-ground cycle per flight). For benchmarks and tests: it has the
+    structure of a transport aircraft's wing-load sequence (many small gust cycles, one large
+    cycle per flight, flights of different severity), not any standard's content (TWIST and
+    FALSTAFF are not generated here; bring them as a turning-point CSV).
+
+    Per flight a severity ``s ~ U(0.4, 1)`` and a number of gust cycles ``n ~ U(gusts)``; each
+    gust cycle goes to ``flight + a`` and ``flight − b`` with
+
+    .. math::  a, b = \min\big(g_{max},\ g_{min} + X\big),\qquad X \sim \mathrm{Exp}(0.18\,g_{max}\,s),
+
+    so small gusts are common and large ones rare. The levels alternate between peaks and
+    valleys (a valley followed by the ground keeps only the lower)."""
+    if flights < 1 or not (0 < gust_min_kgf < gust_max_kgf) or ground_kgf >= flight_kgf - gust_max_kgf:
+        raise ParameterError("flight_by_flight needs flights >= 1, 0 < gust_min < gust_max and the "
+                             "ground below the lowest gust valley")
+    rng = np.random.default_rng(seed)
+    levels = [float(ground_kgf)]
+    for _ in range(flights):
+        severity = rng.uniform(0.4, 1.0)
+        for _ in range(int(rng.integers(gusts_per_flight[0], gusts_per_flight[1] + 1))):
+            a, b = (min(gust_max_kgf, gust_min_kgf + rng.exponential(0.18 * gust_max_kgf * severity))
+                    for _ in range(2))
+            levels += [flight_kgf + a, flight_kgf - b]
+        levels.append(float(ground_kgf))
+    out = [levels[0]]
+    for x in levels[1:]:
+        if len(out) >= 2 and (out[-1] - out[-2]) * (x - out[-1]) > 0:
+            out[-1] = x                    # two steps the same way: keep the farther level
+        else:
+            out.append(x)
+    return np.asarray(out)
+
+
 # -- reading programmes -------------------------------------------------------------------------
 _SINE = re.compile(r"^sine:(.*)$", re.I)
 
@@ -330,6 +412,16 @@ def load_programme(spec: str, period_s: float, rate_kgf_s: float | None = None,
         return from_history(a[:, 0], a[:, 1], period_s, source=f"history {path.name}")
     raise DataError(f"{path}: the header {','.join(header or [])!r} is neither 'level' (a turning-"
                     "point sequence) nor 't,r' (a time history in s, kgf)")
+
+
+def is_sequence(spec: str) -> bool:
+    """True if ``spec`` names a turning-point sequence (a CSV of levels), whose segments take
+    their time from a rate or a frequency (the other forms carry their own)."""
+    path = Path(spec)
+    if _SINE.match(spec.strip()) or not path.is_file() or path.suffix.lower() == ".toml":
+        return False
+    header, rows = _read_rows(path)
+    return header == ["level"] or (header is None and bool(rows) and len(rows[0][1]) == 1)
 
 
 def _keyvalues(text: str, spec: str) -> dict[str, float]:

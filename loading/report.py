@@ -92,11 +92,16 @@ def _cycle_ranges(x: np.ndarray, gate: float) -> list[tuple[float, float]]:
 
 
 def tracking_report(programme: Programme, t_s, y_kgf, gate_pct: float = GATE_PCT) -> TrackingReport:
-    """How the achieved force ``y_kgf`` (sampled at ``t_s``, 0 at the programme's start) tracked
-    the ``programme`` (the one the user asked for, not a compensated copy)."""
+    """How the achieved force ``y_kgf`` tracked the ``programme`` (the one the user asked for,
+    not a compensated copy). ``t_s``: each sample's time on the programme's clock (0 at its
+    start), non-decreasing: a programme that waited for the force (null pacing) gives the
+    samples of the wait the same time. Samples outside the programme are left out."""
     t = np.asarray(t_s, float)
-    y = np.interp(programme.t_s, t, np.asarray(y_kgf, float))
-    r = programme.r_kgf
+    y_all = np.asarray(y_kgf, float)
+    eps = programme.period_s * 1e-3
+    inside = (t >= -eps) & (t <= programme.duration_s + eps)
+    t, y = t[inside], y_all[inside]
+    r = np.interp(t, programme.t_s, programme.r_kgf)
     R = programme.range_kgf
     idx = programme.turning_idx
     kinds = programme.kinds()
@@ -104,18 +109,21 @@ def tracking_report(programme: Programme, t_s, y_kgf, gate_pct: float = GATE_PCT
     for j in range(1, len(idx) - 1):
         if kinds[j] not in ("peak", "valley"):
             continue
-        lo = (idx[j - 1] + idx[j]) // 2
-        hi = (idx[j] + idx[j + 1]) // 2 + 1
+        lo = programme.t_s[(idx[j - 1] + idx[j]) // 2] - eps
+        hi = programme.t_s[(idx[j] + idx[j + 1]) // 2] + eps
+        near = y[np.searchsorted(t, lo, "left"):np.searchsorted(t, hi, "right")]
         level = programme.r_kgf[idx[j]]
-        achieved = float(y[lo:hi].max() if kinds[j] == "peak" else y[lo:hi].min())
+        if not len(near):
+            continue
+        achieved = float(near.max() if kinds[j] == "peak" else near.min())
         err = achieved - level
         over = max(err, 0.0) if kinds[j] == "peak" else max(-err, 0.0)
         points.append(TurningPoint(int(idx[j]), float(programme.t_s[idx[j]]), kinds[j], float(level),
                                    achieved, float(err), 100 * float(err) / R, float(over)))
     errs = np.abs([p.error_pct for p in points]) if points else np.zeros(1)
     gate = gate_pct / 100 * R
-    got = sorted(_cycle_ranges(y, gate))
-    want = sum(c for _, c in _cycle_ranges(r, gate))
+    got = sorted(_cycle_ranges(y, gate)) if len(y) > 1 else []
+    want = sum(c for _, c in _cycle_ranges(programme.r_kgf, gate))
     extra = max(sum(c for _, c in got) - want, 0.0)
     largest = 0.0
     if extra:
@@ -128,17 +136,20 @@ def tracking_report(programme: Programme, t_s, y_kgf, gate_pct: float = GATE_PCT
     return TrackingReport(
         turning_points=points, range_kgf=R,
         peak_valley_error_pct={"max": float(errs.max()), "p95": float(np.percentile(errs, 95))},
-        rms_error_pct=100 * float(np.sqrt(np.mean((y - r) ** 2))) / R,
+        rms_error_pct=100 * float(np.sqrt(np.mean((y - r) ** 2))) / R if len(y) else float("nan"),
         extra_cycles=float(extra), largest_extra_cycle_kgf=float(largest),
         overshoot_max_pct=100 * max((p.overshoot_kgf for p in points), default=0.0) / R)
 
 
-def load_summary(passes: list[TrackingReport], end_reason: str | None) -> dict:
+def load_summary(passes: list[TrackingReport], end_reason: str | None,
+                 extras: list[dict] | None = None) -> dict:
     """The ``--json`` object of ``stand load`` (schema ``hydrostand-load/1``): the last pass's
-    figures at the top level and every pass's in ``passes``."""
-    last = passes[-1].figures() if passes else {}
-    return {"schema": SCHEMA, **last, "end_reason": end_reason,
-            "passes": [p.figures() for p in passes]}
+    figures at the top level and every pass's in ``passes``; ``extras``: more figures per pass
+    (the programme's time, the minimum, pacing), merged into each."""
+    extras = list(extras or []) + [{}] * (len(passes) - len(extras or []))
+    figures = [{**p.figures(), **x} for p, x in zip(passes, extras)]
+    last = figures[-1] if figures else {}
+    return {"schema": SCHEMA, **last, "end_reason": end_reason, "passes": figures}
 
 
 def plot_tracking(programme: Programme, t_s, y_kgf, report: TrackingReport, path: str | Path,

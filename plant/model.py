@@ -232,16 +232,17 @@ class PlantModel:
         prev = np.concatenate([last[:, None], v[:, :-1]], axis=1)
         return (1.0 - f) * v + f * prev
 
-    def integrate(self, drv: Drive, y0: np.ndarray, dt: float) -> np.ndarray:
-        """Force trajectory (n, K+1) from ``y0`` (n,) under the block's drive."""
-        force = self._force
+    def integrate(self, drv: Drive, y0: np.ndarray, dt: float,
+                  guess: np.ndarray | None = None) -> np.ndarray:
+        """Force trajectory (n, K+1) from ``y0`` (n,) under the block's drive. ``guess``: a
+        trajectory of the same shape near the answer (the last one of a fit, whose next
+        simulation moves one parameter a little), where the force-dependent integration starts
+        (:meth:`_integrate_in_blocks`); the answer does not depend on it."""
         y0 = np.asarray(y0, float)
         n, K = drv.q.shape
-        needs_y = any(e.depends_on_force for e in self._flow) or any(
-            e.decay_rate() is None for e in force)
-        if not needs_y:   # the force terms are -λ·y: integrated exactly below
+        lam = self.force_decay()
+        if lam is not None:   # the force terms are -λ·y: integrated exactly below
             rate = self._rate(drv.q, drv.aux, drv.dist, None, force_terms=False)
-            lam = sum(e.decay_rate() for e in force)
             out = np.empty((n, K + 1))
             out[:, 0] = y0
             if lam == 0.0:
@@ -251,9 +252,21 @@ class PlantModel:
                 a = 1.0 - lam * dt
                 out[:, 1:], _ = lfilter([dt], [1.0, -a], rate, axis=1, zi=(a * y0)[:, None])
             return out
-        return self._integrate_in_blocks(drv, y0, dt)
+        return self._integrate_in_blocks(drv, y0, dt, guess)
 
-    def _integrate_in_blocks(self, drv: Drive, y0: np.ndarray, dt: float) -> np.ndarray:
+    def force_decay(self) -> float | None:
+        """``λ`` (1/s) when the force rate is linear in the force, ``r(t) − λ·y``: no FLOW
+        effect reads the force and every FORCE term is a decay (0 without FORCE effects);
+        None when the rate depends on the force otherwise (:attr:`depends_on_force`)."""
+        if any(e.depends_on_force for e in self._flow):
+            return None
+        rates = [e.decay_rate() for e in self._force]
+        if any(r is None for r in rates):
+            return None
+        return sum(rates)
+
+    def _integrate_in_blocks(self, drv: Drive, y0: np.ndarray, dt: float,
+                             guess: np.ndarray | None = None) -> np.ndarray:
         r"""The force when its rate depends on it: the explicit recursion
         ``y[k+1] = y[k] + dt·f_k(y[k])`` of every step, solved a block of steps at a time.
 
@@ -262,7 +275,7 @@ class PlantModel:
         linear recursion that results for the correction ``e = y − ŷ`` in closed form,
         ``e[k+1] = (1 + dt·f'_k)·e[k] + (ŷ_k + dt·f_k(ŷ_k) − ŷ_{k+1})``, ``e`` at the block's
         start 0 (Newton's method on the whole block; the recursion runs compiled,
-        :func:`_correct`). Its fixed point is the step-by-step solution exactly; a rate linear
+        :func:`_newton_pass`). Its fixed point is the step-by-step solution exactly; a rate linear
         in the force is solved in one pass, a smooth one in two or three; and as the recursion
         is causal, each pass makes at least one more step exact whatever the law. Passes stop
         when one changes the trajectory by less than :data:`INTEGRATION_TOL` of its size
@@ -294,17 +307,21 @@ class PlantModel:
 
         out = np.empty((n, K + 1))
         out[:, 0] = y0
-        a, block = 0, INTEGRATION_FIRST_BLOCK
+        warm = guess is not None and guess.shape == out.shape and bool(np.all(np.isfinite(guess)))
+        a, block = 0, K if warm else INTEGRATION_FIRST_BLOCK
         with np.errstate(all="ignore"):   # a guess may stray where the law is steep
             while a < K:
                 b = min(K, a + block)
                 seg = out[:, a:b + 1]            # a view: seg[:, 0] is known
                 start = seg[:, :1]
-                # first guess: the rate at the block's start, held (explicit Euler over the block)
-                seg[:, 1:] = start + rate(a, a + 1, start) * (dt * np.arange(1, b - a + 1))
+                if warm:
+                    seg[:, 1:] = guess[:, 1:]
+                    warm = False
+                else:  # the rate at the block's start, held (explicit Euler over the block)
+                    seg[:, 1:] = start + rate(a, a + 1, start) * (dt * np.arange(1, b - a + 1))
                 for _ in range(b - a + 1):   # each pass makes one more step exact, at least
-                    guess = seg[:, :-1]
-                    size = np.max(np.abs(seg)) + 1.0
+                    guess = seg[:, :-1].copy()
+                    size = np.max(np.abs(guess), initial=0.0, where=np.isfinite(guess)) + 1.0
                     h = 1e-6 * size
                     f = rate(a, b, guess)
                     grow = rate(a, b, guess + h)    # 1 + dt·f', f' by a forward difference
@@ -312,10 +329,7 @@ class PlantModel:
                     grow *= dt / h
                     grow += 1.0
                     f *= dt
-                    f += guess
-                    f -= seg[:, 1:]              # the guess's defect
-                    # e[k+1] = grow_k·e[k] + defect_k from e = 0, added to the guess
-                    if _correct(grow, f, seg) <= INTEGRATION_TOL * size:
+                    if _newton_pass(grow, f, guess, seg) <= INTEGRATION_TOL * size:
                         break
                 a = b
                 block = min(2 * block, INTEGRATION_MAX_BLOCK)
@@ -389,14 +403,26 @@ class PlantModel:
     def integrate_from_readings(self, drv: Drive, readings: np.ndarray, dt: float,
                                 sensor: list[dict] | None) -> np.ndarray:
         """Readings along windows (n, K+1) that start from measured ``readings`` (n,): the force
-        trajectories from the force under each reading, through the SENSOR filters whose states
-        at the starts are ``sensor`` (None: no SENSOR effect)."""
-        if sensor is None:
-            return self.integrate(drv, readings, dt)
+        trajectories from the force under each reading (:meth:`force_under`), through the
+        SENSOR filters whose states at the starts are ``sensor`` (None: no SENSOR effect)."""
+        y = self.integrate(drv, self.force_under(readings, sensor), dt)
+        return y if sensor is None else self.sense(y, dt, readings, sensor)
+
+    def force_under(self, readings: np.ndarray, sensor: list[dict] | None) -> np.ndarray:
+        """The force under the dynamometer's ``readings`` (n,) for the SENSOR filters' states
+        ``sensor`` (None: no SENSOR effect, the readings themselves)."""
         y0 = np.asarray(readings, float)
-        for i in self._sensor:
-            y0 = y0 + self.effects[i].force_minus_reading(sensor[i])
-        return self.sense(self.integrate(drv, y0, dt), dt, readings, sensor)
+        if sensor is not None:
+            for i in self._sensor:
+                y0 = y0 + self.effects[i].force_minus_reading(sensor[i])
+        return y0
+
+    @property
+    def depends_on_force(self) -> bool:
+        """True if the force rate depends on the force (a FLOW law of the force, or a FORCE term
+        that is not a plain decay): the integration then solves for it
+        (:meth:`_integrate_in_blocks`)."""
+        return self.force_decay() is None
 
     @property
     def has_sensor_effects(self) -> bool:
@@ -457,16 +483,26 @@ class PlantModel:
 
 
 @njit
-def _correct(grow: np.ndarray, defect: np.ndarray, seg: np.ndarray) -> float:
-    """Add to the trajectory ``seg[:, 1:]`` (n, B) the solution of
-    ``e[k+1] = grow[k]·e[k] + defect[k]``, ``e[0] = 0``; returns max |e|."""
+def _newton_pass(grow: np.ndarray, step: np.ndarray, guess: np.ndarray, seg: np.ndarray) -> float:
+    """One pass of the linearised recursion from ``seg[:, 0]``:
+    ``y[k+1] = y[k] + step[k] + (grow[k] − 1)·(y[k] − guess[k])`` into ``seg[:, 1:]`` (n, B),
+    ``step = dt·f(guess)``, ``grow = 1 + dt·f'(guess)``. Where the guess was the answer, so is
+    the pass (a step is computed from values, not as a change of the old one: the steps made
+    exact stay exact whatever the rest held). A value that is not finite is replaced by the one
+    before it (a guess for the next pass). Returns the largest change (inf after a
+    replacement: not converged)."""
     n, B = grow.shape
     largest = 0.0
     for i in range(n):
-        e = 0.0
+        y = seg[i, 0]
         for k in range(B):
-            e = grow[i, k] * e + defect[i, k]
-            seg[i, k + 1] += e
-            if abs(e) > largest:
-                largest = abs(e)
+            new = y + step[i, k] + (grow[i, k] - 1.0) * (y - guess[i, k])
+            if np.isfinite(new):
+                change = abs(new - seg[i, k + 1])
+                y = new
+            else:
+                change = np.inf
+            if not change <= largest:      # also a NaN change
+                largest = np.inf if change != change else change
+            seg[i, k + 1] = y
     return largest

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+from scipy.signal import lfilter
 
 from .model import PlantModel, PlantState
 from .params import ModelError
@@ -210,7 +211,15 @@ class RigModel:
     def _integrate(self, drives: list, y0: np.ndarray, dt: float) -> np.ndarray:
         """The forces (N, K+1) from ``y0`` under the channels' drives, coupled: step by step,
         ``y[k+1] = y[k] + dt·(G·w(y[k]) + a(y[k]))`` with each channel's flow ``w`` and its own
-        terms ``a`` (Δ, disturbances, force terms) from its own model."""
+        terms ``a`` (Δ, disturbances, force terms) from its own model; all steps at once when
+        no channel's rate depends on its force but through a decay (:meth:`_integrate_linear`)."""
+        decays = [m.force_decay() for m in self.channels]
+        if all(lam is not None for lam in decays):
+            return self._integrate_linear(drives, y0, dt, decays)
+        return self._integrate_stepwise(drives, y0, dt)
+
+    def _integrate_stepwise(self, drives: list, y0: np.ndarray, dt: float) -> np.ndarray:
+        """:meth:`_integrate` one step at a time (any channel's laws)."""
         n, K = self.n, drives[0].q.shape[1]
         out = np.empty((n, K + 1))
         out[:, 0] = y = y0.copy()
@@ -225,3 +234,27 @@ class RigModel:
             out[:, k + 1] = y
         return out
 
+
+    def _integrate_linear(self, drives: list, y0: np.ndarray, dt: float,
+                          decays: list[float]) -> np.ndarray:
+        """The coupled forces when each channel's rate is linear in its own force:
+        ``y_i[k+1] = (1 − λ_i·dt)·y_i[k] + dt·((G·w[k])_i + Δ_i + d_i[k])`` with the flows
+        ``w`` (N, K) known in advance (no flow reads a force): one cumulative sum, or one
+        first-order filter pass, per channel, as :meth:`PlantModel.integrate` does for one."""
+        n, K = self.n, drives[0].q.shape[1]
+        w = np.concatenate([m.flow(drv.q, drv.aux, None) for m, drv in zip(self.channels, drives)])
+        rate = self.G @ w
+        for i, (m, drv) in enumerate(zip(self.channels, drives)):
+            rate[i] += m.delta
+            if drv.dist is not None:
+                rate[i] += drv.dist[0]
+        out = np.empty((n, K + 1))
+        out[:, 0] = y0
+        for i, lam in enumerate(decays):
+            if lam == 0.0:
+                np.cumsum(rate[i] * dt, out=out[i, 1:])
+                out[i, 1:] += y0[i]
+            else:
+                a = 1.0 - lam * dt
+                out[i, 1:], _ = lfilter([dt], [1.0, -a], rate[i], zi=[a * y0[i]])
+        return out

@@ -9,6 +9,12 @@ the periods not yet commanded; as each period ends, its real command replaces th
 the delay line, long before the delay brings it to the valve. The result is the same as
 advancing period by period (to rounding: one cumulative sum instead of several).
 
+A rig (:class:`LockstepRig`) is the same with N channels coupled by the structure
+(:class:`plant.rig.RigModel`): every channel's force depends on every channel's delayed flow,
+so a block is as long as the shortest delay allows, ``B = min_i m_i // sub + 1``, and each
+channel's real command replaces its own stand-in. :class:`LockstepPlant` is the one-channel
+case.
+
 If the period changes while periods are computed ahead, the block is undone: the state is
 restored from the block's start and the periods that have ended are replayed with their real
 commands.
@@ -18,27 +24,29 @@ from __future__ import annotations
 import copy
 import math
 from collections import deque
+from typing import Sequence
 
 import numpy as np
 
 from plant import PlantModel
+from plant.rig import RigModel
 
 
-class LockstepPlant:
-    """``step(period_s, command)``: the period that just ended ran with ``command``; returns the
-    force at its end."""
+class LockstepRig:
+    """``step(period_s, commands)``: the period that just ended ran with ``commands`` (one per
+    channel, %); returns the forces at its end (kgf, one per channel)."""
 
-    def __init__(self, model: PlantModel, y0: float, step_s: float) -> None:
+    def __init__(self, model: RigModel, y0: Sequence[float] | float, step_s: float) -> None:
         self.model = model
         self.step_s = step_s
         self.dt = step_s
-        self.state = model.new_state(1, step_s, y0=y0)
+        self.states = model.new_state(step_s, y0)
         self.period: float | None = None
         self.sub = 1
-        self.force = float(y0)
-        self._ahead: deque[float] = deque()   # forces at the ends of periods computed ahead
-        self._start = None                    # state at the block's start (to undo it)
-        self._commands: list[float] = []      # real commands of the block's ended periods
+        self.forces: list[float] = [float(st.y[0]) for st in self.states]
+        self._ahead: deque[list[float]] = deque()   # forces at the ends of periods computed ahead
+        self._start = None                    # states at the block's start (to undo it)
+        self._commands: list[list[float]] = []  # real commands of the block's ended periods
         self._block_periods = 0
         self._blocks = self._periods = 0
 
@@ -47,61 +55,87 @@ class LockstepPlant:
         """Periods computed per advance call, on average (for benchmarks and tests)."""
         return self._periods / self._blocks if self._blocks else 0.0
 
-    def step(self, period_s: float, command: float) -> float:
+    def step(self, period_s: float, commands: Sequence[float]) -> list[float]:
+        commands = list(commands)
         if period_s != self.period:
-            self._regrid(period_s, command)
+            self._regrid(period_s, commands)
         if self._ahead:
-            self._confirm(command)
-            self.force = self._ahead.popleft()
+            self._confirm(commands)
+            self.forces = self._ahead.popleft()
         else:
-            self.force = self._block(command)
-        return self.force
+            self.forces = self._block(commands)
+        return self.forces
 
-    def restart_clock(self) -> None:
-        """A run begins: the plant's time counts from zero again (the periods computed ahead
-        are dropped first, they carry the old time)."""
+    def restart_clock(self, channels: Sequence[int] | None = None) -> None:
+        """A run begins on ``channels`` (default: all): their plant's time counts from zero
+        again (the periods computed ahead are dropped first, they carry the old time)."""
         self._undo()
-        self.state.t[:] = 0.0
+        for i in range(self.model.n) if channels is None else channels:
+            self.states[i].t[:] = 0.0
 
     # -- inside ---------------------------------------------------------------------------------
-    def _regrid(self, period_s: float, command: float) -> None:
+    def _regrid(self, period_s: float, commands: list[float]) -> None:
         self._undo()
         sub = max(1, math.ceil(period_s / self.step_s - 1e-9))
         dt = period_s / sub
-        if dt != self.dt:   # keep the force and time, re-grid the delay line on the command
-            self.state = self.model.new_state(1, dt, y0=self.state.y, u0=command, t0=self.state.t)
+        if dt != self.dt:   # keep the forces and time, re-grid the delay lines on the commands
+            self.states = [m.new_state(1, dt, y0=st.y, u0=c, t0=st.t)
+                           for m, st, c in zip(self.model.channels, self.states, commands)]
             self.dt = dt
         self.period, self.sub = period_s, sub
 
-    def _block(self, command: float) -> float:
+    def _block(self, commands: list[float]) -> list[float]:
         sub = self.sub
-        periods = self.model.delay_steps(self.dt) // sub + 1
-        self._start = copy.deepcopy(self.state) if periods > 1 else None
-        self._commands = [command]
+        periods = min(m.delay_steps(self.dt) for m in self.model.channels) // sub + 1
+        self._start = copy.deepcopy(self.states) if periods > 1 else None
+        self._commands = [commands]
         self._block_periods = periods
-        y = self.model.advance(self.state, np.full((1, periods * sub), command), self.dt)[0]
-        ends = y[sub - 1::sub].tolist()
+        u = np.repeat(np.asarray(commands, float)[:, None], periods * sub, axis=1)
+        y = self.model.advance(self.states, u, self.dt)
+        ends = y[:, sub - 1::sub].T.tolist()
         self._ahead.extend(ends[1:])
         self._blocks += 1
         self._periods += periods
         return ends[0]
 
-    def _confirm(self, command: float) -> None:
-        """The block's next period ended with ``command``: put it in the delay line in place of
-        the stand-in (the line's last ``(B − 1)·sub`` entries are the block's later periods)."""
-        i = len(self._commands)              # period i of the block (0 ran with a real command)
-        self._commands.append(command)
-        if command != self._commands[0]:     # else the stand-in was right
-            h = self.state.history
-            end = h.shape[1] - (self._block_periods - 1 - i) * self.sub
-            h[:, end - self.sub:end] = command
+    def _confirm(self, commands: list[float]) -> None:
+        """The block's next period ended with ``commands``: put each in its channel's delay line
+        in place of the stand-in (a line's last ``(B − 1)·sub`` entries are the block's later
+        periods)."""
+        i = len(self._commands)              # period i of the block (0 ran with real commands)
+        self._commands.append(commands)
+        first = self._commands[0]
+        if commands == first:                # the stand-ins were right
+            return
+        back = (self._block_periods - 1 - i) * self.sub
+        for st, c, stand_in in zip(self.states, commands, first):
+            if c != stand_in:
+                h = st.history
+                end = h.shape[1] - back
+                h[:, end - self.sub:end] = c
 
     def _undo(self) -> None:
         """Forget the periods computed ahead: back to the block's start, replay the ended ones."""
         if self._ahead and self._start is not None:
-            self.state = self._start
+            self.states = self._start
             for c in self._commands:
-                self.model.advance(self.state, np.full((1, self.sub), c), self.dt)
+                u = np.repeat(np.asarray(c, float)[:, None], self.sub, axis=1)
+                self.model.advance(self.states, u, self.dt)
         self._ahead.clear()
         self._start = None
         self._commands = []
+
+
+class LockstepPlant(LockstepRig):
+    """One channel: ``step(period_s, command)``: the period that just ended ran with
+    ``command``; returns the force at its end."""
+
+    def __init__(self, model: PlantModel, y0: float, step_s: float) -> None:
+        super().__init__(RigModel([model]), y0, step_s)
+
+    @property
+    def force(self) -> float:
+        return self.forces[0]
+
+    def step(self, period_s: float, command: float) -> float:  # type: ignore[override]
+        return super().step(period_s, (command,))[0]

@@ -4,6 +4,11 @@ Used by ``stand demo``, ``stand campaign``, the end-to-end tests and the benchma
 
     with EmulatorProcess("udp_loopback:demo-1", config, lockstep=True, seed=1) as emu:
         ...   # the gateway talks to it over the bus
+
+A rig (``stand emulate --rig RIG.toml``: one process serving every bus of the rig)::
+
+    with RigEmulatorProcess("rig.toml", lockstep=True, seed=1) as emu:
+        ...   # every bus is served; emu.truth() is the rig's truth.json
 """
 from __future__ import annotations
 
@@ -14,6 +19,7 @@ import sys
 import tempfile
 import threading
 from pathlib import Path
+from typing import Any, Mapping
 
 from plant.config import PlantConfig, model_to_toml
 
@@ -29,19 +35,24 @@ def config_to_toml(config: PlantConfig) -> str:
     return text
 
 
-def serve_until_signalled(make_stand, bus_spec: str, ready_line):
-    """Run an emulated stand in *this* process (the body of ``stand emulate`` and
-    ``stand replay --as-plant``) until SIGINT or SIGTERM: open the bus, build the stand with
-    ``make_stand(bus)``, start it, print ``ready_line(stand)`` (the line :class:`EmulatorProcess`
-    waits for), then stop it and close the bus whatever happens. Returns the stopped stand."""
+def serve_until_signalled(make_stand, bus_spec: str | Mapping[str, str], ready_line):
+    """Run an emulated stand or rig in *this* process (the body of ``stand emulate`` and
+    ``stand replay --as-plant``) until SIGINT or SIGTERM: open the bus (or every bus of
+    ``{name: spec}``), build the stand with ``make_stand(bus)`` (or ``make_stand({name:
+    bus})``), start it, print ``ready_line(stand)`` (the line :class:`EmulatorProcess` waits
+    for: every bus is served by then), then stop it and close the buses whatever happens.
+    Returns the stopped stand."""
     from standbus import open_bus
 
-    bus = open_bus(bus_spec)
+    specs = {None: bus_spec} if isinstance(bus_spec, str) else dict(bus_spec)
+    buses: dict = {}
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     try:
-        stand = make_stand(bus)
+        for name, spec in specs.items():
+            buses[name] = open_bus(spec)
+        stand = make_stand(buses[None] if isinstance(bus_spec, str) else buses)
         try:
             stand.start()
             print(f"{READY}: {ready_line(stand)}", flush=True)
@@ -50,7 +61,8 @@ def serve_until_signalled(make_stand, bus_spec: str, ready_line):
         finally:
             stand.stop()
     finally:
-        bus.shutdown()
+        for bus in buses.values():
+            bus.shutdown()
     return stand
 
 
@@ -130,3 +142,29 @@ class EmulatorProcess:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+
+class RigEmulatorProcess(EmulatorProcess):
+    """``stand emulate --rig RIG.toml`` as a child process: ready when every bus of the rig is
+    served (every node booted on its bus)."""
+
+    def __init__(self, rig: str | Path, lockstep: bool = True, seed: int | None = 1,
+                 extra_args: list[str] | None = None, ready_timeout_s: float = 30.0) -> None:
+        super().__init__("", None, lockstep=lockstep, seed=seed, extra_args=extra_args,
+                         ready_timeout_s=ready_timeout_s)
+        self.rig = Path(rig)
+
+    def command(self) -> list[str]:
+        cmd = [sys.executable, "-m", "stand", "emulate", "--rig", str(self.rig)]
+        if self.lockstep:
+            cmd.append("--lockstep")
+        if self.seed is not None:
+            cmd += ["--seed", str(self.seed)]
+        return cmd + self.extra_args
+
+    def truth(self) -> dict[str, Any]:
+        """The emulated rig's truth, as a run's ``truth.json`` holds it
+        (:func:`rig.emulated.rig_truth`)."""
+        from rig.config import load_rig_file
+        from rig.emulated import rig_truth
+        return rig_truth(load_rig_file(self.rig))

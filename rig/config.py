@@ -111,6 +111,9 @@ class RigConfig:
     #: where G came from: "G", "K" (stiffness and flow gains) or "plants" (uncoupled: each
     #: channel's own g) or "none"
     structure_from: str = "none"
+    #: the structure's stiffness at the attachment points as the file gives it (kgf/mm; only
+    #: when G comes from K)
+    K: np.ndarray | None = None
     period_s: float = DEFAULT_PERIOD_S
     bus_load_limit: float = DEFAULT_LOAD_LIMIT
     heartbeat_ms: int = 100
@@ -184,8 +187,8 @@ def rig_from_mapping(data: Mapping[str, Any], where: str = "rig", base_dir: Path
         if dupes:
             raise RigError(f"{where}: bus {b.name!r}: node id(s) {', '.join(map(str, dupes))} "
                            "used twice: every valve and dynamometer on one bus needs its own id")
-    G, source = _structure(data.get("structure"), channels, f"{where}: [structure]")
-    return RigConfig(name=name, buses=buses, channels=channels, G=G, structure_from=source,
+    G, source, K = _structure(data.get("structure"), channels, f"{where}: [structure]")
+    return RigConfig(name=name, buses=buses, channels=channels, G=G, structure_from=source, K=K,
                      period_s=period_s, bus_load_limit=limit, heartbeat_ms=heartbeat_ms, path=path)
 
 
@@ -314,9 +317,11 @@ def _matrix(value: Any, n: int, what: str, where: str) -> np.ndarray:
     return m
 
 
-def _structure(value: Any, channels: list[ChannelConfig], where: str) -> tuple[np.ndarray | None, str]:
+def _structure(value: Any, channels: list[ChannelConfig],
+               where: str) -> tuple[np.ndarray | None, str, np.ndarray | None]:
     """G from the [structure] table (G, or K with the flow gains), or each plant's own g (no
-    coupling); a plant's [base] g, when given too, must agree with G_ii."""
+    coupling), where it came from, and K when given; a plant's [base] g, when given too, must
+    agree with G_ii."""
     n = len(channels)
     if value is None:
         value = {}
@@ -326,6 +331,7 @@ def _structure(value: Any, channels: list[ChannelConfig], where: str) -> tuple[n
     if "G" in value and "K" in value:
         raise RigError(f"{where}: give G or K (with flow_gain_mm_per_pct_s), not both")
     G: np.ndarray | None = None
+    K: np.ndarray | None = None
     source = "none"
     if "G" in value:
         G, source = _matrix(value["G"], n, "G", where), "G"
@@ -355,4 +361,4 @@ def _structure(value: Any, channels: list[ChannelConfig], where: str) -> tuple[n
                                f"but the structure's G[{i + 1},{i + 1}] = {G[i, i]:g}: a channel's "
                                "own gain is the structure's diagonal; leave g out of the plant")
             c.plant.model = c.plant.model.with_params({"g": float(G[i, i])})
-    return G, source
+    return G, source, K

@@ -8,7 +8,7 @@ import uuid
 import pytest
 
 from plant.config import PlantConfig
-from plant_emulator.process import EmulatorProcess
+from plant_emulator.process import EmulatorProcess, RigEmulatorProcess
 
 _counter = itertools.count()
 
@@ -35,6 +35,26 @@ def start_emulator(bus_spec):
         proc.start()
         started.append(proc)
         return proc
+
+    yield start
+    for proc in started:
+        proc.stop()
+
+
+@pytest.fixture
+def start_rig_emulator(tmp_path, channel):
+    """Factory: write a rig file (the example rig on this test's private loopback buses
+    ``{channel}-can0``/``-can1`` unless ``text`` is given; ``quiet``: its dynamometers without
+    noise) and start ``stand emulate --rig`` on it as a real separate process; returns the
+    file's path."""
+    from tests.support.rig import example_rig_text, write_rig
+    started: list[RigEmulatorProcess] = []
+
+    def start(text: str | None = None, lockstep: bool = True, quiet: bool = False,
+              seed: int | None = 3):
+        path = write_rig(tmp_path / f"rig{len(started)}.toml", text or example_rig_text(channel, quiet))
+        started.append(RigEmulatorProcess(path, lockstep=lockstep, seed=seed).start())
+        return path
 
     yield start
     for proc in started:

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from core.errors import DataError, ParameterError
-from loading.programme import check_programme, from_levels, load_programme, random_sequence
+from loading.programme import (check_programme, flight_by_flight, from_levels, load_programme,
+                               random_sequence, sine)
 
 T = 0.002
 
@@ -64,6 +65,29 @@ def test_with_levels_moves_the_turning_points_and_keeps_the_times():
     q = p.with_levels(p.levels_kgf + np.array([0, 30, -20, 0]))
     assert np.allclose(q.levels_kgf, [400, 6230, 980, 5000]) and np.array_equal(q.t_s, p.t_s)
     assert np.all(np.diff(q.r_kgf[: p.turning_idx[1] + 1]) >= 0), "a haversine stays monotonic"
+
+
+def test_with_durations_sets_each_segment_and_keeps_the_turning_points():
+    p = from_levels([400, 6200, 1000, 5000], T, rate_kgf_s=2500)
+    q = p.with_durations([1.0, 0.5, 0.25])
+    assert np.allclose(q.segment_durations_s, [1.0, 0.5, 0.25]) and np.allclose(q.levels_kgf, p.levels_kgf)
+    # a haversine made anew: peak rate pi*span/(2*duration), exact
+    assert np.max(np.abs(q.rate_kgf_s()[: q.turning_idx[1]])) == pytest.approx(np.pi * 5800 / 2, rel=1e-6)
+    s = sine(3000, 2000, 0.2, 2, T)
+    f = s.with_durations(s.segment_durations_s * 0.4)     # any other shape is squeezed: a 0.5 Hz sine
+    want = 3000 + 2000 * np.sin(2 * np.pi * 0.5 * f.t_s)
+    assert np.max(np.abs(f.r_kgf - want)) < 0.05 and np.allclose(f.levels_kgf, s.levels_kgf, atol=0.01)
+    assert np.max(np.abs(f.rate_kgf_s())) == pytest.approx(2000 * 2 * np.pi * 0.5, rel=1e-3)
+    with pytest.raises(ParameterError, match="3 positive segment durations"):
+        p.with_durations([1.0, 0.0, 1.0])
+
+
+def test_a_flight_by_flight_sequence_alternates_ground_air_ground_and_gusts():
+    lv = flight_by_flight(28, seed=1)
+    p = from_levels(lv, T, rate_kgf_s=2500)
+    assert len(lv) > 1000 and set(p.kinds()[1:-1]) == {"peak", "valley"}
+    assert np.sum(lv == 500.0) == 29, "every flight starts and ends on the ground"
+    assert 500 <= lv.min() and lv.max() <= 3500 + 2500
 
 
 def test_random_sequences_alternate_between_peaks_and_valleys():

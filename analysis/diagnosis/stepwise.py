@@ -23,14 +23,15 @@ The steps keep their whole diagnoses (observations, ambiguities, warnings of eac
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
 from plant import PlantModel
 
 from ..identification.fit import REFIT_TOL, FitOptions, FitResult, fit_model
-from ..identification.windows import WINDOW_S, errors, pieces_from_records
-from ..parallel import one_blas_thread
+from ..identification.windows import WINDOW_S, errors, pieces_from_records, residual
+from ..parallel import one_blas_thread, run_each, workers_for
 from ..records.record import Record
 from .candidates import Candidate, judge
 from .verdict import Diagnosis, diagnose
@@ -117,6 +118,9 @@ def pick(d: Diagnosis) -> tuple[Candidate | None, str]:
                f"consistent over the windows")
 
 
+#: evaluations of the model a refit without one effect takes, about (from fitted values)
+REFIT_EVALS = 60
+
 #: a runner-up that lowers the error at least this fraction as much as the effect picked on a
 #: "part of the missing behaviour" step is tried in its place when the build-up does not end
 #: adequate (greedy selection can take a look-alike first, then stall)
@@ -161,7 +165,8 @@ def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
     # on the way to "unexplained" must still earn its place, or it is not kept)
     if len(added) >= 2 or (added and verdict != "adequate"):
         say("checking each added effect with the others in place")
-        final_fit, needed = backward_check(records, final_fit, added, last.objective_floor, window_s)
+        final_fit, needed = backward_check(records, final_fit, added, last.objective_floor, window_s,
+                                           jobs)
     summary = _summary(steps, verdict, final_fit, needed, last) + tried
     return Stepwise(steps=steps, model=final_fit.model, fit=final_fit, verdict=verdict,
                     needed=needed, summary=summary)
@@ -248,10 +253,20 @@ def without(model: PlantModel, effect: str) -> PlantModel:
     return PlantModel.from_spec(spec, values)
 
 
+def _refit_without(shared: tuple, name: str) -> FitResult:
+    """The model refitted without one of its effects (a task for :func:`run_each`)."""
+    pieces, model = shared
+    return fit_model(pieces, without(model, name),
+                     options=FitOptions.refit(tol=REFIT_TOL, covariance=False))
+
+
 def backward_check(records: Sequence[Record], full: FitResult, added: Sequence[str],
-                   floor: float, window_s: float) -> tuple[FitResult, list[Needed]]:
+                   floor: float, window_s: float,
+                   jobs: int | None = None) -> tuple[FitResult, list[Needed]]:
     """Refit the model without each added effect in turn; drop the one that helps least if it
-    no longer helps, and repeat. Returns the final fit and the verdict on every added effect."""
+    no longer helps, and repeat. Returns the final fit and the verdict on every added effect.
+    The refits are independent: in worker processes as :func:`.verdict.diagnose` runs its
+    candidates (``jobs``)."""
     pieces = pieces_from_records(records, window_s)
     n = sum(p.n_eval for p in pieces)
     dropped: list[Needed] = []
@@ -259,9 +274,13 @@ def backward_check(records: Sequence[Record], full: FitResult, added: Sequence[s
         w_full, rmse_full = errors(full.model, pieces)
         obj_full = math.sqrt(w_full.sum() / n)
         checks = []
-        for name in [a for a in added if full.model.effect(a) is not None]:
-            reduced = fit_model(pieces, without(full.model, name),
-                                options=FitOptions.refit(tol=REFIT_TOL, covariance=False))
+        names = [a for a in added if full.model.effect(a) is not None]
+        t0 = time.perf_counter()
+        residual(full.model, pieces)
+        workers = workers_for(len(names), (time.perf_counter() - t0) * REFIT_EVALS * len(names), jobs)
+        refits = dict(run_each(_refit_without, names, (pieces, full.model), workers))
+        for name in names:
+            reduced = refits[name]
             w_red, rmse_red = errors(reduced.model, pieces)
             obj_red = math.sqrt(w_red.sum() / n)
             # judged as a candidate added to the reduced model, like in the diagnosis

@@ -3,7 +3,7 @@ r"""Find what the model is missing: fit it, add each catalogue effect in turn, r
 ``diagnose(records, model="base")``:
 
 1. fits the starting model (default: the paper's base model) — on a screening subset of windows
-   when the data are long (see :func:`analysis.identification.windows.screening_pieces`), then
+   when the data are long (see :meth:`Windows.of`), then
    polished on all data;
 2. for every *diagnosable* effect of the catalogue not yet in the model, fits ``model + effect``
    (start grids for the new effect, warm start for the rest) on the screening windows, evaluates
@@ -49,7 +49,7 @@ from plant.catalogue import effect_class
 from ..identification.fit import FTOL, REFIT_TOL, FitOptions, FitResult, fit_model
 from ..identification.metrics import Evaluation, evaluate
 from ..identification.windows import (WINDOW_S, Piece, errors, pieces_from_records, residual,
-                                      screening_pieces, window_sse)
+                                      subset_pieces, window_sse)
 from ..parallel import one_blas_thread, run_each, workers_for
 from ..records.record import Record
 from .ambiguity import AMBIGUITY_RATIO, Ambiguity, ambiguities, drift_or_level
@@ -59,6 +59,12 @@ from .observations import (Unexplained, describe_residual, describe_unexplained,
                            residual_is_noise)
 from .significance import MIN_EXCESS_SHARE, MIN_IMPROVEMENT, MIN_Z, UNEXPLAINED_RATIO
 
+#: up to this many windows the candidates are screened on all of them; with more, on about
+#: half (the best is refitted on all): a candidate's screening fit is most of a diagnosis
+SCREEN_ALL_UP_TO = 40
+#: windows per screening chunk below 100 screening windows (each chunk brings 1 s of command
+#: history before it)
+SCREEN_CHUNK = 4
 #: candidates refitted on all the data after screening (the best; the runner-up too when the
 #: data are short enough to be screened whole)
 REFIT_TOP = 1
@@ -126,8 +132,16 @@ class Windows:
 
     @classmethod
     def of(cls, records: Sequence[Record], window_s: float, max_screen_windows: int) -> "Windows":
+        """All the windows, and the screening ones: about half of them (in chunks of
+        :data:`SCREEN_CHUNK` windows spread over every record) when there are more than
+        :data:`SCREEN_ALL_UP_TO`, at most ``max_screen_windows``."""
         full = pieces_from_records(records, window_s)
-        screen, subset = screening_pieces(records, window_s, max_windows=max_screen_windows)
+        total = sum(p.n_windows for p in full)
+        if total > SCREEN_ALL_UP_TO:
+            target = min(max_screen_windows, total // 2)
+            screen, subset = subset_pieces(full, target, SCREEN_CHUNK if target < 100 else 10)
+        else:
+            screen, subset = full, False
         return cls(full, screen, subset)
 
     @property
@@ -260,14 +274,18 @@ def fit_start(start: PlantModel, windows: Windows, records: Sequence[Record], wi
     """Step 1: the starting model fitted (on the screening windows, then polished on all when
     they are a subset) and evaluated, with the noise floor of the objective. ``fitted``: its
     values are a fit to these records already: polished from there, no search for starts."""
-    say(("polishing " if fitted else "fitting ") + start.spec
-        + (f" on {windows.n_screen} of {windows.n_full} windows" if windows.subset else ""))
-    first = FitOptions.refit(covariance=not windows.subset) if fitted \
-        else FitOptions(covariance=not windows.subset)
-    fit = fit_model(windows.screen, start, options=first)
-    screen_model = fit.model
-    if windows.subset:
-        fit = fit_model(windows.full, fit.model, options=FitOptions.refit())
+    if fitted:   # fitted to all windows already: polished there, then on the screening ones
+        say(f"polishing {start.spec}")
+        fit = fit_model(windows.full, start, options=FitOptions.refit())
+        screen_model = fit.model if not windows.subset else fit_model(
+            windows.screen, fit.model, options=FitOptions.refit(covariance=False)).model
+    else:
+        say(f"fitting {start.spec}"
+            + (f" on {windows.n_screen} of {windows.n_full} windows" if windows.subset else ""))
+        fit = fit_model(windows.screen, start, options=FitOptions(covariance=not windows.subset))
+        screen_model = fit.model
+        if windows.subset:
+            fit = fit_model(windows.full, fit.model, options=FitOptions.refit())
     w = _window_sse(fit.model, windows.full)
     screen_errors = Errors(*errors(screen_model, windows.full)) if windows.subset else None
     ev = evaluate(fit.model, records, window_s)

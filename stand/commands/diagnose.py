@@ -23,7 +23,7 @@ def register(sub) -> None:
                                    "missing_effect (the best one) or unexplained (structure no effect "
                                    "removes, described), with the residual pattern in plain words and "
                                    "warnings when the data cannot separate two explanations.")
-    add_data_args(p, model_required=False)
+    add_data_args(p, model_required=False, channel=False)
     p.add_argument("--candidates", metavar="A,B,...",
                    help="only try these effects (default: every diagnosable one not in the "
                         "model, the catalogue's and those of --effects)")
@@ -47,9 +47,40 @@ def register(sub) -> None:
                         "see `stand report`)")
     p.add_argument("--jobs", type=int, default=None, metavar="N",
                    help="worker processes for the candidates' fits (default: one per CPU, up to "
-                        "8, when the data are large enough to gain; 1: none)")
+                        "8, when the data are large enough to gain; 1: none); with --rig-model "
+                        "for the channels (default: one per CPU, up to 8)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    g = p.add_argument_group(
+        "rig runs (many channels on one structure; docs/rig.md)",
+        "With --rig-model every channel (or those of --channel) is diagnosed with the other "
+        "channels' part of its force rate, Σ G_ij·w_j through their models, as a known input: "
+        "the diagnosis finds the channel's own effects. The channels run in parallel (--jobs, "
+        "or a dask cluster with --scheduler); --model is each channel's start (default base; "
+        "'rig': its model in the rig model file); --save writes the rig model arrived at.")
+    g.add_argument("--rig-model", metavar="RIG_MODEL.toml",
+                   help="the rig's G and channel models (stand estimate RIG_RUNS --save writes one)")
+    g.add_argument("--channel", action="append", metavar="NAME[,NAME...]",
+                   help="diagnose only these channels (default: all; repeatable). Without "
+                        "--rig-model one channel, read as a one-channel run (its force as it was, "
+                        "the others' coupling in it)")
+    g.add_argument("--rounds", type=int, default=1, metavar="N",
+                   help="diagnose all channels N times, each round's coupling from the others' "
+                        "models of the round before (default %(default)s)")
+    g.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run the channels on a dask.distributed cluster (its scheduler's "
+                        "address, e.g. tcp://10.0.0.5:8786; pip install 'hydrostand[cluster]')")
     p.set_defaults(func=main)
+
+
+def one_channel(channels: list[str] | None) -> str | None:
+    """Without --rig-model, --channel names the one channel of a rig run to read."""
+    names = [n.strip() for item in channels or [] for n in item.split(",") if n.strip()]
+    if len(names) > 1:
+        from gateway.errors import ParameterError
+        raise ParameterError(f"--channel {','.join(names)}: without --rig-model one channel is "
+                             "diagnosed at a time, read as a one-channel run; with --rig-model "
+                             "(the rig's G and channel models) several")
+    return names[0] if names else None
 
 
 def main(args: argparse.Namespace) -> int:
@@ -62,7 +93,17 @@ def main(args: argparse.Namespace) -> int:
     if args.jobs is not None and args.jobs < 1:
         from gateway.errors import ParameterError
         raise ParameterError(f"--jobs {args.jobs} is out of range: give 1 or more")
-    records = load_records(args.data, getattr(args, "channel", None))
+    from .rig_analysis import main_diagnose, rig_inputs
+    if args.rig_model:
+        if not rig_inputs(args.data):
+            from gateway.errors import ParameterError
+            raise ParameterError(f"--rig-model needs rig runs; {', '.join(args.data)} "
+                                 f"{'is' if len(args.data) == 1 else 'are'} one-channel data")
+        return main_diagnose(args)
+    if args.scheduler:
+        from gateway.errors import ParameterError
+        raise ParameterError("--scheduler goes with --rig-model (the rig's G and channel models)")
+    records = load_records(args.data, one_channel(args.channel))
     model, _ = resolve_model(args.model)
     effects = ([e.strip() for e in args.candidates.split(",") if e.strip()]
                if args.candidates else None)

@@ -1,25 +1,39 @@
-"""``stand emulate``: impersonate the stand's valve and dynamometer nodes and the plant."""
+"""``stand emulate``: impersonate the stand's valve and dynamometer nodes and the plant; with
+``--rig RIG.toml``, every channel of a rig on every one of its buses, in one process (the
+structure couples channels on different buses)."""
 from __future__ import annotations
 
 import argparse
 import contextlib
 import math
 
-
+from dbc import profile as P
 from standbus.realtime import make_realtime, short_gil_slices
+from standbus.spec import DEFAULT_BUS
 
 from .common import add_effects, add_bus, add_node_ids, add_rt_priority, parse_assignments
 
+#: the one-channel options a rig file replaces (option, argparse name, default)
+_ONE_CHANNEL = (("--bus", "bus", DEFAULT_BUS), ("--valve-id", "valve_id", P.VALVE_NODE_ID),
+                ("--dynamometer-id", "dynamometer_id", P.DYNAMOMETER_NODE_ID),
+                ("--config", "config", None), ("--model", "model", None), ("--set", "set", None))
+
 
 def register(sub) -> None:
-    p = sub.add_parser("emulate", help="run the plant emulator (both CANopen nodes) on a bus",
+    p = sub.add_parser("emulate", help="run the plant emulator (both CANopen nodes, or a whole rig) on a bus",
                        description="Impersonate the servo-valve drive (CiA 408) and the dynamometer "
-                                   "(CiA 404) with a plant model behind them, until interrupted.")
+                                   "(CiA 404) with a plant model behind them, until interrupted. "
+                                   "With --rig, every channel of a rig on every bus of its file, "
+                                   "coupled by its structure (docs/rig.md).")
     add_bus(p)
     add_node_ids(p)
+    p.add_argument("--rig", metavar="RIG.toml",
+                   help="emulate a rig: its buses, node ids, plants and structure from the rig "
+                        "file (then leave out --bus, --valve-id, --dynamometer-id, --config, "
+                        "--model and --set)")
     p.add_argument("--lockstep", action="store_true",
                    help="advance the plant one communication period (0x1006) per SYNC instead of "
-                        "on the wall clock")
+                        "on the wall clock (a rig: per cycle, once every bus's SYNC came)")
     p.add_argument("--config", metavar="PLANT.toml", help="plant configuration (model, sensor, initial force)")
     p.add_argument("--model", metavar="SPEC", help="which effects, e.g. base+reversal+lag (default: base+reversal)")
     p.add_argument("--set", action="append", metavar="NAME=VALUE",
@@ -34,14 +48,23 @@ def register(sub) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from plant.params import ModelError
-    from plant.config import load_plant_config
-    from plant_emulator import EmulatedStand, EmulatorOptions
-    from plant_emulator.process import serve_until_signalled
-    config = load_plant_config(args.config, args.model, parse_assignments(args.set))
+    from plant_emulator import EmulatorOptions
     if not (0.01 <= args.step_ms <= 100 and math.isfinite(args.step_ms)):
         raise ModelError(f"--step-ms {args.step_ms:g} is out of range: use 0.01 to 100 ms")
     options = EmulatorOptions(lockstep=args.lockstep, seed=args.seed, valve_id=args.valve_id,
                               dynamometer_id=args.dynamometer_id, step_s=args.step_ms / 1000.0)
+    if args.rig:
+        given = [opt for opt, name, default in _ONE_CHANNEL if getattr(args, name) != default]
+        if given:
+            raise ModelError(f"--rig takes the buses, node ids and plants from the rig file: "
+                             f"leave out {', '.join(given)}")
+        from rig.config import load_rig_file
+        rig = load_rig_file(args.rig)
+        run = lambda clock: _serve_rig(rig, options, clock)        # noqa: E731
+    else:
+        from plant.config import load_plant_config
+        config = load_plant_config(args.config, args.model, parse_assignments(args.set))
+        run = lambda clock: _serve_stand(args, config, options, clock)   # noqa: E731
     scheduling = "lockstep"
     if not args.lockstep:   # before any thread starts: they all inherit it
         if not 0 <= args.rt_priority <= 99:
@@ -51,15 +74,41 @@ def main(args: argparse.Namespace) -> int:
                       else f"ordinary scheduling ({result})")
     # real time: the thread answering SYNC gets the GIL within 0.2 ms (see short_gil_slices)
     with contextlib.nullcontext() if args.lockstep else short_gil_slices():
-        stand = serve_until_signalled(
-            lambda bus: EmulatedStand(bus, config, options), args.bus,
-            lambda stand: f"valve node {args.valve_id}, dynamometer node {args.dynamometer_id} on "
-                          f"{args.bus} ({'lockstep' if args.lockstep else 'real time'}, {scheduling}); "
-                          f"model {config.model.spec}")
-    flt = stand.frame_filter
-    if flt.dropped or stand.valve.rpdo_length_errors or stand.valve.faults:
-        print(f"emulator stopped: acceptance filter dropped {flt.dropped} frames "
-              f"({flt.not_classic} error/remote/extended/FD, {flt.wrong_dlc} wrong DLC); "
-              f"{stand.valve.rpdo_length_errors} RPDO length errors; {stand.valve.faults} valve faults",
-              flush=True)
+        stand = run(f"{'lockstep' if args.lockstep else 'real time'}, {scheduling}")
+    buses = stand.buses
+    dropped = sum(b.frame_filter.dropped for b in buses)
+    length_errors = sum(ch.valve.rpdo_length_errors for ch in stand.channels)
+    faults = sum(ch.valve.faults for ch in stand.channels)
+    if dropped or length_errors or faults:
+        not_classic = sum(b.frame_filter.not_classic for b in buses)
+        wrong_dlc = sum(b.frame_filter.wrong_dlc for b in buses)
+        print(f"emulator stopped: acceptance filter dropped {dropped} frames "
+              f"({not_classic} error/remote/extended/FD, {wrong_dlc} wrong DLC); "
+              f"{length_errors} RPDO length errors; {faults} valve faults", flush=True)
     return 0
+
+
+def _serve_stand(args: argparse.Namespace, config, options, clock: str):
+    from plant_emulator import EmulatedStand
+    from plant_emulator.process import serve_until_signalled
+    return serve_until_signalled(
+        lambda bus: EmulatedStand(bus, config, options), args.bus,
+        lambda stand: f"valve node {args.valve_id}, dynamometer node {args.dynamometer_id} on "
+                      f"{args.bus} ({clock}); model {config.model.spec}")
+
+
+def _serve_rig(rig, options, clock: str):
+    from plant_emulator.emulated_rig import EmulatedRig
+    from plant_emulator.process import serve_until_signalled
+    from rig.emulated import emulated_plant
+    emulated_plant(rig)          # refused before any bus opens: no plant, not physical, ...
+    buses = "; ".join(
+        f"{b.name} {b.spec}: " + ", ".join(f"{c.name} (valve {c.valve_id}, dynamometer "
+                                           f"{c.dynamometer_id})" for c in rig.channels_on(b.name))
+        for b in rig.buses)
+    return serve_until_signalled(
+        lambda opened: EmulatedRig.from_rig(opened, rig, options),
+        {b.name: b.spec for b in rig.buses},
+        lambda stand: f"rig {rig.name!r}, {len(rig.channels)} channel(s) on {len(rig.buses)} "
+                      f"bus(es): {buses} ({clock}); structure from "
+                      f"{rig.structure_from}")

@@ -10,8 +10,10 @@ from pathlib import Path
 from .common import add_effects, add_rig_channel, load_records
 
 
-def add_data_args(p: argparse.ArgumentParser, model_required: bool = True) -> None:
-    """DATA, --model, --window-s, --effects: shared by fit, compare, diagnose and report."""
+def add_data_args(p: argparse.ArgumentParser, model_required: bool = True,
+                  channel: bool = True) -> None:
+    """DATA, --model, --window-s, --effects: shared by fit, compare, diagnose and report;
+    ``channel``: --channel NAME, the channel of a rig run to read (diagnose has its own)."""
     from analysis.defaults import WINDOW_S
     p.add_argument("data", nargs="+", metavar="DATA",
                    help="tables of samples (.csv/.tsv/.txt: t,u,y[,r] in s, %%, kgf, or other "
@@ -23,7 +25,8 @@ def add_data_args(p: argparse.ArgumentParser, model_required: bool = True) -> No
                         + ("" if model_required else " (default: %(default)s)"))
     p.add_argument("--window-s", type=float, default=WINDOW_S, metavar="S",
                    help="length of the free-run windows, s (default %(default)s)")
-    add_rig_channel(p)
+    if channel:
+        add_rig_channel(p)
     add_effects(p)
 
 

@@ -7,6 +7,21 @@ import json
 import signal
 import sys
 
+from core.errors import ParameterError
+
+#: loading.pacing.PACING_MODES and loading.gain_monitor.ALARM_ACTIONS, written out: `stand
+#: --help` imports no numerics
+PACING_MODES = ("off", "static", "dynamic")
+ALARM_ACTIONS = ("note", "hold", "unload")
+GAIN_MODES = ("off", "watch", "adapt")
+
+#: time scaling's passes unless --repeat says
+SCALING_PASSES = 10
+DEFAULT_ACCURACY_PCT = 0.5
+#: a turning-point sequence without --rate under --fastest or --schedule is read at this rate,
+#: then given its durations
+PLACEHOLDER_RATE_KGF_S = 1000.0
+
 from .common import add_effects, add_gateway, gateway_config
 
 
@@ -23,10 +38,16 @@ def register(sub) -> None:
     p.add_argument("program", metavar="PROGRAM", help="the loading programme")
     p.add_argument("--controller", required=True, metavar="CONTROLLER.toml",
                    help="a controller file written by stand design")
-    p.add_argument("--out", required=True, metavar="DIR", help="directory for the passes and the report")
-    p.add_argument("--repeat", type=int, default=1, metavar="N",
+    p.add_argument("--out", metavar="DIR", help="directory for the passes and the report (required "
+                                                 "unless --plan)")
+    p.add_argument("--plan", action="store_true",
+                   help="print the programme's time beside its valve-limited minimum (every "
+                        "segment at the largest rate the controller's model says the valve can "
+                        "deliver) and exit; the stand is not touched")
+    p.add_argument("--repeat", type=int, default=None, metavar="N",
                    help="run the programme N times in a row, learning the peak/valley corrections "
-                        "between passes (default %(default)s)")
+                        "between passes (default 1; with --accuracy/--fastest: at most N passes, "
+                        f"default {SCALING_PASSES})")
     p.add_argument("--rate", type=float, metavar="KGF_PER_S",
                    help="turning-point sequence: peak rate of the haversines between points, kgf/s")
     p.add_argument("--frequency", type=float, metavar="HZ",
@@ -35,6 +56,43 @@ def register(sub) -> None:
                    help="start from peak/valley corrections learned before (compensation.toml of "
                         "an earlier stand load)")
     p.add_argument("--no-learn", action="store_true", help="keep the corrections as they are")
+    g = p.add_argument_group("time scaling and null pacing (docs/loading.md)")
+    g.add_argument("--accuracy", type=float, metavar="PCT",
+                   help="time scaling: shorten each segment pass by pass while its turning point "
+                        "holds PCT %% of the range (p95 <= PCT, max <= 2 PCT, no extra cycle), "
+                        "lengthen those that miss; the fastest schedule that met it is saved as "
+                        "OUT/schedule.toml")
+    g.add_argument("--fastest", action="store_true",
+                   help=f"time scaling at --accuracy (default {DEFAULT_ACCURACY_PCT} %%), starting "
+                        "from --rate, or from twice the valve-limited minimum without one")
+    g.add_argument("--schedule", metavar="SCHEDULE.toml",
+                   help="run the segment durations of a schedule made by --fastest/--accuracy "
+                        "(a production run)")
+    g.add_argument("--pacing", choices=PACING_MODES, default="off",
+                   help="null pacing: static waits at a turning point the force has not reached; "
+                        "dynamic also slows the programme while the force lags (default %(default)s)")
+    g.add_argument("--pacing-tolerance", type=float, metavar="KGF",
+                   help="how far the force may be from the reference or a turning point before the "
+                        "programme paces (default 0.5 %% of the programme's range)")
+    g.add_argument("--pacing-min-speed", type=float, default=0.2, metavar="SHARE",
+                   help="dynamic pacing: the slowest share of the programme's speed (default %(default)s)")
+    g.add_argument("--pacing-timeout", type=float, default=10.0, metavar="S",
+                   help="stop the pass when the programme waits longer than S at one turning point "
+                        "(default %(default)s)")
+    g = p.add_argument_group("the stand's gain, estimated and watched (docs/loading.md)")
+    g.add_argument("--gain", choices=GAIN_MODES, default="off",
+                   help="watch: re-estimate g block by block from the tracking data and raise an "
+                        "alarm when it falls (a crack) or rises (a jammed part); adapt: also let the "
+                        "feedforward follow it (default %(default)s)")
+    g.add_argument("--gain-block-s", type=float, default=10.0, metavar="S",
+                   help="stand time per estimate (default %(default)s)")
+    g.add_argument("--gain-fall", type=float, default=2.0, metavar="PCT",
+                   help="alarm when g falls more than PCT %% below the model's (default %(default)s)")
+    g.add_argument("--gain-rise", type=float, default=5.0, metavar="PCT",
+                   help="alarm when g rises more than PCT %% above the model's (default %(default)s)")
+    g.add_argument("--gain-alarm-action", choices=ALARM_ACTIONS, default="note",
+                   help="note (recorded, the test goes on), hold (the valve holds) or unload (a "
+                        "controlled unload, then hold) (default %(default)s)")
     p.add_argument("--unload-to", type=float, default=0.0, metavar="KGF",
                    help="force to unload to at the end, kgf (default %(default)s)")
     p.add_argument("--json", action="store_true",
@@ -49,38 +107,106 @@ def _terminate(signum, frame) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
+def _plan(args, programme, controller, config) -> int:
+    """``--plan``: the programme's time beside its valve-limited minimum."""
+    from loading.minimum_time import programme_timing
+    limit = min(controller.command_limit_pct, config.limits.command_limit_pct)
+    timing = programme_timing(programme, controller.model, limit)
+    if args.json:
+        json.dump({"programme": programme.source, "turning_points": int(len(programme.turning_idx)),
+                   "range_kgf": programme.range_kgf, "command_limit_pct": limit, **timing.to_dict()},
+                  sys.stdout, indent=2)
+        sys.stdout.write("\n")
+        return 0
+    print(f"{programme.source}: {len(programme.turning_idx)} turning points, range "
+          f"{programme.range_kgf:.0f} kgf, command limit ±{limit:g} %")
+    label = ("the schedule" if args.schedule else "the starting schedule"
+             if (args.fastest or args.accuracy is not None) and args.rate is None and args.frequency is None
+             else "at the requested rate")
+    print(timing.text(label))
+    return 0
+
+
 def main(args: argparse.Namespace) -> int:
     from gateway import Gateway
-    from gateway.load import LoadProgramme, run_load
+    from gateway.load import LoadProgramme, gain_text, run_load, timing_text
     from loading.compensation import Compensation
     from loading.design import load_controller
-    from loading.programme import load_programme
+    from loading.gain_monitor import MonitorOptions
+    from loading.minimum_time import minimum_durations_s, programme_valve_limit
+    from loading.pacing import PacingOptions
+    from loading.programme import is_sequence, load_programme
+    from loading.time_scaling import ScalingOptions, Schedule
     config = gateway_config(args)
     controller = load_controller(args.controller, config.period_s)
-    programme = load_programme(args.program, config.period_s, args.rate, args.frequency)
+    scaling = None
+    if args.fastest or args.accuracy is not None:
+        if args.schedule:
+            raise ParameterError("--schedule replays a schedule; --fastest/--accuracy make one: give "
+                                 "one or the other")
+        scaling = ScalingOptions(accuracy_pct=args.accuracy if args.accuracy is not None else DEFAULT_ACCURACY_PCT)
+        scaling.check()
+    untimed = (args.rate is None and args.frequency is None and (scaling is not None or args.schedule)
+               and is_sequence(args.program))
+    programme = load_programme(args.program, config.period_s,
+                               PLACEHOLDER_RATE_KGF_S if untimed else args.rate, args.frequency)
+    schedule = Schedule.load(args.schedule) if args.schedule else None
+    if schedule is not None:
+        programme = schedule.apply(programme)
+    command_limit = min(controller.command_limit_pct, config.limits.command_limit_pct)
+    if untimed and scaling is not None:
+        limit = programme_valve_limit(programme, controller.model, command_limit)
+        programme = programme.with_durations(2 * minimum_durations_s(programme, limit),
+                                             f"{programme.source.split(',')[0]}, from twice the minimum")
+    if args.plan:
+        return _plan(args, programme, controller, config)
+    if not args.out:
+        raise ParameterError("give --out DIR for the passes and the report (or --plan to see the "
+                             "programme's time and its valve-limited minimum without loading)")
+    repeat = args.repeat if args.repeat is not None else (SCALING_PASSES if scaling else 1)
+    pacing = PacingOptions(args.pacing, args.pacing_tolerance, args.pacing_min_speed, args.pacing_timeout)
+    pacing.check()
+    monitor = None
+    if args.gain != "off":
+        monitor = MonitorOptions(block_s=args.gain_block_s, fall_pct=args.gain_fall, rise_pct=args.gain_rise,
+                                 action=args.gain_alarm_action, follow=args.gain == "adapt")
+        monitor.check()
     comp = Compensation.load(args.compensation) if args.compensation else None
     # everything that can be refused is refused before the stand is touched
-    LoadProgramme(programme, controller, comp, args.unload_to).check(
+    LoadProgramme(programme, controller, comp, args.unload_to, pacing=pacing).check(
         config.period_s, config.limits.force_limit_kgf, config.limits.command_limit_pct)
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         with Gateway(config) as gw:
-            result = run_load(gw, programme, controller, args.out, args.repeat, comp,
+            result = run_load(gw, programme, controller, args.out, repeat, comp,
                               learn=not args.no_learn, unload_kgf=args.unload_to,
-                              progress=False if args.no_progress else None)
+                              progress=False if args.no_progress else None, pacing=pacing,
+                              scaling=scaling, monitor=monitor)
     finally:
         signal.signal(signal.SIGTERM, previous)
     if args.json:
         json.dump(result.summary(), sys.stdout, indent=2)
         sys.stdout.write("\n")
     else:
-        for i, p in enumerate(result.passes, start=1):
+        for i, (p, timing) in enumerate(zip(result.passes, result.timings), start=1):
             print(f"pass {i}: peak/valley error p95 {p.peak_valley_error_pct['p95']:.2f} %, max "
                   f"{p.peak_valley_error_pct['max']:.2f} %, RMS {p.rms_error_pct:.2f} %, extra cycles "
-                  f"{p.extra_cycles:g}")
+                  f"{p.extra_cycles:g}; {timing_text(timing)}")
         if result.passes:
             print(result.passes[-1].text())
-        print(f"-> {result.out} (report.txt, report.json, tracking.png, pass-N/)")
+        if result.converged is not None:
+            s = result.schedule
+            print(f"schedule: {s.time_s:.1f} s, {s.time_s / s.minimum_time_s:.2f}x the valve-limited "
+                  f"minimum {s.minimum_time_s:.1f} s, met {s.accuracy_pct:g} % "
+                  + ("(converged)" if result.converged else f"(not converged in {repeat} passes: the "
+                     "fastest that met it)") if s is not None else
+                  f"schedule: no pass met {scaling.accuracy_pct:g} % in {repeat} passes")
+        if result.monitor is not None:
+            print(gain_text(result.monitor))
+        print(f"-> {result.out} (report.txt, report.json, tracking.png, pass-N/"
+              + (", schedule.toml" if scaling else "") + ")")
+    if result.monitor is not None and result.monitor.alarm is not None:
+        print(f"stand load: gain alarm ({result.monitor.alarm[0]}): {result.monitor.alarm[1]}", file=sys.stderr)
     if result.end_reason not in (None, "complete"):
         print(f"stand load: stopped ({result.end_reason}): {result.end_message}", file=sys.stderr)
         return 1

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 
+from core.errors import ParameterError
 
 from .compare import default_out
 from .common import load_records
@@ -10,13 +11,19 @@ from .fit import add_data_args, check_window
 
 
 def register(sub) -> None:
-    p = sub.add_parser("report", help="keep a data set's model history; HTML report of the error falling",
+    p = sub.add_parser("report", help="keep a data set's model history; HTML report of the error falling "
+                                      "(or of a loading test)",
                        description="Fit the model (a spec, or a model file you edit; --as-given keeps "
                                    "the file's values), add it as the next version to OUT/history.json "
                                    "and rewrite OUT/report.html: the error of every version so far, "
                                    "and the plots, parameters and regimes of the latest. The page is "
-                                   "self-contained (images embedded, no network).")
+                                   "self-contained (images embedded, no network). Given the directory "
+                                   "of a `stand load` (no --model), its page instead: the passes' "
+                                   "figures, the tracking and the stand's g through the test "
+                                   "(LOAD_DIR/report.html, gain.png).")
     add_data_args(p)
+    model = next(a for a in p._actions if "--model" in a.option_strings)
+    model.required = False
     p.add_argument("--out", metavar="DIR", help="report directory (default report-<data>)")
     p.add_argument("--as-given", action="store_true", help="use the model's values as they are (no fit)")
     p.add_argument("--diagnose", action="store_true",
@@ -28,6 +35,14 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from loading.load_page import is_load_dir, write_load_page
+    if len(args.data) == 1 and is_load_dir(args.data[0]) and args.model is None:
+        page = write_load_page(args.data[0], args.title)
+        print(f"report: {page}")
+        return 0
+    if args.model is None:
+        raise ParameterError("give --model SPEC|FILE.toml (the model to fit and add to the history), "
+                             "or one directory written by stand load for its page")
     from analysis import diagnose, write_report
     check_window(args)
     records = load_records(args.data, getattr(args, "channel", None))

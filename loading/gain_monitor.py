@@ -1,0 +1,308 @@
+r"""A gain that adapts and watches the specimen: the stand's g re-estimated block by block.
+
+During a loading run the force and the commands say how strongly the stand answers. Over a
+*chunk* of ``c`` cycles (:data:`MonitorOptions.chunk_s`) the model says
+
+.. math::  a = y_{end} - y_{start} - \Delta\,c\,T
+           \;=\; \kappa \cdot b,\qquad b = g\,T \sum_{k} G_k\,\tilde q_k,
+
+with ``q̃_k = (1 − f)·u_{k−m} + f·u_{k−m−1}`` the commands actually sent, delayed by
+``τ = (m + f)·T``, ``G_k`` the model's FLOW factor on the planned flow there (the reversal
+boost, an asymmetry: :attr:`loading.feedforward.Feedforward.flow_factor`) and ``κ`` the stand's
+gain over the model's. Only chunks where the model says the stand is steady count: ``G`` within
+:data:`MonitorOptions.steady_factor` along the whole chunk (away from a reversal's boost) and
+the flow one way, at least ``min_flow_pct``. A block lasts ``block_s`` of stand time, or
+longer until it holds ``min_chunks`` such chunks (a fast programme of short segments is
+rarely steady), at most :data:`LONGEST_BLOCK` times as long. Per block the least squares
+estimate and its 95 % interval are
+
+.. math::  \hat\kappa = \frac{\sum a b}{\sum b^2},\qquad
+           s^2 = \frac{\sum (a - \hat\kappa b)^2}{n - 1},\qquad
+           \hat\kappa \pm t_{0.975,\,n-1}\,\frac{s}{\sqrt{\sum b^2}},
+
+``ĝ = κ̂·g`` (a few float operations a cycle; the sums close at each chunk).
+
+**The feedforward follows it** (``follow``): from the next block on, the feedforward is scaled
+by ``g/ĝ`` (exact for the base model; first order for FLOW effects), within
+``follow_limit_pct`` of the model's g. **The margins are re-checked**: the PI is left as
+designed, so its loop gain moves with ``ĝ``; the gain margin scales exactly as ``g/ĝ``, the
+phase margin is interpolated from the design's loop computed beforehand at gains across
+``[g/2, 2g]``; a block whose margins at ``ĝ`` (the boosted gain ``ĝ·ρ`` for the gain margin)
+fall below the design's requirements (gain margin 2; phase margin 45°, less
+:data:`PHASE_MARGIN_SLACK_DEG`: the design sits on it) is flagged.
+
+**The alarm**: a fall of g beyond ``fall_pct`` (a crack: the structure softens) or a rise
+beyond ``rise_pct`` (a jammed part), relative to the model's g (the stand as identified): the
+estimate beyond the threshold, its 95 % interval clear of the model's g (a change, not the
+noise), in ``confirm`` consecutive blocks; or margins below the design's. Its action: ``note`` (recorded, the test goes on), ``hold`` (the valve holds, the
+pass ends) or ``unload`` (a controlled unload, then hold).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+from core.errors import ParameterError
+
+ALARM_ACTIONS = ("note", "hold", "unload")
+#: a block with too few steady chunks goes on, up to this many times its length
+LONGEST_BLOCK = 10
+#: the design puts the phase margin on its requirement (45°): a block's may be this much below
+#: (about 10 % more gain) before its margins count as below the design's
+PHASE_MARGIN_SLACK_DEG = 5.0
+#: the reason a pass ends on a gain alarm with action hold or unload
+GAIN_ALARM = "gain_alarm"
+
+
+@dataclass(frozen=True)
+class MonitorOptions:
+    """How g is estimated and watched (module docstring)."""
+
+    block_s: float = 10.0
+    chunk_s: float = 0.05
+    steady_factor: float = 1.03
+    min_flow_pct: float = 2.0
+    fall_pct: float = 2.0
+    rise_pct: float = 5.0
+    action: str = "note"
+    follow: bool = True
+    follow_limit_pct: float = 20.0
+    confirm: int = 2
+    min_chunks: int = 5
+
+    def check(self) -> None:
+        for name, v, lo, hi in (("block_s", self.block_s, 0.05, 3600.0), ("chunk_s", self.chunk_s, 0.004, 1.0),
+                                ("steady_factor", self.steady_factor, 1.0, 10.0),
+                                ("min_flow_pct", self.min_flow_pct, 0.0, 100.0),
+                                ("fall_pct", self.fall_pct, 0.01, 90.0), ("rise_pct", self.rise_pct, 0.01, 900.0),
+                                ("follow_limit_pct", self.follow_limit_pct, 0.0, 90.0)):
+            if not (math.isfinite(v) and lo <= v <= hi):
+                raise ParameterError(f"gain monitor: {name} = {v} is out of range: give {lo:g} to {hi:g}")
+        if self.chunk_s * 2 > self.block_s:
+            raise ParameterError(f"gain monitor: a block ({self.block_s:g} s) must hold several chunks "
+                                 f"({self.chunk_s:g} s)")
+        if self.action not in ALARM_ACTIONS:
+            raise ParameterError(f"gain alarm action {self.action!r}: choose one of {', '.join(ALARM_ACTIONS)}")
+        if self.confirm < 1 or self.min_chunks < 3:
+            raise ParameterError("gain monitor: confirm >= 1 block and min_chunks >= 3")
+
+
+@dataclass
+class GainBlock:
+    """One block's estimate (``g`` None when the block had too few steady chunks)."""
+
+    index: int                  #: across the test (all passes)
+    pass_index: int
+    start_s: float              #: stand time of the test (passes one after the other), s
+    end_s: float
+    chunks: int
+    g: float | None = None      #: ĝ, kgf/(%·s)
+    low: float | None = None    #: 95 % interval
+    high: float | None = None
+    change_pct: float | None = None          #: ĝ over the reference g, minus 1, %
+    gain_margin: float | None = None         #: at the boosted ĝ·ρ
+    phase_margin_deg: float | None = None    #: the smaller at ĝ and ĝ·ρ
+    margins_ok: bool | None = None
+    follow_g: float | None = None            #: the g the feedforward uses from the next block
+    alarm: str | None = None                 #: "fall" | "rise" | "margins" when it fired here
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class MarginTable:
+    """The designed loop's margins across gain ratios, computed before the run."""
+
+    ratios: list[float]
+    gain_margin_boosted: float           #: at ratio 1 (it scales as 1/ratio)
+    phase_margin_deg: list[float]        #: the smaller of nominal and boosted, per ratio
+    gain_margin_min: float
+    phase_margin_min_deg: float
+
+    def at(self, ratio: float) -> tuple[float, float]:
+        import numpy as np
+        return (self.gain_margin_boosted / ratio,
+                float(np.interp(ratio, self.ratios, self.phase_margin_deg)))
+
+
+def margin_table(kp: float, ti: float, g: float, tau: float, period_s: float, rho: float,
+                 points: int = 2000) -> MarginTable:
+    """:class:`MarginTable` of the PI (kp, ti) on ``g·e^{-sτ}/s`` at ``T``, boost ρ."""
+    import numpy as np
+    from .design import GAIN_MARGIN_MIN, PHASE_MARGIN_MIN_DEG, margins
+    ratios = list(np.geomspace(0.5, 2.0, 25))
+    pm = [min(margins(kp, ti, g * k, tau, period_s, check=False, points=points).phase_margin_deg,
+              margins(kp, ti, g * k * rho, tau, period_s, check=False, points=points).phase_margin_deg)
+          for k in ratios]
+    gm = margins(kp, ti, g * rho, tau, period_s, check=False, points=points).gain_margin
+    return MarginTable(ratios, float(gm), [float(v) for v in pm], GAIN_MARGIN_MIN, PHASE_MARGIN_MIN_DEG)
+
+
+def _t_quantiles(n: int = 200) -> list[float]:
+    from scipy.stats import t
+    return [math.inf] + [float(t.ppf(0.975, k)) for k in range(1, n + 1)]
+
+
+class GainMonitor:
+    """Block-by-block estimate of g, the feedforward's gain, the alarm (module docstring).
+
+    One monitor lives through a whole test (every pass): :meth:`begin_pass` at each pass's main
+    phase, :meth:`add` every cycle, :attr:`ff_scale` for the feedforward, :attr:`alarm` once
+    the alarm fired (``(kind, message)``)."""
+
+    def __init__(self, g_kgf_pct_s: float, tau_s: float, delta_kgf_s: float, period_s: float,
+                 options: MonitorOptions, margins: MarginTable | None = None) -> None:
+        options.check()
+        self.options = options
+        self.g_ref = float(g_kgf_pct_s)
+        self.T = float(period_s)
+        whole = tau_s / period_s
+        self.m = int(math.floor(whole + 1e-9))
+        self.f = whole - self.m
+        self.delta = float(delta_kgf_s)
+        self.margins = margins
+        self.chunk_cycles = max(2, int(round(options.chunk_s / period_s)))
+        self.block_cycles = max(self.chunk_cycles * 2, int(round(options.block_s / period_s)))
+        self.longest_block_cycles = LONGEST_BLOCK * self.block_cycles
+        self._tq = _t_quantiles()
+        self.blocks: list[GainBlock] = []
+        self.alarm: tuple[str, str] | None = None
+        self.g_follow = self.g_ref
+        self._run = 0                  # consecutive blocks beyond a threshold
+        self._run_kind = ""
+        self.test_s = 0.0              # stand time of the finished passes
+        self.pass_index = 0
+        self._in_pass = False
+
+    # -- the feedforward's gain ----------------------------------------------------------------
+    @property
+    def ff_scale(self) -> float:
+        """The factor on the feedforward: the model's g over the one it follows."""
+        return self.g_ref / self.g_follow
+
+    # -- per pass, per cycle -------------------------------------------------------------------
+    def begin_pass(self) -> None:
+        self.pass_index += 1
+        self._in_pass = True
+        self._u = [0.0] * (self.m + 2)     # the last commands, newest last
+        self._g = [1.0] * (self.m + 2)     # their FLOW factors
+        self._steady = [False] * (self.m + 2)
+        self._cycle = 0
+        self._block_start = 0
+        self._reset_chunk(math.nan)
+        self._sab = self._sbb = self._saa = 0.0
+        self._n = 0
+
+    def end_pass(self) -> bool:
+        """Close the pass: its last block if it holds enough, and the test's clock. False if
+        no pass was going (its main phase never began)."""
+        if not self._in_pass:
+            return False
+        self._in_pass = False
+        if self._cycle - self._block_start >= self.block_cycles // 2:
+            self._close_block()
+        self.test_s += self._cycle * self.T
+        return True
+
+    def _reset_chunk(self, y: float) -> None:
+        self._y0 = y                   # the reading the chunk starts from
+        self._b = 0.0                  # Σ G·q̃ over its cycles
+        self._k = 0                    # its cycles so far
+        self._ok = True                # steady, one way, enough flow throughout
+        self._sign = 0.0
+
+    def add(self, y: float, u_pct: float, flow_factor: float) -> None:
+        """One cycle of the main phase: the force read now, the command sent now and the
+        model's FLOW factor where it will act (a delay later)."""
+        o = self.options
+        u, g, st = self._u, self._g, self._steady
+        u.pop(0); g.pop(0); st.pop(0)                        # noqa: E702
+        u.append(u_pct); g.append(flow_factor)               # noqa: E702
+        st.append(abs(flow_factor - 1.0) <= o.steady_factor - 1.0)
+        self._cycle += 1
+        if self._k == self.chunk_cycles:                     # y is the chunk's last reading
+            if self._ok and math.isfinite(self._y0):
+                a = y - self._y0 - self.delta * self._k * self.T
+                b = self.g_ref * self.T * self._b
+                self._sab += a * b
+                self._sbb += b * b
+                self._saa += a * a
+                self._n += 1
+            self._reset_chunk(y)
+        elif self._k == 0:
+            self._y0 = y
+        # the flow acting until the next reading: the commands sent a delay ago
+        q = (1 - self.f) * u[-1 - self.m] + self.f * u[-2 - self.m]
+        sign = 1.0 if q > 0 else -1.0
+        if not (st[-1 - self.m] and abs(q) >= o.min_flow_pct and self._sign in (0.0, sign)):
+            self._ok = False
+        self._sign = sign
+        self._b += g[-1 - self.m] * q
+        self._k += 1
+        length = self._cycle - self._block_start
+        if length >= self.block_cycles and (self._n >= o.min_chunks or length >= self.longest_block_cycles):
+            self._close_block()
+
+    # -- per block -------------------------------------------------------------------------------
+    def _close_block(self) -> None:
+        o = self.options
+        start = self.test_s + self._block_start * self.T
+        end = self.test_s + self._cycle * self.T
+        block = GainBlock(len(self.blocks) + 1, self.pass_index, start, end, self._n)
+        n, sbb = self._n, self._sbb
+        if n >= o.min_chunks and sbb > 0:
+            kappa = self._sab / sbb
+            ssr = max(self._saa - 2 * kappa * self._sab + kappa * kappa * sbb, 0.0)
+            se = math.sqrt(ssr / (n - 1) / sbb)
+            tq = self._tq[min(n - 1, len(self._tq) - 1)] if n - 1 < len(self._tq) else 1.96
+            g = kappa * self.g_ref
+            block.g, block.low, block.high = g, g - tq * se * self.g_ref, g + tq * se * self.g_ref
+            block.change_pct = 100.0 * (kappa - 1.0)
+            if self.margins is not None:
+                gm, pm = self.margins.at(kappa)
+                block.gain_margin, block.phase_margin_deg = gm, pm
+                block.margins_ok = (gm >= self.margins.gain_margin_min
+                                    and pm >= self.margins.phase_margin_min_deg - PHASE_MARGIN_SLACK_DEG)
+            self._judge(block)
+            if o.follow:
+                lim = o.follow_limit_pct / 100.0
+                self.g_follow = min(max(g, self.g_ref * (1 - lim)), self.g_ref * (1 + lim))
+        block.follow_g = self.g_follow
+        self.blocks.append(block)
+        self._block_start = self._cycle
+        self._sab = self._sbb = self._saa = 0.0
+        self._n = 0
+
+    def _judge(self, block: GainBlock) -> None:
+        o = self.options
+        kind = ""
+        if block.g < self.g_ref * (1 - o.fall_pct / 100) and block.high < self.g_ref:
+            kind = "fall"
+        elif block.g > self.g_ref * (1 + o.rise_pct / 100) and block.low > self.g_ref:
+            kind = "rise"
+        elif block.margins_ok is False:
+            kind = "margins"
+        self._run = self._run + 1 if kind and kind == self._run_kind else (1 if kind else 0)
+        self._run_kind = kind
+        if kind and self._run >= o.confirm and self.alarm is None:
+            block.alarm = kind
+            what = {"fall": f"fell {-block.change_pct:.1f} % (beyond {o.fall_pct:g} %: the structure "
+                            "softens, a crack?)",
+                    "rise": f"rose {block.change_pct:.1f} % (beyond {o.rise_pct:g} %: a jammed part?)",
+                    "margins": f"is {block.change_pct:+.1f} %: the loop's margins there (gain "
+                               f"{block.gain_margin:.2f}, phase {block.phase_margin_deg:.0f}°) are "
+                               "below the design's"}[kind]
+            self.alarm = (kind, f"block {block.index} ({block.start_s:.0f}-{block.end_s:.0f} s of the test): "
+                                f"the stand's g = {block.g:.1f} kgf/(%·s) [{block.low:.1f}, {block.high:.1f}] "
+                                f"{what}; the model's g is {self.g_ref:.1f}")
+
+    def summary(self) -> dict:
+        est = [b for b in self.blocks if b.g is not None]
+        return {"g_reference": self.g_ref, "blocks_total": len(self.blocks), "blocks_estimated": len(est),
+                "last_g": est[-1].g if est else None, "alarm": self.alarm[0] if self.alarm else None,
+                "alarm_message": self.alarm[1] if self.alarm else None,
+                "alarm_block": next((b.index for b in self.blocks if b.alarm), None),
+                "action": self.options.action, "fall_pct": self.options.fall_pct,
+                "rise_pct": self.options.rise_pct, "block_s": self.options.block_s,
+                "follows": self.options.follow, "g_follow": self.g_follow}

@@ -1,0 +1,273 @@
+r"""Time scaling: each segment as short as it can be while every turning point holds the accuracy.
+
+``stand load PROGRAMME --accuracy 0.5`` (or ``--fastest``) runs the programme pass by pass and
+scales each segment's duration on its own (a small gust cycle can go faster than a
+ground-air-ground swing). After a pass, the segment that arrives at a turning point
+
+* **lands** when the turning point's error is within ``land_share`` (½) of the accuracy ``a``
+  (% of the range), it made no extra cycle near it and the programme did not have to wait or
+  slow for it (null pacing): it is shortened;
+* **misses** when the error is beyond ``miss_share`` (0.8) of ``a``, or an extra cycle rang near
+  it, or the programme paced for it: it is lengthened (the margin below ``a`` keeps the p95 of
+  a whole pass within ``a`` when each turning point scatters a little from pass to pass);
+* **holds** in between: it keeps its duration.
+
+Per segment this is a bisection between the longest duration known to miss ``d_miss`` and the
+shortest known to land ``d_land``, floored at the valve-limited minimum ``d_min``
+(:mod:`loading.minimum_time`):
+
+.. math::  d \leftarrow \begin{cases}
+              \max(d_{min},\ \sigma\,d) & \text{lands, no miss known} \\
+              \max\big(d_{min},\ \sqrt{d_{land}\,d_{miss}}\big) & \text{lands or misses, both known} \\
+              \lambda\,d & \text{misses, no landing known}
+           \end{cases}
+
+(``σ = shorten``, ``λ = lengthen``), and a segment is settled once it lands at its floor, holds,
+or its two bounds are within ``resolution`` of each other (it then runs at ``d_land``). A
+segment that misses where it had landed (the turning point's noise, or its neighbours changed)
+is settled ``2·resolution`` longer: a bisection would chase the noise. No segment gets longer
+than :data:`CEILING` times its start. The
+programme is done when a pass with (nearly: :data:`SETTLED_SHARE`) every segment settled meets
+the accuracy as a whole: p95 of
+``|e|`` ≤ ``a``, max ≤ ``2a``, no extra cycle. The fastest schedule whose pass met it is the
+result (``schedule.toml``), which a production run replays (``stand load --schedule``).
+
+The duration a segment is given is rounded to whole loop periods, never below the floor's.
+Before a pass the feedforward's check may still find a segment the valve cannot follow (a lag,
+a slew limit the minimum does not count): :func:`stretch_to_valve` lengthens it by the excess.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from core.errors import ParameterError
+
+from .programme import Programme, turning_points
+from .report import GATE_PCT, TrackingReport
+
+SCHEMA = "hydrostand-schedule/1"
+LAND, HOLD, MISS = "land", "hold", "miss"
+#: a segment is never made longer than this many times its start (or twice its floor)
+CEILING = 4.0
+#: the programme counts as settled when this share of its segments are
+SETTLED_SHARE = 0.98
+
+
+@dataclass(frozen=True)
+class ScalingOptions:
+    """How the segments are scaled (module docstring)."""
+
+    accuracy_pct: float = 0.5
+    shorten: float = 0.6
+    lengthen: float = 1.5
+    land_share: float = 0.5
+    miss_share: float = 0.8
+    resolution: float = 0.05
+    #: a segment the programme paced for longer than this share of it misses
+    paced_share: float = 0.02
+
+    def check(self) -> None:
+        if not (math.isfinite(self.accuracy_pct) and 0.01 <= self.accuracy_pct <= 10):
+            raise ParameterError(f"accuracy {self.accuracy_pct} %: give a share of the range from 0.01 "
+                                 "to 10 % (e.g. --accuracy 0.5)")
+        if not (0 < self.shorten < 1 and self.lengthen > 1 and 0 < self.land_share <= self.miss_share <= 1
+                and 0 < self.resolution < 1):
+            raise ParameterError("time scaling: shorten in (0, 1), lengthen > 1, 0 < land_share <= "
+                                 "miss_share <= 1, resolution in (0, 1)")
+
+
+@dataclass
+class Schedule:
+    """Segment durations for a programme's turning points (``schedule.toml``)."""
+
+    levels_kgf: np.ndarray
+    durations_s: np.ndarray
+    period_s: float
+    accuracy_pct: float = math.nan
+    minimum_time_s: float = math.nan
+    source: str = ""
+    #: True when a pass with exactly these durations met the accuracy
+    verified: bool = False
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def time_s(self) -> float:
+        return float(np.sum(self.durations_s))
+
+    def apply(self, programme: Programme) -> Programme:
+        """The programme with these durations; refused if its turning points are not these."""
+        lv = programme.levels_kgf
+        if len(lv) != len(self.levels_kgf) or not np.allclose(lv, self.levels_kgf, atol=0.05):
+            where = ("it has " + str(len(lv)) + " turning points, the schedule "
+                     + str(len(self.levels_kgf))) if len(lv) != len(self.levels_kgf) else \
+                f"turning point {int(np.flatnonzero(~np.isclose(lv, self.levels_kgf, atol=0.05))[0]) + 1} differs"
+            raise ParameterError(f"the schedule ({self.source or 'schedule.toml'}) was made for another "
+                                 f"programme than {programme.source}: {where}; run --fastest or "
+                                 "--accuracy on this programme to make its schedule")
+        if abs(self.period_s - programme.period_s) > 1e-12:
+            raise ParameterError(f"the schedule was made at a period of {self.period_s * 1e3:g} ms, the "
+                                 f"loop runs at {programme.period_s * 1e3:g} ms")
+        return programme.with_durations(self.durations_s, f"{programme.source}, scheduled "
+                                                          f"({self.time_s:.1f} s)")
+
+    def to_toml(self) -> str:
+        out = [f"# {SCHEMA}: segment durations made by `stand load --accuracy/--fastest`",
+               "# (replay with `stand load PROGRAMME --schedule THIS_FILE`)",
+               f"source = {_quote(self.source)}", f"period_s = {self.period_s!r}",
+               f"accuracy_pct = {float(self.accuracy_pct)!r}", f"verified = {str(self.verified).lower()}",
+               f"time_s = {self.time_s!r}", f"minimum_time_s = {float(self.minimum_time_s)!r}"]
+        out += [f"notes = [{', '.join(_quote(n) for n in self.notes)}]"]
+        out += ["levels_kgf = [" + ", ".join(repr(float(v)) for v in self.levels_kgf) + "]",
+                "durations_s = [" + ", ".join(f"{v:.9g}" for v in self.durations_s) + "]"]
+        return "\n".join(out) + "\n"
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.write_text(self.to_toml())
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Schedule":
+        from plant.config import read_toml
+        from plant.params import ModelError
+        try:
+            d = read_toml(path)
+            s = cls(np.asarray(d["levels_kgf"], float), np.asarray(d["durations_s"], float),
+                    float(d["period_s"]), float(d.get("accuracy_pct", math.nan)),
+                    float(d.get("minimum_time_s", math.nan)), str(d.get("source", path)),
+                    bool(d.get("verified", False)), list(d.get("notes", [])))
+        except (ModelError, KeyError, TypeError, ValueError) as exc:
+            raise ParameterError(f"{path}: not a schedule file ({exc}); write one with stand load "
+                                 "--fastest or --accuracy") from None
+        if (s.durations_s.shape != (len(s.levels_kgf) - 1,) or not np.isfinite(s.durations_s).all()
+                or not (s.durations_s > 0).all()):
+            raise ParameterError(f"{path}: one positive duration per segment (levels - 1) is expected")
+        return s
+
+
+def _quote(text: str) -> str:
+    return '"' + str(text).replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def ringing_turning_points(programme: Programme, t_s: np.ndarray, y_kgf: np.ndarray,
+                           gate_pct: float = GATE_PCT) -> set[int]:
+    """The turning points (their sample in the programme) near which the force reversed more
+    than once beyond the gate: where an extra cycle rang. Each turning point's window runs from
+    half way after the one before to half way before the one after, on the programme's clock."""
+    t = np.asarray(t_s, float)
+    y = np.asarray(y_kgf, float)
+    inside = (t >= 0) & (t <= programme.duration_s)
+    t, y = t[inside], y[inside]
+    if len(y) < 3:
+        return set()
+    rev = turning_points(y, gate_pct / 100 * programme.range_kgf)[1:-1]
+    idx = programme.turning_idx
+    edges = programme.t_s[np.r_[0, (idx[:-1] + idx[1:]) // 2, idx[-1]]]
+    counts = np.bincount(np.searchsorted(edges, t[rev], "right") - 1, minlength=len(idx))
+    return {int(idx[j]) for j in range(1, len(idx) - 1) if counts[j] > 1}
+
+
+class TimeScaler:
+    """The per-segment bisection of the module docstring, pass after pass."""
+
+    def __init__(self, programme: Programme, minimum_s: np.ndarray, start_s: np.ndarray,
+                 options: ScalingOptions) -> None:
+        options.check()
+        T = programme.period_s
+        self.programme = programme
+        self.options = options
+        self.floor = np.maximum(np.ceil(np.asarray(minimum_s, float) / T - 1e-9), 1) * T
+        self.durations = np.maximum(_whole(np.asarray(start_s, float), T), self.floor)
+        #: a segment is never made longer than this (its start, or twice its floor, times 4)
+        self.ceiling = CEILING * np.maximum(self.durations, 2 * self.floor)
+        self.landed = np.full(len(self.floor), np.inf)      # shortest duration that landed
+        self.missed = np.zeros(len(self.floor))             # longest duration that missed
+        self.settled = np.zeros(len(self.floor), bool)
+        self.last: dict[str, int] = {}
+
+    def verdicts(self, programme: Programme, report: TrackingReport, ringing: set[int] = frozenset(),
+                 paced_s: dict[int, float] | None = None) -> list[str]:
+        """Per segment: land, hold or miss (module docstring), from the ``report`` of the pass
+        that ran ``programme`` (the scaled one: turning points by its samples); a segment
+        arriving at no peak or valley (the last) lands."""
+        a = self.options.accuracy_pct
+        idx = programme.turning_idx
+        arriving = {int(s): j for j, s in enumerate(idx[1:])}
+        out = [LAND] * len(self.durations)
+        for tp in report.turning_points:
+            j = arriving.get(tp.index)
+            if j is None:
+                continue
+            err = abs(tp.error_pct)
+            paced = (paced_s or {}).get(tp.index, 0.0) > self.options.paced_share * self.durations[j]
+            if err > self.options.miss_share * a or tp.index in ringing or paced:
+                out[j] = MISS
+            elif err > self.options.land_share * a:
+                out[j] = HOLD
+        self.last = {v: out.count(v) for v in (LAND, HOLD, MISS)}
+        return out
+
+    def update(self, verdicts: list[str]) -> np.ndarray:
+        """The next pass's durations from this pass's verdicts."""
+        o = self.options
+        T = self.programme.period_s
+        d = self.durations.copy()
+        for j, v in enumerate(verdicts):
+            dj = self.durations[j]
+            land, miss = self.landed[j], self.missed[j]
+            if v == MISS and dj >= land - T / 2:
+                # it missed where it had landed: the turning point's noise, or its neighbours
+                # changed; one small step longer and no more (a bisection would chase the noise)
+                d[j], self.settled[j] = dj * (1 + 2 * o.resolution), True
+                self.landed[j] = d[j]
+                continue
+            if v == MISS:
+                self.missed[j] = miss = max(miss, dj)
+            else:
+                self.landed[j] = land = min(land, dj)
+            if v == HOLD or (v == LAND and dj <= self.floor[j] * (1 + 1e-9)):
+                d[j], self.settled[j] = dj, True
+            elif math.isfinite(land) and miss > 0:
+                close = land / miss <= 1 + o.resolution or land - miss <= T
+                d[j] = land if close else max(self.floor[j], math.sqrt(land * miss))
+                self.settled[j] = close
+            elif v == LAND:
+                d[j], self.settled[j] = max(self.floor[j], dj * o.shorten), False
+            else:
+                d[j], self.settled[j] = dj * o.lengthen, False
+        self.durations = np.minimum(np.maximum(_whole(d, T), self.floor), self.ceiling)
+        return self.durations
+
+    @property
+    def all_settled(self) -> bool:
+        """(Nearly) every segment settled: at least :data:`SETTLED_SHARE` of them (a few
+        turning points scatter across the bands from pass to pass)."""
+        return bool(self.settled.mean() >= SETTLED_SHARE)
+
+
+def meets(report: TrackingReport, accuracy_pct: float) -> bool:
+    """p95 of the peak/valley error within the accuracy, max within twice it, no extra cycle."""
+    pv = report.peak_valley_error_pct
+    return pv["p95"] <= accuracy_pct and pv["max"] <= 2 * accuracy_pct and report.extra_cycles == 0
+
+
+def stretch_to_valve(durations_s: np.ndarray, peak_command_pct: np.ndarray,
+                     limit_pct: float) -> np.ndarray | None:
+    """The durations with every segment whose feedforward needs more than ``limit_pct``
+    (``peak_command_pct``: each segment's largest feedforward command, %) stretched by the
+    excess (plus 1 %); None when none needs it."""
+    peaks = np.asarray(peak_command_pct, float)
+    over = peaks > limit_pct
+    if not over.any():
+        return None
+    d = np.asarray(durations_s, float).copy()
+    d[over] *= peaks[over] / limit_pct * 1.01
+    return d
+
+
+def _whole(d: np.ndarray, period_s: float) -> np.ndarray:
+    return np.maximum(np.round(d / period_s), 1) * period_s

@@ -1,0 +1,76 @@
+"""The emulator's CANopen side, as a network holds nodes: each bus with its acceptance filter
+and the channels on it, each channel a valve node (CiA 408) and a dynamometer node (CiA 404).
+
+The plant behind them and the time (lockstep or real time) are :mod:`plant_emulator.emulated_rig`'s.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import can
+import canopen
+
+from dbc import DYNAMOMETER_EDS, VALVE_EDS
+from plant.sensor import Dynamometer
+
+from .dynamometer import DynamometerNode
+from .node import slave_frame_filter
+from .valve import ServoValveNode
+
+
+@dataclass(frozen=True)
+class ChannelSetup:
+    """What the emulator needs of one channel besides its plant model."""
+
+    name: str
+    bus: str                       #: the name of the channel's bus
+    valve_id: int
+    dynamometer_id: int
+    sensor: Dynamometer            #: the dynamometer's noise, resolution and range
+    initial_force_kgf: float = 0.0
+
+
+class EmulatedBus:
+    """One CAN bus: its canopen network behind an acceptance filter for the nodes on it, the
+    channels on it, and (lockstep) its SYNCs not yet matched by every other bus's."""
+
+    def __init__(self, name: str, bus: can.BusABC, node_ids: Sequence[int]) -> None:
+        self.name = name
+        self.bus = bus
+        self.network = canopen.Network(bus)
+        #: frames dropped before the stack (wrong DLC on NMT/SYNC/SDO, error/remote/ext/FD frames)
+        self.frame_filter = slave_frame_filter(self.network, tuple(node_ids))
+        self.channels: list[EmulatedChannel] = []
+        #: lockstep: SYNCs received on this bus whose cycle has not completed yet
+        self.pending_syncs = 0
+        #: the counter of the last SYNC (None: SYNC without counter)
+        self.counter: int | None = None
+
+
+class EmulatedChannel:
+    """One loading channel on its bus: the two nodes, the dynamometer's sensor and the spool
+    command the valve applies now (what the plant sees)."""
+
+    def __init__(self, index: int, setup: ChannelSetup, on_bus: EmulatedBus, lockstep: bool) -> None:
+        self.index = index                   #: the channel's row in the plant's G
+        self.name = setup.name
+        self.on_bus = on_bus
+        self.sensor = setup.sensor
+        self.valve = ServoValveNode(on_bus.network, setup.valve_id, VALVE_EDS, lockstep)
+        self.dynamometer = DynamometerNode(on_bus.network, setup.dynamometer_id, DYNAMOMETER_EDS)
+        #: the spool command the valve applies, % (updated after every change of the valve)
+        self.command = 0.0
+        on_bus.channels.append(self)
+
+    @property
+    def nodes(self) -> tuple[ServoValveNode, DynamometerNode]:
+        return self.valve, self.dynamometer
+
+    def answer_sync(self, reading_kgf: float, over_range: bool, counter: int | None) -> None:
+        """Publish the force reading and the valve's outputs, then send both nodes' synchronous
+        TPDOs due at this SYNC (only while OPERATIONAL)."""
+        self.dynamometer.publish(reading_kgf, over_range)
+        self.valve.update_outputs(self.command)
+        self.valve.on_sync(counter)
+        self.dynamometer.on_sync(counter)

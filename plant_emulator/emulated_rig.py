@@ -1,0 +1,353 @@
+r"""The emulated rig: every bus of a rig, every channel's valve and dynamometer on its bus, and
+the coupled plant behind them (:class:`plant.rig.RigModel`,
+:math:`\dot y = G\,w(t-\tau) + \Delta`). The one-channel stand
+(:class:`plant_emulator.stand.EmulatedStand`) is the case of one bus and one channel.
+
+Time:
+
+* **lockstep** — the plant advances exactly one communication cycle period (0x1006, written by
+  the master, read from the first channel's valve) when the SYNC of that cycle has arrived on
+  *every* bus with a channel on it (the master sends one SYNC per bus per cycle, back to
+  back); then every bus's synchronous TPDOs go out. SYNCs are counted per bus: a bus whose SYNC came early waits for the
+  others (its surplus counts towards the next cycle), and a master that stops sending SYNC on
+  one bus stops the whole rig, as lockstep stops a stand. The command received after cycle k's
+  SYNC acts over [t_k, t_k+1]; a channel's command travels on its own bus before that bus's next
+  SYNC, so every command of a cycle is in before the cycle's last SYNC. The periods within the
+  shortest transport delay are computed ahead in one block
+  (:class:`plant_emulator.lockstep_plant.LockstepRig`). A run is as fast as the buses and
+  reproducible bit for bit with a seed.
+* **real time** — the plant integrates on the wall clock in steps of ``step_s``; a command acts
+  from the moment it is received; each SYNC on a bus samples the forces of that bus's channels
+  at that instant and sends that bus's TPDOs.
+
+Each valve keeps its own RPDO watchdog (event timer 0x1400:05), counted on the stand's time:
+the wall clock in real time (one thread polls every valve), in lockstep the stand's own time,
+one period per cycle (checked at each cycle). A channel whose commands stop goes to its own
+safe state (FAULT_HOLD, EMCY 0x8250) while the others go on; a master that dies leaves every
+valve safe.
+"""
+from __future__ import annotations
+
+import functools
+import logging
+import math
+import select
+import threading
+import time
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import can
+import numpy as np
+
+from dbc import profile as P
+from plant.rig import RigModel
+from rig.config import RigConfig
+from rig.emulated import channel_seed, emulated_plant
+from standbus import LOCKSTEP_BUSY_POLL_S, prefer_busy_poll
+
+from .channel import ChannelSetup, EmulatedBus, EmulatedChannel
+from .lockstep_plant import LockstepRig
+
+log = logging.getLogger(__name__)
+
+_MAX_BLOCK = 200_000  # steps per numpy block when catching up a long gap in real time
+#: a watchdog poll this much later than asked means the process was not running, s
+_STALL_S = 0.02
+#: how long the watchdog waits for frames already in the socket before declaring a timeout, s
+_MAX_DEFERRAL_S = 0.02
+
+
+@dataclass
+class EmulatorOptions:
+    """How the emulator runs: lockstep or real time, the noise seed, the one-channel stand's
+    node ids, the plant's integration step ``step_s`` (s) and the real-time watchdog's poll
+    ``watchdog_poll_s`` (s)."""
+
+    lockstep: bool = False
+    seed: int | None = None
+    #: the one-channel stand's node ids (a rig's come from its file)
+    valve_id: int = P.VALVE_NODE_ID
+    dynamometer_id: int = P.DYNAMOMETER_NODE_ID
+    step_s: float = 0.0005
+    watchdog_poll_s: float = 0.005
+
+
+class EmulatedRig:
+    """Owns the buses' networks, every channel's two nodes and the coupled plant. Call
+    :meth:`start`, then :meth:`stop` (or use as a context manager).
+
+    ``buses``: the opened python-can buses by name; ``channels``: in the order of ``model``'s
+    rows, each on one of ``buses``."""
+
+    def __init__(self, buses: Mapping[str, can.BusABC], channels: Sequence[ChannelSetup],
+                 model: RigModel, options: EmulatorOptions) -> None:
+        channels = list(channels)
+        if len(channels) != model.n:
+            raise ValueError(f"{len(channels)} channel(s) for a plant of {model.n}")
+        ids: dict[str, list[int]] = {name: [] for name in buses}
+        for c in channels:
+            if c.bus not in ids:
+                raise ValueError(f"channel {c.name}: no bus {c.bus!r} (buses: {', '.join(buses)})")
+            if c.valve_id == c.dynamometer_id:
+                raise ValueError("the valve and the dynamometer need different node ids")
+            ids[c.bus] += [c.valve_id, c.dynamometer_id]
+        for name, on_bus in ids.items():
+            if len(set(on_bus)) != len(on_bus):
+                raise ValueError(f"bus {name}: node ids {on_bus} are not all different")
+        self.options = options
+        self.rig_model = model
+        self.lock = threading.RLock()         # one lock for the whole rig
+        self.buses = [EmulatedBus(name, bus, ids[name]) for name, bus in buses.items()]
+        by_name = {b.name: b for b in self.buses}
+        self.channels = [EmulatedChannel(i, c, by_name[c.bus], options.lockstep)
+                         for i, c in enumerate(channels)]
+        for ch in self.channels:
+            for node in ch.nodes:
+                node.lock = self.lock
+            ch.valve.before_change = self._catch_up
+            ch.valve.after_change = functools.partial(self._command_changed, ch)
+            ch.dynamometer.started_listeners.append(functools.partial(self._started, ch))
+        for b in self.buses:
+            b.network.subscribe(P.SYNC_COB_ID, functools.partial(self._on_sync, b))
+        #: lockstep: the buses whose SYNC a cycle waits for (a bus without channels has none)
+        self._gated = [b for b in self.buses if b.channels]
+        self._several_buses = len(self._gated) > 1
+        self._period_node = self.channels[0].valve
+        self._plant_dt = options.step_s
+        y0 = [c.initial_force_kgf for c in channels]
+        # compile (or load) the models' compiled loops now, not at the first SYNC of a run
+        model.simulate(np.zeros((model.n, 8)), self._plant_dt, y0=y0)
+        #: real time: the plant's states, integrated on the wall clock
+        self._states = model.new_state(self._plant_dt, y0)
+        #: lockstep: the plant one period per cycle, computed ahead in blocks
+        self.lockstep_plant = LockstepRig(model, y0, options.step_s)
+        self._t_plant = time.monotonic()
+        #: lockstep: cycles completed (every bus's SYNC of the cycle arrived)
+        self.cycles = 0
+        #: lockstep: the stand's own time (s), one communication cycle period per cycle; the
+        #: valves' RPDO timeouts count on it
+        self.stand_time_s = 0.0
+        if options.lockstep:
+            for ch in self.channels:
+                for node in ch.nodes:
+                    node.clock = self._stand_time
+        self._stop = threading.Event()
+        self._watchdog: threading.Thread | None = None
+        self.errors: list[str] = []
+
+    @classmethod
+    def from_rig(cls, buses: Mapping[str, can.BusABC], rig: RigConfig,
+                 options: EmulatorOptions) -> "EmulatedRig":
+        """The emulator of ``rig`` (its plants, ranges and node ids) on its opened ``buses``
+        (by the rig's bus names); :class:`rig.config.RigError` when the rig cannot be emulated
+        (a channel without a plant, a structure no stiffness gives). Each channel's
+        dynamometer draws its own noise stream from ``options.seed``."""
+        plant = emulated_plant(rig)
+        setups = [ChannelSetup(c.name, c.bus, c.valve_id, c.dynamometer_id,
+                               p.dynamometer(channel_seed(options.seed, i)), p.initial_force_kgf)
+                  for i, (c, p) in enumerate(zip(rig.channels, plant.plants))]
+        return cls(buses, setups, plant.model, options)
+
+    def _stand_time(self) -> float:
+        return self.stand_time_s
+
+    # -- lifecycle -------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Listen on every bus, then boot every node (boot-up messages, heartbeats)."""
+        for b in self.buses:
+            if self.options.lockstep:   # the next SYNC follows the answer within ~0.1 ms: poll
+                prefer_busy_poll(b.bus, LOCKSTEP_BUSY_POLL_S)
+            b.network.notifier = can.Notifier(b.bus, b.network.listeners, 0.1)
+        self._t_plant = time.monotonic()
+        for ch in self.channels:
+            ch.valve.boot()
+            ch.dynamometer.boot()
+        if not self.options.lockstep:     # lockstep: checked at each cycle, on the stand's time
+            self._watchdog = threading.Thread(target=self._watch, name="emulator-watchdog", daemon=True)
+            self._watchdog.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._watchdog is not None:
+            self._watchdog.join(1.0)
+        for ch in self.channels:
+            for node in ch.nodes:
+                node.local.nmt.stop_heartbeat()
+        for b in self.buses:
+            if b.network.notifier is not None:
+                b.network.notifier.stop(1.0)
+
+    def __enter__(self) -> "EmulatedRig":
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def force_of(self, index: int) -> float:
+        """The true force of channel ``index`` now (kgf): at the end of the last cycle in
+        lockstep, at the last catch-up in real time."""
+        if self.options.lockstep:
+            return self.lockstep_plant.forces[index]
+        return float(self._states[index].reading[0])
+
+    # -- plant time ------------------------------------------------------------------------------
+    def _commands(self) -> list[float]:
+        return [ch.command for ch in self.channels]
+
+    def _advance(self, steps: int) -> None:
+        """Real time: ``steps`` plant steps with every channel's command held."""
+        held = np.asarray(self._commands(), float)[:, None]
+        while steps > 0:
+            k = min(steps, _MAX_BLOCK)
+            self.rig_model.advance(self._states, np.repeat(held, k, axis=1), self._plant_dt)
+            steps -= k
+
+    def _catch_up(self) -> None:
+        """Real time: integrate up to now with the commands held so far."""
+        if self.options.lockstep:
+            return
+        now = time.monotonic()
+        steps = int((now - self._t_plant) / self._plant_dt)
+        if steps > 0:
+            self._advance(steps)
+            self._t_plant += steps * self._plant_dt
+
+    def _cycle_period(self) -> float:
+        """The communication cycle period 0x1006 the master wrote, s."""
+        return int(self._period_node.value(P.COMM_CYCLE_PERIOD)) * 1e-6
+
+    def _lockstep_cycle(self) -> None:
+        """Lockstep: one communication cycle period per cycle (none before the first)."""
+        self.cycles += 1
+        if self.cycles == 1:
+            return
+        period = self._cycle_period()
+        if not (period > 0 and math.isfinite(period)):
+            return
+        self.lockstep_plant.step(period, self._commands())
+
+    # -- bus events ------------------------------------------------------------------------------
+    def _on_sync(self, on_bus: EmulatedBus, can_id: int, data: bytes, timestamp: float) -> None:
+        try:
+            with self.lock:
+                on_bus.counter = data[0] if len(data) >= 1 else None
+                if self.options.lockstep:
+                    answering = self._complete_cycle(on_bus)
+                    if not answering:
+                        return
+                    self.advance_plant()
+                    self._lockstep_watchdog()
+                else:
+                    answering = (on_bus,)
+                    self.advance_plant()
+                for b in answering:
+                    for ch in b.channels:
+                        reading, over = self.measure(ch)
+                        ch.answer_sync(reading, over, b.counter)
+        except Exception as exc:  # never let the notifier swallow it silently
+            log.exception("SYNC handling failed")
+            self.errors.append(repr(exc))
+
+    def _complete_cycle(self, on_bus: EmulatedBus) -> Sequence[EmulatedBus]:
+        """Lockstep: count this bus's SYNC; the buses to answer when every bus's SYNC of the
+        cycle is in (all of them), else none."""
+        if not on_bus.channels:
+            return ()
+        on_bus.pending_syncs += 1
+        if self._several_buses and any(b.pending_syncs == 0 for b in self._gated):
+            return ()
+        for b in self._gated:
+            b.pending_syncs -= 1
+        return self._gated
+
+    def _command_changed(self, channel: EmulatedChannel) -> None:
+        """Called by a valve after its effective command may have changed."""
+        channel.command = channel.valve.spool_command_percent()
+
+    def _started(self, channel: EmulatedChannel) -> None:
+        self.channel_started(channel)
+
+    # -- the steps of a cycle that a different force source (a replayed capture) overrides -------
+    def channel_started(self, channel: EmulatedChannel) -> None:
+        """Hook: the master started ``channel``'s dynamometer (NMT OPERATIONAL), i.e. a run
+        begins on it. The plant goes on (forces, spools, delay lines) but the channel's clock
+        restarts, as the run's record does: an effect of the time since a run began
+        (``gain_drift``, ``null_drift``) counts from here."""
+        with self.lock:
+            if self.options.lockstep:
+                self.lockstep_plant.restart_clock([channel.index])
+            else:
+                self._catch_up()
+                self._states[channel.index].t[:] = 0.0
+
+    def advance_plant(self) -> None:
+        """Bring the plant to the time of this cycle (lockstep: one period; real time: now)."""
+        if self.options.lockstep:
+            self._lockstep_cycle()
+        else:
+            self._catch_up()
+
+    def measure(self, channel: EmulatedChannel) -> tuple[float, bool]:
+        """``channel``'s dynamometer reading (kgf) at this SYNC and whether it is over range."""
+        return channel.sensor.read(self.force_of(channel.index))
+
+    # -- the valves' watchdogs -------------------------------------------------------------------
+    def _lockstep_watchdog(self) -> None:
+        """Lockstep: the stand's time advances by one period at this cycle; every valve's RPDO
+        timeout is checked on it (the command of the period that just ended still counts)."""
+        period = self._cycle_period()
+        if period > 0 and math.isfinite(period):
+            self.stand_time_s += period
+        for ch in self.channels:
+            if ch.valve.check_rpdo_timeout(self.stand_time_s):
+                ch.valve.fault(P.EMCY_RPDO_TIMEOUT)
+
+    def _watch(self) -> None:
+        """Real time: every valve's RPDO watchdog (event timer 0x1400:05), polled every
+        ``watchdog_poll_s``; a coupled plant is also caught up at each poll (its step-by-step
+        integration then never has a long gap to make up at a SYNC).
+
+        A real valve counts the timeout in its own firmware, which never stops. This emulator
+        is a process on a shared machine: when the whole process was not scheduled for a while,
+        commands that arrived meanwhile are still waiting in the socket. So a timeout is not
+        declared in a poll that itself came late, nor while frames are waiting to be read on
+        the valve's bus (for at most :data:`_MAX_DEFERRAL_S`), which keeps a loaded machine
+        from faking a dead master without hiding a real one."""
+        poll = self.options.watchdog_poll_s
+        last = time.monotonic()
+        deferred_since: float | None = None
+        skipped = 0
+        while not self._stop.wait(poll):
+            now = time.monotonic()
+            stalled = now - last > poll + _STALL_S
+            last = now
+            if stalled and skipped < 3:      # never more than 3 polls in a row
+                skipped += 1
+                continue
+            skipped = 0
+            with self.lock:
+                if self.rig_model.coupled:
+                    self._catch_up()
+                due = [ch for ch in self.channels if ch.valve.rpdo_timeout_due(now)]
+            if not due:
+                deferred_since = None
+                continue
+            waiting = any(self._frames_waiting(ch.on_bus.bus) for ch in due)
+            if waiting and (deferred_since is None or now - deferred_since < _MAX_DEFERRAL_S):
+                deferred_since = deferred_since or now
+                continue
+            deferred_since = None
+            with self.lock:
+                for ch in due:
+                    if ch.valve.check_rpdo_timeout(time.monotonic()):
+                        ch.valve.fault(P.EMCY_RPDO_TIMEOUT)
+
+    @staticmethod
+    def _frames_waiting(bus: can.BusABC) -> bool:
+        try:
+            ready, _, _ = select.select([bus.fileno()], [], [], 0)
+        except (AttributeError, NotImplementedError, OSError, ValueError, TypeError):
+            return False
+        return bool(ready)
