@@ -79,8 +79,14 @@ def test_a_meander_on_one_channel_records_every_channel_and_a_capture_per_bus(tm
     assert fit.returncode == 0, fit.stderr
     params = json.loads(fit.stdout)["params"]
     assert abs(params["g"] / 120 - 1) < 0.03 and abs(params["tau"] - 0.05) < 0.005, params
-    # without --channel: a clear error listing the channels
-    bad = stand("estimate", str(out))
+    # without --channel the rig estimate reads it as a rig: the driven channel's column of G
+    rig_est = stand("estimate", str(out), "--json")
+    assert rig_est.returncode == 0, rig_est.stderr
+    G = json.loads(rig_est.stdout)["G"]
+    column = [row[0] for row in G]
+    assert abs(column[0] / 120 - 1) < 0.03 and all(abs(g) < 2.0 for g in column[1:]), column
+    # a one-channel command without --channel: a clear error listing the channels
+    bad = stand("fit", str(out), "--model", "base")
     assert bad.returncode == 2 and "--channel" in bad.stderr and "a, b, c, d" in bad.stderr, bad.stderr
     with pytest.raises(DataError, match="a, b, c, d"):
         load_all([out])
