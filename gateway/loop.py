@@ -44,6 +44,7 @@ import queue
 import struct
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import can
 
@@ -57,6 +58,9 @@ from .master import StandMaster
 from .recorder import RunRecorder
 from .supervisor import Supervisor, Trip
 from .unload import RatioUnloader
+
+if TYPE_CHECKING:
+    import numpy as np
 
 log = logging.getLogger(__name__)
 
@@ -126,7 +130,7 @@ class RigSafety:
     known (the unload's gains and feedforward, :mod:`gateway.unload`)."""
 
     fault_action: str = "hold"
-    G: object = None
+    G: "np.ndarray | None" = None
 
 
 #: trips after which the channel cannot take part in an unload: its valve is in its own safe
@@ -619,7 +623,7 @@ class ControlLoop:
         out = {"action": trip.action, "acted_on": "every channel",
                "fault_action": self.rig_safety.fault_action,
                "forces_at_end_kgf": {c.name: ys[i] for i, c in enumerate(chans)}}
-        if excluded:
+        if excluded and trip.action == "unload":
             out["excluded"] = [{"channel": chans[i].name, "reason": trip.reason,
                                 "last_valve_state": _state_name(statuses[i]),
                                 "why": _why_excluded(trip.reason)} for i in excluded]

@@ -13,10 +13,11 @@
 """
 from __future__ import annotations
 
+import contextlib
 import copy
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 from tqdm import tqdm
 
@@ -153,27 +154,23 @@ class Gateway:
                                 cfg.lockstep, channels=channels, networks=self.networks,
                                 rig_safety=RigSafety(cfg.fault_action, self.rig.G))
 
-    def _naming_channel(self, index: int | None):
-        """A rig: a node error names the channel (and its bus) it belongs to."""
-        gw = self
-
-        class _Naming:
-            def __enter__(self):
-                return self
-
-            def __exit__(self, kind, exc, tb):
-                if gw.rig is None or not isinstance(exc, NodeError):
-                    return False
-                i = index
-                if i is None:    # booting: the first channel with a node that did not boot
-                    i = next((k for k, m in enumerate(gw.masters)
-                              if any(not l.booted.is_set() for l in m.links)), None)
-                if i is None:
-                    return False
-                ch = gw.rig.channels[i]
-                raise NodeError(exc.node_id, f"channel {ch.name} (bus {ch.bus}): {exc}") from None
-
-        return _Naming()
+    @contextlib.contextmanager
+    def _naming_channel(self, index: int | None) -> Iterator[None]:
+        """A rig: a node error names the channel (and its bus) it belongs to; ``index`` None
+        while booting: the first channel with a node that did not boot."""
+        try:
+            yield
+        except NodeError as exc:
+            if self.rig is None:
+                raise
+            i = index
+            if i is None:
+                i = next((k for k, m in enumerate(self.masters)
+                          if any(not l.booted.is_set() for l in m.links)), None)
+            if i is None:
+                raise
+            ch = self.rig.channels[i]
+            raise NodeError(exc.node_id, f"channel {ch.name} (bus {ch.bus}): {exc}") from None
 
     def close(self) -> None:
         if self.loop is not None:
@@ -249,8 +246,8 @@ class Gateway:
         if self.rig is None:
             return self.master.reset_valve_fault()
         done = {}
-        for ch, m in zip(self.rig.channels, self.masters):
-            with self._naming_channel(self.rig.channels.index(ch)):
+        for i, (ch, m) in enumerate(zip(self.rig.channels, self.masters)):
+            with self._naming_channel(i):
                 what = m.reset_valve_fault()
             if what is not None:
                 done[ch.name] = what

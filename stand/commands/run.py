@@ -63,15 +63,6 @@ def param_help(doc: str) -> dict[str, str]:
     return out
 
 
-def load_meta(path) -> dict:
-    import json
-    from gateway.runs import META_FILE
-    try:
-        return json.loads((path / META_FILE).read_text())
-    except (OSError, ValueError):
-        return {}
-
-
 def _terminate(signum, frame) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
@@ -101,7 +92,7 @@ def main(args: argparse.Namespace) -> int:
               f"{stats.wrong_dlc_frames} with a wrong DLC, {stats.not_classic_frames} error/remote/"
               "extended/FD")
     if config.rig is not None:
-        stale = (load_meta(result.path).get("stats") or {}).get("stale_cycles_by_channel") or {}
+        stale = (result.outcome.rig or {}).get("stale_cycles") or {}
         print(f"rig {config.rig.name}: " + ", ".join(
             f"{c.name} ({c.bus}{', driven' if c.name in args.channel else ''}"
             f"{f', {stale[c.name]} stale' if stale.get(c.name) else ''})" for c in config.rig.channels))
