@@ -37,8 +37,8 @@ def register(sub) -> None:
         "rig runs (many channels on one structure: per-column meanders, or one simultaneous "
         "meander with a period per channel; see docs/rig.md)",
         "Given rig runs (a run directory with a rig section, a directory of them, or a table "
-        "with t, u.NAME, y.NAME columns), all of them are one data set: G (kgf/(%%·s)) with a "
-        "95 %% interval per entry, each channel's τ and Δ, the physical check. --json: "
+        "with t, u.NAME, y.NAME columns), all of them are one data set: G (kgf/(%·s)) with a "
+        "95 % interval per entry, each channel's τ and Δ, the physical check. --json: "
         "{\"G\": rows, \"G_ci\": rows of [low, high], \"channels\", \"tau_s\", "
         "\"delta_kgf_s\", \"physical\", ...} (schema hydrostand-rig-estimate/1).")
     g.add_argument("--save", metavar="RIG_MODEL.toml",
