@@ -173,7 +173,7 @@ def subset_pieces(full: Sequence[Piece], max_windows: int = 150, chunk_windows: 
 #: simulates the same pieces hundreds of times, and most of its Jacobian's columns move a
 #: parameter the drive does not read (g, Δ, a force-dependent law, a sensor)
 _DRIVES: "OrderedDict[tuple, tuple[Piece, Drive, Drive]]" = OrderedDict()
-_DRIVES_KEPT = 16
+_DRIVES_KEPT = 64
 #: the last force trajectories of groups of pieces whose model depends on the force, by the
 #: pieces: where the next simulation's integration starts
 _FORCES: dict[tuple, tuple[list, np.ndarray]] = {}
