@@ -50,7 +50,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="benchmarks to run (default: all modules in benchmarks/)")
     args = ap.parse_args(argv)
     BENCHMARKS = discover()
-    names = args.names or list(BENCHMARKS)
+    # a name as written on the command line: rig-identify is the module rig_identify
+    names = [n.replace("-", "_") for n in args.names] or list(BENCHMARKS)
     unknown = [n for n in names if n not in BENCHMARKS]
     if unknown:
         ap.error(f"unknown benchmark(s) {', '.join(unknown)}; choose from {', '.join(BENCHMARKS)}")

@@ -275,7 +275,7 @@ class PlantModel:
         linear recursion that results for the correction ``e = y − ŷ`` in closed form,
         ``e[k+1] = (1 + dt·f'_k)·e[k] + (ŷ_k + dt·f_k(ŷ_k) − ŷ_{k+1})``, ``e`` at the block's
         start 0 (Newton's method on the whole block; the recursion runs compiled,
-        :func:`_correct`). Its fixed point is the step-by-step solution exactly; a rate linear
+        :func:`_newton_pass`). Its fixed point is the step-by-step solution exactly; a rate linear
         in the force is solved in one pass, a smooth one in two or three; and as the recursion
         is causal, each pass makes at least one more step exact whatever the law. Passes stop
         when one changes the trajectory by less than :data:`INTEGRATION_TOL` of its size
@@ -320,8 +320,8 @@ class PlantModel:
                 else:  # the rate at the block's start, held (explicit Euler over the block)
                     seg[:, 1:] = start + rate(a, a + 1, start) * (dt * np.arange(1, b - a + 1))
                 for _ in range(b - a + 1):   # each pass makes one more step exact, at least
-                    guess = seg[:, :-1]
-                    size = np.max(np.abs(seg)) + 1.0
+                    guess = seg[:, :-1].copy()
+                    size = np.max(np.abs(guess), initial=0.0, where=np.isfinite(guess)) + 1.0
                     h = 1e-6 * size
                     f = rate(a, b, guess)
                     grow = rate(a, b, guess + h)    # 1 + dt·f', f' by a forward difference
@@ -329,10 +329,7 @@ class PlantModel:
                     grow *= dt / h
                     grow += 1.0
                     f *= dt
-                    f += guess
-                    f -= seg[:, 1:]              # the guess's defect
-                    # e[k+1] = grow_k·e[k] + defect_k from e = 0, added to the guess
-                    if _correct(grow, f, seg) <= INTEGRATION_TOL * size:
+                    if _newton_pass(grow, f, guess, seg) <= INTEGRATION_TOL * size:
                         break
                 a = b
                 block = min(2 * block, INTEGRATION_MAX_BLOCK)
@@ -486,16 +483,26 @@ class PlantModel:
 
 
 @njit
-def _correct(grow: np.ndarray, defect: np.ndarray, seg: np.ndarray) -> float:
-    """Add to the trajectory ``seg[:, 1:]`` (n, B) the solution of
-    ``e[k+1] = grow[k]·e[k] + defect[k]``, ``e[0] = 0``; returns max |e|."""
+def _newton_pass(grow: np.ndarray, step: np.ndarray, guess: np.ndarray, seg: np.ndarray) -> float:
+    """One pass of the linearised recursion from ``seg[:, 0]``:
+    ``y[k+1] = y[k] + step[k] + (grow[k] − 1)·(y[k] − guess[k])`` into ``seg[:, 1:]`` (n, B),
+    ``step = dt·f(guess)``, ``grow = 1 + dt·f'(guess)``. Where the guess was the answer, so is
+    the pass (a step is computed from values, not as a change of the old one: the steps made
+    exact stay exact whatever the rest held). A value that is not finite is replaced by the one
+    before it (a guess for the next pass). Returns the largest change (inf after a
+    replacement: not converged)."""
     n, B = grow.shape
     largest = 0.0
     for i in range(n):
-        e = 0.0
+        y = seg[i, 0]
         for k in range(B):
-            e = grow[i, k] * e + defect[i, k]
-            seg[i, k + 1] += e
-            if abs(e) > largest:
-                largest = abs(e)
+            new = y + step[i, k] + (grow[i, k] - 1.0) * (y - guess[i, k])
+            if np.isfinite(new):
+                change = abs(new - seg[i, k + 1])
+                y = new
+            else:
+                change = np.inf
+            if not change <= largest:      # also a NaN change
+                largest = np.inf if change != change else change
+            seg[i, k + 1] = y
     return largest

@@ -33,13 +33,17 @@ stays registered.
 """
 from __future__ import annotations
 
+import hashlib
+import re
 import sys
+import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable
 
 import numpy as np
 
-from .contract import Effect, Stage
+from .contract import CATALOGUE, Effect, Stage
 from .loader import (ENTRY_POINT_GROUP, NAME_RE, ORIGINS, STAGE_HOOKS, WARNINGS,  # noqa: F401
                      Origin, PluginError, check_class, is_plugin, label_of, load_entry_points,
                      origin)
@@ -183,3 +187,94 @@ def _check_array(out: object, shape: tuple, label: str, what: str, how: str) -> 
         i = tuple(int(v) for v in np.argwhere(bad)[0])
         raise PluginError(f"{label}: {how}, {what} returned a non-finite value "
                           f"({arr[i]}) at index {i}")
+
+
+# ------------------------------------------------------------------------------------------
+# plug-ins for other processes (worker processes, a cluster's workers)
+# ------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ShippedPlugin:
+    """A plug-in loaded here, as another process loads it: a file by its text (a cluster's
+    worker may not see the file), a module by its name (installed there too), an installed
+    package's entry points by nothing (loaded there from its own packages)."""
+
+    kind: str                    #: "file" | "module" | "entry point"
+    where: str                   #: the file's path here, or the module's name
+    source: str                  #: the file's text ("" otherwise)
+    effects: tuple[str, ...]     #: the effects it registered here
+
+    @property
+    def digest(self) -> str:
+        return hashlib.sha1(self.source.encode()).hexdigest()[:12]
+
+
+#: plug-in files loaded from shipped text in this process: digest -> effect names
+_SHIPPED: dict[str, tuple[str, ...]] = {}
+_SHIP_DIR: Path | None = None
+
+
+def shippable_plugins() -> list[ShippedPlugin]:
+    """Every plug-in loaded in this process (files with their text as it is now), for
+    :func:`load_shipped` in another one. Picklable: plain strings."""
+    groups: dict[tuple[str, str], list[str]] = {}
+    for name, org in ORIGINS.items():
+        if name in CATALOGUE:
+            groups.setdefault((org.kind, org.where), []).append(name)
+    out = []
+    for (kind, where), names in groups.items():
+        source = ""
+        if kind == "file":
+            try:
+                source = Path(where).read_text()
+            except OSError as exc:
+                raise PluginError(f"effect plug-in {where}: cannot read it to hand it to the "
+                                  f"workers: {exc}") from None
+        out.append(ShippedPlugin(kind, where, source, tuple(names)))
+    return out
+
+
+def load_shipped(items: Iterable[ShippedPlugin]) -> list[str]:
+    """Load what :func:`shippable_plugins` gave in another process, once per process: a file
+    from its original path if this process sees it with the same text (so its module has the
+    same name as there), else from a private copy of the text; a plug-in already loaded here
+    with the same text is left as it is; one loaded from another text (a worker that lives
+    across runs, the file edited in between) is replaced. Returns the effect names."""
+    global _SHIP_DIR
+    names: list[str] = []
+    for item in items:
+        if item.kind == "entry point":
+            load_installed()
+            names += list(item.effects)
+            continue
+        if item.kind == "module":
+            names += load_source(item.where)
+            continue
+        if _SHIPPED.get(item.digest) == item.effects and all(n in CATALOGUE for n in item.effects):
+            names += list(item.effects)
+            continue
+        here = [n for n in item.effects if n in CATALOGUE]
+        same = all(ORIGINS.get(n) is not None and ORIGINS[n].where == item.where for n in here)
+        original = Path(item.where)
+        try:
+            unchanged = original.is_file() and original.read_text() == item.source
+        except OSError:
+            unchanged = False
+        if here and same and unchanged:        # loaded here from the same file (a fork)
+            _SHIPPED[item.digest] = item.effects
+            names += list(item.effects)
+            continue
+        for n in here:                          # another version: replaced
+            del CATALOGUE[n]
+            ORIGINS.pop(n, None)
+        loader._LOADED.pop(str(original.resolve()), None)
+        if unchanged:
+            path = original
+        else:
+            if _SHIP_DIR is None:
+                _SHIP_DIR = Path(tempfile.mkdtemp(prefix="hydrostand-plugins-"))
+            stem = re.sub(r"\W", "_", original.stem)
+            path = _SHIP_DIR / f"{stem}_{item.digest}.py"
+            path.write_text(item.source)
+        names += load_source(path)
+        _SHIPPED[item.digest] = item.effects
+    return names

@@ -60,14 +60,15 @@ def test_every_package_has_a_level():
 PART_LEVELS = {
     "analysis": [
         {"defaults", "parallel"},
+        {"executors"},
         {"records"},
-        {"estimators", "identification"},
+        {"estimators", "identification", "rig"},
         {"diagnosis"},
         {"reports"},
     ],
     # the effect contract at the bottom, the built-ins and the loader above it, the model above
     # them, then what loads a user's plug-ins (it checks them by simulating), the rig's coupled
-    # channels, and the files
+    # channels, the files, and the rig model files (G and a model file's tables per channel)
     "plant": [
         {"params", "evidence"},
         {"signals", "start_grids", "sensor"},
@@ -77,6 +78,7 @@ PART_LEVELS = {
         {"model"},
         {"plugins", "rig"},
         {"config", "skeleton"},
+        {"rig_config"},
     ],
 }
 

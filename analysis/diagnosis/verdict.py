@@ -274,14 +274,18 @@ def fit_start(start: PlantModel, windows: Windows, records: Sequence[Record], wi
     """Step 1: the starting model fitted (on the screening windows, then polished on all when
     they are a subset) and evaluated, with the noise floor of the objective. ``fitted``: its
     values are a fit to these records already: polished from there, no search for starts."""
-    say(("polishing " if fitted else "fitting ") + start.spec
-        + (f" on {windows.n_screen} of {windows.n_full} windows" if windows.subset else ""))
-    first = FitOptions.refit(covariance=not windows.subset) if fitted \
-        else FitOptions(covariance=not windows.subset)
-    fit = fit_model(windows.screen, start, options=first)
-    screen_model = fit.model
-    if windows.subset:
-        fit = fit_model(windows.full, fit.model, options=FitOptions.refit())
+    if fitted:   # fitted to all windows already: polished there, then on the screening ones
+        say(f"polishing {start.spec}")
+        fit = fit_model(windows.full, start, options=FitOptions.refit())
+        screen_model = fit.model if not windows.subset else fit_model(
+            windows.screen, fit.model, options=FitOptions.refit(covariance=False)).model
+    else:
+        say(f"fitting {start.spec}"
+            + (f" on {windows.n_screen} of {windows.n_full} windows" if windows.subset else ""))
+        fit = fit_model(windows.screen, start, options=FitOptions(covariance=not windows.subset))
+        screen_model = fit.model
+        if windows.subset:
+            fit = fit_model(windows.full, fit.model, options=FitOptions.refit())
     w = _window_sse(fit.model, windows.full)
     screen_errors = Errors(*errors(screen_model, windows.full)) if windows.subset else None
     ev = evaluate(fit.model, records, window_s)

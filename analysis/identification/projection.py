@@ -12,7 +12,7 @@ import numpy as np
 
 from plant import PlantModel
 
-from .windows import Piece, demean_windows, residual
+from .windows import Piece, demean_windows, known_response, residual
 
 
 def _linear_in_gain_and_trend(spec: str) -> bool:
@@ -39,7 +39,9 @@ def gain_trend_columns(spec: str, values: Mapping[str, float], pieces: Sequence[
     makes the rate depend on the force and there is no disturbance: one simulation gives it.
     Otherwise ``ŷ ≈ F + g·A + Δ·B`` is taken from three simulations around the current g and Δ,
     one Gauss-Newton step (exact for ``leakage``, first order for ``load_pressure``,
-    ``stiffness`` and ``stiction``, whose play is crossed at a speed set by g)."""
+    ``stiffness`` and ``stiction``, whose play is crossed at a speed set by g). A known rate
+    the pieces carry (a rig's coupling) adds its windowed response ``C`` to ŷ, in neither
+    column: ``residual = demean(g·A + Δ·B + C − y)``."""
     vals = dict(values)
     linear = _linear_in_gain_and_trend(spec)
     if not fit_g:
@@ -54,7 +56,9 @@ def gain_trend_columns(spec: str, values: Mapping[str, float], pieces: Sequence[
     cols = []
     if linear:
         dy = np.concatenate([demean_windows(p.y[p.warmup:], p.window) for p in pieces])
-        if fit_g:  # s1 = demean(g0·A + d0·B − y)
+        if any(p.known is not None for p in pieces):   # a known rate adds its response C
+            dy = dy - _demeaned(known_response(pieces), pieces)
+        if fit_g:  # s1 = demean(g0·A + d0·B + C − y)
             cols.append((s1 + dy - d0 * _trend_basis(pieces)) / g0)
         if fit_delta:
             cols.append(_trend_basis(pieces))
@@ -79,15 +83,30 @@ def project_gain_trend(spec: str, values: Mapping[str, float], pieces: Sequence[
         return vals, float(r @ r)
     specs = dict(PlantModel.from_spec(spec, vals).param_specs())
     s1, A, beta0 = gain_trend_columns(spec, vals, pieces, fit_g, fit_delta)
-    step, *_ = np.linalg.lstsq(A, -s1, rcond=None)
+    ok = np.isfinite(s1) & np.all(np.isfinite(A), axis=1)
+    if ok.sum() < max(A.shape[1] + 1, 0.5 * len(s1)):
+        # the simulation failed at this trial (a force-dependent law stepped across its
+        # discontinuity by the integrator's difference quotient): a start not to take
+        return vals, math.inf
+    step, *_ = np.linalg.lstsq(A[ok], -s1[ok], rcond=None)
     names = ["g"] * fit_g + ["delta"] * fit_delta
     for n, b in zip(names, beta0 + step):
         p = specs[n]
         vals[n] = float(min(max(b, p.lower), p.upper)) if math.isfinite(b) else p.default
     r = residual(PlantModel.from_spec(spec, vals), pieces)
-    return vals, float(r @ r)
+    sse = float(r @ r)
+    return vals, sse if math.isfinite(sse) else math.inf
 
 
 def _trend_basis(pieces: Sequence[Piece]) -> np.ndarray:
     """demean(time since the window start), the objective's column for Δ."""
     return np.concatenate([demean_windows(p.horizon() * p.dt, p.window) for p in pieces])
+
+
+def _demeaned(r: np.ndarray, pieces: Sequence[Piece]) -> np.ndarray:
+    """A concatenated series over the pieces' evaluated samples, demeaned in each window."""
+    out, k = [], 0
+    for p in pieces:
+        out.append(demean_windows(r[k:k + p.n_eval], p.window))
+        k += p.n_eval
+    return np.concatenate(out)

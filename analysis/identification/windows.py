@@ -8,6 +8,11 @@ hydraulic limit; its first :data:`LEAD_S` only prime the command history. Here: 
 windows, or an evenly spread subset for screening), their simulation (pieces with the same
 sample time and window integrated side by side), the residual (window starts measured, or
 re-estimated as the fit's objective does) and its sums per window.
+
+A record may carry a known force rate from outside the channel's own model (a rig's coupling
+from the other channels, :attr:`Record.known_rate_kgf_s`): it is added to the model's rate as
+the model's own disturbances are (``dy/dt = g·w + Δ + D + c``), so the same fit, comparison and
+diagnosis work on one channel of a rig.
 """
 from __future__ import annotations
 
@@ -48,6 +53,8 @@ class Piece:
     record: int = 0           #: index of the record in the data set
     start: int = 0            #: index of u[0] in the record
     t0: float = 0.0           #: time of u[0] since the record's first sample, s
+    #: a known force rate added to the model's (kgf/s, one per sample of u), or None
+    known: np.ndarray | None = None
 
     @property
     def n_eval(self) -> int:
@@ -98,9 +105,14 @@ def pieces_from_records(records: Sequence[Record], window_s: float = WINDOW_S,
         n = len(rec.u)
         w = window_samples(rec.dt, window_s)
         lead = lead_samples(n, rec.dt, w, lead_s)
+        known = rec.known_rate_kgf_s
+        if known is not None and len(known) != n:
+            raise DataError(f"{rec.source}: the known force rate has {len(known)} samples, the "
+                            f"record {n}")
         stretches = valid_stretches(rec, max(2, w // 4))
         if stretches == [(0, n)]:
-            out.append(Piece(rec.u, rec.y, rec.dt, max(2, min(w, n - lead)), lead, i, 0, 0.0))
+            out.append(Piece(rec.u, rec.y, rec.dt, max(2, min(w, n - lead)), lead, i, 0, 0.0,
+                             known))
             continue
         for a, b in stretches:
             first = max(a, lead)
@@ -108,7 +120,8 @@ def pieces_from_records(records: Sequence[Record], window_s: float = WINDOW_S,
                 continue
             s0 = max(0, first - max(lead, int(round(lead_s / rec.dt))))
             out.append(Piece(rec.u[s0:b], rec.y[s0:b], rec.dt, max(2, min(w, b - first)),
-                             first - s0, i, s0, float(rec.t[s0] - rec.t[0])))
+                             first - s0, i, s0, float(rec.t[s0] - rec.t[0]),
+                             None if known is None else known[s0:b]))
     if not out:
         raise DataError("no usable data: every record is too short or its force reading is "
                         "clipped at the dynamometer's range throughout")
@@ -151,7 +164,8 @@ def subset_pieces(full: Sequence[Piece], max_windows: int = 150, chunk_windows: 
         for s in starts:
             a = max(0, s - warm)
             out.append(Piece(p.u[a:s + span], p.y[a:s + span], p.dt, W, s - a, p.record,
-                             p.start + a, p.t0 + a * p.dt))
+                             p.start + a, p.t0 + a * p.dt,
+                             None if p.known is None else p.known[a:s + span]))
     return (out, True) if out else (full, False)
 
 
@@ -159,7 +173,7 @@ def subset_pieces(full: Sequence[Piece], max_windows: int = 150, chunk_windows: 
 #: simulates the same pieces hundreds of times, and most of its Jacobian's columns move a
 #: parameter the drive does not read (g, Δ, a force-dependent law, a sensor)
 _DRIVES: "OrderedDict[tuple, tuple[Piece, Drive, Drive]]" = OrderedDict()
-_DRIVES_KEPT = 16
+_DRIVES_KEPT = 64
 #: the last force trajectories of groups of pieces whose model depends on the force, by the
 #: pieces: where the next simulation's integration starts
 _FORCES: dict[tuple, tuple[list, np.ndarray]] = {}
@@ -177,6 +191,9 @@ def _piece_drive(model: PlantModel, piece: Piece) -> tuple[Drive, Drive]:
     u, dt, W, a = piece.u, piece.dt, piece.window, piece.warmup
     state = model.new_state(1, dt, 0.0, u[0], piece.t0)
     drv = model.drive(u[None, :], dt, state)
+    if piece.known is not None:      # a known rate from outside the model: as a disturbance
+        known = np.asarray(piece.known, float)[None, :]
+        drv = Drive(q=drv.q, aux=drv.aux, dist=known if drv.dist is None else drv.dist + known)
     n = len(u) - a
     nw = -(-n // W)
     pad = nw * W - n
@@ -333,4 +350,25 @@ def window_labels(pieces: Sequence[Piece]) -> np.ndarray:
     for p in pieces:
         out.append(p.window_index() + base)
         base += p.n_windows
+    return np.concatenate(out)
+
+
+def known_response(pieces: Sequence[Piece]) -> np.ndarray:
+    """The windowed free-run response to the pieces' known force rates alone (zero where a
+    piece has none): in each window, ``dt·Σ c`` over the steps since its start, as the
+    simulation adds it (:func:`_piece_drive`). Concatenated over the evaluated samples."""
+    out = []
+    for p in pieces:
+        if p.known is None:
+            out.append(np.zeros(p.n_eval))
+            continue
+        c = np.asarray(p.known, float)[p.warmup:] * p.dt
+        n, W = len(c), p.window
+        nw = -(-n // W)
+        padded = np.zeros(nw * W)
+        padded[:n] = c
+        steps = padded.reshape(nw, W)
+        resp = np.zeros_like(steps)
+        np.cumsum(steps[:, :-1], axis=1, out=resp[:, 1:])
+        out.append(resp.reshape(-1)[:n])
     return np.concatenate(out)

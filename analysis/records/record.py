@@ -42,6 +42,11 @@ class Record:
     #: samples that fall inside a gap of the data, filled in by resampling (None: no gap);
     #: :func:`split_at_gaps` cuts them out
     bridged: np.ndarray | None = None
+    #: a force rate from outside the channel's own model that is known, kgf/s, one value per
+    #: sample (None: none). A channel of a rig carries the other channels' coupling
+    #: ``Σ_{j≠i} G_ij·w_j`` here (:mod:`analysis.rig.coupling`); the model's simulation adds it
+    #: to the rate, as it adds its own disturbances (:mod:`analysis.identification.windows`)
+    known_rate_kgf_s: np.ndarray | None = None
 
     @property
     def dt(self) -> float:
@@ -60,7 +65,8 @@ class Record:
     def slice(self, start: int, stop: int) -> "Record":
         return Record(self.t[start:stop], self.u[start:stop], self.y[start:stop],
                       self.r[start:stop], self.source, self.experiment, self.meta, list(self.notes),
-                      None if self.bridged is None else self.bridged[start:stop])
+                      None if self.bridged is None else self.bridged[start:stop],
+                      None if self.known_rate_kgf_s is None else self.known_rate_kgf_s[start:stop])
 
 
 def make_record(t, u, y, r=None, source: str = "<arrays>", experiment: str | None = None,

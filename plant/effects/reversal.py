@@ -7,6 +7,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from core.jit import njit
 from plant.contract import Effect, Stage
 from plant.params import Param
 from plant.start_grids import renamed
@@ -179,37 +180,51 @@ def since_reversal(q: np.ndarray, inc: float | np.ndarray, state: dict) -> np.nd
     """How much of ``inc`` (per step: the step's length for a time, its travel for a distance)
     has passed since the sign of ``q`` (n, K) last changed, at each step's start (a zero keeps
     the last direction; inf before the first reversal). ``state`` carries ``direction`` and
-    ``since`` across blocks."""
+    ``since`` across blocks. A recursion along the steps, compiled (:func:`_since_steps`)."""
     n, K = q.shape
-    steps = np.arange(K)
-    sgn = np.sign(q)
-    if sgn.all():       # no zero command: the direction is the command's sign
-        held = sgn
-    else:               # a zero command keeps the last direction
-        idx = np.maximum.accumulate(np.where(sgn != 0, steps, -1), axis=1)
-        held = np.where(idx >= 0, sgn[np.arange(n)[:, None], np.maximum(idx, 0)],
-                        state["direction"][:, None])
-    prev = np.empty_like(held)
-    prev[:, 0] = state["direction"]
-    prev[:, 1:] = held[:, :-1]
-    reversal = (held != prev) & (prev != 0)
+    q = np.ascontiguousarray(q, dtype=float)
+    direction = np.array(state["direction"], dtype=float)
+    since0 = np.array(state["since"], dtype=float)
+    out = np.empty((n, K))
+    last_inc = np.empty(n)
     if np.ndim(inc) == 0:
-        before = steps * float(inc)            # the sum of the increments before each step
-        last_inc = np.full(n, float(inc))
+        _since_steps(q, np.full((1, 1), float(inc)), True, direction, since0, out, last_inc)
     else:
-        before = np.cumsum(inc, axis=1) - inc
-        last_inc = inc[:, -1]
-    carried = state["since"][:, None] + before
-    if reversal.any():
-        # index of the last reversal at or before each step (-1: none in this block)
-        last = np.maximum.accumulate(np.where(reversal, steps, -1), axis=1)
-        if np.ndim(inc) == 0:                  # equal increments: no lookup needed
-            since = np.where(last >= 0, (steps - last) * float(inc), carried)
-        else:
-            at_last = np.take_along_axis(before, np.maximum(last, 0), axis=1)
-            since = np.where(last >= 0, before - at_last, carried)
-    else:
-        since = carried
-    state["direction"] = held[:, -1].copy()
-    state["since"] = since[:, -1] + last_inc
-    return since
+        _since_steps(q, np.ascontiguousarray(inc, dtype=float), False, direction, since0, out,
+                     last_inc)
+    state["direction"] = direction
+    state["since"] = out[:, -1] + last_inc
+    return out
+
+
+@njit
+def _since_steps(q, inc, equal, direction, since0, out, last_inc):
+    """Row by row: the held direction (a zero command keeps the last one), a reversal where it
+    changes from a direction, and the increments summed since (from ``since0`` before the
+    first). ``equal``: every step's increment is ``inc[0, 0]`` (then ``k·inc`` exactly, as a
+    time is); else ``inc`` (n, K). ``direction`` is left at each row's last held direction."""
+    n, K = q.shape
+    for i in range(n):
+        d = direction[i]
+        last = -1                       # the last reversal's step in this block
+        c = 0.0                         # the increments up to and including step k
+        c_last = 0.0                    # ... before the last reversal's step
+        for k in range(K):
+            step = inc[0, 0] if equal else inc[i, k]
+            v = q[i, k]
+            held = d if v == 0.0 else (1.0 if v > 0.0 else -1.0)
+            if v != v:                  # NaN: its sign, as numpy's
+                held = v
+            if held != d and d != 0.0:
+                last = k
+                c_last = c if equal else (c + step) - step
+            d = held
+            if equal:
+                before = k * step
+                out[i, k] = (k - last) * step if last >= 0 else since0[i] + before
+            else:
+                c = c + step
+                before = c - step
+                out[i, k] = before - c_last if last >= 0 else since0[i] + before
+        direction[i] = d
+        last_inc[i] = inc[0, 0] if equal else inc[i, K - 1]

@@ -47,8 +47,26 @@ def register(sub) -> None:
                         "see `stand report`)")
     p.add_argument("--jobs", type=int, default=None, metavar="N",
                    help="worker processes for the candidates' fits (default: one per CPU, up to "
-                        "8, when the data are large enough to gain; 1: none)")
+                        "8, when the data are large enough to gain; 1: none); with --rig-model "
+                        "for the channels (default: one per CPU, up to 8)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    g = p.add_argument_group(
+        "rig runs (many channels on one structure; docs/rig.md)",
+        "With --rig-model every channel (or those of --channel) is diagnosed with the other "
+        "channels' part of its force rate, Σ G_ij·w_j through their models, as a known input: "
+        "the diagnosis finds the channel's own effects. The channels run in parallel (--jobs, "
+        "or a dask cluster with --scheduler); --model is each channel's start (default base; "
+        "'rig': its model in the rig model file); --save writes the rig model arrived at.")
+    g.add_argument("--rig-model", metavar="RIG_MODEL.toml",
+                   help="the rig's G and channel models (stand estimate RIG_RUNS --save writes one)")
+    g.add_argument("--channel", action="append", metavar="NAME[,NAME...]",
+                   help="diagnose only these channels (default: all; repeatable)")
+    g.add_argument("--rounds", type=int, default=1, metavar="N",
+                   help="diagnose all channels N times, each round's coupling from the others' "
+                        "models of the round before (default %(default)s)")
+    g.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run the channels on a dask.distributed cluster (its scheduler's "
+                        "address, e.g. tcp://10.0.0.5:8786; pip install 'hydrostand[cluster]')")
     p.set_defaults(func=main)
 
 
@@ -62,6 +80,17 @@ def main(args: argparse.Namespace) -> int:
     if args.jobs is not None and args.jobs < 1:
         from gateway.errors import ParameterError
         raise ParameterError(f"--jobs {args.jobs} is out of range: give 1 or more")
+    from .rig_analysis import main_diagnose, rig_inputs
+    if args.rig_model:
+        if not rig_inputs(args.data):
+            from gateway.errors import ParameterError
+            raise ParameterError(f"--rig-model needs rig runs; {', '.join(args.data)} "
+                                 f"{'is' if len(args.data) == 1 else 'are'} one-channel data")
+        return main_diagnose(args)
+    for opt in ("channel", "scheduler"):
+        if getattr(args, opt):
+            from gateway.errors import ParameterError
+            raise ParameterError(f"--{opt} goes with --rig-model (the rig's G and channel models)")
     records = load_records(args.data)
     model, _ = resolve_model(args.model)
     effects = ([e.strip() for e in args.candidates.split(",") if e.strip()]

@@ -1,4 +1,5 @@
-"""``stand estimate DATA...``: the paper's estimates of g and τ from recorded runs or CSV files."""
+"""``stand estimate DATA...``: the paper's estimates of g and τ from recorded runs or CSV files;
+on rig runs G, each channel's τ and Δ (:mod:`stand.commands.rig_analysis`)."""
 from __future__ import annotations
 
 import argparse
@@ -32,10 +33,31 @@ def register(sub) -> None:
     p.add_argument("--gain", type=float, metavar="K", help="P feedback: k, %%/kgf (default: from the run, else fitted)")
     p.add_argument("--transitional-ms", type=float, metavar="MS",
                    help="meander: transitional window after each reversal (default: detected)")
+    g = p.add_argument_group(
+        "rig runs (many channels on one structure: per-column meanders, or one simultaneous "
+        "meander with a period per channel; see docs/rig.md)",
+        "Given rig runs (a run directory with a rig section, a directory of them, or a table "
+        "with t, u.NAME, y.NAME columns), all of them are one data set: G (kgf/(%%·s)) with a "
+        "95 %% interval per entry, each channel's τ and Δ, the physical check. --json: "
+        "{\"G\": rows, \"G_ci\": rows of [low, high], \"channels\", \"tau_s\", "
+        "\"delta_kgf_s\", \"physical\", ...} (schema hydrostand-rig-estimate/1).")
+    g.add_argument("--save", metavar="RIG_MODEL.toml",
+                   help="write the rig model: G, and per channel the base model with τ, Δ and the "
+                        "reversal boost found (what stand diagnose --rig-model starts from)")
+    g.add_argument("--guard-ms", type=float, metavar="MS",
+                   help="time left out after every reversal (default: 4 times each channel's "
+                        "transitional window, where its reversal boost has died out)")
     p.set_defaults(func=main)
 
 
 def main(args: argparse.Namespace) -> int:
+    from .rig_analysis import main_estimate, rig_inputs
+    if rig_inputs(args.data):
+        return main_estimate(args)
+    if args.save or args.guard_ms is not None:
+        from core.errors import ParameterError
+        raise ParameterError("--save and --guard-ms are for rig runs (a run directory with a rig "
+                             "section, or t, u.NAME, y.NAME tables); none was given")
     from analysis import EstimateOptions, error_json, result_json
     from analysis.reports.campaign import estimate_inputs, write_report
     options = EstimateOptions(
