@@ -227,9 +227,11 @@ def check_model(model: PlantModel, where: str = "model") -> None:
 
 
 def design(model: PlantModel, period_s: float = 0.002,
-           command_limit_pct: float = COMMAND_LIMIT_PCT) -> ControllerDesign:
+           command_limit_pct: float = COMMAND_LIMIT_PCT, check: bool = True) -> ControllerDesign:
     """The fastest PI of the SIMC family that keeps GM >= 2 at the boosted gain and PM >= 45°
-    at the nominal and the boosted gain (see the module docstring)."""
+    at the nominal and the boosted gain (see the module docstring). ``check``: the stated
+    margins cross-checked by python-control (a rig's design checks its loops together instead,
+    :mod:`loading.rig_design`)."""
     check_model(model)
     if not (0.0005 <= period_s <= 0.1):
         raise ParameterError(f"period = {period_s * 1e3:g} ms: it must be from 0.5 to 100 ms")
@@ -261,7 +263,7 @@ def design(model: PlantModel, period_s: float = 0.002,
     return ControllerDesign(
         period_s=period_s, model_spec=model.spec, model_params=model.params(), kp_pct_per_kgf=kp,
         ti_s=ti, command_limit_pct=command_limit_pct, boost=rho, lambda_s=lam,
-        nominal=margins(kp, ti, g, tau, period_s), boosted=margins(kp, ti, g * rho, tau, period_s),
+        nominal=margins(kp, ti, g, tau, period_s, check), boosted=margins(kp, ti, g * rho, tau, period_s, check),
         notes=notes)
 
 

@@ -76,12 +76,13 @@ def _flow(flows, aux, q: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 
 def _flow_inverse(model: PlantModel, v: np.ndarray, r: np.ndarray, dt: float,
-                  t: np.ndarray, direction: float | None = None
+                  t: np.ndarray, direction: float | None = None, resolution_pct: float = 0.0
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Solve ``q·ΠG(q) = v`` for q per sample through the model's FLOW effects' hooks; also
     the local gain factor along q and the factor ``ΠG`` itself (see the module docstring).
     ``direction``: the way the rod last moved before the programme (±1; default: the way it
-    first moves)."""
+    first moves). ``resolution_pct``: a command below it is 0 (the valve cannot be sent less),
+    so the reversals the inversion plans are the ones the valve will make."""
     flows = [e for e in model.effects if e.stage is Stage.FLOW]
     q = v.copy()
     if not flows:
@@ -111,7 +112,8 @@ def _flow_inverse(model: PlantModel, v: np.ndarray, r: np.ndarray, dt: float,
             aux.append(e.prepare(q[None, :], dt, state, **kw))
         return aux
 
-    for _ in range(3):
+    zero = np.zeros(len(q), bool)             # planned as no flow (resolution_pct)
+    for _ in range(3 if resolution_pct <= 0 else 8):
         aux = prepared(q)
         lo = np.zeros_like(target)
         hi = np.full_like(target, Q_MAX)
@@ -121,6 +123,9 @@ def _flow_inverse(model: PlantModel, v: np.ndarray, r: np.ndarray, dt: float,
             hi = np.where(above, mid, hi)
             lo = np.where(above, lo, mid)
         new = sign * (lo + hi) / 2
+        if resolution_pct > 0:
+            zero |= _below_resolution(new, resolution_pct, u0[0] if len(u0) else 0.0)
+            new[zero] = 0.0
         if np.allclose(new, q, atol=1e-6):
             q = new
             break
@@ -135,6 +140,36 @@ def _flow_inverse(model: PlantModel, v: np.ndarray, r: np.ndarray, dt: float,
     return np.r_[head, q], np.r_[ones, np.maximum(gain, 0.0)], np.r_[ones, factor]
 
 
+#: a planned excursion of the flow command the other way whose largest command is under this
+#: many resolution steps is not planned (no flow instead): its reversal and back would move the
+#: rod by a few counts' worth, and whether the valve makes it depends on the rounding
+BLIP_STEPS = 4
+
+
+def _below_resolution(q: np.ndarray, resolution_pct: float, direction0: float) -> np.ndarray:
+    """Where the planned flow command ``q`` is to be no flow: under half a resolution step
+    (the valve rounds it to 0), and every excursion the other way (a run between two commands
+    of the held direction, a zero keeping the last direction) whose largest command is under
+    :data:`BLIP_STEPS` steps."""
+    out = np.abs(q) < resolution_pct / 2
+    sgn = np.where(out, 0.0, np.sign(q))
+    moving = np.flatnonzero(sgn != 0)
+    if not len(moving):
+        return out
+    # runs of one sign among the nonzero commands
+    s = sgn[moving]
+    edges = np.flatnonzero(np.diff(s) != 0) + 1
+    starts, ends = np.r_[0, edges], np.r_[edges, len(s)]
+    before = np.r_[direction0 if direction0 else s[0], s[starts[1:] - 1]]
+    for a, b, prev in zip(starts, ends, before):
+        nxt = s[b] if b < len(s) else prev
+        if s[a] != prev and nxt == prev and np.max(np.abs(q[moving[a:b]])) < BLIP_STEPS * resolution_pct:
+            lo = moving[a - 1] + 1 if a > 0 else 0
+            hi = moving[b] if b < len(s) else len(q)
+            out[lo:hi] = True
+    return out
+
+
 def feedforward(model: PlantModel, r_kgf: np.ndarray, period_s: float,
                 t_s: np.ndarray | None = None, direction: float | None = None) -> Feedforward:
     """The command (%) for each cycle that makes ``model`` follow the reference ``r_kgf``
@@ -142,17 +177,42 @@ def feedforward(model: PlantModel, r_kgf: np.ndarray, period_s: float,
     last moved before the reference starts, where it is known (a first motion the other way
     is then a reversal, with what the model's FLOW effects do at one)."""
     r = np.asarray(r_kgf, float)
-    dt = float(period_s)
-    t = np.arange(len(r)) * dt if t_s is None else np.asarray(t_s, float)
-    inc = np.r_[np.diff(r), 0.0] / dt
-    rate = inc - model.delta
-    inverted, skipped = ["base"], []
+    rate, inverted = own_rate(model, r, period_s)
+    return feedforward_flow(model, rate / model.g, r, period_s, t_s, direction, inverted)
+
+
+def own_rate(model: PlantModel, r_kgf: np.ndarray, period_s: float) -> tuple[np.ndarray, list[str]]:
+    r"""The force rate the channel's flow must make for the reference: ``(r[k+1] − r[k])/T − Δ
+    − ΣF_j(r[k])`` (kgf/s per step), with the names of what it took off (the base's trend and
+    every FORCE effect)."""
+    r = np.asarray(r_kgf, float)
+    rate = np.r_[np.diff(r), 0.0] / float(period_s) - model.delta
+    taken = ["base"]
     for e in model.effects:
         if e.stage is Stage.FORCE:
             rate = rate - e.force_rate(r[None, :])[0]
-            inverted.append(e.name)
-    v = rate / model.g
-    q, gain, factor = _flow_inverse(model, v, r, dt, t, direction)
+            taken.append(e.name)
+    return rate, taken
+
+
+def feedforward_flow(model: PlantModel, flow_pct: np.ndarray, r_kgf: np.ndarray, period_s: float,
+                     t_s: np.ndarray | None = None, direction: float | None = None,
+                     inverted: list[str] | None = None, resolution_pct: float = 0.0) -> Feedforward:
+    r"""The command (%) for each cycle that makes the channel's flow ``w = q·ΠG(q)`` (in the
+    units of the command, the flow the base's ``g`` multiplies) be ``flow_pct`` per step, its
+    own force following ``r_kgf``: the FLOW effects inverted per sample, then the VALVE
+    effects, then sent the model's delay ahead (module docstring). :func:`feedforward` is the
+    one-channel case ``w = (ṙ − Δ − ΣF)/g``; a rig's channel gets its ``w`` from
+    ``G⁻¹`` (:mod:`loading.rig_feedforward`). ``inverted``: what made ``flow_pct`` (names);
+    ``resolution_pct``: the valve's command resolution, a planned flow command below it is 0
+    (where a valve runs at small flows for long, as a rig's may, a planned flow of a fraction
+    of a count would be a reversal the rod never makes)."""
+    r = np.asarray(r_kgf, float)
+    dt = float(period_s)
+    t = np.arange(len(r)) * dt if t_s is None else np.asarray(t_s, float)
+    inverted, skipped = list(inverted or []), []
+    v = np.asarray(flow_pct, float)
+    q, gain, factor = _flow_inverse(model, v, r, dt, t, direction, resolution_pct)
     u = q.copy()
     for e in reversed([e for e in model.effects if e.stage is Stage.VALVE]):
         before = e.invert(u, dt)

@@ -16,19 +16,39 @@ def register(sub) -> None:
                                    "PI feedback with gain margin >= 2 at the largest gain the model "
                                    "predicts (right after a reversal) and phase margin >= 45 degrees. "
                                    "Prints the margins at the nominal and the boosted gain; writes a "
-                                   "controller file for stand load.")
-    p.add_argument("model", metavar="MODEL.toml", help="a model file (or a spec such as base+reversal)")
+                                   "controller file for stand load. From a rig model file (stand "
+                                   "estimate RIG_RUNS --save, stand diagnose --rig-model ... --save) or a "
+                                   "rig file with a plant per channel: the rig's controller, feedforward "
+                                   "through G^-1, a PI per channel decoupled through G^-1 diag(g), the "
+                                   "margins of the loops together (characteristic loci) at the nominal and "
+                                   "the boosted gains; a coupling too strong is refused with the figure.")
+    p.add_argument("model", metavar="MODEL.toml", help="a model file (or a spec such as base+reversal), a "
+                                                       "rig model file or a rig file")
     p.add_argument("-o", "--out", metavar="CONTROLLER.toml", help="write the controller file here")
     p.add_argument("--period-ms", type=float, default=2.0, metavar="MS",
                    help="control period the controller is for, ms (default %(default)s)")
     p.add_argument("--command-limit", type=float, default=100.0, metavar="PCT",
                    help="the controller's command limit, %% (default %(default)s)")
+    g = p.add_argument_group("a rig (docs/loading.md, \"A rig\")")
+    g.add_argument("--independent", action="store_true",
+                   help="today's one-channel controller on every channel (each from its own g, no "
+                        "decoupling): the baseline to compare with")
+    g.add_argument("--coupling-error", type=float, default=20.0, metavar="PCT",
+                   help="the margins hold with the rig's coupling this much off the model's "
+                        "(each off-diagonal entry of G, %%; default %(default)s)")
     p.add_argument("--json", action="store_true", help="print the design as JSON")
     add_effects(p)
     p.set_defaults(func=main)
 
 
 def main(args: argparse.Namespace) -> int:
+    from loading.rig_design import is_rig_file
+    if is_rig_file(args.model):
+        return _rig(args)
+    if args.independent or args.coupling_error != 20.0:
+        from core.errors import ParameterError
+        raise ParameterError("--independent and --coupling-error are for a rig: give a rig model file "
+                             "(stand estimate RIG_RUNS --save) or a rig file")
     from analysis import resolve_model
     from loading.design import design
     model, _path = resolve_model(args.model, complete=True)
@@ -42,4 +62,24 @@ def main(args: argparse.Namespace) -> int:
     print(c.text())
     if args.out:
         print(f"controller file written: {args.out}")
+    return 0
+
+
+def _rig(args: argparse.Namespace) -> int:
+    """A rig's controller (loading.rig_design)."""
+    from loading.rig_design import design_rig, read_rig_model
+    model, source = read_rig_model(args.model)
+    c = design_rig(model, args.period_ms / 1e3, args.command_limit,
+                   feedback="independent" if args.independent else "decoupled",
+                   coupling_error=args.coupling_error / 100)
+    if args.out:
+        Path(args.out).write_text(c.to_toml(args.out))
+    if args.json:
+        json.dump({**c.to_dict(), "model": source}, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+        return 0
+    print(f"from {source}")
+    print(c.text())
+    if args.out:
+        print(f"rig controller file written: {args.out}")
     return 0
