@@ -99,6 +99,11 @@ class Effect:
     #: True if :meth:`shape` or :meth:`prepare` reads the time since the run started (``t=``
     #: keyword, (n, K): the start of every step; a record's time counts from its first sample)
     reads_time: ClassVar[bool] = False
+    #: FLOW stage: the parameters :meth:`prepare` reads (its ``aux``), e.g. a boost's decay but
+    #: not its size, which only :meth:`gain` uses; ``None``: all of them. A fit reuses the
+    #: prepared flow while it moves only the others (:meth:`prepared_values`); the plug-in
+    #: check verifies the claim (moving any other parameter leaves ``aux`` as it was)
+    prepared_from: ClassVar[tuple[str, ...] | None] = None
 
     @classmethod
     def start_grid(cls, s: Any, base: Mapping[str, float]) -> list[dict]:
@@ -148,6 +153,17 @@ class Effect:
     def __repr__(self) -> str:
         inner = ", ".join(f"{k}={v:g}" for k, v in self.values.items())
         return f"{type(self).__name__}({inner})"
+
+    def prepared_values(self) -> tuple[float, ...]:
+        """The values the drive depends on: for a FLOW effect those :meth:`prepare` reads
+        (:attr:`prepared_from`; none if it does not override it), else all of them."""
+        if self.stage is not Stage.FLOW:
+            return tuple(self.values.values())
+        if type(self).prepare is Effect.prepare:
+            return ()
+        if self.prepared_from is None:
+            return tuple(self.values.values())
+        return tuple(self.values[k] for k in self.prepared_from)
 
     # -- state carried between blocks -------------------------------------------------------
     def init_state(self, n: int, u0: np.ndarray) -> dict[str, np.ndarray]:

@@ -139,10 +139,11 @@ class PlantModel:
 
     def drive_key(self) -> tuple:
         """What :meth:`drive` depends on besides the command: the delay and the values of the
-        effects it runs (VALVE, FLOW preparation, DISTURBANCE). Two models with equal keys give
-        the same drive for the same commands (the fit's Jacobian moves one parameter at a time:
-        for g, Δ and the force-dependent laws the drive is the same)."""
-        return (self.tau,) + tuple((e.name, tuple(e.values.values())) for e in self.effects
+        effects it runs (VALVE, FLOW preparation: :meth:`Effect.prepared_values`, DISTURBANCE).
+        Two models with equal keys give the same drive for the same commands (the fit's
+        Jacobian moves one parameter at a time: for g, Δ, a boost's size and the
+        force-dependent laws the drive is the same)."""
+        return (self.tau,) + tuple((e.name, e.prepared_values()) for e in self.effects
                                    if e.stage in (Stage.VALVE, Stage.FLOW, Stage.DISTURBANCE))
 
     # -- simulation ----------------------------------------------------------------------------

@@ -91,6 +91,7 @@ def check_effect(cls: type[Effect], where: str = "") -> list[str]:
     label = label_of(cls, where)
     params = cls.params
     _run_block(cls, {p.name: p.default for p in params}, label, "with its default parameters")
+    _check_prepared_from(cls, label)
     warnings = []
     for p in params:
         for bound in (p.lower, p.upper):
@@ -102,6 +103,45 @@ def check_effect(cls: type[Effect], where: str = "") -> list[str]:
                 warnings.append(str(exc) + " (the fit explores the whole range: narrow the "
                                            "bounds to what is physical)")
     return warnings
+
+
+def _check_prepared_from(cls: type[Effect], label: str) -> None:
+    """A FLOW effect's :attr:`~plant.contract.Effect.prepared_from` names parameters it has,
+    and moving any other one to its bounds leaves what :meth:`prepare` returns as it was (a
+    fit reuses it while it moves them: a wrong claim would fit a model that is not there)."""
+    names = cls.prepared_from
+    if cls.stage is not Stage.FLOW or names is None:
+        return
+    known = [p.name for p in cls.params]
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise PluginError(f"{label}: prepared_from names {', '.join(unknown)}, which are not its "
+                          f"parameters ({', '.join(known) or 'none'})")
+    u = check_command()
+    defaults = {p.name: p.default for p in cls.params}
+
+    def prepared(values: dict):
+        eff = cls(**values)
+        n, k = u.shape
+        extra = {"t": np.broadcast_to(np.arange(k) * CHECK_DT, (n, k)).copy()} if eff.reads_time else {}
+        if eff.reads_command:
+            extra["command"] = u
+        return eff.prepare(u.copy(), CHECK_DT, eff.init_state(n, u[:, 0].copy()), **extra)
+
+    ref = prepared(defaults)
+    for p in cls.params:
+        if p.name in names:
+            continue
+        for bound in (p.lower, p.upper):
+            got = prepared({**defaults, p.name: bound})
+            same = (got is None and ref is None) or (
+                got is not None and ref is not None
+                and np.array_equal(np.asarray(got), np.asarray(ref), equal_nan=True))
+            if not same:
+                raise PluginError(
+                    f"{label}: prepare() changes with {p.name} (at {bound:g}), which prepared_from "
+                    f"({', '.join(names) or 'none'}) leaves out: add it there, or leave "
+                    "prepared_from out (every parameter)")
 
 
 def check_command(n: int = CHECK_N, k: int = CHECK_K, dt: float = CHECK_DT) -> np.ndarray:

@@ -272,3 +272,32 @@ def test_the_catalogue_lists_the_built_ins_first_in_stage_order():
     stages = [CATALOGUE[n].stage for n in BUILTINS]
     assert stages == sorted(stages)
     assert list(BUILTINS) == [n for n in CATALOGUE if n in BUILTINS][:len(BUILTINS)]
+
+
+def test_a_wrong_prepared_from_claim_is_refused_and_a_right_one_reuses_the_drive():
+    """prepared_from lets a fit reuse the prepared flow while it moves the other parameters; a
+    claim that leaves out a parameter prepare() reads would fit a model that is not there, so
+    the plug-in check refuses it, naming the parameter. The reversal's claim (only its decay)
+    keeps the drive across a change of its boost, and the simulation is still the model's."""
+    from plant.effects.reversal import Reversal
+
+    class Wrong(Reversal):
+        name = "wrong_reversal"
+        prepared_from = ("boost",)          # prepare() reads the decay, not the boost
+
+    with pytest.raises(PluginError, match="prepare\\(\\) changes with decay"):
+        plugins.check_effect(Wrong, "test")
+
+    class Unknown(Reversal):
+        name = "unknown_reversal"
+        prepared_from = ("decay", "speed")
+
+    with pytest.raises(PluginError, match="speed, which are not its parameters"):
+        plugins.check_effect(Unknown, "test")
+
+    a = PlantModel.from_spec("base+reversal", {"reversal.boost": 2.0})
+    b = PlantModel.from_spec("base+reversal", {"reversal.boost": 3.0})
+    c = PlantModel.from_spec("base+reversal", {"reversal.decay": 0.3})
+    assert a.drive_key() == b.drive_key() != c.drive_key()
+    u = np.where(np.arange(2000) % 400 < 200, 10.0, -10.0)
+    assert not np.allclose(a.simulate(u, 0.002), b.simulate(u, 0.002))

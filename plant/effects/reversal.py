@@ -53,6 +53,8 @@ class Reversal(Effect):
         Param("decay", 0.15, 0.005, 3.0, "s", "decay time T_r of the boost", log=True),
         Param("exponent", 0.7, 0.0, 1.0, "1", "amplitude exponent p (0: gain factor, 1: fixed extra force)"),
     )
+    #: the decaying factor e^(−s/T_r) is prepared from the history; b and p only scale it
+    prepared_from = ("decay",)
 
     def init_state(self, n, u0):
         return reversal_state(n, u0)
