@@ -13,6 +13,13 @@ from plant_emulator.process import EmulatorProcess, RigEmulatorProcess
 _counter = itertools.count()
 
 
+def pytest_collection_modifyitems(config, items):
+    """A test in user-mode Linux runs alone too (one UML at a time, on the wall clock)."""
+    for item in items:
+        if item.get_closest_marker("uml") is not None:
+            item.add_marker(pytest.mark.serial)
+
+
 @pytest.fixture
 def channel() -> str:
     """A loopback-bus channel no other test (or developer) uses."""

@@ -27,6 +27,8 @@ from standbus import open_bus
 from tests.support.faults import LOAD_ALLOWANCE_S, Sniffer, log_reaction, valve_state
 from tests.support.stand import BASE, plant
 
+pytestmark = pytest.mark.serial   # on the wall clock: runs alone (scripts/test)
+
 #: the valve's RPDO timeout (0x1400:05, as the gateway writes it) + watchdog poll + deferral, s
 VALVE_BOUND_S = 0.100 + 0.005 + 0.020
 

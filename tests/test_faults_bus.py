@@ -114,6 +114,7 @@ def test_loopback_drops_the_requested_share_only_on_the_chosen_ids(channel):
     assert rx.faults.dropped == 1000 - len(pdo)
 
 
+@pytest.mark.serial
 def test_loopback_delays_frames_and_keeps_their_order(channel):
     rx = LoopbackBus(channel, delay_ms=40)
     tx = LoopbackBus(channel)

@@ -27,7 +27,7 @@ from tests.support.faults import (LOAD_ALLOWANCE_S, SAFE_WORDS, Const, RampRefer
                                   emcys, first_safe_command, log_reaction, rpdos, valve_state)
 from tests.support.stand import BASE, plant
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.serial]
 T = 0.002
 
 

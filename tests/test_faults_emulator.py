@@ -126,6 +126,7 @@ def test_rpdo_with_a_wrong_length_is_reported_and_not_applied(emulator):
     assert stand.valve.rpdo_length_errors == 1
 
 
+@pytest.mark.serial
 def test_rpdo_timeout_from_operational_without_any_command(emulator):
     """A master that starts the node and dies before its first command: fault within the event
     timer (0x1400:05 = 100 ms from the EDS), EMCY 0x8250, zero flow."""

@@ -45,6 +45,7 @@ def approach_s(run_dir: Path) -> float:
     return float(np.asarray(run.t)[np.isfinite(np.asarray(run.r))][0])
 
 
+@pytest.mark.slow
 def test_a_stable_stand_gives_no_false_alarm_over_50_blocks(bus_spec, start_emulator, tmp_path):
     start_emulator(plant(MODEL, model="base+reversal"), lockstep=True, seed=6)
     with Gateway(GatewayConfig(bus=bus_spec, lockstep=True)) as gw:
@@ -65,6 +66,7 @@ def test_a_stable_stand_gives_no_false_alarm_over_50_blocks(bus_spec, start_emul
     assert json.loads((tmp_path / "stable" / "report.json").read_text())["gain"]["blocks_estimated"] == len(est)
 
 
+@pytest.mark.slow
 def test_a_g_falling_3_percent_over_the_run_raises_the_alarm_within_8_blocks_and_holds(
         bus_spec, start_emulator, tmp_path):
     p = programme()

@@ -26,6 +26,7 @@ MODEL = {**BASE, "reversal.boost": 2.0}
 
 
 @pytest.mark.e2e
+@pytest.mark.slow
 def test_a_slow_valve_misses_turning_points_without_pacing_and_none_with_it(bus_spec, start_emulator,
                                                                              tmp_path, capsys):
     # the stand's valve passes at most 25 % of flow; the programme at 5000 kgf/s needs up to 42 %

@@ -95,6 +95,7 @@ def test_a_schedule_round_trips_and_refuses_another_programme(tmp_path):
 
 
 @pytest.mark.e2e
+@pytest.mark.slow
 def test_fastest_ends_near_the_valve_limit_at_the_accuracy_and_the_schedule_replays(bus_spec, start_emulator,
                                                                                     tmp_path, capsys):
     start_emulator(plant(MODEL, model="base+reversal"), lockstep=True, seed=4)

@@ -10,6 +10,8 @@ import pytest
 from standbus.realtime import (GIL_SLICE_S, make_realtime, process_threads, realtime_allowed,
                                realtime_threads, short_gil_slices)
 
+pytestmark = pytest.mark.serial   # on the wall clock: runs alone (scripts/test)
+
 
 def _policy(tid: int = 0) -> int:
     return os.sched_getscheduler(tid)

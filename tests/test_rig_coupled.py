@@ -41,6 +41,7 @@ def loaded(text: str, loads, root_limit: float | None = None) -> str:
     return text
 
 
+@pytest.mark.slow
 def test_a_meander_on_one_channel_of_a_coupled_rig_moves_its_neighbours_by_its_column_of_G(
         tmp_path, channel, start_rig_emulator):
     path = start_rig_emulator(example_rig_text(channel))

@@ -151,6 +151,7 @@ def test_a_channel_whose_commands_stop_faults_alone_and_the_others_go_on(start_r
     assert last["root"].force_kgf > rising[0] + 10
 
 
+@pytest.mark.serial
 def test_in_real_time_a_silent_master_leaves_every_valve_of_every_bus_safe(start_rig_emulator):
     """Real time: the master commands every valve, then goes silent. Each valve's own RPDO
     watchdog (100 ms) brings it to FAULT_HOLD with EMCY 0x8250, on both buses; a SYNC on one

@@ -26,6 +26,7 @@ def stand(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
                           timeout=timeout)
 
 
+@pytest.mark.slow
 def test_a_meander_on_one_channel_records_every_channel_and_a_capture_per_bus(tmp_path, start_emulator):
     channels = [dataclasses.replace(c, initial_kgf=k) for c, k in zip(FOUR, (0, 1500, -1000, 500))]
     rig = write_rig(tmp_path / "rig.toml", channels)
@@ -156,6 +157,7 @@ def test_channel_without_a_rig_is_refused(tmp_path):
     assert done.returncode == 2 and "give --rig RIG.toml too" in done.stderr
 
 
+@pytest.mark.serial
 def test_in_real_time_the_buses_syncs_leave_together_on_the_period_grid(tmp_path, start_emulator):
     from tests.support.faults import Const
     from tests.support.rig_channels import Channel

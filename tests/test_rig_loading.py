@@ -117,6 +117,7 @@ def test_decoupled_control_tracks_load_cases_where_todays_controller_per_channel
     assert f["peak_valley_error_pct"] == f["channels"][f["worst_channel"]]["peak_valley_error_pct"]
 
 
+@pytest.mark.slow
 def test_decoupled_control_with_a_g_off_by_1_percent_of_the_diagonal_holds_the_figures_and_compensation_learns(truth):
     """Ten times the identification's interval (0.1 %); at 3 % the figures do not hold
     (docs/loading.md, limits)."""

@@ -99,6 +99,7 @@ def test_a_force_limit_trip_on_one_channel_holds_every_channel(tmp_path, start_e
     assert abs(y[-1, 0]) > 2300 and np.allclose(y[-1, 1:], LOADS[1:], atol=30)
 
 
+@pytest.mark.slow
 def test_a_channel_whose_stand_dies_is_named_and_held_while_the_others_unload(tmp_path, start_emulator):
     rig, _, emus = loaded_rig(tmp_path, start_emulator, limit_a=9000.0)
     killed: list[float] = []
