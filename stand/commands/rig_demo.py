@@ -75,7 +75,7 @@ def main_rig(args: argparse.Namespace) -> int:
     from rig.files import rig_to_toml
 
     rig, driven = demo_rig(args)
-    source = rig.path
+    source = _shown(rig.path)
     out = Path(args.out or f"runs/rig-demo-{dt.datetime.now():%Y%m%d-%H%M%S}")
     out.mkdir(parents=True, exist_ok=True)
     rig_file = out / RIG_FILE
@@ -126,6 +126,12 @@ def main_rig(args: argparse.Namespace) -> int:
         print(f"  {p.name + '/':18s} {size:>10,d} bytes  ({', '.join(sorted(f.name for f in p.iterdir()))})")
     print(f"  {plot.name:18s} {plot.stat().st_size:>10,d} bytes  (every channel's force and command)")
     return 0
+
+
+def _shown(path: Path) -> str:
+    """A path as a user would type it here: relative to the working directory when inside it."""
+    rel = os.path.relpath(path)
+    return rel if not rel.startswith("..") else str(path)
 
 
 def moved_table(rig, rec, est, driven: str, amplitude_pct: float, period_s: float) -> str:
