@@ -17,7 +17,11 @@ Time:
   (:class:`plant_emulator.lockstep_plant.LockstepRig`). A run is as fast as the buses and
   reproducible bit for bit with a seed.
 * **real time** — the plant integrates on the wall clock in steps of ``step_s``; a command acts
-  from the moment it is received; each SYNC on a bus samples the forces of that bus's channels
+  from the step it is received in (the plant is brought up to that moment with the command
+  before); the steps within the shortest transport delay are computed ahead in blocks as in
+  lockstep (:class:`~plant_emulator.lockstep_plant.LockstepRig` with one step a period: the
+  coupled plant of 8 channels cost 0.75 ms per advance call, made at every SYNC and every
+  command); each SYNC on a bus samples the forces of that bus's channels
   at that instant and sends that bus's TPDOs.
 
 Each valve keeps its own RPDO watchdog (event timer 0x1400:05), counted on the stand's time:
@@ -51,7 +55,6 @@ from .lockstep_plant import LockstepRig
 
 log = logging.getLogger(__name__)
 
-_MAX_BLOCK = 200_000  # steps per numpy block when catching up a long gap in real time
 #: a watchdog poll this much later than asked means the process was not running, s
 _STALL_S = 0.02
 #: how long the watchdog waits for frames already in the socket before declaring a timeout, s
@@ -118,8 +121,8 @@ class EmulatedRig:
         y0 = [c.initial_force_kgf for c in channels]
         # compile (or load) the models' compiled loops now, not at the first SYNC of a run
         model.simulate(np.zeros((model.n, 8)), self._plant_dt, y0=y0)
-        #: real time: the plant's states, integrated on the wall clock
-        self._states = model.new_state(self._plant_dt, y0)
+        #: real time: the plant on the wall clock's step grid, computed ahead in blocks
+        self.realtime_plant = LockstepRig(model, y0, options.step_s)
         #: lockstep: the plant one period per cycle, computed ahead in blocks
         self.lockstep_plant = LockstepRig(model, y0, options.step_s)
         self._t_plant = time.monotonic()
@@ -190,19 +193,11 @@ class EmulatedRig:
         lockstep, at the last catch-up in real time."""
         if self.options.lockstep:
             return self.lockstep_plant.forces[index]
-        return float(self._states[index].reading[0])
+        return float(self.realtime_plant.forces[index])
 
     # -- plant time ------------------------------------------------------------------------------
     def _commands(self) -> list[float]:
         return [ch.command for ch in self.channels]
-
-    def _advance(self, steps: int) -> None:
-        """Real time: ``steps`` plant steps with every channel's command held."""
-        held = np.asarray(self._commands(), float)[:, None]
-        while steps > 0:
-            k = min(steps, _MAX_BLOCK)
-            self.rig_model.advance(self._states, np.repeat(held, k, axis=1), self._plant_dt)
-            steps -= k
 
     def _catch_up(self) -> None:
         """Real time: integrate up to now with the commands held so far."""
@@ -211,7 +206,7 @@ class EmulatedRig:
         now = time.monotonic()
         steps = int((now - self._t_plant) / self._plant_dt)
         if steps > 0:
-            self._advance(steps)
+            self.realtime_plant.hold(steps, self._plant_dt, self._commands())
             self._t_plant += steps * self._plant_dt
 
     def _cycle_period(self) -> float:
@@ -280,7 +275,7 @@ class EmulatedRig:
                 self.lockstep_plant.restart_clock([channel.index])
             else:
                 self._catch_up()
-                self._states[channel.index].t[:] = 0.0
+                self.realtime_plant.restart_clock([channel.index])
 
     def advance_plant(self) -> None:
         """Bring the plant to the time of this cycle (lockstep: one period; real time: now)."""

@@ -66,6 +66,27 @@ class LockstepRig:
             self.forces = self._block(commands)
         return self.forces
 
+    def hold(self, periods: int, period_s: float, commands: Sequence[float]) -> list[float]:
+        """``periods`` periods that all ran with ``commands``: as ``periods`` calls of
+        :meth:`step`, but a gap longer than a block goes in one advance call (the real-time
+        emulator catching up on the wall clock). Returns the forces at the end."""
+        commands = list(commands)
+        if periods <= 0:
+            return self.forces
+        if period_s != self.period:
+            self._regrid(period_s, commands)
+        while self._ahead and periods > 0:
+            LockstepRig.step(self, period_s, commands)     # the rig's step, for any subclass
+            periods -= 1
+        if periods > self._block_periods_now():
+            self._undo()                      # nothing ahead: the states are at the present
+            u = np.repeat(np.asarray(commands, float)[:, None], (periods - 1) * self.sub, axis=1)
+            self.model.advance(self.states, u, self.dt)
+            periods = 1
+        for _ in range(periods):
+            LockstepRig.step(self, period_s, commands)
+        return self.forces
+
     def restart_clock(self, channels: Sequence[int] | None = None) -> None:
         """A run begins on ``channels`` (default: all): their plant's time counts from zero
         again (the periods computed ahead are dropped first, they carry the old time)."""
@@ -84,9 +105,13 @@ class LockstepRig:
             self.dt = dt
         self.period, self.sub = period_s, sub
 
+    def _block_periods_now(self) -> int:
+        """Periods a block computes ahead: as many as the shortest delay allows."""
+        return min(m.delay_steps(self.dt) for m in self.model.channels) // self.sub + 1
+
     def _block(self, commands: list[float]) -> list[float]:
         sub = self.sub
-        periods = min(m.delay_steps(self.dt) for m in self.model.channels) // sub + 1
+        periods = self._block_periods_now()
         self._start = copy.deepcopy(self.states) if periods > 1 else None
         self._commands = [commands]
         self._block_periods = periods

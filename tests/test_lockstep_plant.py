@@ -89,3 +89,25 @@ def test_a_restarted_clock_starts_the_drift_again_even_with_periods_computed_ahe
     going_on = LockstepPlant(model, 0.0, STEP)
     last = [going_on.step(0.002, c) for c in commands][-1]
     assert abs(last - want[-1]) > 1e-3 * np.abs(want).max()
+
+
+@pytest.mark.parametrize("spec", ["base", "base+reversal", "base+lag+deadzone+backlash"])
+@pytest.mark.parametrize("tau", [0.0, 0.0031, 0.05])
+def test_holding_a_command_over_several_steps_is_stepping_them_one_by_one(spec, tau):
+    """The real-time emulator catches up on the wall clock with ``hold``: a few steps at a
+    SYNC or a command, now and then a long gap; the forces are those of stepping each step."""
+    rng = np.random.default_rng(int(tau * 1e4) + 1)
+    model = PlantModel.from_spec(spec, {"tau": tau, "g": 110.0})
+    gaps = np.concatenate([rng.integers(0, 5, 300), [400], rng.integers(0, 5, 100), [3000]])
+    commands = np.repeat(rng.normal(0, 10, 80), 6)[:len(gaps)]
+    held, stepped = LockstepPlant(model, 50.0, STEP), LockstepPlant(model, 50.0, STEP)
+    got, want = [], []
+    for k, c in zip(gaps, commands):
+        got.append(held.hold(int(k), STEP, [c])[0])
+        for _ in range(int(k)):
+            stepped.step(STEP, c)
+        want.append(stepped.force)
+    got, want = np.array(got), np.array(want)
+    assert np.max(np.abs(got - want)) < 1e-9 * max(1.0, np.abs(want).max())
+    if model.delay_steps(STEP) >= 8:          # the steps inside τ were computed together
+        assert held.periods_per_block > 5

@@ -100,3 +100,59 @@ def test_candump_capture_decodes_to_the_recorded_signals(vcan_runs, name):
     assert len(decoded) == len(run)
     assert np.array_equal(decoded.u, run.u) and np.array_equal(decoded.y, run.y)
     assert np.array_equal(decoded.t, run.t)
+
+
+@pytest.fixture(scope="module")
+def vcan_rig_run(tmp_path_factory):
+    """The example rig on vcan0 and vcan1 inside UML (tests/uml_rig_scenario.py)."""
+    reason = uml_unavailable()
+    if reason:
+        pytest.skip(reason)
+    out = tmp_path_factory.mktemp("vcan-rig")
+    res = subprocess.run([str(ROOT / "scripts" / "uml-run"), "--vcan", "2", "--timeout", "900", "--",
+                          sys.executable, str(ROOT / "tests" / "uml_rig_scenario.py"), str(out)],
+                         cwd=ROOT, capture_output=True, text=True, timeout=1200)
+    assert res.returncode == 0, f"inside UML: exit {res.returncode}\n{res.stdout[-3000:]}\n{res.stderr[-2000:]}"
+    info = json.loads((out / "result.json").read_text())
+    assert info["returncode"] == 0, info["stdout"] + info["stderr"]
+    return info
+
+
+@pytest.mark.slow
+def test_a_rig_on_two_vcan_buses_records_every_channel_and_a_capture_per_bus(vcan_rig_run):
+    from rig.config import load_rig_file
+    rig = load_rig_file(vcan_rig_run["rig"])
+    run = load_run(vcan_rig_run["run"])
+    assert run.meta["status"] == "complete" and run.meta["clock"] == "lockstep"
+    assert [b["spec"] for b in run.meta["rig"]["buses"]] == ["socketcan:vcan0", "socketcan:vcan1"]
+    assert run.channels == rig.names and run.meta["rig"]["driven"] == [vcan_rig_run["driven"]]
+    n = len(run)
+    assert n >= 6000                                # 3 periods of 4 s at 2 ms
+    for name in rig.names:                          # every channel recorded, every cycle fresh
+        y = run.signals[f"y.{name}"]
+        assert len(y) == n and np.isfinite(y).all() and not run.signals[f"stale.{name}"].any()
+    # one capture per bus, each holding that bus's SYNCs and its own channels' nodes only
+    for bus in rig.buses:
+        frames = list(can.LogReader(str(Path(vcan_rig_run["run"]) / f"capture-{bus.name}.log")))
+        ids = {f.arbitration_id for f in frames}
+        nodes = {i for c in rig.channels_on(bus.name) for i in (c.valve_id, c.dynamometer_id)}
+        assert sum(f.arbitration_id == 0x80 for f in frames) >= n
+        assert {0x180 + i for i in nodes} <= ids and {0x200 + c.valve_id for c in rig.channels_on(bus.name)} <= ids
+    # candump, a peer we did not write, heard both buses
+    heard = {line.split()[1] for line in Path(vcan_rig_run["candump"]).read_text().splitlines() if line}
+    assert heard == {"vcan0", "vcan1"}
+
+
+@pytest.mark.slow
+def test_the_coupled_channels_moved_by_the_driven_column_of_G_over_vcan(vcan_rig_run):
+    from analysis.rig.estimate import estimate_rig
+    from analysis.rig.load import read_rig_run
+    from rig.config import load_rig_file
+    rig = load_rig_file(vcan_rig_run["rig"])
+    j = rig.names.index(vcan_rig_run["driven"])
+    est = estimate_rig([read_rig_run(vcan_rig_run["run"])])
+    column = est.G[:, est.names.index(vcan_rig_run["driven"])]
+    order = [est.names.index(n) for n in rig.names]
+    np.testing.assert_allclose(column[order], rig.G[:, j], atol=0.03 * rig.G[j, j])
+    run = load_run(vcan_rig_run["run"])
+    assert np.ptp(run.signals["y.inner"]) > 300 > np.ptp(run.signals["y.tip"])   # neighbour, not the far end

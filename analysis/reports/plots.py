@@ -237,3 +237,38 @@ def plot_stepwise(result, path: str | Path) -> Path:
     labels = ["base" if i == 0 else f"+{steps[i - 1].added}" for i in range(len(steps))]
     return _error_bars(labels, [s.rmse for s in steps], steps[-1].diagnosis.base_eval.noise_floor,
                        f"stepwise: {result.verdict} with {result.model.spec}", path)
+
+
+def plot_rig_forces(records: Sequence, path: str | Path, title: str = "") -> Path:
+    """A rig's runs (:class:`analysis.rig.record.RigRecord`), one column of panels per run,
+    one panel per channel: its force (kgf) and, on the right axis, its valve command (%).
+    What a person looks at first after a rig meander: which forces followed the driven valve."""
+    plt = pyplot()
+    records = list(records)
+    n = records[0].n
+    fig, axes = plt.subplots(n, len(records), figsize=(4.5 + 3.5 * len(records), 1.6 * n + 1),
+                             sharex="col", squeeze=False)
+    for col, rec in enumerate(records):
+        moving = {rec.names[i] for i in range(rec.n) if np.ptp(rec.u[i]) > 0}
+        u_max = 1.1 * max(float(np.abs(rec.u).max()), 1.0)     # one command scale per run
+        for row, (name, ch) in enumerate(zip(rec.names, rec.channels)):
+            ax = axes[row, col]
+            ax.plot(*_envelope(ch.t, ch.y), color=MEAS, lw=0.8)
+            ax.set_ylabel(f"{name}\nkgf", fontsize=8)
+            ax.tick_params(labelsize=7)
+            cmd = ax.twinx()
+            cmd.plot(*_envelope(ch.t, ch.u), color=MODEL if name in moving else RESID, lw=0.6,
+                     alpha=0.7)
+            cmd.set_ylim(-u_max, u_max)
+            cmd.set_ylabel("u %", fontsize=7)
+            cmd.tick_params(labelsize=7)
+            if row == 0:
+                ax.set_title(f"{Path(rec.source).name}: {', '.join(sorted(moving)) or 'none'} driven",
+                             fontsize=9)
+        axes[-1, col].set_xlabel("t, s", fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90, format="png")
+    plt.close(fig)
+    return Path(path)

@@ -1,4 +1,5 @@
-"""``stand demo``: the whole chain in seconds — emulator process, gateway, lockstep run, estimate."""
+"""``stand demo``: the whole chain in seconds — emulator process, gateway, lockstep run, estimate.
+With ``--rig [RIG.toml]`` the same for a rig of many channels (:mod:`.rig_demo`)."""
 from __future__ import annotations
 
 import argparse
@@ -27,10 +28,28 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=1, help="noise seed (default %(default)s)")
     p.add_argument("--bus", default=None, metavar="SPEC",
                    help="bus to use (default: a private udp_loopback channel for this demo)")
+    g = p.add_argument_group("a rig of many channels (docs/rig.md)")
+    g.add_argument("--rig", nargs="?", const="example", default=None, metavar="RIG.toml",
+                   help="demonstrate a rig instead (default: examples/rig.toml, 4 channels on 2 "
+                        "buses): stand emulate --rig on private loopback buses (never the file's "
+                        "interfaces), a meander on one channel, every channel recorded, the "
+                        "column of G estimated beside the rig file's; --config, --set and --bus "
+                        "are not used (the plants are the rig file's)")
+    g.add_argument("--channel", action="append", default=None, metavar="NAME",
+                   help="with --rig: the channel the meander drives (default: the first); repeat "
+                        "it for one run per channel, each a column of G")
+    g.add_argument("--every-channel", action="store_true",
+                   help="with --rig: one run per channel: all of G (4 channels: about 4x the time)")
+    g.add_argument("--real-time", action="store_true",
+                   help="with --rig: emulator and gateway on the wall clock instead of lockstep")
     p.set_defaults(func=main)
 
 
 def main(args: argparse.Namespace) -> int:
+    from .rig_demo import main_rig, refuse_rig_options
+    if args.rig is not None:
+        return main_rig(args)
+    refuse_rig_options(args)
     from analysis import estimate_meander, read_run
     from gateway import Gateway, GatewayConfig
     from gateway.recorder import write_json

@@ -1,0 +1,302 @@
+"""Rig scaling: the lockstep real-time factor of 1, 4, 8 and 16 channels (16 on 4 buses) and real time for 8 channels on 2 buses at 2 ms (SYNC jitter p99, the skew between the buses' SYNCs p99).
+
+The rigs are chains (:func:`rig.chain.chain_rig`): copies of the example rig's first channel
+(its base+reversal plant, 2 kgf noise), neighbours coupled 30 % through a chain stiffness,
+spread evenly over the buses (4 channels per bus at most: 62.8 % of a 1 Mbit/s bus at 2 ms
+by the worst-case budget, under the 70 % limit). Each rig is written as a rig file and served by
+``stand emulate --rig`` in its own process on private loopback buses; the gateway drives it
+with a meander on the first channel, the others at a zero command.
+
+* Lockstep: the cycles per second the gateway's run counted over its wall time (per cycle one
+  SYNC per bus, two TPDOs and one RPDO per channel).
+* Real time: the emulator at ordinary scheduling (a bench's nodes are not on the gateway's
+  host; at the gateway's priority they took its cores between the two sends), the gateway at
+  its own real-time priority. SYNC jitter: each cycle's SYNC send time (the run's
+  ``sync_time``) against the ideal 2 ms grid. Skew: each cycle's SYNC on the second bus minus
+  the first's, both from the runs' captures (udp_loopback stamps every frame with its send
+  time), paired by cycle (the SYNC counters agree).
+
+* Unload keeping the ratios (the issue's case): the example rig (4 channels, neighbours
+  coupled 30 %, each its own g, τ and reversal boost; outer's and tip's ranges raised to 10 t so
+  the load case fits), loaded 6000 / 4000 / 5000 / 3000 kgf, lockstep. All valves alive: root
+  driven at +5 % into its force limit (6100 kgf), ``--limit-action unload``. One valve dead:
+  inner's valve is stopped by an NMT command from outside at 0.5 s (it drops to its own safe
+  state; the gateway sees it leave OPERATIONAL), ``--fault-action unload``: inner is excluded
+  and held, the others unload. The deviation from the ratios is the gateway's own record
+  (run.json ``safety.unload``: ``d_i = y_i − σ·y_i(t0)``), as % of each channel's range.
+
+A shared 2-core VM: the load average before and after is in the note.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .table import Row
+
+ORDER = 12
+PERIOD_S = 0.002
+SYNC_ID = 0x80
+#: (channels, buses) of the lockstep rows
+SIZES = ((1, 1), (4, 2), (8, 2), (16, 4))
+COUPLING = 0.3
+JITTER_GOAL_MS = 0.5
+SKEW_GOAL_MS = 0.2
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "rig.toml"
+
+
+def chain_file(directory: Path, channels: int, buses: int) -> Path:
+    """A chain rig of ``channels`` on ``buses`` private loopback buses, written as a rig file."""
+    from rig.chain import chain_rig
+    from rig.config import load_rig_file
+    from rig.files import rig_to_toml
+    tag = f"bench-rig{channels}-{os.getpid()}-{time.monotonic_ns() % 10**6}"
+    rig = chain_rig(load_rig_file(EXAMPLE).channels[0], channels, buses, COUPLING, PERIOD_S, tag)
+    path = directory / f"chain-{channels}-on-{buses}.toml"
+    path.write_text(rig_to_toml(rig, header="a benchmark's chain rig (benchmarks/rig.py)", path=path))
+    return path
+
+
+def drive(path: Path, out: Path, lockstep: bool, stand_s: float, emulator_args: list[str] | None = None,
+          limits=None):
+    """Serve the rig file with ``stand emulate --rig`` and run a meander of ``stand_s`` seconds
+    on its first channel through the gateway (``limits``: its SafetyLimits); the run's result
+    and the rig."""
+    from gateway import Gateway, GatewayConfig, SafetyLimits
+    from gateway.experiments import Meander
+    from plant_emulator.process import RigEmulatorProcess
+    from rig.config import load_rig_file
+    rig = load_rig_file(path)
+    period = max(stand_s, 2 * PERIOD_S)
+    with RigEmulatorProcess(path, lockstep=lockstep, seed=1, extra_args=emulator_args or []), \
+            Gateway(GatewayConfig(rig=rig, lockstep=lockstep, limits=limits or SafetyLimits())) as gw:
+        result = gw.run(Meander(5, period, 1), out, progress=False, channels=[rig.names[0]])
+    return result, rig
+
+
+def lockstep_rate(channels: int, buses: int, stand_s: float) -> dict:
+    """Lockstep cycles per second of a chain rig (module docstring)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        result, rig = drive(chain_file(Path(tmp), channels, buses), Path(tmp) / "run", True, stand_s)
+    s = result.outcome.stats
+    return {"rate": s.cycles / s.wall_s, "cycles": s.cycles, "status": result.status,
+            "frames": len(rig.buses) + 3 * channels}
+
+
+def sync_stamps(capture: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Send stamps (s) and counters of the SYNCs in a capture (python-can's LogReader)."""
+    import can
+    frames = [(m.timestamp, m.data[0] if m.data else -1) for m in can.LogReader(str(capture))
+              if m.arbitration_id == SYNC_ID and not m.is_error_frame]
+    return np.array([f[0] for f in frames]), np.array([f[1] for f in frames])
+
+
+def bus_skew_s(captures: list[Path]) -> np.ndarray:
+    """Per cycle, the latest SYNC of the buses minus the earliest (s), paired by cycle; every
+    capture must hold the same SYNCs (count and counters), else ValueError."""
+    stamps = [sync_stamps(c) for c in captures]
+    n = {len(t) for t, _ in stamps}
+    if len(n) != 1:
+        raise ValueError(f"the captures hold {sorted(n)} SYNCs: not one per bus per cycle")
+    if not all(np.array_equal(k, stamps[0][1]) for _, k in stamps[1:]):
+        raise ValueError("the buses' SYNC counters differ cycle by cycle")
+    t = np.vstack([s for s, _ in stamps])
+    return t.max(axis=0) - t.min(axis=0)
+
+
+def grid_jitter_ms(sync_time: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """|each SYNC's send time − its slot on the ideal grid| (ms), the grid's phase the median."""
+    slots = np.round(t / PERIOD_S)
+    dev = (sync_time - sync_time[0]) - slots * PERIOD_S
+    return np.abs(dev - np.median(dev)) * 1e3
+
+
+def answer_lag_ms(capture: Path) -> np.ndarray:
+    """Per SYNC of a capture, how long after it the emulator's first TPDO came (ms)."""
+    import can
+    frames = [(m.timestamp, m.arbitration_id) for m in can.LogReader(str(capture))]
+    t = np.array([f[0] for f in frames])
+    ids = np.array([f[1] for f in frames])
+    syncs = t[ids == SYNC_ID]
+    tpdos = np.sort(t[(ids > 0x180) & (ids < 0x200)])
+    k = np.searchsorted(tpdos, syncs)
+    ok = k < len(tpdos)
+    return (tpdos[k[ok]] - syncs[ok]) * 1e3
+
+
+def realtime_rig(channels: int, buses: int, duration_s: float) -> dict:
+    """A real-time run of a chain rig at 2 ms (module docstring): jitter and skew, ms. The
+    stale readings do not stop the run (the emulator's answers are measured, not judged)."""
+    from gateway import SafetyLimits, load_run
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "run"
+        result, rig = drive(chain_file(Path(tmp), channels, buses), out, False, duration_s,
+                            emulator_args=["--rt-priority", "0"],
+                            limits=SafetyLimits(stale_cycles=100_000))
+        run = load_run(out)
+        captures = [out / f"capture-{b.name}.log" for b in rig.buses]
+        skew = bus_skew_s(captures) * 1e3
+        lag = np.concatenate([answer_lag_ms(c) for c in captures])
+    jitter = grid_jitter_ms(np.asarray(run.sync_time), np.asarray(run.t))
+    s = result.outcome.stats
+    sched = run.meta.get("realtime", {})
+    return {"jitter": jitter, "skew": skew, "lag": lag, "cycles": s.cycles, "overruns": s.overruns,
+            "stale": s.stale_cycles, "status": result.status,
+            "policy": (f"{sched['policy']} {sched['priority']}" if "priority" in sched
+                       else f"ordinary scheduling ({sched.get('note', '?')})")}
+
+
+def _pct(a: np.ndarray, q: float) -> float:
+    return float(np.percentile(a, q)) if a.size else float("nan")
+
+
+#: the issue's load case, kgf, in the example rig's channel order (root, inner, outer, tip)
+LOAD_CASE = (6000.0, 4000.0, 5000.0, 3000.0)
+UNLOAD_GOAL_PCT = 2.0
+
+
+def loaded_example(directory: Path, limit_root_kgf: float) -> Path:
+    """The example rig on private loopback buses, every range 10 t, loaded with
+    :data:`LOAD_CASE`, root's force limit ``limit_root_kgf``."""
+    import dataclasses
+    from rig.config import load_rig_file
+    from rig.files import on_private_loopback, rig_to_toml
+    rig = on_private_loopback(load_rig_file(EXAMPLE), f"bench-unload-{os.getpid()}-{time.monotonic_ns() % 10**6}")
+    chans = []
+    for c, load in zip(rig.channels, LOAD_CASE):
+        plant = dataclasses.replace(c.plant, initial_force_kgf=load,
+                                    sensor={**c.plant.sensor, "range_kgf": 10_000.0})
+        chans.append(dataclasses.replace(c, range_kgf=10_000.0, plant=plant,
+                                         force_limit_kgf=limit_root_kgf if c is rig.channels[0] else 9000.0))
+    path = directory / "loaded.toml"
+    path.write_text(rig_to_toml(dataclasses.replace(rig, channels=chans), path=path))
+    return path
+
+
+def push(u_pct: float, duration_s: float):
+    """An experiment that holds one open-loop command (the fault injection: a channel driven
+    into its force limit; the paper's experiments stop themselves short of it)."""
+    from gateway.experiments.base import Experiment
+
+    class Push(Experiment):
+        name = "push"
+
+        @property
+        def duration_s(self) -> float:
+            return duration_s
+
+        def params(self):
+            return {"u": u_pct, "duration": duration_s}
+
+        def step(self, t, y):
+            return u_pct, float("nan")
+
+    return Push()
+
+
+def unload_case(dead_valve: bool) -> dict:
+    """The issue's unload (module docstring); run.json's ``safety`` and the forces at the end."""
+    import json
+    import can
+    from gateway import Gateway, GatewayConfig, SafetyLimits, load_run
+    from plant_emulator.process import RigEmulatorProcess
+    from rig.config import load_rig_file
+    from standbus import open_bus
+    from gateway.experiments import EXPERIMENTS
+    with tempfile.TemporaryDirectory() as tmp:
+        path = loaded_example(Path(tmp), 9000.0 if dead_valve else 6100.0)
+        rig = load_rig_file(path)
+        inner = rig.channel("inner")
+        stopped: list[float] = []
+        side = open_bus(rig.bus(inner.bus).spec) if dead_valve else None
+
+        def stop_inner(t: float) -> None:
+            if side is not None and t >= 0.5 and not stopped:
+                stopped.append(t)
+                side.send(can.Message(arbitration_id=0, data=[0x02, inner.valve_id], is_extended_id=False))
+
+        if dead_valve:
+            config = GatewayConfig(rig=rig, lockstep=True, fault_action="unload")
+            experiment = EXPERIMENTS["meander"](amplitude_pct=0.5, period_s=2.0, cycles=4)
+        else:
+            config = GatewayConfig(rig=rig, lockstep=True, limits=SafetyLimits(force_action="unload"))
+            experiment = push(5.0, 8.0)
+        try:
+            with RigEmulatorProcess(path, lockstep=True, seed=2), Gateway(config) as gw:
+                result = gw.run(experiment, Path(tmp) / "run", progress=False, channels=["root"],
+                                on_progress=stop_inner)
+        finally:
+            if side is not None:
+                side.shutdown()
+        meta = json.loads((Path(tmp) / "run" / "run.json").read_text())
+        run = load_run(Path(tmp) / "run")
+        end = {n: float(run.signals[f"y.{n}"][-1]) for n in rig.names}
+    return {"status": result.status, "reason": result.reason, "safety": meta.get("safety", {}),
+            "end": end, "message": result.outcome.message}
+
+
+def unload_row(case: dict, dead_valve: bool) -> Row:
+    safety = case["safety"]
+    unload = safety.get("unload") or {}
+    chans = unload.get("channels", {})
+    live = {n: c for n, c in chans.items() if c.get("unloaded")}
+    worst = max((c["max_deviation_pct_of_range"] for c in live.values()), default=float("nan"))
+    big = unload.get("largest_deviation", {})
+    excluded = [e["channel"] for e in safety.get("rig", {}).get("excluded", [])]
+    dead = "".join(f"; {n} (excluded, held) went {chans[n]['from_kgf']:.0f} -> {case['end'][n]:.0f} kgf "
+                   "through the coupling" for n in excluded if n in chans)
+    label = ("rig unload keeping the ratios, 6000/4000/5000/3000 kgf, one valve dead (inner)"
+             if dead_valve else "rig unload keeping the ratios, 6000/4000/5000/3000 kgf, all valves alive")
+    return Row(label,
+               f"largest deviation {worst:.2f} % of its range ({big.get('kgf', float('nan')):.0f} kgf "
+               f"on {big.get('channel', '?')})",
+               f"goal every channel within {UNLOAD_GOAL_PCT:g} % of its range",
+               f"{worst / UNLOAD_GOAL_PCT:.2f} of goal",
+               f"trip {case['reason']} on {safety.get('channel')}; {unload.get('outcome')} in "
+               f"{unload.get('duration_s', float('nan')):.2f} s, {len(live)} of {len(chans)} "
+               f"channels unloaded, ends {', '.join(f'{n} {v:.0f}' for n, v in case['end'].items())} kgf"
+               f"{dead}; per channel " + ", ".join(f"{n} {c['max_deviation_pct_of_range']:.2f} %"
+                                                 for n, c in live.items()))
+
+
+def run(quick: bool) -> list[Row]:
+    load_before = os.getloadavg()[0]
+    rows = []
+    base = None
+    for channels, buses in ((1, 1), (4, 2)) if quick else SIZES:
+        r = lockstep_rate(channels, buses, 1.0 if quick else 10.0)
+        base = base or r["rate"]
+        rows.append(Row(f"rig lockstep, {channels} channel(s) on {buses} bus(es)",
+                        f"{r['rate']:,.0f} cycles/s", f"real time: {1 / PERIOD_S:,.0f} cycles/s",
+                        f"{r['rate'] * PERIOD_S:.2f}x real time",
+                        f"{r['cycles']:,} cycles ({r['status']}), {r['frames']} frames per cycle; "
+                        f"{r['rate'] / base:.2f} of 1 channel's rate; chain rig, neighbours "
+                        f"{COUPLING:.0%}, stand emulate --rig in its own process"))
+    rt = realtime_rig(8, 2, 3.0 if quick else 30.0)
+    load_after = os.getloadavg()[0]
+    j, k = rt["jitter"], rt["skew"]
+    where = (f"{rt['cycles']:,} cycles ({rt['status']}), {rt['overruns']} missed, {rt['stale']} "
+             f"stale; gateway at {rt['policy']}, emulator (8 channels, one process) at ordinary "
+             f"scheduling; load average {load_before:.1f} before, {load_after:.1f} after, 2 cores")
+    rows.append(Row("rig real time, 8 channels on 2 buses at 2 ms: SYNC jitter",
+                    f"p50 {_pct(j, 50):.3f} / p99 {_pct(j, 99):.3f} / max {j.max():.2f} ms",
+                    f"goal p99 < {JITTER_GOAL_MS} ms", f"{_pct(j, 99) / JITTER_GOAL_MS:.2f} of goal",
+                    "SYNC send time vs ideal grid; " + where))
+    rows.append(Row("rig real time, 8 channels on 2 buses at 2 ms: skew between the buses' SYNCs",
+                    f"p50 {_pct(k, 50):.3f} / p99 {_pct(k, 99):.3f} / max {k.max():.2f} ms",
+                    f"goal p99 < {SKEW_GOAL_MS} ms", f"{_pct(k, 99) / SKEW_GOAL_MS:.2f} of goal",
+                    "can1's SYNC minus can0's, each cycle, from the captures' send stamps"))
+    lag = rt["lag"]
+    rows.append(Row("rig real time, 8 channels on 2 buses at 2 ms: the emulator's answer",
+                    f"first TPDO after its SYNC p50 {_pct(lag, 50):.2f} / p90 {_pct(lag, 90):.2f} ms",
+                    "a bench's nodes: well within the period", "",
+                    f"{rt['stale']:,} of {rt['cycles']:,} cycles with a reading not in time (stale, "
+                    "the run not stopped for it): stand emulate --rig serves the 16 nodes of 8 "
+                    "channels in one Python process beside the gateway on the same 2 cores"))
+    for dead in (False, True):
+        rows.append(unload_row(unload_case(dead), dead))
+    return rows
