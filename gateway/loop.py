@@ -27,7 +27,10 @@ bus (the same counter, sent back to back, so the buses' cycles are aligned), eve
 TPDOs awaited, every channel's supervisor asked, N commands sent, one row recorded. A trip on
 any channel acts on every channel: hold all, zero all, or unload all keeping the load ratios
 (:mod:`gateway.unload`), the channel whose valve or communication failed held apart
-(:class:`RigSafety`). A one-channel stand is the rig of one channel.
+(:class:`RigSafety`). A one-channel stand is the rig of one channel. The experiment drives
+its channels one by one (per-channel drivers, each its own copy; the others hold a zero command)
+or all at once (a :class:`~gateway.experiments.rig.RigExperiment`: N forces in, N commands and
+N references out per cycle, each channel's supervisor and the rig's safety the same).
 
 The TPDO callbacks decode with the precompiled PDO layouts and hand the values over through a
 queue. In real time they run on the canopen Notifier thread. In lockstep the loop takes the bus
@@ -53,7 +56,9 @@ from standbus import LOCKSTEP_BUSY_POLL_S
 from standbus.handover import handover_many
 
 from .capture import TappedNetwork, send_together
+from .errors import ParameterError
 from .experiments import Experiment
+from .experiments.rig import RigExperiment, is_rig_experiment
 from .master import StandMaster
 from .recorder import RunRecorder
 from .supervisor import Supervisor, Trip
@@ -307,32 +312,51 @@ class ControlLoop:
             drivers: dict[int, Experiment] | None = None) -> LoopOutcome:
         """Run ``experiment`` to its end or until a supervisor stops it. On a rig ``drivers``
         maps the channels the experiment drives to their own copy of it (default: channel 0
-        runs ``experiment``); every other channel holds a zero command. The valves are left in
+        runs ``experiment``); every other channel holds a zero command. A
+        :class:`~gateway.experiments.rig.RigExperiment` drives every channel itself (no
+        ``drivers``; its ``names`` must be the rig's, in order). The valves are left in
         HOLD (or DISABLED after a ``zero`` trip) with zero command either way. Call it inside
         :func:`steady_heap` entered before the nodes start (as :meth:`Gateway.run` does)."""
+        vector = experiment if is_rig_experiment(experiment) else None
+        if vector is not None:
+            self._check_vector(vector, drivers)
         self._subscribe()
         with contextlib.ExitStack() as stack:
             if self.lockstep:
                 self._handover(stack)
             try:
-                return self._run(drivers or {0: experiment}, recorder, progress)
+                return self._run({} if vector else (drivers or {0: experiment}), recorder,
+                                 progress, vector)
             finally:
                 self._pump = None
 
+    def _check_vector(self, vector: RigExperiment, drivers) -> None:
+        """A rig experiment drives every channel of this rig, in its order, and nothing else."""
+        names = [c.name for c in self.channels]
+        if drivers:
+            raise ParameterError(f"{vector.name}: a rig experiment drives every channel itself; "
+                                 "give no per-channel drivers (--channel) with it")
+        if list(getattr(vector, "names", names)) != names:
+            raise ParameterError(f"{vector.name}: the experiment is for the channels "
+                                 f"{', '.join(vector.names)}; the rig has {', '.join(names)}")
+
     def _run(self, drivers: dict[int, Experiment], recorder: RunRecorder | None,
-             progress) -> LoopOutcome:
+             progress, vector: RigExperiment | None = None) -> LoopOutcome:
         chans = self.channels
         n = len(chans)
         sups = [c.supervisor for c in chans]
         wait_s = WAIT_SLICE_S if self.lockstep else 0.8 * self.period_s
         for i, sup in enumerate(sups):
-            exp = drivers.get(i)
+            exp = vector if vector is not None else drivers.get(i)
             sup.reset(getattr(exp, "max_command_pct", None) if exp is not None else None)
             sup.wait_s = wait_s
         driven = sorted(drivers)
         for i in driven:
             drivers[i].abort = None
             drivers[i].configure(self.period_s, sups[i].limits.force_limit_kgf)
+        if vector is not None:
+            vector.abort = None
+            vector.configure_rig(self.period_s, [s.limits.force_limit_kgf for s in sups])
         stats = self.stats = LoopStats()
         filter0 = self._filter_counts()
         T = self.period_s
@@ -483,29 +507,49 @@ class ControlLoop:
                         else:
                             us = self._send_unload(u_un, unloader.active)
                 elif trip is None and new is None:
-                    # -- the experiment drives its channels, the others hold a zero command
-                    if cycle == 0:
+                    if vector is not None:
+                        # -- a rig experiment: every channel's force in, every command out
+                        if cycle == 0:
+                            vector.begin_rig(ys)
+                        if vector.finished_rig(t, ys):
+                            break
+                        us_req, rs_v = vector.step_rig(t, ys)
+                        us_req, rs = [float(u) for u in us_req], [float(r) for r in rs_v]
+                        if vector.abort is not None:
+                            k = vector.abort_channel
+                            reason, message = vector.abort
+                            new = self._named(sups[k or 0].make_trip(str(reason), str(message),
+                                                                     sync_wall), k)
+                        else:
+                            for i in watched_idx:
+                                new = sups[i].check_error(rs[i], ys[i], stale[i], sync_wall)
+                                if new is not None:
+                                    self._named(new, i)
+                                    break
+                    else:
+                        # -- the experiment drives its channels, the others hold a zero command
+                        if cycle == 0:
+                            for i, exp in drive_list:
+                                exp.begin(ys[i])
+                        if one_driver is not None:
+                            if one_driver[1].finished(t, ys[one_driver[0]]):
+                                break
+                        elif all(exp.finished(t, ys[i]) for i, exp in drive_list):
+                            break
+                        us_req = [0.0] * n
                         for i, exp in drive_list:
-                            exp.begin(ys[i])
-                    if one_driver is not None:
-                        if one_driver[1].finished(t, ys[one_driver[0]]):
-                            break
-                    elif all(exp.finished(t, ys[i]) for i, exp in drive_list):
-                        break
-                    us_req = [0.0] * n
-                    for i, exp in drive_list:
-                        if one_driver is None and exp.finished(t, ys[i]):
-                            continue
-                        us_req[i], rs[i] = exp.step(t, ys[i])
-                        if exp.abort is not None:
-                            reason, message = exp.abort
-                            new = self._named(sups[i].make_trip(str(reason), str(message),
-                                                                sync_wall), i)
-                            break
-                        new = sups[i].check_error(rs[i], ys[i], stale[i], sync_wall)
-                        if new is not None:
-                            self._named(new, i)
-                            break
+                            if one_driver is None and exp.finished(t, ys[i]):
+                                continue
+                            us_req[i], rs[i] = exp.step(t, ys[i])
+                            if exp.abort is not None:
+                                reason, message = exp.abort
+                                new = self._named(sups[i].make_trip(str(reason), str(message),
+                                                                    sync_wall), i)
+                                break
+                            new = sups[i].check_error(rs[i], ys[i], stale[i], sync_wall)
+                            if new is not None:
+                                self._named(new, i)
+                                break
                     if new is None:
                         us = [0.0] * n
                         for i in all_channels:

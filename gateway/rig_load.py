@@ -43,9 +43,12 @@ class RigLoadResult:
     end_reason: str | None = None
     end_message: str | None = None
     compensation: RigCompensation | None = None
+    #: the programme's own time (s), as the one-channel summary's ``programme_time_s``
+    programme_time_s: float | None = None
 
     def summary(self) -> dict:
-        d = rig_load_summary(self.passes, self.end_reason or "complete")
+        extras = [{"programme_time_s": self.programme_time_s}] * len(self.passes)
+        d = rig_load_summary(self.passes, self.end_reason or "complete", extras)
         d["runs"] = [str(p) for p in self.run_dirs]
         if self.end_message:
             d["end_message"] = self.end_message
@@ -97,7 +100,7 @@ def run_rig_load(gw, programme: RigProgramme, controller: RigControllerDesign, o
         s.limits = replace(lim, error_limit_kgf=limit)
     out.mkdir(parents=True, exist_ok=True)
     (out / "controller.toml").write_text(controller.to_toml(out / "controller.toml"))
-    result = RigLoadResult(out, compensation=comp)
+    result = RigLoadResult(out, compensation=comp, programme_time_s=programme.duration_s)
     last = None
     try:
         for i in range(1, repeat + 1):

@@ -56,6 +56,7 @@ from loading.rig_feedforward import RigFeedforward, channel_feedforward, rig_fee
 from loading.rig_programme import RigProgramme
 
 from .experiments.phases import FORCE_NEAR_LIMIT, SET_POINT_NOT_REACHED
+from .experiments.rig import RigExperiment
 
 PRE_ROLL_SHARE = 0.02
 PRE_ROLL_S = 0.6
@@ -186,15 +187,13 @@ class RigApproach:
         return np.clip(u, -self.limit, self.limit)
 
 
-class RigLoadProgramme:
+class RigLoadProgramme(RigExperiment):
     """One pass of a rig's programme under the rig's controller (module docstring).
 
     Stepped for every channel at once: :meth:`configure_rig`, :meth:`begin_rig` with the first
     forces, then :meth:`step_rig` each cycle until :meth:`finished_rig`."""
 
     name = "load"
-    #: the loop steps this experiment with every channel's force at once
-    drives_rig = True
 
     def __init__(self, programme: RigProgramme, controller: RigControllerDesign,
                  compensation: RigCompensation | None = None, unload_kgf: float = 0.0,
@@ -242,6 +241,7 @@ class RigLoadProgramme:
         self.way = np.ones(self.n)
         self.main_start_s: float | None = None
         self.abort: tuple[str, str] | None = None
+        self.abort_channel: int | None = None
         self._u = self._scale = self._hold = None
 
     def _plans(self, ff: RigFeedforward, way: float) -> list[_ChannelPlan]:
@@ -329,6 +329,7 @@ class RigLoadProgramme:
 
     def begin_rig(self, y0: Sequence[float]) -> None:
         self.abort = None
+        self.abort_channel = None
         self.main_start_s = None
         self.approach.begin(np.asarray(y0, float))
         self.way = self.approach.way.copy()
@@ -353,8 +354,9 @@ class RigLoadProgramme:
         near = np.abs(y) >= self.guard_fraction * self.force_limits
         if np.any(near):
             i = int(np.flatnonzero(near)[0])
+            self.abort_channel = i          # the message is the channel's (the loop names it)
             self.abort = (FORCE_NEAR_LIMIT,
-                          f"channel {self.names[i]}: force {y[i]:.0f} kgf reached {self.guard_fraction:.0%} of "
+                          f"force {y[i]:.0f} kgf reached {self.guard_fraction:.0%} of "
                           f"its force limit ±{self.force_limits[i]:.0f} kgf; the load stopped itself")
             return [0.0] * self.n, [math.nan] * self.n
         if self.main_start_s is None:

@@ -65,8 +65,11 @@ def run_rig_pass(experiment: RigLoadProgramme, truth: RigModel, y0: float | Sequ
         ys.append(y)
         us.append(u)
     Y, U = np.array(ys).T, np.array(us).T
+    abort = experiment.abort
+    if abort is not None and experiment.abort_channel is not None:
+        abort = (abort[0], f"channel {experiment.names[experiment.abort_channel]}: {abort[1]}")
     start = experiment.programme_start_s
-    if start is None or experiment.abort is not None:
-        return RigOfflinePass(None, np.array(ts), Y, U, experiment.abort)
+    if start is None or abort is not None:
+        return RigOfflinePass(None, np.array(ts), Y, U, abort)
     tp = np.array(ts) - start
     return RigOfflinePass(rig_tracking_report(experiment.programme, tp, Y), tp, Y, U, None)

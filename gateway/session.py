@@ -28,6 +28,7 @@ from .capture import BusCapture, TappedNetwork
 from .errors import NodeError, ParameterError, StandError
 from .config import GatewayConfig
 from .experiments import Experiment
+from .experiments.rig import RigExperiment, is_rig_experiment
 from .loop import ControlLoop, LoopChannel, LoopOutcome, RigSafety, steady_heap
 from .master import StandMaster, boot_all, start_all
 from .recorder import RunRecorder
@@ -260,7 +261,23 @@ class Gateway:
         return {i: experiment if k == 0 else copy.deepcopy(experiment)
                 for k, i in enumerate(indices)}
 
-    def run(self, experiment: Experiment, out: str | Path, progress: bool | None = None,
+    def _vector_drivers(self, experiment: RigExperiment, channels: Sequence[str] | None) -> None:
+        """A rig experiment drives every channel of the rig: refuse a one-channel stand,
+        ``channels``, and an experiment made for other channels (before anything moves)."""
+        if self.rig is None:
+            raise ParameterError(f"{experiment.name}: a rig experiment drives every channel of a rig; "
+                                 "give --rig RIG.toml (this gateway drives one stand)")
+        if channels:
+            raise ParameterError(f"{experiment.name}: a rig experiment drives every channel itself; "
+                                 "leave --channel out")
+        names = list(getattr(experiment, "names", self.rig.names))
+        if names != list(self.rig.names):
+            raise ParameterError(f"{experiment.name}: the experiment is for the channels "
+                                 f"{', '.join(names)}; the rig {self.rig.where} has "
+                                 f"{', '.join(self.rig.names)} (in that order)")
+        return None
+
+    def run(self, experiment: Experiment | RigExperiment, out: str | Path, progress: bool | None = None,
             on_progress: Callable[[float], None] | None = None,
             reset_faults: bool = False, channels: Sequence[str] | None = None) -> RunResult:
         """Run one experiment and record it in the run directory ``out``.
@@ -269,11 +286,16 @@ class Gateway:
         than a few seconds of stand time when stderr is a terminal. ``reset_faults``: first
         reset a fault the valve latched (:meth:`reset_faults`; run.json ``fault_reset``).
         ``channels``: a rig's channels the experiment drives (each its own copy of it); every
-        other channel holds a zero command."""
+        other channel holds a zero command. A :class:`~gateway.experiments.rig.RigExperiment`
+        (N forces in, N commands out) drives every channel at once: no ``channels``."""
         if self.loop is None:
             raise StandError("the gateway is not connected; use it as a context manager")
-        drivers = self.drivers(experiment, channels)
-        driven = [self.rig.names[i] for i in sorted(drivers)] if self.rig is not None else []
+        if is_rig_experiment(experiment):
+            drivers = self._vector_drivers(experiment, channels)
+            driven = list(self.rig.names)
+        else:
+            drivers = self.drivers(experiment, channels)
+            driven = [self.rig.names[i] for i in sorted(drivers)] if self.rig is not None else []
         fault_reset = self.reset_faults() if reset_faults else None
         if self.rig is None:
             recorder = RunRecorder(out, self.metadata(experiment))

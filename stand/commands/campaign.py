@@ -13,6 +13,9 @@ from gateway.errors import ParameterError
 
 from .common import add_effects, add_node_ids, parse_assignments
 
+#: the one-channel campaign's force limit unless --force-limit says
+FORCE_LIMIT_KGF = 9500.0
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -32,9 +35,9 @@ def register(sub) -> None:
     p.add_argument("--lockstep", action="store_true", help="with --bus: the stand is a lockstep emulator")
     add_node_ids(p)
     p.add_argument("--period-ms", type=float, default=2.0, help="control period, ms (default %(default)s)")
-    p.add_argument("--force-limit", type=float, default=9500.0, metavar="KGF",
+    p.add_argument("--force-limit", type=float, default=None, metavar="KGF",
                    help="supervisor force limit, kgf; experiments stop themselves at 90 %% of it "
-                        "(default %(default)s)")
+                        f"(default {FORCE_LIMIT_KGF:g}; a rig: each channel's force_limit_kgf)")
     p.add_argument("--config", metavar="PLANT.toml", help="emulator plant configuration (own emulator only)")
     p.add_argument("--model", metavar="SPEC", help="emulator model, e.g. base or base+reversal (own emulator only)")
     p.add_argument("--set", action="append", metavar="NAME=VALUE",
@@ -43,10 +46,41 @@ def register(sub) -> None:
     add_effects(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--no-figures", action="store_true", help="tables and summary only")
+    g = p.add_argument_group("a rig of many channels: identify G (docs/rig.md, \"Identifying G\")")
+    g.add_argument("--rig", metavar="RIG.toml",
+                   help="run the rig's identification through the rig gateway against the rig "
+                        "on the file's buses (e.g. stand emulate --rig RIG.toml --lockstep): one "
+                        "meander run per channel, the others at a zero command (a column of G "
+                        "each), or with --simultaneous one run, every channel a meander of its "
+                        "own period; the runs go to OUT/NN-LABEL for stand estimate OUT --save")
+    g.add_argument("--simultaneous", action="store_true",
+                   help="with --rig: every channel at once, the periods from --meander-period-s "
+                        "up (analysis.rig.periods.separating_periods)")
+    g.add_argument("--amplitude-pct", type=float, default=5.0, metavar="PCT",
+                   help="with --rig: every meander's command ±PCT (default %(default)s)")
+    g.add_argument("--meander-period-s", type=float, default=None, metavar="S",
+                   help="with --rig: the meander period (per column, default 8) or the shortest "
+                        "of the separating periods (simultaneous, default 12)")
+    g.add_argument("--cycles", type=int, default=4, metavar="N",
+                   help="with --rig, per column: periods per run (default %(default)s)")
+    g.add_argument("--duration-s", type=float, default=120.0, metavar="S",
+                   help="with --rig --simultaneous: the run's length (default %(default)s)")
+    g.add_argument("--fault-action", choices=("hold", "unload"), default="hold",
+                   help="with --rig: what a channel's communication or valve fault does to the "
+                        "others (default %(default)s)")
+    g.add_argument("--emulated", action="store_true",
+                   help="with --rig: the rig is `stand emulate --rig` of this very file: write "
+                        "its truth (truth.json) beside each run")
     p.set_defaults(func=main)
 
 
 def main(args: argparse.Namespace) -> int:
+    if args.rig:
+        from .campaign_rig import main as rig_main
+        return rig_main(args)
+    if args.simultaneous or args.emulated or args.meander_period_s is not None:
+        raise ParameterError("--simultaneous, --emulated and --meander-period-s plan a rig's "
+                             "identification: give --rig RIG.toml too")
     from analysis import report_campaign
     from gateway import Gateway, GatewayConfig, SafetyLimits
     from gateway.campaign import CampaignPlan, run_campaign
@@ -59,7 +93,7 @@ def main(args: argparse.Namespace) -> int:
     out = Path(args.out or f"campaigns/campaign-{dt.datetime.now():%Y%m%d-%H%M%S}")
     progress = False if args.no_progress else None
     period_s = args.period_ms / 1000.0
-    limits = SafetyLimits(force_limit_kgf=args.force_limit)
+    limits = SafetyLimits(force_limit_kgf=FORCE_LIMIT_KGF if args.force_limit is None else args.force_limit)
     t0 = time.monotonic()
     if args.bus is None:
         config = load_plant_config(args.config, args.model, parse_assignments(args.set))

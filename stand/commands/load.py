@@ -98,6 +98,16 @@ def register(sub) -> None:
     p.add_argument("--json", action="store_true",
                    help="print the tracking summary as JSON (schema hydrostand-load/1)")
     add_gateway(p)
+    g = p.add_argument_group("a rig of many channels (docs/loading.md, \"Loading a rig\")")
+    g.add_argument("--rig", metavar="RIG.toml",
+                   help="load every channel of a rig at once: PROGRAM is a load-case CSV (a column "
+                        "per channel, a row per load case) or a TOML of [channel.NAME] programmes, "
+                        "--controller a rig controller (stand design RIG-MODEL.toml); each "
+                        "channel's peak/valley compensation learns between passes")
+    g.add_argument("--fault-action", choices=("hold", "unload"), default="hold",
+                   help="with --rig: what a channel's communication or valve fault does to the "
+                        "others: hold every channel, or unload them keeping the load ratios "
+                        "(default %(default)s)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_effects(p)
     p.set_defaults(func=main)
@@ -128,6 +138,9 @@ def _plan(args, programme, controller, config) -> int:
 
 
 def main(args: argparse.Namespace) -> int:
+    if args.rig:
+        from .load_rig import main as rig_main
+        return rig_main(args)
     from gateway import Gateway
     from gateway.load import LoadProgramme, gain_text, run_load, timing_text
     from loading.compensation import Compensation
@@ -137,6 +150,10 @@ def main(args: argparse.Namespace) -> int:
     from loading.pacing import PacingOptions
     from loading.programme import is_sequence, load_programme
     from loading.time_scaling import ScalingOptions, Schedule
+    from loading.rig_design import is_rig_file
+    if is_rig_file(args.controller):
+        raise ParameterError(f"{args.controller} is a rig's controller (stand design RIG-MODEL.toml): "
+                             "load a rig with --rig RIG.toml and a programme per channel")
     config = gateway_config(args)
     controller = load_controller(args.controller, config.period_s)
     scaling = None

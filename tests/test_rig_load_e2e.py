@@ -1,0 +1,131 @@
+"""``stand load PROGRAMME --rig RIG.toml --controller C.toml`` end to end: the example rig (4
+channels, neighbours coupled 30 %, each its own g, τ, Δ and reversal boost) served by ``stand
+emulate --rig --lockstep`` in its own process, a decoupled controller designed (``stand design``)
+from a rig model file of the emulator's truth, 6 load cases at 2500 kgf/s, 2 passes with
+per-channel compensation, each step a ``stand`` command in a subprocess. And the refusals,
+before anything is opened."""
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from gateway import load_run
+from loading.rig_design import read_rig_model
+from plant.rig_config import rig_model_to_toml
+from tests.support.rig import EXAMPLE_RIG
+
+NAMES = ["root", "inner", "outer", "tip"]
+#: the one-channel summary's tracking keys (stand load --json, schema hydrostand-load/1)
+ONE_CHANNEL_KEYS = {"peak_valley_error_pct", "rms_error_pct", "extra_cycles", "largest_extra_cycle_kgf",
+                    "overshoot_max_pct", "range_kgf", "turning_points"}
+CASES = """case,root,inner,outer,tip
+1,1000,800,500,400
+2,4000,3000,2500,2000
+3,1500,1200,800,600
+4,5000,4500,2800,2500
+5,800,2000,600,1500
+6,3500,1000,2200,700
+"""
+
+
+def stand(*args, timeout: float = 600) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "stand", *map(str, args)], capture_output=True,
+                          text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def decoupled(tmp_path_factory):
+    """A decoupled controller from a rig model file of the example's truth (``stand design``:
+    about 10 s, so once for the module)."""
+    tmp_path = tmp_path_factory.mktemp("design")
+    model, _ = read_rig_model(EXAMPLE_RIG)
+    (tmp_path / "truth-model.toml").write_text(rig_model_to_toml(model, "the example rig's truth"))
+    done = stand("design", tmp_path / "truth-model.toml", "-o", tmp_path / "decoupled.toml")
+    assert done.returncode == 0, done.stderr
+    return tmp_path / "decoupled.toml"
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_stand_load_rig_tracks_load_cases_on_every_channel_and_reports_per_channel(
+        tmp_path, start_rig_emulator, decoupled):
+    rig = start_rig_emulator()
+    (tmp_path / "cases.csv").write_text(CASES)
+    out = tmp_path / "load"
+    done = stand("load", tmp_path / "cases.csv", "--rig", rig, "--controller", decoupled, "--rate", 2500,
+                 "--repeat", 2, "--lockstep", "--json", "--no-progress", "--out", out)
+    assert done.returncode == 0, done.stderr + done.stdout
+    doc = json.loads(done.stdout)
+    assert doc == json.loads((out / "report.json").read_text())
+    # today's keys for the worst channel, plus every channel's and the ratio error
+    assert doc["schema"] == "hydrostand-load/1" and doc["end_reason"] == "complete"
+    assert ONE_CHANNEL_KEYS <= set(doc) and doc["worst_channel"] in NAMES
+    assert set(doc["channels"]) == set(NAMES)
+    for name in NAMES:
+        assert set(doc["channels"][name]) == ONE_CHANNEL_KEYS
+    assert {k: doc[k] for k in ONE_CHANNEL_KEYS} == doc["channels"][doc["worst_channel"]]
+    assert len(doc["passes"]) == 2 and doc["programme_time_s"] > 0
+    # Bounds: the controller is designed from the truth, so only noise (2 kgf), quantization and
+    # the reversal boosts' unmodelled timing remain; offline on the same plant 16 load cases held
+    # p95 <= 0.3 % and max <= 0.5 % (tests/test_rig_loading.py). The issue's goal is p95 <= 0.5 %,
+    # max <= 1 %: every pass here must meet max <= 0.5 % on every channel, no extra cycle.
+    for k, p in enumerate(doc["passes"], start=1):
+        for name, f in p["channels"].items():
+            assert f["peak_valley_error_pct"]["max"] <= 0.5, (k, name, f)
+            assert f["extra_cycles"] == 0, (k, name, f)
+        assert p["ratio_error_pct"] <= 0.5, (k, p["ratio_error_pct"])
+    assert (out / "compensation.toml").is_file() and (out / "tracking.png").is_file()
+    assert "worst channel" in (out / "report.txt").read_text()
+    # each pass is a rig run: every channel's reference recorded and its own tracking
+    for k in (1, 2):
+        run = load_run(out / f"pass-{k}")
+        meta = json.loads((out / f"pass-{k}" / "run.json").read_text())
+        assert meta["experiment"]["name"] == "load" and meta["rig"]["driven"] == NAMES
+        for name in NAMES:
+            r = run.signals[f"r.{name}"]
+            assert np.isfinite(r).sum() > 0.8 * len(r) / 2, name
+        assert (out / f"pass-{k}" / "tracking.json").is_file()
+
+
+def in_process(capsys, *args) -> tuple[int, str]:
+    """``stand ARGS`` in this process (quicker than a subprocess): exit code and stderr."""
+    from stand.cli import main
+    rc = main([str(a) for a in args])
+    return rc, capsys.readouterr().err
+
+
+def test_stand_load_rig_refuses_before_anything_is_opened(tmp_path, decoupled, capsys):
+    # no emulator runs: each refusal comes before the gateway opens a bus
+    rig = tmp_path / "rig.toml"
+    rig.write_text(EXAMPLE_RIG.read_text().replace("udp_loopback:rig-", "udp_loopback:nobody-"))
+    (tmp_path / "cases.csv").write_text(CASES)
+    (tmp_path / "other.csv").write_text(CASES.replace("tip", "wingtip"))
+    (tmp_path / "high.csv").write_text(CASES.replace("5000,4500,2800,2500", "5000,4500,4800,2500"))
+    out = tmp_path / "never"
+    base = ("--rig", rig, "--controller", decoupled, "--lockstep", "--out", out)
+    cases = [
+        (("other.csv", "--rate", 2500), "column 'wingtip' is not a channel of the rig"),
+        (("high.csv", "--rate", 2500), "channel outer: .*4800 kgf.* force limit ±4500"),
+        (("cases.csv", "--rate", 25000), "needs a valve command of .* its valve cannot follow"),
+        (("cases.csv",), "load cases need --rate"),
+        (("cases.csv", "--rate", 2500, "--pacing", "static"), "--pacing: not available with --rig"),
+        (("cases.csv", "--rate", 2500, "--force-limit", 4000), "a rig's force limits are per channel"),
+    ]
+    for args, message in cases:
+        rc, err = in_process(capsys, "load", tmp_path / args[0], *args[1:], *base)
+        assert rc == 2 and re.search(message, err), (args, err)
+    # a controller for other channels; a one-channel controller; a rig controller without --rig
+    swapped = tmp_path / "swapped.toml"
+    swapped.write_text(decoupled.read_text().replace('"tip"', '"wingtip"').replace("channel.tip", "channel.wingtip"))
+    rc, err = in_process(capsys, "load", tmp_path / "cases.csv", "--rig", rig, "--controller", swapped,
+                         "--rate", 2500, "--out", out)
+    assert rc == 2 and "the rig has root, inner, outer, tip" in err, err
+    rc, err = in_process(capsys, "load", tmp_path / "cases.csv", "--controller", decoupled, "--rate", 2500,
+                         "--out", out)
+    assert rc == 2 and "load a rig with --rig RIG.toml" in err, err
+    assert not out.exists()
