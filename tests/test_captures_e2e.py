@@ -43,6 +43,7 @@ def test_lockstep_capture_decodes_bit_for_bit_to_the_recorded_run(bus_spec, star
     assert np.array_equal(a.y, b.y) and np.array_equal(a.u, b.u) and np.array_equal(a.t, b.t)
 
 
+@pytest.mark.slow
 @pytest.mark.serial
 def test_realtime_capture_decodes_to_the_recorded_run(bus_spec, start_emulator, tmp_path):
     start_emulator(plant(BASE, model="base"), lockstep=False, seed=5)

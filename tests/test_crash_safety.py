@@ -77,6 +77,7 @@ def sync_answers(bus, n: int = 1, pause: float = 0.0) -> list[dict]:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.e2e
 def test_gateway_killed_mid_run_loses_at_most_the_last_half_second_and_the_valve_fails_safe(
         bus_spec, start_emulator, tmp_path):
@@ -156,6 +157,7 @@ def test_a_gateway_that_dies_before_its_first_command_is_caught_by_the_valve(bus
                  reason="EMCY 0x8250", measured_from="NMT start")
 
 
+@pytest.mark.slow
 @pytest.mark.e2e
 def test_sigterm_ends_the_run_cleanly_in_the_safe_state(bus_spec, start_emulator, tmp_path):
     start_emulator(plant(BASE, model="base"), lockstep=False, seed=3)

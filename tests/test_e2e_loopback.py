@@ -59,6 +59,7 @@ def test_lockstep_runs_are_reproducible_bit_for_bit(bus_spec, start_emulator, tm
     assert np.array_equal(runs[0].y, runs[1].y) and np.array_equal(runs[0].u, runs[1].u)
 
 
+@pytest.mark.slow
 @pytest.mark.serial
 def test_realtime_meander_works_too(bus_spec, start_emulator, tmp_path):
     start_emulator(plant(BASE, model="base"), lockstep=False, seed=5)

@@ -27,7 +27,7 @@ from tests.support.faults import (LOAD_ALLOWANCE_S, SAFE_WORDS, Const, RampRefer
                                   emcys, first_safe_command, log_reaction, rpdos, valve_state)
 from tests.support.stand import BASE, plant
 
-pytestmark = [pytest.mark.e2e, pytest.mark.serial]
+pytestmark = pytest.mark.e2e
 T = 0.002
 
 
@@ -51,6 +51,7 @@ def only_experiment_or_safe(run_dir, u_pct):
 
 
 # -- the emulator dies or freezes -------------------------------------------------------------------
+@pytest.mark.serial   # on the wall clock: heartbeats, frame timing, watchdogs
 @pytest.mark.parametrize("how", ["SIGKILL", "SIGSTOP"])
 @pytest.mark.parametrize("lockstep", [False, True], ids=["realtime", "lockstep"])
 def test_emulator_killed_or_frozen_mid_run(bus_spec, start_emulator, tmp_path, lockstep, how):
@@ -89,6 +90,8 @@ def test_emulator_killed_or_frozen_mid_run(bus_spec, start_emulator, tmp_path, l
 
 
 # -- a lossy bus: 10 % of the frames lost in both directions ----------------------------------------
+@pytest.mark.slow
+@pytest.mark.serial   # on the wall clock: heartbeats, frame timing, watchdogs
 def test_ten_percent_frame_loss_degrades_but_does_not_stop(channel, start_emulator, tmp_path):
     """Each end loses 10 % of the PDO/SYNC/EMCY frames it receives (seeded): the valve misses
     SYNCs and commands, the gateway misses force readings; the run goes on with the last
@@ -119,6 +122,7 @@ def test_ten_percent_frame_loss_degrades_but_does_not_stop(channel, start_emulat
 
 
 # -- a slow bus: delayed frames are old data, never fresh ------------------------------------------------
+@pytest.mark.serial   # on the wall clock: heartbeats, frame timing, watchdogs
 def test_delayed_frames_count_as_stale_and_stop_the_run(bus_spec, start_emulator, tmp_path):
     """From t = 1 s every frame reaches the gateway 2.5 periods late: each TPDO then arrives in
     a later cycle's answer window, where it must not pass for a fresh reading (it was sent
@@ -206,6 +210,7 @@ def test_a_flood_of_garbage_changes_nothing(channel, start_emulator, tmp_path):
 
 
 # -- force limit and its actions ---------------------------------------------------------------------------
+@pytest.mark.serial   # the reaction measured on the wall clock
 @pytest.mark.parametrize("action", ["hold", "zero", "unload", "indicate"])
 def test_force_limit_actions(bus_spec, start_emulator, tmp_path, action):
     start_emulator(plant({**BASE, "initial.force_kgf": 1500.0}, model="base"), lockstep=True, seed=4)
@@ -264,6 +269,8 @@ def test_error_detector_trips_after_the_stated_time(bus_spec, start_emulator, tm
 
 
 # -- control-loop overrun ----------------------------------------------------------------------------------
+@pytest.mark.slow
+@pytest.mark.serial   # on the wall clock: heartbeats, frame timing, watchdogs
 def test_a_stalled_loop_is_caught_by_both_watchdogs(bus_spec, start_emulator, tmp_path):
     """The experiment hangs for 0.3 s: the valve's RPDO timeout (100 ms) puts it into FAULT_HOLD
     with EMCY 0x8250 while the gateway is stuck; the gateway's first cycle after the stall sees
@@ -288,6 +295,8 @@ def test_a_stalled_loop_is_caught_by_both_watchdogs(bus_spec, start_emulator, tm
                  measured_from="end of the stall")
 
 
+@pytest.mark.slow
+@pytest.mark.serial   # on the wall clock: heartbeats, frame timing, watchdogs
 def test_a_latched_valve_fault_stops_the_next_run_until_it_is_reset(bus_spec, start_emulator, tmp_path):
     """CiA 408: a valve fault stays latched. The next run stops at its first cycle and says how to
     clear it; the reset-fault edge (run with reset_faults) clears it and the run completes."""
@@ -310,6 +319,7 @@ def test_a_latched_valve_fault_stops_the_next_run_until_it_is_reset(bus_spec, st
 
 
 # -- EMCYs ---------------------------------------------------------------------------------------------------
+@pytest.mark.serial   # the reaction measured on the wall clock
 def test_dynamometer_over_range_emcy_stops_the_run(bus_spec, start_emulator, tmp_path):
     start_emulator(plant({**BASE, "initial.force_kgf": 2500.0, "sensor.range_kgf": 3000.0}, model="base"),
                    lockstep=True, seed=7)
@@ -328,6 +338,7 @@ def test_dynamometer_over_range_emcy_stops_the_run(bus_spec, start_emulator, tmp
     log_reaction("EMCY from the dynamometer (over range, lockstep)", measured, bound, reason="emcy")
 
 
+@pytest.mark.serial   # the reaction measured on the wall clock
 def test_a_foreign_command_frame_makes_the_valve_complain_and_the_gateway_stop(bus_spec, start_emulator, tmp_path):
     """Someone else sends on the valve's command COB-ID with a wrong length: the valve ignores
     it, reports EMCY 0x8210 (PDO length error, CiA 301), and the gateway goes to its safe state."""
@@ -354,6 +365,7 @@ def test_a_foreign_command_frame_makes_the_valve_complain_and_the_gateway_stop(b
                  run.meta["safety"]["bound_s"], reason="emcy")
 
 
+@pytest.mark.serial   # on the wall clock: heartbeats, frame timing, watchdogs
 def test_run_json_says_why_and_how_fast(bus_spec, start_emulator, tmp_path):
     """The metadata of a stopped run: reason, message, action and the stated/measured times."""
     emu = start_emulator(plant(BASE, model="base"), lockstep=False, seed=9)

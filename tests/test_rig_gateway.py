@@ -157,6 +157,7 @@ def test_channel_without_a_rig_is_refused(tmp_path):
     assert done.returncode == 2 and "give --rig RIG.toml too" in done.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.serial
 def test_in_real_time_the_buses_syncs_leave_together_on_the_period_grid(tmp_path, start_emulator):
     from tests.support.faults import Const
