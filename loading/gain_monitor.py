@@ -40,7 +40,7 @@ pass ends) or ``unload`` (a controlled unload, then hold).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 from core.errors import ParameterError
 

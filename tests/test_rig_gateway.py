@@ -15,7 +15,6 @@ import pytest
 from analysis import load_all
 from gateway import Gateway, GatewayConfig, load_run
 from gateway.errors import DataError, StandError
-from gateway.experiments import Meander
 from tests.support.rig_channels import FOUR, node_ids, rpdo_words, start_channels, syncs, sniff, write_rig
 
 pytestmark = pytest.mark.e2e

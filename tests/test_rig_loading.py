@@ -16,10 +16,8 @@ import pytest
 from core.errors import ParameterError
 from dbc import profile as P
 from gateway.rig_load_experiment import RigLoadProgramme, held_direction, pre_roll_start
-from loading.compensation import Compensation
 from loading.controller import PIFeedforward
 from loading.feedforward import feedforward
-from loading.report import tracking_report
 from loading.rig_compensation import RigCompensation
 from loading.rig_controller import RigPIFeedforward
 from loading.rig_design import design_rig

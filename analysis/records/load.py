@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Iterable
 
 from gateway.errors import DataError
-from gateway.runs import is_run_dir, load_run, rig_channels
+from gateway.runs import is_run_dir, load_run
 
 from .record import Record, make_record, split_at_gaps
 from .tables import TABLE_SUFFIXES, open_path, read_csv, type_suffix

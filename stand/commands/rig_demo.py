@@ -159,7 +159,7 @@ def moved_table(rig, rec, est, driven: str, amplitude_pct: float, period_s: floa
         swing = rig.G[i, j] * amplitude_pct * period_s / 2 if rig.G is not None else math.nan
         lines.append(f"  {c.name:10s} {c.bus:6s} {np.ptp(y):9.0f} kgf {half:12.0f} kgf   "
                      f"{swing:10.0f} kgf{'  (the driven valve)' if i == j else ''}")
-    lines.append(f"  (peak to peak includes each channel's trend Δ over the run; the driven valve's "
+    lines.append("  (peak to peak includes each channel's trend Δ over the run; the driven valve's "
                  "reversal boost adds to every swing of its column)")
     return "\n".join(lines)
 
