@@ -7,7 +7,8 @@ returns every channel's command: :meth:`RigLoadProgramme.step_rig`)::
                start, the feedforward of the base model through the controller's G⁻¹ and the
                designed P gains through its mixing matrix, each valve moving one way only
                (holding rather than reversing), then held until every force is within the
-               tolerance
+               tolerance, each valve then on the way of the flow that holds its force
+               against the trends (−G⁻¹Δ: one planned reversal where the line ends)
     pre-roll   a straight line into the first load case (:data:`PRE_ROLL_S`) along the rig's
                trend, so that every valve keeps the sign of the command that holds the forces
     programme  u = feedforward through the rig model's inverse + PI through M
@@ -141,6 +142,11 @@ class RigApproach:
         move = self.target - y0
         flows = self.to_command @ move
         self.way = np.where(flows < 0, -1.0, 1.0)
+        #: after the line each valve holds against its trend: the way of the flow that holds
+        #: the forces, −G⁻¹Δ (a valve whose move went the other way reverses once, as planned,
+        #: where the line ends; a zero keeps the move's way)
+        hold = -self.to_command @ self.trend
+        self.hold_way = np.where(hold > 0, 1.0, np.where(hold < 0, -1.0, self.way))
         self.duration = math.pi * float(np.max(np.abs(move))) / (2 * self.line_rate)
         self._inside_since: float | None = None
         self.done_at = 0.0 if np.all(np.abs(move) <= self.tolerance) else None
@@ -182,6 +188,8 @@ class RigApproach:
         if t >= self.max_s + self.duration:
             self.failed = True
             return None
+        if t >= self.duration:
+            self.way = self.hold_way
         u = self.feedforward(t) + self.Mkp @ (r - y)
         u = np.where(self.way * u < 0, 0.0, u)
         return np.clip(u, -self.limit, self.limit)

@@ -156,6 +156,25 @@ def test_per_channel_sequences_run_together_without_load_cases(truth, designs):
         assert r.peak_valley_error_pct["max"] <= 0.5 and r.extra_cycles == 0, res.report.text()
 
 
+def test_the_approach_holds_every_force_against_its_trend_with_a_model_20_percent_off(truth):
+    """The approach ends holding each force against its trend, the valve's way then the way of
+    the flow that holds it (−G⁻¹Δ): with G 20 % low in the design the line overshoots, and a valve
+    kept on the move's way could only hold at zero while its trend carried the force away (the
+    pass stopped set_point_not_reached with the forces 30-60 kgf past the start, nothing
+    moving). From rest and from where a campaign left the forces, the pass completes."""
+    model, noise = truth
+    low = RigModel(model.channels, model.G * 0.8, names=model.names)
+    p = from_load_cases(random_load_cases(4, BANDS, seed=1), model.names, T, rate_kgf_s=2500)
+    for y0 in ([0.0] * 4, [846.0, 709.0, 329.0, 406.0]):
+        e = RigLoadProgramme(p, design_rig(low, T), None)
+        e.check(T, LIMITS, 100.0)
+        res = run_rig_pass(e, model, y0, 3, noise, force_limits=LIMITS)
+        assert res.abort is None and res.report is not None, res.abort
+        hold = -np.linalg.inv(low.G) @ np.array([m.delta for m in low.channels])
+        assert np.array_equal(e.approach.way, np.sign(hold))
+        assert max(r.peak_valley_error_pct["max"] for r in res.report.channels) < 3.0
+
+
 def test_the_ratio_error_counts_what_a_common_scaling_of_a_load_case_does_not():
     p = from_load_cases([[100, 4000, 1000, 3000], [100, 2000, 400, 1400]], ["a", "b"], T, rate_kgf_s=2500)
     t = p.t_s
