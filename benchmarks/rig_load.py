@@ -78,7 +78,7 @@ def identify(root: Path, rig: Path, truth, quick: bool) -> tuple[Path, list[Row]
     """Step 1 through the gateway: the identified rig model file, and its rows."""
     from analysis.rig.periods import separating_periods
     periods = separating_periods(truth.n, 12.0)
-    duration = 90.0 if quick else 180.0
+    duration = 60.0 if quick else 180.0
     camps, s_camp = [], 0.0
     for amp in AMPLITUDES_PCT:       # two amplitudes: a reversal boost's size and exponent apart
         camp = root / f"campaign-{amp:g}"
