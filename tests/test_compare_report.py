@@ -95,6 +95,7 @@ def test_report_keeps_the_history_and_the_error_falls(reversal_csv, tmp_path, ca
     assert "http://" not in page and "https://" not in page
 
 
+@pytest.mark.slow
 def test_report_refuses_another_data_set_unless_told(reversal_csv, tmp_path, capsys):
     out_dir = tmp_path / "rep"
     run_cli(capsys, "report", reversal_csv, "--model", "base", "--out", out_dir)

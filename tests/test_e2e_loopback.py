@@ -85,6 +85,7 @@ def test_realtime_meander_works_too(bus_spec, start_emulator, tmp_path):
         assert sched["policy"] == "normal" and sched["note"]
 
 
+@pytest.mark.slow
 def test_progress_bar_is_shown_on_longer_runs(bus_spec, start_emulator, tmp_path, capsys):
     start_emulator(plant(BASE), lockstep=True)
     _run(bus_spec, tmp_path / "p", Meander(amplitude_pct=5, period_s=2, cycles=3), progress=True)

@@ -74,6 +74,7 @@ def test_a_force_limit_trip_on_one_channel_unloads_every_channel_keeping_the_rat
         assert words[-1][1:] == (int(P.CW_HOLD), 0)
 
 
+@pytest.mark.slow
 def test_a_force_limit_trip_on_one_channel_holds_every_channel(tmp_path, start_emulator):
     rig, _, _ = loaded_rig(tmp_path, start_emulator)
     with Gateway(GatewayConfig(rig=rig, lockstep=True)) as gw:
