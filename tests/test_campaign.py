@@ -185,6 +185,7 @@ def test_with_the_reversal_effect_the_transitional_gain_stands_out_less_as_u0_gr
     assert not report.failures
 
 
+@pytest.mark.slow
 @pytest.mark.e2e
 def test_stand_campaign_on_a_given_bus_drives_whatever_stand_is_there(bus_spec, start_emulator, tmp_path, capsys):
     start_emulator(plant(BASE, "base"), lockstep=True, seed=6)

@@ -51,6 +51,7 @@ def only_experiment_or_safe(run_dir, u_pct):
 
 
 # -- the emulator dies or freezes -------------------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.serial   # on the wall clock: heartbeats, frame timing, watchdogs
 @pytest.mark.parametrize("how", ["SIGKILL", "SIGSTOP"])
 @pytest.mark.parametrize("lockstep", [False, True], ids=["realtime", "lockstep"])
@@ -146,6 +147,7 @@ def test_delayed_frames_count_as_stale_and_stop_the_run(bus_spec, start_emulator
                  reason="force_pdo_stale")
 
 
+@pytest.mark.slow
 def test_small_delay_in_lockstep_changes_nothing(channel, start_emulator, tmp_path):
     """Lockstep waits for the answer: a 1 ms delay on both ends gives the same run bit for bit."""
     runs = []

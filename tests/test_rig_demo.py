@@ -40,6 +40,7 @@ def swings(text: str, name: str) -> dict[str, float]:
     return {m[1]: float(m[3]) for m in re.finditer(r"^\s+(\w+)\s+\w+\s+(\d+) kgf\s+(\d+) kgf", block, re.M)}
 
 
+@pytest.mark.slow
 def test_the_rig_demo_runs_the_example_rig_and_finds_the_driven_column_of_G(tmp_path):
     out = tmp_path / "demo"
     res = stand("demo", "--rig", "--out", str(out), "--cycles", "3")

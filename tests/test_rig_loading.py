@@ -156,6 +156,7 @@ def test_per_channel_sequences_run_together_without_load_cases(truth, designs):
         assert r.peak_valley_error_pct["max"] <= 0.5 and r.extra_cycles == 0, res.report.text()
 
 
+@pytest.mark.slow
 def test_the_approach_holds_every_force_against_its_trend_with_a_model_20_percent_off(truth):
     """The approach ends holding each force against its trend, the valve's way then the way of
     the flow that holds it (−G⁻¹Δ): with G 20 % low in the design the line overshoots, and a valve
