@@ -2,7 +2,10 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
+from typing import Iterator
 
 from dbc import profile as P
 from core.errors import ParameterError
@@ -196,3 +199,19 @@ def load_records(paths, channel: str | None = None) -> list:
         for note in rec.notes:
             print(f"note: {rec.source}: {note}", file=sys.stderr)
     return records
+
+
+def _terminate(signum, frame) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM (kill, systemd, a test harness) ends what runs inside like Ctrl-C: the gateway
+    brings the valves to their safe state and closes the run (end_reason "interrupted"), never
+    a half-written run. The previous handler comes back afterwards."""
+    previous = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 
 from core.errors import ParameterError
@@ -22,7 +21,7 @@ DEFAULT_ACCURACY_PCT = 0.5
 #: then given its durations
 PLACEHOLDER_RATE_KGF_S = 1000.0
 
-from .common import add_effects, add_gateway, gateway_config
+from .common import add_effects, add_gateway, gateway_config, sigterm_as_interrupt
 
 
 def register(sub) -> None:
@@ -113,10 +112,6 @@ def register(sub) -> None:
     p.set_defaults(func=main)
 
 
-def _terminate(signum, frame) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")
-
-
 def _plan(args, programme, controller, config) -> int:
     """``--plan``: the programme's time beside its valve-limited minimum."""
     from loading.minimum_time import programme_timing
@@ -192,15 +187,12 @@ def main(args: argparse.Namespace) -> int:
     # everything that can be refused is refused before the stand is touched
     LoadProgramme(programme, controller, comp, args.unload_to, pacing=pacing).check(
         config.period_s, config.limits.force_limit_kgf, config.limits.command_limit_pct)
-    previous = signal.signal(signal.SIGTERM, _terminate)
-    try:
+    with sigterm_as_interrupt():
         with Gateway(config) as gw:
             result = run_load(gw, programme, controller, args.out, repeat, comp,
                               learn=not args.no_learn, unload_kgf=args.unload_to,
                               progress=False if args.no_progress else None, pacing=pacing,
                               scaling=scaling, monitor=monitor)
-    finally:
-        signal.signal(signal.SIGTERM, previous)
     if args.json:
         json.dump(result.summary(), sys.stdout, indent=2)
         sys.stdout.write("\n")

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 
 from core.errors import ParameterError
@@ -27,10 +26,6 @@ def _refuse_one_channel_options(args: argparse.Namespace) -> None:
                              "channel); leave them out")
 
 
-def _terminate(signum, frame) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")
-
-
 def main(args: argparse.Namespace) -> int:
     from gateway import Gateway
     from gateway.rig_load import check_rig_load, run_rig_load
@@ -38,7 +33,7 @@ def main(args: argparse.Namespace) -> int:
     from loading.rig_design import load_rig_controller
     from loading.rig_programme import load_rig_programme
 
-    from .common import gateway_config
+    from .common import gateway_config, sigterm_as_interrupt
     _refuse_one_channel_options(args)
     if not args.out:
         raise ParameterError("give --out DIR for the passes and the report")
@@ -52,14 +47,11 @@ def main(args: argparse.Namespace) -> int:
     check_rig_load(config, programme, controller, comp, args.unload_to)
     if not (1 <= repeat <= 1000):
         raise ParameterError(f"--repeat {repeat}: it must be from 1 to 1000")
-    previous = signal.signal(signal.SIGTERM, _terminate)
-    try:
+    with sigterm_as_interrupt():
         with Gateway(config) as gw:
             result = run_rig_load(gw, programme, controller, args.out, repeat, comp,
                                   learn=not args.no_learn, unload_kgf=args.unload_to,
                                   progress=False if args.no_progress else None)
-    finally:
-        signal.signal(signal.SIGTERM, previous)
     if args.json:
         json.dump(result.summary(), sys.stdout, indent=2)
         sys.stdout.write("\n")

@@ -4,11 +4,10 @@ from __future__ import annotations
 import argparse
 import inspect
 import re
-import signal
 
 from gateway.experiments import EXPERIMENTS, make_experiment
 
-from .common import add_gateway, add_rig, gateway_config
+from .common import add_gateway, add_rig, gateway_config, sigterm_as_interrupt
 
 
 def register(sub) -> None:
@@ -63,10 +62,6 @@ def param_help(doc: str) -> dict[str, str]:
     return out
 
 
-def _terminate(signum, frame) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")
-
-
 def main(args: argparse.Namespace) -> int:
     from gateway import Gateway
     params = {k[2:]: v for k, v in vars(args).items() if k.startswith("x_")}
@@ -74,15 +69,9 @@ def main(args: argparse.Namespace) -> int:
     config = gateway_config(args)
     from gateway.session import driven_channels
     driven_channels(config.rig, args.channel)     # before anything is connected
-    # SIGTERM (kill, systemd, a test harness) ends the run like Ctrl-C: valve to hold with zero
-    # command, run closed with end_reason "interrupted" -- never a half-written run.
-    previous = signal.signal(signal.SIGTERM, _terminate)
-    try:
-        with Gateway(config) as gw:
-            result = gw.run(experiment, args.out, progress=False if args.no_progress else None,
-                            reset_faults=args.reset_faults, channels=args.channel)
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    with sigterm_as_interrupt(), Gateway(config) as gw:
+        result = gw.run(experiment, args.out, progress=False if args.no_progress else None,
+                        reset_faults=args.reset_faults, channels=args.channel)
     stats = result.outcome.stats
     print(f"run {result.status}: {stats.cycles} cycles, {stats.stale_cycles} stale, "
           f"{stats.overruns} overruns -> {result.path}")
