@@ -98,11 +98,19 @@ class Compensation:
             self.table.setdefault(kind, {})[key] = min(max(new, -bound), bound)
 
     def to_toml(self) -> str:
-        out = [f"# {SCHEMA}: peak/valley corrections learned by `stand load`",
-               f"learning_gain = {self.learning_gain!r}", f"resolution_kgf = {self.resolution_kgf!r}"]
-        for kind in ("peak", "valley"):
-            out += ["", f"[{kind}]"] + [f'"{k:g}" = {v!r}' for k, v in sorted(self.table.get(kind, {}).items())]
+        out = [f"# {SCHEMA}: peak/valley corrections learned by `stand load`"]
+        for kind, lines in self.toml_tables():
+            out += ([] if kind is None else ["", f"[{kind}]"]) + lines
         return "\n".join(out) + "\n"
+
+    def toml_tables(self) -> list[tuple[str | None, list[str]]]:
+        """The file's content as (table, lines): the settings (table None), then the peak and
+        valley corrections (a rig's file writes each channel's under its own tables)."""
+        out: list[tuple[str | None, list[str]]] = [
+            (None, [f"learning_gain = {self.learning_gain!r}", f"resolution_kgf = {self.resolution_kgf!r}"])]
+        for kind in ("peak", "valley"):
+            out.append((kind, [f'"{k:g}" = {v!r}' for k, v in sorted(self.table.get(kind, {}).items())]))
+        return out
 
     def save(self, path: str | Path) -> Path:
         path = Path(path)
@@ -115,12 +123,23 @@ class Compensation:
         from plant.params import ModelError
         try:
             data = read_toml(path)
+        except ModelError as exc:
+            raise ParameterError(f"{path}: not a compensation file ({exc})") from None
+        return cls.from_mapping(data, f"{path}", "{where}: not a compensation file ({exc})")
+
+    @classmethod
+    def from_mapping(cls, data, where: str, unreadable: str = "{where}: {exc}") -> "Compensation":
+        """From a file's tables (``learning_gain``, ``resolution_kgf``, ``peak``, ``valley``);
+        a value that is not a number is :class:`ParameterError` ``unreadable`` (formatted with
+        ``where`` and the error), corrections not finite or a gain outside (0, 1] one naming
+        ``where``."""
+        try:
             comp = cls(float(data.get("learning_gain", LEARNING_GAIN)), float(data.get("resolution_kgf", 1.0)))
             for kind in ("peak", "valley"):
                 comp.table[kind] = {float(k): float(v) for k, v in (data.get(kind) or {}).items()}
-        except (ModelError, TypeError, ValueError) as exc:
-            raise ParameterError(f"{path}: not a compensation file ({exc})") from None
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise ParameterError(unreadable.format(where=where, exc=exc)) from None
         values = [v for t in comp.table.values() for v in t.values()]
         if not all(math.isfinite(v) for v in values) or not (0 < comp.learning_gain <= 1):
-            raise ParameterError(f"{path}: corrections must be finite and learning_gain in (0, 1]")
+            raise ParameterError(f"{where}: corrections must be finite and learning_gain in (0, 1]")
         return comp

@@ -4,7 +4,6 @@ channel holds or passes through is not one of its turning points), saved in one 
 table per channel (``[channel.NAME.peak]``, ``[channel.NAME.valley]``)."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -13,7 +12,7 @@ import numpy as np
 
 from core.errors import ParameterError
 
-from .compensation import LEARNING_GAIN, SCHEMA as ONE_SCHEMA, Compensation
+from .compensation import SCHEMA as ONE_SCHEMA, Compensation
 
 SCHEMA = "hydrostand-rig-compensation/1"
 
@@ -40,11 +39,8 @@ class RigCompensation:
     def to_toml(self) -> str:
         out = [f"# {SCHEMA}: peak/valley corrections learned by `stand load --rig`, per channel"]
         for n in self.names:
-            c = self.channels[n]
-            out += ["", f"[channel.{n}]", f"learning_gain = {c.learning_gain!r}",
-                    f"resolution_kgf = {c.resolution_kgf!r}"]
-            for kind in ("peak", "valley"):
-                out += [f"[channel.{n}.{kind}]"] + [f'"{k:g}" = {v!r}' for k, v in sorted(c.table.get(kind, {}).items())]
+            for kind, lines in self.channels[n].toml_tables():
+                out += (["", f"[channel.{n}]"] if kind is None else [f"[channel.{n}.{kind}]"]) + lines
         return "\n".join(out) + "\n"
 
     def save(self, path: str | Path) -> Path:
@@ -69,15 +65,5 @@ class RigCompensation:
             raise ParameterError(f"{path}: [channel.{unknown[0]}] is not a channel of the rig")
         out = cls(list(names))
         for n, t in tables.items():
-            try:
-                c = Compensation(float(t.get("learning_gain", LEARNING_GAIN)), float(t.get("resolution_kgf", 1.0)))
-                for kind in ("peak", "valley"):
-                    c.table[kind] = {float(k): float(v) for k, v in (t.get(kind) or {}).items()}
-            except (TypeError, ValueError, AttributeError) as exc:
-                raise ParameterError(f"{path}: [channel.{n}]: {exc}") from None
-            values = [v for tb in c.table.values() for v in tb.values()]
-            if not all(math.isfinite(v) for v in values) or not (0 < c.learning_gain <= 1):
-                raise ParameterError(f"{path}: [channel.{n}]: corrections must be finite and "
-                                     "learning_gain in (0, 1]")
-            out.channels[n] = c
+            out.channels[n] = Compensation.from_mapping(t, f"{path}: [channel.{n}]")
         return out
