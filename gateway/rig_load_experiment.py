@@ -56,7 +56,7 @@ from loading.rig_design import RigControllerDesign
 from loading.rig_feedforward import RigFeedforward, channel_feedforward, rig_feedforward
 from loading.rig_programme import RigProgramme
 
-from .experiments.phases import FORCE_NEAR_LIMIT, SET_POINT_NOT_REACHED
+from .experiments.phases import FORCE_NEAR_LIMIT, SET_POINT_NOT_REACHED, Dwell
 from .experiments.rig import RigExperiment
 
 PRE_ROLL_SHARE = 0.02
@@ -148,7 +148,7 @@ class RigApproach:
         hold = -self.to_command @ self.trend
         self.hold_way = np.where(hold > 0, 1.0, np.where(hold < 0, -1.0, self.way))
         self.duration = math.pi * float(np.max(np.abs(move))) / (2 * self.line_rate)
-        self._inside_since: float | None = None
+        self._settled = Dwell(self.hold_s)
         self.done_at = 0.0 if np.all(np.abs(move) <= self.tolerance) else None
         self.failed = False
 
@@ -177,14 +177,9 @@ class RigApproach:
         if self.done_at is not None:
             return None
         r = self.reference(t)
-        if t >= self.duration and np.all(np.abs(self.target - y) <= self.tolerance):
-            if self._inside_since is None:
-                self._inside_since = t
-            if t - self._inside_since >= self.hold_s - 1e-12:
-                self.done_at = t
-                return None
-        else:
-            self._inside_since = None
+        if self._settled(t, t >= self.duration and bool(np.all(np.abs(self.target - y) <= self.tolerance))):
+            self.done_at = t
+            return None
         if t >= self.max_s + self.duration:
             self.failed = True
             return None

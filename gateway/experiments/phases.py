@@ -20,6 +20,23 @@ FORCE_NEAR_LIMIT = "force_near_limit"
 SET_POINT_NOT_REACHED = "set_point_not_reached"
 
 
+class Dwell:
+    """Whether a condition has held for ``hold_s`` without a break (a force settled within its
+    tolerance): called every cycle with the time and the condition."""
+
+    def __init__(self, hold_s: float) -> None:
+        self.hold_s = hold_s
+        self.since: float | None = None
+
+    def __call__(self, t: float, inside: bool) -> bool:
+        if not inside:
+            self.since = None
+            return False
+        if self.since is None:
+            self.since = t
+        return t - self.since >= self.hold_s - 1e-12
+
+
 class SetPointApproach:
     r"""A short proportional loop that brings the force to a set point before an experiment.
 
@@ -49,7 +66,7 @@ class SetPointApproach:
     def reset(self) -> None:
         self.done_at: float | None = None       #: time the approach ended (s), None while going
         self.failed = False
-        self._inside_since: float | None = None
+        self._settled = Dwell(self.hold_s)
 
     def params(self) -> dict[str, float]:
         return {"settle_gain": self.gain, "settle_limit_pct": self.limit_pct,
@@ -68,14 +85,9 @@ class SetPointApproach:
         if self.done_at is not None:
             return None
         error = self.target_kgf - y
-        if abs(error) <= self.tolerance_kgf:
-            if self._inside_since is None:
-                self._inside_since = t
-            if t - self._inside_since >= self.hold_s - 1e-12:
-                self.done_at = t
-                return None
-        else:
-            self._inside_since = None
+        if self._settled(t, abs(error) <= self.tolerance_kgf):
+            self.done_at = t
+            return None
         if t >= self.max_s:
             self.failed = True
             return None
