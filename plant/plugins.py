@@ -122,11 +122,8 @@ def _check_prepared_from(cls: type[Effect], label: str) -> None:
 
     def prepared(values: dict):
         eff = cls(**values)
-        n, k = u.shape
-        extra = {"t": np.broadcast_to(np.arange(k) * CHECK_DT, (n, k)).copy()} if eff.reads_time else {}
-        if eff.reads_command:
-            extra["command"] = u
-        return eff.prepare(u.copy(), CHECK_DT, eff.init_state(n, u[:, 0].copy()), **extra)
+        return eff.prepare(u.copy(), CHECK_DT, eff.init_state(u.shape[0], u[:, 0].copy()),
+                           **_hook_keywords(eff, u))
 
     ref = prepared(defaults)
     for p in cls.params:
@@ -142,6 +139,16 @@ def _check_prepared_from(cls: type[Effect], label: str) -> None:
                     f"{label}: prepare() changes with {p.name} (at {bound:g}), which prepared_from "
                     f"({', '.join(names) or 'none'}) leaves out: add it there, or leave "
                     "prepared_from out (every parameter)")
+
+
+def _hook_keywords(eff: Effect, u: np.ndarray) -> dict:
+    """The keywords a stage hook gets on the check block ``u``: the steps' times if the effect
+    reads them, the undelayed command if its ``prepare`` reads it."""
+    n, k = u.shape
+    extra = {"t": np.broadcast_to(np.arange(k) * CHECK_DT, (n, k)).copy()} if eff.reads_time else {}
+    if eff.stage is Stage.FLOW and eff.reads_command:
+        extra["command"] = u
+    return extra
 
 
 def check_command(n: int = CHECK_N, k: int = CHECK_K, dt: float = CHECK_DT) -> np.ndarray:
@@ -177,13 +184,10 @@ def _run_block(cls: type[Effect], values: dict, label: str, how: str) -> None:
         if not isinstance(state, dict):
             raise PluginError(f"{label}: init_state() must return a dict (its state), got "
                               f"{type(state).__name__}")
-        t = np.broadcast_to(np.arange(k) * dt, (n, k)).copy()
-        extra = {"t": t} if eff.reads_time else {}
+        extra = _hook_keywords(eff, u)
         if cls.stage is Stage.VALVE:
             out = eff.shape(u.copy(), dt, state, **extra)
         elif cls.stage is Stage.FLOW:
-            if eff.reads_command:
-                extra["command"] = u
             aux = eff.prepare(u.copy(), dt, state, **extra)
             y = np.full((n, k), 1000.0)
             out = eff.gain(u, aux, y)
@@ -192,7 +196,7 @@ def _run_block(cls: type[Effect], values: dict, label: str, how: str) -> None:
                 one = eff.gain(u[:, 5], None if aux is None else np.asarray(aux)[:, 5], y[:, 5])
                 _check_array(one, (n,), label, "gain() for one step (n,)", how)
         elif cls.stage is Stage.DISTURBANCE:
-            out = eff.disturbance(t, dt)
+            out = eff.disturbance(np.broadcast_to(np.arange(k) * dt, (n, k)).copy(), dt)
         elif cls.stage is Stage.FORCE:
             y = np.linspace(-5000.0, 5000.0, n * k).reshape(n, k)
             out = eff.force_rate(y)
