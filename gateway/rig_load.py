@@ -73,7 +73,8 @@ def check_rig_load(gw_config, programme: RigProgramme, controller: RigController
 
 def achieved(run_dir: Path, experiment: RigLoadProgramme) -> tuple[np.ndarray, np.ndarray]:
     """Every channel's recorded force (N, K) on the programme's clock (0 at its start)."""
-    runs = [load_run(run_dir, channel=name) for name in experiment.names]
+    run = load_run(run_dir)
+    runs = [run.channel(name) for name in experiment.names]
     t = np.asarray(runs[0].t, float) - (experiment.programme_start_s or 0.0)
     return t, np.array([np.asarray(r.y, float) for r in runs])
 
