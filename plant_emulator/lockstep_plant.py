@@ -143,9 +143,10 @@ class LockstepRig:
         """Forget the periods computed ahead: back to the block's start, replay the ended ones."""
         if self._ahead and self._start is not None:
             self.states = self._start
-            for c in self._commands:
-                u = np.repeat(np.asarray(c, float)[:, None], self.sub, axis=1)
-                self.model.advance(self.states, u, self.dt)
+            # the ended periods in one call (one per period cost ~0.1 ms per channel each: a
+            # real-time block of 100 steps took 90 ms to undo for 8 channels)
+            u = np.repeat(np.asarray(self._commands, float).T, self.sub, axis=1)
+            self.model.advance(self.states, u, self.dt)
         self._ahead.clear()
         self._start = None
         self._commands = []

@@ -76,7 +76,15 @@ def test_a_restarted_clock_starts_the_drift_again_even_with_periods_computed_ahe
     plant = LockstepPlant(model, 0.0, STEP)
     got = [plant.step(0.002, c) for c in commands[:450]]
     assert plant._ahead                     # mid-block: periods were computed ahead
+    ended = len(plant._commands)
+    calls = []
+    advance = plant.model.advance
+    plant.model.advance = lambda *a, **k: calls.append(a[1].shape) or advance(*a, **k)
     plant.restart_clock()
+    del plant.model.advance
+    # the ended periods are replayed in one call: one per period made a real-time emulator's
+    # start (every block's 100 steps replayed one by one) take 90 ms for 8 channels
+    assert ended > 1 and calls == [(1, ended * 4)]
     got += [plant.step(0.002, c) for c in commands[450:]]
     state, want = model.new_state(1, STEP), []
     for i, c in enumerate(commands):
