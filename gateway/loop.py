@@ -33,9 +33,12 @@ or all at once (a :class:`~gateway.experiments.rig.RigExperiment`: N forces in, 
 N references out per cycle, each channel's supervisor and the rig's safety the same).
 
 The TPDO callbacks decode with the precompiled PDO layouts and hand the values over through a
-queue. In real time they run on the canopen Notifier thread. In lockstep the loop takes the bus
-over (:class:`standbus.HandoverNotifier`) and receives on its own thread, polling briefly
-before it sleeps: no thread hand-off and no wake-up per answer.
+queue. The loop takes its buses over for the run (:class:`standbus.HandoverNotifier`) and
+receives on its own thread: no thread hand-off, no wake-up of a reader thread and no GIL
+hand-off per frame (a rig's 16 answers a cycle on 2 buses made the reader threads compete with
+the loop for the GIL). In lockstep it polls briefly before it sleeps; in real time it sleeps
+in ``select`` and, between a cycle's end and the next SYNC, keeps receiving (heartbeats, EMCY,
+answers come late: every frame still reaches every listener on the way).
 """
 from __future__ import annotations
 
@@ -72,6 +75,14 @@ log = logging.getLogger(__name__)
 SYNC_COB_ID = 0x80
 #: lockstep: how often the loop looks at heartbeats/EMCYs while it waits for an answer, s
 WAIT_SLICE_S = 0.02
+#: the last part of the wait for a SYNC's time, spent polling the clock, s
+_SPIN_S = 0.0003
+#: real time: what a cycle keeps after its answers' deadline for its own work, as parts of the
+#: period (least and most), and how it follows the work's peak (×, + s; the peak halves in 500
+#: cycles)
+WORK_RESERVE_MIN, WORK_RESERVE_MAX = 0.2, 0.5
+WORK_MARGIN, WORK_SLACK_S = 1.5, 0.0001
+WORK_PEAK_DECAY = 0.5 ** (1 / 500)
 #: a TPDO stamped more than this before the SYNC went out answers an earlier SYNC, s
 STAMP_SKEW_S = 0.0005
 
@@ -97,6 +108,8 @@ class LoopStats:
     limit_events: int = 0
     #: real time only: SYNC send time minus its scheduled time, s (one per cycle)
     sync_jitter_s: list = field(default_factory=list)
+    #: real time only: the shortest time after a SYNC the loop waited for its answers, s
+    answer_window_min_s: float = math.inf
 
 
 @dataclass
@@ -296,16 +309,16 @@ class ControlLoop:
         return trip
 
     def _handover(self, stack: contextlib.ExitStack) -> None:
-        """Lockstep: take the buses from their reader threads for the run."""
+        """Take the buses from their reader threads for the run."""
         nets = self.networks
         if not all(hasattr(net, "handover") for net in nets):
             return
+        # lockstep: each answer follows its SYNC within ~0.1 ms, so poll for it before sleeping
+        spin = LOCKSTEP_BUSY_POLL_S if self.lockstep else 0.0
         if len(nets) == 1:
-            # each answer follows its SYNC within ~0.1 ms: poll for it before sleeping
-            self._pump = stack.enter_context(nets[0].handover(LOCKSTEP_BUSY_POLL_S))
+            self._pump = stack.enter_context(nets[0].handover(spin))
         else:
-            self._pump = stack.enter_context(
-                handover_many([net.notifier for net in nets], LOCKSTEP_BUSY_POLL_S))
+            self._pump = stack.enter_context(handover_many([net.notifier for net in nets], spin))
 
     # -- the loop --------------------------------------------------------------------------------
     def run(self, experiment: Experiment, recorder: RunRecorder | None, progress=None,
@@ -322,8 +335,7 @@ class ControlLoop:
             self._check_vector(vector, drivers)
         self._subscribe()
         with contextlib.ExitStack() as stack:
-            if self.lockstep:
-                self._handover(stack)
+            self._handover(stack)
             try:
                 return self._run({} if vector else (drivers or {0: experiment}), recorder,
                                  progress, vector)
@@ -400,11 +412,18 @@ class ControlLoop:
         t_start = time.perf_counter()
         next_sync = t_start
         cycle = 0
+        # real time: the wait for a cycle's answers ends ``reserve`` before the next SYNC, so
+        # the cycle's own work (checks, commands, record) fits after it: at least a fifth of the
+        # period (a stand's work is ~50 µs), more where the work's recent peak needs it (8
+        # channels: 0.2-0.5 ms at 2 ms), at most half the period
+        work_peak = 0.0
+        reserve = WORK_RESERVE_MIN * T
+        stats.answer_window_min_s = T - reserve
         try:
             while True:
                 late_trip = None
                 if not lockstep:
-                    _sleep_until(next_sync)
+                    _sleep_until(next_sync, self._pump)
                     now = time.perf_counter()
                     late = now - next_sync
                     stats.sync_jitter_s.append(late)
@@ -415,7 +434,7 @@ class ControlLoop:
                     if late > overrun_limit:
                         late_trip = sups[0].overrun(late, time.time() - late)
                     t = next_sync - t_start
-                    deadline = next_sync + 0.8 * T
+                    deadline = next_sync + T - reserve
                 else:
                     t = cycle * T
                     deadline = time.perf_counter() + self.lockstep_timeout_s
@@ -461,6 +480,7 @@ class ControlLoop:
                         if not got_valve[i]:
                             got_valve[i] = True
                             missing -= watched[i]
+                answered = time.perf_counter()
                 if missing or expected < full:
                     stale = [not g for g in got_force]
                     any_stale = False
@@ -590,6 +610,11 @@ class ControlLoop:
                     progress(t)
                 if trip is not None and (unloader is None or unloader.done or unload_note):
                     break
+                if not lockstep:
+                    work_peak = max(time.perf_counter() - answered, work_peak * WORK_PEAK_DECAY)
+                    reserve = min(WORK_RESERVE_MAX * T,
+                                  max(WORK_RESERVE_MIN * T, WORK_MARGIN * work_peak + WORK_SLACK_S))
+                    stats.answer_window_min_s = min(stats.answer_window_min_s, T - reserve)
                 next_sync += T
         except BaseException:
             self.safe_state(final_action)
@@ -728,12 +753,19 @@ def steady_heap():
         gc.unfreeze()
 
 
-def _sleep_until(target: float) -> None:
+def _sleep_until(target: float, pump=None) -> None:
     """Sleep to ~0.3 ms before ``target`` (perf_counter time), then spin: sub-0.1 ms accuracy
-    without burning a core for the whole period."""
+    without burning a core for the whole period. With the buses taken over, the sleep is
+    ``pump`` receiving what arrives meanwhile."""
+    if pump is not None:
+        while True:
+            remaining = target - time.perf_counter() - _SPIN_S
+            if remaining <= 0:
+                break
+            pump(remaining)
     while True:
         remaining = target - time.perf_counter()
         if remaining <= 0:
             return
-        if remaining > 0.0003:
-            time.sleep(remaining - 0.0003)
+        if remaining > _SPIN_S:
+            time.sleep(remaining - _SPIN_S)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
@@ -104,7 +105,6 @@ class Gateway:
                              "started:\n  " + "\n  ".join(problems))
 
     def open(self) -> None:
-        cfg = self.config
         self.check_budget()
         try:
             for spec in self._bus_specs():
@@ -112,8 +112,9 @@ class Gateway:
                     bus = open_bus(spec)
                 except BusSpecError as exc:
                     raise StandError(str(exc)) from None
-                # lockstep: the loop takes the bus from the reader thread at every run (<= one cycle)
-                network = TappedNetwork(bus, notifier_cycle_s=0.005 if cfg.lockstep else None)
+                # the loop takes the bus from the reader thread at every run (<= one cycle:
+                # in real time the valves' RPDO timeouts already run by then)
+                network = TappedNetwork(bus, notifier_cycle_s=0.005)
                 self.networks.append(network)
                 network.connect()
             self._connect()
@@ -428,7 +429,10 @@ def driven_channels(rig, channels: Sequence[str] | None) -> list[int]:
 
 
 def _stats_dict(stats) -> dict[str, Any]:
-    out = {k: v for k, v in asdict(stats).items() if k != "sync_jitter_s"}
+    out = {k: v for k, v in asdict(stats).items()
+           if k not in ("sync_jitter_s", "answer_window_min_s")}
+    if math.isfinite(stats.answer_window_min_s):    # real time
+        out["answer_window_min_ms"] = stats.answer_window_min_s * 1e3
     jitter = stats.sync_jitter_s
     if jitter:
         import numpy as np
