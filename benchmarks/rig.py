@@ -62,10 +62,10 @@ def chain_file(directory: Path, channels: int, buses: int) -> Path:
 
 
 def drive(path: Path, out: Path, lockstep: bool, stand_s: float, emulator_args: list[str] | None = None,
-          limits=None):
+          limits=None, beside=None):
     """Serve the rig file with ``stand emulate --rig`` and run a meander of ``stand_s`` seconds
-    on its first channel through the gateway (``limits``: its SafetyLimits); the run's result
-    and the rig."""
+    on its first channel through the gateway (``limits``: its SafetyLimits); ``beside()`` is
+    called just before the run starts. The run's result and the rig."""
     from gateway import Gateway, GatewayConfig, SafetyLimits
     from gateway.experiments import Meander
     from plant_emulator.process import RigEmulatorProcess
@@ -74,6 +74,8 @@ def drive(path: Path, out: Path, lockstep: bool, stand_s: float, emulator_args: 
     period = max(stand_s, 2 * PERIOD_S)
     with RigEmulatorProcess(path, lockstep=lockstep, seed=1, extra_args=emulator_args or []), \
             Gateway(GatewayConfig(rig=rig, lockstep=lockstep, limits=limits or SafetyLimits())) as gw:
+        if beside is not None:
+            beside()
         result = gw.run(Meander(5, period, 1), out, progress=False, channels=[rig.names[0]])
     return result, rig
 
@@ -130,13 +132,21 @@ def answer_lag_ms(capture: Path) -> np.ndarray:
 
 def realtime_rig(channels: int, buses: int, duration_s: float) -> dict:
     """A real-time run of a chain rig at 2 ms (module docstring): jitter and skew, ms. The
-    stale readings do not stop the run (the emulator's answers are measured, not judged)."""
+    stale readings do not stop the run (the emulator's answers are measured, not judged).
+    Bare real-time threads in other processes, one pinned to each CPU
+    (:mod:`benchmarks.wakeup`), sleep on their own 2 ms grids meanwhile: the host's floor in
+    the same seconds, and which late cycles fell on one of its stalls."""
     from gateway import SafetyLimits, load_run
+
+    from . import wakeup
+    floors = []
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "run"
         result, rig = drive(chain_file(Path(tmp), channels, buses), out, False, duration_s,
                             emulator_args=["--rt-priority", "0"],
-                            limits=SafetyLimits(stale_cycles=100_000))
+                            limits=SafetyLimits(stale_cycles=100_000),
+                            beside=lambda: floors.extend(wakeup.start_on_every_cpu(duration_s + 3.0)))
+        host = [wakeup.result(f) for f in floors]
         run = load_run(out)
         captures = [out / f"capture-{b.name}.log" for b in rig.buses]
         skew = bus_skew_s(captures) * 1e3
@@ -144,8 +154,16 @@ def realtime_rig(channels: int, buses: int, duration_s: float) -> dict:
     jitter = grid_jitter_ms(np.asarray(run.sync_time), np.asarray(run.t))
     s = result.outcome.stats
     sched = run.meta.get("realtime", {})
+    stalls = [st for h in host for st in h["stalls"]]
+    sync_time = np.asarray(run.sync_time)
+    late = jitter >= wakeup.STALL_S * 1e3
+    at_host = np.array([wakeup.at_host_stalls([(t - d * 1e-3, d * 1e-3)], stalls) > 0
+                        for t, d in zip(sync_time, jitter)]) if len(jitter) else np.zeros(0, bool)
     return {"jitter": jitter, "skew": skew, "lag": lag, "cycles": s.cycles, "overruns": s.overruns,
             "stale": s.stale_cycles, "status": result.status,
+            "host_p99": max((h["p99_ms"] for h in host), default=float("nan")),
+            "host_stalls": len(stalls), "late": int(late.sum()),
+            "late_at_host": int((late & at_host).sum()), "jitter_off_host": jitter[~at_host],
             "policy": (f"{sched['policy']} {sched['priority']}" if "priority" in sched
                        else f"ordinary scheduling ({sched.get('note', '?')})")}
 
@@ -280,8 +298,12 @@ def run(quick: bool) -> list[Row]:
     load_after = os.getloadavg()[0]
     j, k = rt["jitter"], rt["skew"]
     where = (f"{rt['cycles']:,} cycles ({rt['status']}), {rt['overruns']} missed, {rt['stale']} "
-             f"stale; gateway at {rt['policy']}, emulator (8 channels, one process) at ordinary "
-             f"scheduling; load average {load_before:.1f} before, {load_after:.1f} after, 2 cores")
+             f"stale; {rt['late']} cycles ≥ 0.5 ms late, {rt['late_at_host']} of them at one of "
+             f"the host's {rt['host_stalls']} stalls (a bare real-time thread per CPU, host floor "
+             f"p99 {rt['host_p99']:.2f} ms); off the host's stalls p99 "
+             f"{_pct(rt['jitter_off_host'], 99):.3f} ms; gateway at {rt['policy']}, emulator "
+             f"(8 channels, one process) at ordinary scheduling; load average "
+             f"{load_before:.1f} before, {load_after:.1f} after, 2 cores")
     rows.append(Row("rig real time, 8 channels on 2 buses at 2 ms: SYNC jitter",
                     f"p50 {_pct(j, 50):.3f} / p99 {_pct(j, 99):.3f} / max {j.max():.2f} ms",
                     f"goal p99 < {JITTER_GOAL_MS} ms", f"{_pct(j, 99) / JITTER_GOAL_MS:.2f} of goal",
