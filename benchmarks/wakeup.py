@@ -25,11 +25,17 @@ STALL_S = 0.0005
 READY = "ready"
 
 
-def _measure_here(duration_s: float, cpu: int | None = None) -> dict:
+#: the probes' priority beside a run: one above the loop's, so a probe is late only when the
+#: host did not run it, never because the loop (SCHED_FIFO at the same priority, which a FIFO
+#: thread does not preempt) held its CPU; a wake-up costs the loop a few µs
+BESIDE_PRIORITY_STEP = 1
+
+
+def _measure_here(duration_s: float, cpu: int | None = None, priority: int | None = None) -> dict:
     from standbus.realtime import DEFAULT_PRIORITY, make_realtime
     if cpu is not None:
         os.sched_setaffinity(0, {cpu})
-    sched = make_realtime(DEFAULT_PRIORITY)
+    sched = make_realtime(priority or DEFAULT_PRIORITY)
     print(READY, flush=True)       # the caller may start what it measures beside this now
     n = max(1, int(duration_s / PERIOD_S))
     late = []
@@ -51,21 +57,25 @@ def _measure_here(duration_s: float, cpu: int | None = None) -> dict:
             "stalls": stalls}
 
 
-def start(duration_s: float, cpu: int | None = None) -> subprocess.Popen:
+def start(duration_s: float, cpu: int | None = None, priority: int | None = None) -> subprocess.Popen:
     """The measurement in a fresh process (no other thread, no GIL to share), on one ``cpu``
-    if given, running beside whatever the caller does meanwhile; :func:`result` collects it."""
-    return subprocess.Popen([sys.executable, "-m", "benchmarks.wakeup", str(duration_s)]
-                            + ([str(cpu)] if cpu is not None else []),
+    if given (-1: any), at ``priority`` (default: the loop's), running beside whatever the
+    caller does meanwhile; :func:`result` collects it."""
+    return subprocess.Popen([sys.executable, "-m", "benchmarks.wakeup", str(duration_s),
+                             str(-1 if cpu is None else cpu)]
+                            + ([str(priority)] if priority is not None else []),
                             stdout=subprocess.PIPE, text=True)
 
 
 def start_on_every_cpu(duration_s: float) -> list[subprocess.Popen]:
-    """One measurement pinned to each CPU this process may use: a host that stops one virtual
+    """One measurement pinned to each CPU this process may use, one priority above the loop's
+    (:data:`BESIDE_PRIORITY_STEP`): a host that stops one virtual
     CPU only stalls the thread on it, so one floor thread alone could miss it. Returns once
     every one of them is measuring: a Python process takes ~0.5 s to start, and a run started
     at once had its first half second unwatched (late cycles there looked like the loop's own)."""
+    from standbus.realtime import DEFAULT_PRIORITY
     cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else [None]
-    procs = [start(duration_s, cpu) for cpu in cpus]
+    procs = [start(duration_s, cpu, DEFAULT_PRIORITY + BESIDE_PRIORITY_STEP) for cpu in cpus]
     for proc in procs:
         if proc.stdout.readline().strip() != READY:
             raise RuntimeError(f"the host-floor measurement did not start (exit code {proc.wait()})")
@@ -101,4 +111,6 @@ def run(quick: bool) -> list[Row]:
 
 
 if __name__ == "__main__":
-    print(json.dumps(_measure_here(float(sys.argv[1]), int(sys.argv[2]) if len(sys.argv) > 2 else None)))
+    cpu_arg = int(sys.argv[2]) if len(sys.argv) > 2 else -1
+    print(json.dumps(_measure_here(float(sys.argv[1]), None if cpu_arg < 0 else cpu_arg,
+                                   int(sys.argv[3]) if len(sys.argv) > 3 else None)))
