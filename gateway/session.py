@@ -105,6 +105,7 @@ class Gateway:
                              "started:\n  " + "\n  ".join(problems))
 
     def open(self) -> None:
+        cfg = self.config
         self.check_budget()
         try:
             for spec in self._bus_specs():
@@ -113,8 +114,8 @@ class Gateway:
                 except BusSpecError as exc:
                     raise StandError(str(exc)) from None
                 # the loop takes the bus from the reader thread at every run (<= one cycle:
-                # in real time the valves' RPDO timeouts already run by then)
-                network = TappedNetwork(bus, notifier_cycle_s=0.005)
+                # in real time, on a rig, the valves' RPDO timeouts already run by then)
+                network = TappedNetwork(bus, notifier_cycle_s=0.005 if cfg.lockstep or self.rig else None)
                 self.networks.append(network)
                 network.connect()
             self._connect()
