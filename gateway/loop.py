@@ -418,12 +418,14 @@ class ControlLoop:
         next_sync = t_start
         cycle = 0
         # real time: the wait for a cycle's answers ends ``reserve`` before the next SYNC, so
-        # the cycle's own work (checks, commands, record) fits after it: at least a fifth of the
-        # period (a stand's work is ~50 µs), more where the recent work's 95th percentile needs
-        # it (8 channels: 0.2-0.5 ms at 2 ms), at most half the period; a percentile, not the
-        # peak, so one host stall in a cycle's work does not shorten the window for seconds
+        # the cycle's own work (checks, commands, record) fits after it: a fifth of the period
+        # (a stand's work is ~50 µs); on a rig more where the recent work's 95th percentile
+        # needs it (8 channels: 0.2-0.5 ms at 2 ms), at most half the period (a percentile, not
+        # the peak, so one host stall in a cycle's work does not shorten the window for
+        # seconds; on a stand a starved host's stretched work made it trip on stale readings)
         work = [0.0] * WORK_WINDOW
         reserve = WORK_RESERVE_MIN * T
+        adaptive = not lockstep and self.rig       # a stand's work (~50 µs) never needs more
         stats.answer_window_min_s = T - reserve
         try:
             while True:
@@ -616,7 +618,7 @@ class ControlLoop:
                     progress(t)
                 if trip is not None and (unloader is None or unloader.done or unload_note):
                     break
-                if not lockstep:
+                if adaptive:
                     work[cycle % WORK_WINDOW] = time.perf_counter() - answered
                     if cycle % WORK_EVERY == WORK_EVERY - 1:
                         high = sorted(work)[WORK_RANK]
