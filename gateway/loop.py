@@ -426,7 +426,8 @@ class ControlLoop:
         work = [0.0] * WORK_WINDOW
         reserve = WORK_RESERVE_MIN * T
         adaptive = not lockstep and self.rig       # a stand's work (~50 µs) never needs more
-        stats.answer_window_min_s = T - reserve
+        if not lockstep:
+            stats.answer_window_min_s = T - reserve
         try:
             while True:
                 late_trip = None

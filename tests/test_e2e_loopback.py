@@ -30,6 +30,7 @@ def test_lockstep_meander_recovers_the_emulator_gain_and_captures_the_protocol(b
     assert len(run) == 8000 and run.meta["status"] == "complete" and run.meta["clock"] == "lockstep"
     assert np.array_equal(run.t, np.arange(8000) * 0.002)
     assert not run.stale.any()
+    assert "answer_window_min_ms" not in run.meta["stats"], "no answer window in lockstep"
     # the force is the dynamometer's counts scaled by the unit it reported (0.1 N → kgf)
     assert np.array_equal(run.y, run.y_counts * run.meta["force_scale_kgf_per_count"])
     est = estimate_meander(read_run(result.path))
@@ -79,6 +80,8 @@ def test_realtime_meander_works_too(bus_spec, start_emulator, tmp_path):
     stale = np.flatnonzero(run.stale[1:]) + 1
     assert np.array_equal(run.y[stale], run.y[stale - 1], equal_nan=True)
     assert run.stale.mean() < 0.5
+    # a stand waits for its answers until 0.8 of the period (only a rig's window adapts)
+    assert run.meta["stats"]["answer_window_min_ms"] == pytest.approx(1.6)
     est = estimate_meander(read_run(result.path))
     assert est.g == pytest.approx(BASE["g"], rel=0.05)
     # the loop ran at a real-time priority where the host allows it, and run.json says which
