@@ -14,7 +14,6 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import can
 import numpy as np
@@ -27,6 +26,7 @@ from standbus import open_bus
 from standbus.faults import FaultInjector, FaultSpec
 from tests.support.faults import (LOAD_ALLOWANCE_S, SAFE_WORDS, Const, RampReference, Stall,
                                   emcys, first_safe_command, log_reaction, rpdos, valve_state)
+from tests.support.rig import EXAMPLE_RIG
 from tests.support.stand import BASE, plant
 
 pytestmark = pytest.mark.e2e
@@ -416,7 +416,7 @@ def test_late_answers_and_a_long_cycle_still_leave_the_next_sync_on_time(channel
     from rig.config import BusConfig, load_rig_file
     from rig.files import rig_to_toml
     from plant_emulator.process import RigEmulatorProcess
-    example = load_rig_file(Path(__file__).resolve().parents[1] / "examples" / "rig.toml")
+    example = load_rig_file(EXAMPLE_RIG)
     rig = chain_rig(example.channels[0], 2, 1, 0.3, 0.002, channel)
     # the TPDOs, which only the gateway receives, arrive 1.9 ms late
     rig = dataclasses.replace(rig, buses=[BusConfig(b.name, b.spec + ",delay_ms=1.9,fault_ids=0x180-0x1FF")
