@@ -1,7 +1,9 @@
 """Round trip with the real emulator process and the gateway: a run's capture decodes to the
 signals the gateway recorded — bit for bit in lockstep; in real time too, except t (the gateway
 computes it from perf_counter differences: equal within 1 ns) and cycles the gateway itself
-recorded as stale (their exact deadline is not on the bus)."""
+recorded as stale (their exact deadline is not on the bus). On a starved host, what the bus
+cannot tell (the slot of a SYNC sent most of a period late, the SYNC a late answer answers) is
+bounded instead of equal."""
 from __future__ import annotations
 
 import numpy as np
@@ -9,6 +11,7 @@ import pytest
 
 from analysis import load
 from captures import decode_capture
+from captures.cycles import RESYNC_AFTER
 from gateway import Gateway, GatewayConfig, load_run
 from gateway.experiments import Meander
 from tests.support.stand import BASE, plant
@@ -61,12 +64,32 @@ def test_realtime_capture_decodes_to_the_recorded_run(bus_spec, start_emulator, 
     clean = (result.status == "complete" and stats["stale_cycles"] == 0 and stats["overruns"] == 0
              and stats["sync_jitter_ms"]["max"] < 1.0)
     same_t = np.abs(rows["t"] - recorded.t) < 1e-9       # the same slot of the 2 ms grid
-    same_y = rows["y_counts"] == recorded.y_counts
     if clean:
         assert same_t.all(), "t equal within 1 ns (the gateway subtracts perf_counter values)"
         for name in EXACT:
             assert np.array_equal(rows[name], recorded.signals[name]), name
     else:
-        # a starved host: SYNCs stamped more than a period late and TPDOs the gateway paired by
-        # arrival with the next SYNC cannot all be placed as the gateway did
-        assert same_t.mean() > 0.95 and same_y[~recorded.stale].mean() > 0.9, (result.status, stats)
+        # a starved host. The bus does not say which slot a SYNC sent late was meant for (the
+        # gateway skips the slots it overran; the SYNC counter counts SYNCs sent): the decoder
+        # puts the slot boundary into the widest phase gap of the SYNCs' stamps (grid_bias b), so
+        # only a SYNC that went out at least (1 - b) of a period late, by the gateway's stamp or
+        # the capture's (give or take 0.05 of a period between them), may land in another slot
+        T, b = 0.002, decoded.runs[0].grid_bias
+        late = np.maximum(_lateness(recorded.sync_time, recorded.t), _lateness(rows["sync_time"], recorded.t))
+        misplaced = ~same_t
+        assert np.all(late[misplaced] >= (0.95 - b) * T), (result.status, stats, b, late[misplaced] / T)
+        # ... and which SYNC an answer that came late answers, the gateway (by arrival, late ones
+        # dropped) and the decoder (by count) may tell apart: every fresh decoded force lies
+        # within the readings the gateway recorded around it (re-sync reach, one step of slack)
+        reach = RESYNC_AFTER + 1
+        near = np.lib.stride_tricks.sliding_window_view(np.pad(recorded.y_counts, reach, mode="edge"), 2 * reach + 1)
+        step = np.abs(np.diff(recorded.y_counts)).max()
+        y = rows["y_counts"]
+        inside = (y >= near.min(axis=1) - step) & (y <= near.max(axis=1) + step)
+        assert inside[~rows["stale"]].all(), (result.status, stats, np.flatnonzero(~inside)[:20])
+
+
+def _lateness(stamps, t):
+    """How late each SYNC went out after its slot, s (SYNCs are never early: the least is 0)."""
+    d = (np.asarray(stamps) - stamps[0]) - (np.asarray(t) - t[0])
+    return d - d.min()
