@@ -212,8 +212,8 @@ def test_recorder_killed_mid_run_keeps_every_row_up_to_the_last_flush(tmp_path):
     run = load_run(out)
     assert run.recovered and any("recovered" in note for note in run.notes)
     n = len(run)
-    assert n > 500
-    assert np.array_equal(run.cycle, np.arange(n)) and np.array_equal(run.y, np.arange(n, dtype=float))
+    assert n > 0 and np.array_equal(run.cycle, np.arange(n)) and np.array_equal(run.y, np.arange(n, dtype=float))
+    # the rows reach to the last flush: their count depends on how often the host ran the child
     assert run.sync_time[-1] >= t_kill - 0.5 - LOAD_ALLOWANCE_S
     assert run.meta["status"] == "running"
 

@@ -431,8 +431,9 @@ def test_late_answers_and_a_long_cycle_still_leave_the_next_sync_on_time(channel
                         channels=[rig.names[0]])
     assert result.status == "complete", result.outcome.message
     stats = load_run(result.path).meta["stats"]
-    assert stats["stale_cycles"] > 800
+    # every answer misses the window (the cycles the host let run: a starved host misses slots)
+    assert stats["stale_cycles"] >= 0.95 * stats["cycles"] > 0
     # before, the typical SYNC went out 0.5 ms late (one channel, 2 runs: p50 0.53 against
     # 0.009 ms; a shared host's stalls make the tail, p99 4-5 ms either way on a busy afternoon)
-    assert stats["sync_jitter_ms"]["p50"] < 0.25
+    assert stats["sync_jitter_ms"]["p50"] < 0.4
     assert 1.0 <= stats["answer_window_min_ms"] < 1.6
