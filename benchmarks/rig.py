@@ -161,11 +161,16 @@ def realtime_rig(channels: int, buses: int, duration_s: float) -> dict:
     at_host = np.zeros(len(jitter), bool)
     at_host[late] = [wakeup.at_host_stalls([(t - d * 1e-3, d * 1e-3)], stalls) > 0
                      for t, d in zip(np.asarray(run.sync_time)[late], jitter[late])]
+    # a late SYNC whose cycle began behind: the cycle before ended after its time (the loop's
+    # own work and answer window), not a late wake-up
+    behind = np.asarray(s.behind_s[:len(jitter)]) > 0
     return {"jitter": jitter, "skew": skew, "lag": lag, "cycles": s.cycles, "overruns": s.overruns,
             "stale": s.stale_cycles, "status": result.status,
             "host_p99": max((h["p99_ms"] for h in host), default=float("nan")),
             "host_stalls": len(stalls), "late": int(late.sum()),
             "late_at_host": int((late & at_host).sum()), "jitter_off_host": jitter[~at_host],
+            "late_behind": int((late & behind).sum()),
+            "late_behind_off_host": int((late & behind & ~at_host).sum()),
             "policy": (f"{sched['policy']} {sched['priority']}" if "priority" in sched
                        else f"ordinary scheduling ({sched.get('note', '?')})")}
 
@@ -303,7 +308,9 @@ def run(quick: bool) -> list[Row]:
              f"stale; {rt['late']} cycles ≥ 0.5 ms late, {rt['late_at_host']} of them at one of "
              f"the host's {rt['host_stalls']} stalls (a bare real-time thread per CPU, host floor "
              f"p99 {rt['host_p99']:.2f} ms); off the host's stalls p99 "
-             f"{_pct(rt['jitter_off_host'], 99):.3f} ms; gateway at {rt['policy']}, emulator "
+             f"{_pct(rt['jitter_off_host'], 99):.3f} ms; {rt['late_behind']} of the late cycles began "
+             f"behind (the cycle before ended after their SYNC time), {rt['late_behind_off_host']} "
+             f"of them off the host's stalls; gateway at {rt['policy']}, emulator "
              f"(8 channels, one process) at ordinary scheduling; load average "
              f"{load_before:.1f} before, {load_after:.1f} after, 2 cores")
     rows.append(Row("rig real time, 8 channels on 2 buses at 2 ms: SYNC jitter",

@@ -110,6 +110,9 @@ class LoopStats:
     limit_events: int = 0
     #: real time only: SYNC send time minus its scheduled time, s (one per cycle)
     sync_jitter_s: list = field(default_factory=list)
+    #: real time only: how long after this cycle's SYNC time the cycle before ended, s (0: in
+    #: time; one per cycle): a SYNC late because of the loop's own work, not its wake-up
+    behind_s: list = field(default_factory=list)
     #: real time only: the shortest time after a SYNC the loop waited for its answers, s
     answer_window_min_s: float = math.inf
 
@@ -432,10 +435,12 @@ class ControlLoop:
             while True:
                 late_trip = None
                 if not lockstep:
+                    behind = time.perf_counter() - next_sync
                     _sleep_until(next_sync, self._pump)
                     now = time.perf_counter()
                     late = now - next_sync
                     stats.sync_jitter_s.append(late)
+                    stats.behind_s.append(behind if behind > 0 else 0.0)
                     if late > T:
                         missed = int(late / T)
                         stats.overruns += missed

@@ -431,9 +431,10 @@ def driven_channels(rig, channels: Sequence[str] | None) -> list[int]:
 
 def _stats_dict(stats) -> dict[str, Any]:
     out = {k: v for k, v in asdict(stats).items()
-           if k not in ("sync_jitter_s", "answer_window_min_s")}
+           if k not in ("sync_jitter_s", "answer_window_min_s", "behind_s")}
     if math.isfinite(stats.answer_window_min_s):    # real time
         out["answer_window_min_ms"] = stats.answer_window_min_s * 1e3
+        out["cycles_begun_behind"] = sum(1 for b in stats.behind_s if b > 0)
     jitter = stats.sync_jitter_s
     if jitter:
         import numpy as np

@@ -31,6 +31,7 @@ def test_lockstep_meander_recovers_the_emulator_gain_and_captures_the_protocol(b
     assert np.array_equal(run.t, np.arange(8000) * 0.002)
     assert not run.stale.any()
     assert "answer_window_min_ms" not in run.meta["stats"], "no answer window in lockstep"
+    assert "cycles_begun_behind" not in run.meta["stats"], "no SYNC time to be behind in lockstep"
     # the force is the dynamometer's counts scaled by the unit it reported (0.1 N → kgf)
     assert np.array_equal(run.y, run.y_counts * run.meta["force_scale_kgf_per_count"])
     est = estimate_meander(read_run(result.path))

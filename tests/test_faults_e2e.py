@@ -437,3 +437,6 @@ def test_late_answers_and_a_long_cycle_still_leave_the_next_sync_on_time(channel
     # 0.009 ms; a shared host's stalls make the tail, p99 4-5 ms either way on a busy afternoon)
     assert stats["sync_jitter_ms"]["p50"] < 0.4
     assert 1.0 <= stats["answer_window_min_ms"] < 1.6
+    # ... because the cycle before now ends in time: with the old window every one ran into
+    # the next SYNC's time (began behind)
+    assert stats["cycles_begun_behind"] < 0.5 * stats["cycles"], stats
