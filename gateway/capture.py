@@ -42,10 +42,20 @@ from standbus.faults import FrameFilter
 log = logging.getLogger(__name__)
 
 
-class BusCapture(can.Listener):
-    """Queue frames and write them from a background thread with periodic flushes."""
+#: how often the capture thread formats what is queued, s. In real time its batch holds the
+#: GIL that long in 0.2 ms slices (a rig bus's eighth of a second: ~1 ms), and a control cycle
+#: whose work fell into that window ran past the next SYNC's time; a 10 ms batch (~0.1 ms, one
+#: slice) does not (8 channels on 2 buses at 2 ms: docs/decisions.md). Lockstep keeps the long
+#: batch, as measured there.
+BATCH_REALTIME_S = 0.01
+BATCH_LOCKSTEP_S = 0.125
 
-    def __init__(self, path: str | Path, flush_s: float = 0.25) -> None:
+
+class BusCapture(can.Listener):
+    """Queue frames and write them from a background thread: formatted every ``batch_s``,
+    flushed to the file every ``flush_s``."""
+
+    def __init__(self, path: str | Path, flush_s: float = 0.25, batch_s: float = BATCH_LOCKSTEP_S) -> None:
         self.path = Path(path)
         self._lines: io.StringIO | None = None
         if self.path.suffix.lower() == ".log":
@@ -57,6 +67,7 @@ class BusCapture(can.Listener):
             self._writer = can.Logger(str(self.path))
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._flush_s = flush_s
+        self._batch_s = min(batch_s, flush_s / 2)
         self._closed = threading.Event()
         self.frames = 0
         self.write_errors = 0
@@ -70,11 +81,11 @@ class BusCapture(can.Listener):
         self._queue.put(msg)
 
     def _drain(self) -> None:
-        """Every ``flush_s``/2: write everything queued, flush once ``flush_s`` has passed.
+        """Every ``batch_s``: format everything queued, flush once ``flush_s`` has passed.
         Waking per batch, not per frame, keeps this thread off the control loop's GIL."""
         last_flush = time.monotonic()
         while True:
-            closing = self._closed.wait(self._flush_s / 2)
+            closing = self._closed.wait(self._batch_s)
             while True:
                 try:
                     msg = self._queue.get_nowait()

@@ -25,7 +25,7 @@ from tqdm import tqdm
 from standbus import BusSpecError, open_bus
 from standbus.realtime import process_threads, realtime_threads, short_gil_slices
 
-from .capture import BusCapture, TappedNetwork
+from .capture import BATCH_LOCKSTEP_S, BATCH_REALTIME_S, BusCapture, TappedNetwork
 from .errors import NodeError, ParameterError, StandError
 from .config import GatewayConfig
 from .experiments import Experiment
@@ -299,15 +299,17 @@ class Gateway:
             drivers = self.drivers(experiment, channels)
             driven = [self.rig.names[i] for i in sorted(drivers)] if self.rig is not None else []
         fault_reset = self.reset_faults() if reset_faults else None
+        batch_s = BATCH_LOCKSTEP_S if self.config.lockstep else BATCH_REALTIME_S
         if self.rig is None:
             recorder = RunRecorder(out, self.metadata(experiment))
-            captures = [BusCapture(recorder.capture_path)]
+            captures = [BusCapture(recorder.capture_path, batch_s=batch_s)]
         else:
             files = {"signals": SIGNALS_FILE,
                      "captures": {b.name: capture_file(b.name) for b in self.rig.buses}}
             recorder = RunRecorder(out, self.metadata(experiment, driven), channels=self.rig.names,
                                    files=files)
-            captures = [BusCapture(recorder.capture_path_of(b.name)) for b in self.rig.buses]
+            captures = [BusCapture(recorder.capture_path_of(b.name), batch_s=batch_s)
+                        for b in self.rig.buses]
         for network, capture in zip(self.networks, captures):
             # first in line, so frames reach the capture in the order they were received
             network.notifier.listeners.insert(0, capture)
