@@ -342,7 +342,7 @@ class ControlLoop:
             self._check_vector(vector, drivers)
         self._subscribe()
         with contextlib.ExitStack() as stack:
-            if self.lockstep or self.rig:
+            if takes_buses_over(self.lockstep, self.rig):
                 self._handover(stack)
             try:
                 return self._run({} if vector else (drivers or {0: experiment}), recorder,
@@ -751,6 +751,13 @@ def _unload_text(record: dict, unloader: RatioUnloader, excluded: list[int],
     if excluded:
         text += f"; {', '.join(chans[i].name for i in excluded)} excluded (held)"
     return text + ", then hold"
+
+
+def takes_buses_over(lockstep: bool, rig: bool) -> bool:
+    """Whether the loop takes its buses from their reader threads for a run and receives on
+    its own thread (:meth:`ControlLoop._handover`): in lockstep, and in real time on a rig; a
+    one-channel stand in real time keeps its reader thread."""
+    return lockstep or rig
 
 
 @contextlib.contextmanager

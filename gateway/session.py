@@ -30,7 +30,7 @@ from .errors import NodeError, ParameterError, StandError
 from .config import GatewayConfig
 from .experiments import Experiment
 from .experiments.rig import RigExperiment, is_rig_experiment
-from .loop import ControlLoop, LoopChannel, LoopOutcome, RigSafety, steady_heap
+from .loop import ControlLoop, LoopChannel, LoopOutcome, RigSafety, steady_heap, takes_buses_over
 from .master import StandMaster, boot_all, start_all
 from .recorder import RunRecorder
 from .runs import SIGNALS_FILE, capture_file
@@ -105,17 +105,17 @@ class Gateway:
                              "started:\n  " + "\n  ".join(problems))
 
     def open(self) -> None:
-        cfg = self.config
         self.check_budget()
+        # the loop takes the buses from their reader threads at every run (<= one cycle: in
+        # real time, on a rig, the valves' RPDO timeouts already run by then)
+        notifier_cycle_s = 0.005 if takes_buses_over(self.config.lockstep, self.rig is not None) else None
         try:
             for spec in self._bus_specs():
                 try:
                     bus = open_bus(spec)
                 except BusSpecError as exc:
                     raise StandError(str(exc)) from None
-                # the loop takes the bus from the reader thread at every run (<= one cycle:
-                # in real time, on a rig, the valves' RPDO timeouts already run by then)
-                network = TappedNetwork(bus, notifier_cycle_s=0.005 if cfg.lockstep or self.rig else None)
+                network = TappedNetwork(bus, notifier_cycle_s=notifier_cycle_s)
                 self.networks.append(network)
                 network.connect()
             self._connect()
