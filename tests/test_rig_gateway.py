@@ -173,18 +173,27 @@ def test_in_real_time_the_buses_syncs_leave_together_on_the_period_grid(tmp_path
         result = gw.run(Const(1.0, 3.0), tmp_path / "run", progress=False, channels=["a"])
     assert result.status == "complete", result.outcome.message
     (t0, k0), (t1, k1) = (syncs(tmp_path / "run" / f"capture-{b}.log") for b in ("can0", "can1"))
-    # 750 slots of 4 ms: a starved host skips some (counted as overruns), never one bus alone
-    assert len(t0) == len(t1) >= 375 and (k0 == k1).all()
+    run = load_run(tmp_path / "run", channel="b")
+    # one SYNC per cycle on each bus, the same counter (and the last, whose cycle found the
+    # experiment finished): a starved host skips slots (counted as overruns), never one bus alone
+    assert len(t0) == len(t1) == len(run) + 1 and (k0 == k1).all()
+    t0, t1 = t0[:-1], t1[:-1]
     gap = t1 - t0
     print(f"SYNC gap between the buses: p50 {np.median(gap) * 1e6:.0f} us, p90 "
           f"{np.percentile(gap, 90) * 1e6:.0f} us, p99 {np.percentile(gap, 99) * 1e6:.0f} us, "
           f"max {gap.max() * 1e6:.0f} us")
-    # measured here (2 shared cores, the emulators on them): p50 50-60 us, p90 80 us, p99 0.1-0.3
-    # ms, 1.4 ms under a full test run beside (the p99 is the benchmark's: scripts/bench rig)
-    assert np.median(gap) < 0.2e-3 and np.percentile(gap, 90) < 1e-3, np.percentile(gap, 90)
-    # on the period grid: each SYNC within a millisecond of its slot, mostly much closer
-    slot = np.round((t0 - t0[0]) / 0.004)
-    lateness = (t0 - t0[0]) - slot * 0.004
-    assert np.percentile(np.abs(lateness - np.median(lateness)), 95) < 1e-3
-    run = load_run(tmp_path / "run", channel="b")
+    # back to back: measured here (2 shared cores, the emulators on them) p50 50-60 us, also in a
+    # CI run whose p90 was 0.9 ms (the tail is the host's: scripts/bench rig measures it)
+    assert np.median(gap) < 0.2e-3
+    # on the period grid: each cycle's stand time is its slot, k·T (a late cycle is counted
+    # against the slot it fell in), and the SYNCs keep to those slots over the whole run: a loop
+    # that slept a period after each cycle's work would drift (5 % at 0.2 ms of work: 75 ms)
+    slots = run.t / 0.004
+    assert np.allclose(slots, np.round(slots), atol=1e-6) and (np.diff(np.round(slots)) >= 1).all()
+    lateness = (t0 - t0[0]) - (run.t - run.t[0])
+    half = len(lateness) // 2
+    drift = np.median(lateness[half:]) - np.median(lateness[:half])
+    print(f"SYNC lateness against the slots: p50 {np.median(lateness) * 1e6:.0f} us, "
+          f"p95 {np.percentile(lateness, 95) * 1e6:.0f} us; drift {drift * 1e6:.0f} us")
+    assert abs(drift) < 0.5e-3, drift
     assert abs(run.y[-1] - (-400.0)) < 50 and not run.u.any()
