@@ -31,6 +31,8 @@ NMT_STATE_NAMES = {0: "BOOT-UP", 4: "STOPPED", 5: "OPERATIONAL", 127: "PRE-OPERA
 DEVICE_TYPE = 0x1000
 ERROR_REGISTER = 0x1001
 COMM_CYCLE_PERIOD = 0x1006        # µs; in lockstep the emulator advances this much per SYNC
+SYNC_WINDOW = 0x1007              # µs; a synchronous TPDO not sent this soon after its SYNC is
+                                  # discarded (CiA 301; 0: no window)
 PRODUCER_HEARTBEAT = 0x1017       # ms
 IDENTITY = 0x1018                 # sub 1 vendor, 2 product, 3 revision, 4 serial
 SYNC_COUNTER_OVERFLOW = 240       # our SYNC counter runs 1..240 (0x1019 on the producer)

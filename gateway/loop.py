@@ -5,11 +5,15 @@ Each cycle::
     SYNC(counter) ─▶ wait for the valve and force TPDOs ─▶ supervisor check ─▶ experiment.step
         ─▶ error detector ─▶ shaped command ─▶ valve RPDO ─▶ record the row
 
-* **real time**: SYNCs on an absolute schedule (no drift); the TPDOs are awaited until 80 % of
-  the period; a late or missing force PDO makes the cycle *stale* (the last reading is reused
-  and counted). A synchronous TPDO does not say which SYNC it answers, so when the bus stamps
-  frames with the sender's wall-clock time (udp_loopback, SocketCAN) a TPDO sent before this
-  cycle's SYNC is an old answer that was delayed: counted as late, never taken as fresh; a cycle that starts later than one period is an *overrun* (counted), and one
+* **real time**: SYNCs on an absolute schedule (no drift); the TPDOs are awaited until the
+  cycle's reserve for its own work; a late or missing force PDO makes the cycle *stale* (the
+  last reading is reused and counted). A synchronous TPDO does not say which SYNC it answers,
+  so when the bus stamps frames with wall-clock time (udp_loopback, SocketCAN) a TPDO sent
+  before this cycle's SYNC is an old answer that was delayed: counted as late, never taken as
+  fresh. The nodes get a synchronous window (0x1007, :func:`sync_window_s`) and discard an
+  answer they could not send within it, so none is sent after the next SYNC; one sent within
+  the window after the SYNC before is old too (a late SYNC follows its predecessor by less
+  than a period). A cycle that starts later than one period is an *overrun* (counted), and one
   later than ``overrun_limit_s`` stops the run.
 * **lockstep**: the next SYNC goes out as soon as the cycle is complete; the stand (emulator
   with ``--lockstep``) advances one period per SYNC, so a run takes as long as the bus needs.
@@ -392,6 +396,11 @@ class ControlLoop:
         percent_to_counts, counts_to_percent = P.percent_to_counts, P.counts_to_percent
         CW_ACTIVE = P.CW_ACTIVE
         wall_stamps: bool | None = None
+        # a TPDO stamped before ``fresh_from`` answers an earlier SYNC: before this SYNC (less
+        # the stamps' tolerance), or within the nodes' synchronous window after the one before
+        # (a late SYNC follows its predecessor by less than a period; real time only)
+        window = sync_window_s(T, lockstep)
+        fresh_from = sync_wall = -math.inf
         counter = 0
         ys = [math.nan] * n
         y_counts = [0] * n
@@ -454,7 +463,11 @@ class ControlLoop:
                     deadline = time.perf_counter() + self.lockstep_timeout_s
                 self._drain()
                 counter = counter % P.SYNC_COUNTER_OVERFLOW + 1
-                sync_wall = time.time()
+                now_wall = time.time()
+                fresh_from = now_wall - STAMP_SKEW_S
+                if window and sync_wall + window > fresh_from:
+                    fresh_from = sync_wall + window
+                sync_wall = now_wall
                 if one_bus:
                     networks[0].send_message(SYNC_COB_ID, bytes((counter,)))
                 else:                         # every bus's SYNC, back to back
@@ -478,7 +491,7 @@ class ControlLoop:
                         continue
                     if wall_stamps is None:      # first frame: does the bus stamp wall-clock time?
                         wall_stamps = abs(stamp - time.time()) < 1.0
-                    if wall_stamps and stamp < sync_wall - STAMP_SKEW_S:
+                    if wall_stamps and stamp < fresh_from:
                         stats.late_frames += 1   # sent before this SYNC: an old answer, delayed
                         continue
                     i, is_force = route[key]
@@ -751,6 +764,15 @@ def _unload_text(record: dict, unloader: RatioUnloader, excluded: list[int],
     if excluded:
         text += f"; {', '.join(chans[i].name for i in excluded)} excluded (held)"
     return text + ", then hold"
+
+
+def sync_window_s(period_s: float, lockstep: bool) -> float:
+    """The synchronous window the nodes are given (0x1007, CiA 301), s: in real time an answer
+    sent later than this after its SYNC would be stamped within :data:`STAMP_SKEW_S` of the
+    next SYNC, or after it, and pass for that SYNC's answer, so the node discards it (the
+    cycle is stale, counted, instead of every reading one period old); at least half the
+    period. In lockstep none (0): the stand's time is not the wall clock's."""
+    return 0.0 if lockstep else max(period_s - STAMP_SKEW_S, period_s / 2)
 
 
 def takes_buses_over(lockstep: bool, rig: bool) -> bool:

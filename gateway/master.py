@@ -200,14 +200,19 @@ class StandMaster:
                                      f"type {tt}; the loop needs a synchronous TPDO (type 1)")
         return layout
 
-    def declare_run(self, period_s: float) -> None:
+    def declare_run(self, period_s: float, sync_window_s: float = 0.0) -> None:
         """At each run start, make the run's capture self-describing: write the communication
         cycle period 0x1006 again (which period the SYNCs stand for), and on a stand that can run
-        in lockstep read its clock 0x2100 (whether they stand for wall-clock time at all)."""
+        in lockstep read its clock 0x2100 (whether they stand for wall-clock time at all). Then
+        the synchronous window 0x1007 (0: none): a node that would answer a SYNC later than
+        that discards the answer (CiA 301); a node without the object keeps answering late."""
         for link in self.links:
             link.node.sdo[P.COMM_CYCLE_PERIOD].raw = int(round(period_s * 1e6))
         if self.stand_clock is not None:  # only a stand that has the object (the emulator)
             self.valve.node.sdo[P.EMULATOR_CLOCK].raw
+        for link in self.links:
+            if P.SYNC_WINDOW in link.node.object_dictionary:
+                link.node.sdo[P.SYNC_WINDOW].raw = int(round(sync_window_s * 1e6))
 
     # -- 5. start / stop ------------------------------------------------------------------------
     def start(self, timeout_s: float = 2.0, keepalive_s: float = 0.02) -> None:

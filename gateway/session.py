@@ -30,7 +30,8 @@ from .errors import NodeError, ParameterError, StandError
 from .config import GatewayConfig
 from .experiments import Experiment
 from .experiments.rig import RigExperiment, is_rig_experiment
-from .loop import ControlLoop, LoopChannel, LoopOutcome, RigSafety, steady_heap, takes_buses_over
+from .loop import (ControlLoop, LoopChannel, LoopOutcome, RigSafety, steady_heap, sync_window_s,
+                   takes_buses_over)
 from .master import StandMaster, boot_all, start_all
 from .recorder import RunRecorder
 from .runs import SIGNALS_FILE, capture_file
@@ -332,8 +333,9 @@ class Gateway:
         scheduling: dict | None = None
         failure: BaseException | None = None
         try:
+            window = sync_window_s(self.config.period_s, self.config.lockstep)
             for master in self.masters:
-                master.declare_run(self.config.period_s)
+                master.declare_run(self.config.period_s, window)
             with steady_heap():   # before the valves' RPDO timeouts start running
                 start_all(self.masters)
                 if self.config.lockstep:     # wall-clock timing does not matter

@@ -67,10 +67,12 @@ class EmulatedChannel:
     def nodes(self) -> tuple[ServoValveNode, DynamometerNode]:
         return self.valve, self.dynamometer
 
-    def answer_sync(self, reading_kgf: float, over_range: bool, counter: int | None) -> None:
+    def answer_sync(self, reading_kgf: float, over_range: bool, counter: int | None,
+                    sync_stamp: float | None = None) -> None:
         """Publish the force reading and the valve's outputs, then send both nodes' synchronous
-        TPDOs due at this SYNC (only while OPERATIONAL)."""
+        TPDOs due at this SYNC (only while OPERATIONAL; in real time, with the SYNC's wall-clock
+        ``sync_stamp``, only within its synchronous window: :meth:`EmulatedNode.on_sync`)."""
         self.dynamometer.publish(reading_kgf, over_range)
         self.valve.update_outputs(self.command)
-        self.valve.on_sync(counter)
-        self.dynamometer.on_sync(counter)
+        self.valve.on_sync(counter, sync_stamp)
+        self.dynamometer.on_sync(counter, sync_stamp)

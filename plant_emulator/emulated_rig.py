@@ -256,6 +256,7 @@ class EmulatedRig:
         try:
             with self.lock:
                 on_bus.counter = data[0] if len(data) >= 1 else None
+                stamp = None              # lockstep: the stand's time, not the wall clock's
                 if self.options.lockstep:
                     answering = self._complete_cycle(on_bus)
                     if not answering:
@@ -264,11 +265,12 @@ class EmulatedRig:
                     self._lockstep_watchdog()
                 else:
                     answering = (on_bus,)
+                    stamp = timestamp
                     self.advance_plant()
                 for b in answering:
                     for ch in b.channels:
                         reading, over = self.measure(ch)
-                        ch.answer_sync(reading, over, b.counter)
+                        ch.answer_sync(reading, over, b.counter, stamp)
         except Exception as exc:  # never let the notifier swallow it silently
             log.exception("SYNC handling failed")
             self.errors.append(repr(exc))

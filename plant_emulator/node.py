@@ -113,6 +113,8 @@ class EmulatedNode:
         self.tpdos: list[PdoConfig] = []
         self.rpdos: dict[int, PdoConfig] = {}
         self._sync_count = 0
+        #: synchronous TPDOs discarded because their SYNC's window (0x1007) had passed
+        self.sync_window_discards = 0
         self.rpdo_length_errors = 0
         self.last_rpdo_time: float | None = None
         #: the clock the RPDO timeout counts on (s): the wall clock, or in lockstep the stand's
@@ -215,15 +217,26 @@ class EmulatedNode:
         self.last_rpdo_time = None
 
     # -- PDO traffic --------------------------------------------------------------------------
-    def on_sync(self, counter: int | None) -> None:
-        """Send the synchronous TPDOs due at this SYNC (the device refreshed ``live`` before)."""
+    def on_sync(self, counter: int | None, sync_stamp: float | None = None) -> None:
+        """Send the synchronous TPDOs due at this SYNC (the device refreshed ``live`` before).
+        With a synchronous window (0x1007, CiA 301) and the SYNC's wall-clock ``sync_stamp``, a
+        device that got to this SYNC later than the window after it (a lagging node, a slow
+        bus) discards its TPDOs instead of sending them: sent after the master's next SYNC, they
+        would pass for answers to that one."""
         if not self.operational:
             return
         self._sync_count += 1
-        for cfg in self.tpdos:
-            tt = cfg.trans_type
-            if tt == 0 or (1 <= tt <= 240 and self._sync_count % tt == 0):
-                self.transmit(cfg)
+        due = [cfg for cfg in self.tpdos
+               if cfg.trans_type == 0 or (1 <= cfg.trans_type <= 240
+                                          and self._sync_count % cfg.trans_type == 0)]
+        if not due:
+            return
+        window_us = int(self.value(P.SYNC_WINDOW)) if sync_stamp is not None else 0
+        if window_us and time.time() - sync_stamp > window_us * 1e-6:
+            self.sync_window_discards += len(due)
+            return
+        for cfg in due:
+            self.transmit(cfg)
 
     def transmit(self, cfg: PdoConfig) -> None:
         values = [self.value(index, sub) for index, sub in cfg.layout.keys]

@@ -149,6 +149,30 @@ def test_delayed_frames_count_as_stale_and_stop_the_run(bus_spec, start_emulator
                  reason="force_pdo_stale")
 
 
+@pytest.mark.serial   # on the wall clock
+def test_a_node_that_lags_a_period_sends_nothing_rather_than_old_answers(channel, start_emulator, tmp_path):
+    """The emulator gets every SYNC 1.5 periods late: each answer would leave after the
+    master's next SYNC and pass for the answer to that one (every reading one period old,
+    fresh by its stamp). The master gives the nodes a synchronous window (0x1007, CiA 301) and
+    they discard what they could not send within it: the readings go stale, and the run stops
+    on that, saying so."""
+    T5 = 0.005
+    emu = start_emulator(plant(BASE, model="base"), lockstep=False, seed=6,
+                         bus=f"udp_loopback:{channel},delay_ms={1.5 * T5 * 1e3},fault_ids=0x080-0x080")
+    with Gateway(GatewayConfig(bus=f"udp_loopback:{channel}", period_s=T5)) as gw:
+        result = gw.run(Const(1.0, 2.0), tmp_path / "run", progress=False)
+    assert (result.status, result.reason) == ("stopped", "force_pdo_stale"), result.outcome.message
+    frames = list(read_capture(result.path / "capture.log"))
+    first_sync = next(f.timestamp for f in frames if f.arbitration_id == 0x80)
+    answers = [f for f in frames if f.arbitration_id in (0x181, 0x182) and f.timestamp > first_sync]
+    assert answers == [], f"{len(answers)} answers sent outside their SYNC's window"
+    assert load_run(result.path).stale.all()
+    emu.stop()
+    said = [line for line in emu.output if "past their SYNC's window" in line]
+    # both nodes' TPDOs at the 25 stale cycles' SYNCs, but the last ones still in flight
+    assert said and int(said[0].split("; ")[-1].split()[0]) >= 2 * (25 - 3), said
+
+
 @pytest.mark.slow
 def test_small_delay_in_lockstep_changes_nothing(channel, start_emulator, tmp_path):
     """Lockstep waits for the answer: a 1 ms delay on both ends gives the same run bit for bit."""

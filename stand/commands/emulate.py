@@ -79,12 +79,15 @@ def main(args: argparse.Namespace) -> int:
     dropped = sum(b.frame_filter.dropped for b in buses)
     length_errors = sum(ch.valve.rpdo_length_errors for ch in stand.channels)
     faults = sum(ch.valve.faults for ch in stand.channels)
-    if dropped or length_errors or faults:
+    discarded = sum(n.sync_window_discards for ch in stand.channels for n in ch.nodes)
+    if dropped or length_errors or faults or discarded:
         not_classic = sum(b.frame_filter.not_classic for b in buses)
         wrong_dlc = sum(b.frame_filter.wrong_dlc for b in buses)
         print(f"emulator stopped: acceptance filter dropped {dropped} frames "
               f"({not_classic} error/remote/extended/FD, {wrong_dlc} wrong DLC); "
-              f"{length_errors} RPDO length errors; {faults} valve faults", flush=True)
+              f"{length_errors} RPDO length errors; {faults} valve faults; "
+              f"{discarded} TPDOs discarded past their SYNC's window (0x1007: the emulator "
+              "lagged)", flush=True)
     return 0
 
 
