@@ -150,6 +150,7 @@ def realtime_rig(channels: int, buses: int, duration_s: float) -> dict:
         run = load_run(out)
         captures = [out / f"capture-{b.name}.log" for b in rig.buses]
         skew = bus_skew_s(captures) * 1e3
+        first_sync = sync_stamps(captures[0])[0]
         lag = np.concatenate([answer_lag_ms(c) for c in captures])
     jitter = grid_jitter_ms(np.asarray(run.sync_time), np.asarray(run.t))
     s = result.outcome.stats
@@ -164,6 +165,11 @@ def realtime_rig(channels: int, buses: int, duration_s: float) -> dict:
     # a late SYNC whose cycle began behind: the cycle before ended after its time (the loop's
     # own work and answer window), not a late wake-up
     behind = np.asarray(s.behind_s[:len(jitter)]) > 0
+    # the cycles whose SYNCs left further apart than the goal, placed the same way
+    skewed = skew >= SKEW_GOAL_MS
+    skew_at_host = np.zeros(len(skew), bool)
+    skew_at_host[skewed] = [wakeup.at_host_stalls([(t, d * 1e-3)], stalls) > 0
+                            for t, d in zip(first_sync[skewed], skew[skewed])]
     return {"jitter": jitter, "skew": skew, "lag": lag, "cycles": s.cycles, "overruns": s.overruns,
             "stale": s.stale_cycles, "status": result.status,
             "host_p99": max((h["p99_ms"] for h in host), default=float("nan")),
@@ -171,6 +177,8 @@ def realtime_rig(channels: int, buses: int, duration_s: float) -> dict:
             "late_at_host": int((late & at_host).sum()), "jitter_off_host": jitter[~at_host],
             "late_behind": int((late & behind).sum()),
             "late_behind_off_host": int((late & behind & ~at_host).sum()),
+            "skewed": int(skewed.sum()), "skewed_at_host": int((skewed & skew_at_host).sum()),
+            "skew_off_host": skew[~skew_at_host],
             "policy": (f"{sched['policy']} {sched['priority']}" if "priority" in sched
                        else f"ordinary scheduling ({sched.get('note', '?')})")}
 
@@ -320,7 +328,10 @@ def run(quick: bool) -> list[Row]:
     rows.append(Row("rig real time, 8 channels on 2 buses at 2 ms: skew between the buses' SYNCs",
                     f"p50 {_pct(k, 50):.3f} / p99 {_pct(k, 99):.3f} / max {k.max():.2f} ms",
                     f"goal p99 < {SKEW_GOAL_MS} ms", f"{_pct(k, 99) / SKEW_GOAL_MS:.2f} of goal",
-                    "can1's SYNC minus can0's, each cycle, from the captures' send stamps"))
+                    f"can1's SYNC minus can0's, each cycle, from the captures' send stamps; "
+                    f"{rt['skewed']} cycles ≥ {SKEW_GOAL_MS} ms, {rt['skewed_at_host']} of them "
+                    f"at one of the host's stalls; off the host's stalls p99 "
+                    f"{_pct(rt['skew_off_host'], 99):.3f} ms"))
     lag = rt["lag"]
     rows.append(Row("rig real time, 8 channels on 2 buses at 2 ms: the emulator's answer",
                     f"first TPDO after its SYNC p50 {_pct(lag, 50):.2f} / p90 {_pct(lag, 90):.2f} ms",
