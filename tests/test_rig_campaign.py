@@ -44,6 +44,31 @@ def test_a_per_column_rig_campaign_gives_every_column_of_G(tmp_path, start_rig_e
     assert np.max(np.abs(G - truth) / np.diag(truth)[None, :]) < 0.01, np.round(G, 2)
 
 
+@pytest.mark.e2e
+def test_a_rig_campaign_with_its_own_emulator_runs_on_private_buses_and_stops_it(tmp_path):
+    from tests.support.rig_channels import sniff
+    out = tmp_path / "campaign"
+    done = stand("campaign", "--rig", EXAMPLE_RIG, "--with-emulator", "--meander-period-s", 3,
+                 "--cycles", 2, "--no-progress", "--out", out)
+    assert done.returncode == 0, done.stderr + done.stdout
+    ran = load_rig_file(out / "rig.toml")          # the rig as run: the example on private buses
+    example = load_rig_file(EXAMPLE_RIG)
+    assert [b.spec for b in ran.buses] != [b.spec for b in example.buses]
+    assert all(b.spec.startswith("udp_loopback:campaign-") for b in ran.buses)
+    np.testing.assert_array_equal(ran.G, example.G)
+    assert all((out / f"{k:02d}-column-{n}" / "truth.json").is_file() for k, n in enumerate(NAMES, 1))
+    est = stand("estimate", out, "--json")
+    assert est.returncode == 0, est.stderr
+    G = np.array(json.loads(est.stdout)["G"], float)
+    assert np.max(np.abs(G - example.G) / np.diag(example.G)[None, :]) < 0.01, np.round(G, 2)
+    for bus in ran.buses:                           # the campaign stopped its emulator
+        listener = sniff(bus.spec)
+        try:
+            assert listener.recv(0.5) is None, f"{bus.name}: something still sends"
+        finally:
+            listener.shutdown()
+
+
 def test_a_rig_campaign_that_would_swing_a_force_too_far_is_refused_before_anything_opens(tmp_path, capsys):
     from stand.cli import main
     rig = tmp_path / "rig.toml"

@@ -71,6 +71,10 @@ def register(sub) -> None:
     g.add_argument("--emulated", action="store_true",
                    help="with --rig: the rig is `stand emulate --rig` of this very file: write "
                         "its truth (truth.json) beside each run")
+    g.add_argument("--with-emulator", action="store_true",
+                   help="with --rig: start `stand emulate --rig` of the file for the campaign "
+                        "(lockstep, on private loopback buses; OUT/rig.toml is the file as run) "
+                        "and write its truth beside each run, as the one-channel campaign does")
     p.set_defaults(func=main)
 
 
@@ -78,9 +82,9 @@ def main(args: argparse.Namespace) -> int:
     if args.rig:
         from .campaign_rig import main as rig_main
         return rig_main(args)
-    if args.simultaneous or args.emulated or args.meander_period_s is not None:
-        raise ParameterError("--simultaneous, --emulated and --meander-period-s plan a rig's "
-                             "identification: give --rig RIG.toml too")
+    if args.simultaneous or args.emulated or args.with_emulator or args.meander_period_s is not None:
+        raise ParameterError("--simultaneous, --emulated, --with-emulator and --meander-period-s "
+                             "plan a rig's identification: give --rig RIG.toml too")
     from analysis import report_campaign
     from gateway import Gateway, GatewayConfig, SafetyLimits
     from gateway.campaign import CampaignPlan, run_campaign

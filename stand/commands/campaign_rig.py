@@ -4,7 +4,9 @@ Not a sub-command of its own (no ``register``)."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as dt
+import os
 import sys
 from pathlib import Path
 
@@ -24,7 +26,7 @@ def main(args: argparse.Namespace) -> int:
     if given:
         raise ParameterError(f"{', '.join(given)}: not with --rig (the rig file gives the buses, node "
                              "ids and each channel's force limit; the emulator is `stand emulate "
-                             "--rig RIG.toml --lockstep`); leave them out")
+                             "--rig RIG.toml --lockstep`, or --with-emulator); leave them out")
     rig = load_rig_file(args.rig)
     if abs(args.period_ms / 1e3 - rig.period_s) > 1e-9 and args.period_ms != 2.0:
         raise ParameterError(f"--period-ms {args.period_ms:g}: the rig {args.rig} runs at "
@@ -44,15 +46,20 @@ def main(args: argparse.Namespace) -> int:
         what = f"{len(rig.names)} runs, one per column of G: ±{args.amplitude_pct:g} %, {args.cycles} × {period:g} s"
     plan.check(rig)              # before anything is opened
     out = Path(args.out or f"campaigns/rig-campaign-{dt.datetime.now():%Y%m%d-%H%M%S}")
-    truth = None
-    if args.emulated:
-        from rig.emulated import rig_truth
-        truth = rig_truth(rig)
-    config = GatewayConfig(rig=rig, lockstep=args.lockstep, period_s=rig.period_s,
-                           limits=SafetyLimits(), fault_action=args.fault_action)
-    print(f"rig campaign on {rig.name}: {what} -> {out}/")
-    with Gateway(config) as gw:
-        result = run_rig_campaign(gw, plan, out, progress=False if args.no_progress else None, truth=truth)
+    lockstep = args.lockstep or args.with_emulator
+    with contextlib.ExitStack() as stack:
+        if args.with_emulator:
+            rig = _own_emulator(stack, rig, out, args.seed)
+        truth = None
+        if args.emulated or args.with_emulator:
+            from rig.emulated import rig_truth
+            truth = rig_truth(rig)
+        config = GatewayConfig(rig=rig, lockstep=lockstep, period_s=rig.period_s,
+                               limits=SafetyLimits(), fault_action=args.fault_action)
+        print(f"rig campaign on {rig.name}: {what} -> {out}/")
+        with Gateway(config) as gw:
+            result = run_rig_campaign(gw, plan, out, progress=False if args.no_progress else None,
+                                      truth=truth)
     for r in result.runs:
         line = f"  {r['path']}: {r['status']}, {r['stand_s']:.0f} s of stand time in {r['wall_s']:.0f} s"
         if r["status"] != "complete":
@@ -64,3 +71,25 @@ def main(args: argparse.Namespace) -> int:
         print("stand campaign: a run stopped early; the campaign ended there", file=sys.stderr)
         return 1
     return 0
+
+
+def _own_emulator(stack: contextlib.ExitStack, rig, out: Path, seed: int):
+    """``--with-emulator``: the rig on private loopback buses, written to OUT/rig.toml and
+    served by ``stand emulate --rig`` in lockstep until the campaign ends; the rig as run.
+    A rig that cannot be emulated (a channel without a plant, a structure no stiffness gives)
+    is refused before anything starts."""
+    from plant_emulator.process import RigEmulatorProcess
+    from rig.emulated import emulated_plant
+    from rig.files import on_private_loopback, rig_to_toml
+    source = rig.path
+    private = on_private_loopback(rig, f"campaign-{os.getpid()}")
+    emulated_plant(private)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "rig.toml"
+    path.write_text(rig_to_toml(private, header=f"{source} as stand campaign --with-emulator ran "
+                                                "it, on private loopback buses", path=path))
+    private.path = path
+    print(f"emulator: rig {private.name!r} from {source}, {len(private.channels)} channels on "
+          f"{len(private.buses)} private loopback buses, lockstep, one separate process")
+    stack.enter_context(RigEmulatorProcess(path, lockstep=True, seed=seed))
+    return private
