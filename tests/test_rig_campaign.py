@@ -81,4 +81,6 @@ def test_a_rig_campaign_that_would_swing_a_force_too_far_is_refused_before_anyth
     assert rc == 2 and "--force-limit: not with --rig" in capsys.readouterr().err
     rc = main(["campaign", "--simultaneous", "--out", str(out)])
     assert rc == 2 and "give --rig RIG.toml too" in capsys.readouterr().err
+    rc = main(["campaign", "--rig", str(rig), "--cycles", "1", "--out", str(out)])
+    assert rc == 2 and "needs two reversals" in capsys.readouterr().err   # stand estimate would
     assert not out.exists()

@@ -102,10 +102,11 @@ def estimate_rig(records: Sequence[RigRecord], guard_s: float | None = None,
     notes: list[str] = []
     for rec, m in zip(records, moving):
         if not m:
-            notes.append(f"{rec.source}: no channel moved (no meander): left out")
+            notes.append(f"{rec.source}: no channel's command reversed twice (no meander): left out")
     if not any(moving):
-        raise DataError("no channel moves in any run: the rig estimate needs meanders (one "
-                        "channel at a time, or all at once with periods of their own)")
+        raise DataError("no channel's command reverses twice in any run: the rig estimate needs "
+                        "meanders of two reversals or more (one channel at a time, or all at once "
+                        "with periods of their own; stand campaign --rig --cycles 2 or more)")
     moved = sorted({j for m in moving for j in m})
     unknown = [names[j] for j in range(N) if j not in moved]
     if unknown:

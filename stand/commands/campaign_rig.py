@@ -40,8 +40,9 @@ def main(args: argparse.Namespace) -> int:
                 f"{args.duration_s:g} s (planned variance inflation ≤ {vif:.2f})")
     else:
         period = 8.0 if args.meander_period_s is None else args.meander_period_s
-        if not (1 <= args.cycles <= 1000):
-            raise ParameterError(f"--cycles {args.cycles}: it must be from 1 to 1000")
+        if not (2 <= args.cycles <= 1000):
+            raise ParameterError(f"--cycles {args.cycles}: it must be from 2 to 1000 (the estimate "
+                                 "needs two reversals of each channel's command)")
         plan = RigCampaignPlan(False, args.amplitude_pct, [period], args.cycles)
         what = f"{len(rig.names)} runs, one per column of G: ±{args.amplitude_pct:g} %, {args.cycles} × {period:g} s"
     plan.check(rig)              # before anything is opened
