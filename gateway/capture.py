@@ -23,6 +23,7 @@ frames on their ids with the right length (wrong DLC, unexpected ids: counted an
 """
 from __future__ import annotations
 
+import contextlib
 import io
 import logging
 import os
@@ -36,7 +37,7 @@ import can
 import canopen
 from canopen.network import MessageListener
 
-from standbus import HandoverNotifier
+from standbus import HandoverNotifier, together
 from standbus.faults import FrameFilter
 
 log = logging.getLogger(__name__)
@@ -195,6 +196,14 @@ class TappedNetwork(canopen.Network):
         self._channel_of = (bus, channel)
         return channel
 
+    def _raw_path(self) -> "together.RawPath | None":
+        """The bus's single-call send path (:mod:`standbus.together`), looked up once per bus."""
+        bus = self.bus
+        cached = self.__dict__.get("_raw_path_of")
+        if cached is None or cached[0] is not bus:
+            cached = self._raw_path_of = (bus, together.raw_path(bus))
+        return cached[1]
+
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         msg = can.Message(is_extended_id=can_id > 0x7FF, arbitration_id=can_id, data=data,
                           is_remote_frame=remote, is_rx=False, channel=self._channel())
@@ -207,22 +216,21 @@ class TappedNetwork(canopen.Network):
 
 
 def send_together(networks: "list[TappedNetwork]", can_id: int, data: bytes) -> None:
-    """The same frame on every network, as close together as this host allows: every message
-    is built first, then each is stamped, captured and handed to its bus in turn (a rig's SYNCs:
-    between two sends only the capture's queue put and the lock). A bus that fails does not keep
-    the frame from the others; the first failure is raised after all were tried."""
+    """The same frame on every network, as close together as this host allows (a rig's SYNCs):
+    with every network's send lock held, :func:`standbus.together.send_together` hands the
+    frames to their buses with nothing else of this process in between; then each is captured,
+    stamped as it was handed over (before any answer to it: the answers are received after
+    this returns). A bus that fails does not keep the frame from the others; the first failure
+    is raised after all were tried."""
     msgs = [can.Message(is_extended_id=can_id > 0x7FF, arbitration_id=can_id, data=data,
                         is_rx=False, channel=net._channel()) for net in networks]
-    failure = None
-    for net, msg in zip(networks, msgs):
+    with contextlib.ExitStack() as locks:
+        for net in networks:
+            locks.enter_context(net.send_lock)
         try:
-            with net.send_lock:
-                capture = net.capture
-                if capture is not None:
-                    msg.timestamp = time.time()
-                    capture.on_sent(msg)
-                net.bus.send(msg)
-        except can.CanError as exc:
-            failure = failure or exc
-    if failure is not None:
-        raise failure
+            together.send_together([net.bus for net in networks], msgs,
+                                   [net._raw_path() for net in networks])
+        finally:
+            for net, msg in zip(networks, msgs):
+                if net.capture is not None and msg.timestamp:
+                    net.capture.on_sent(msg)

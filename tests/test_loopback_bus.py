@@ -278,3 +278,51 @@ def test_busy_poll_receives_and_still_times_out(channel):
         LoopbackBus(channel, busy_poll_us=-1)
     with pytest.raises(can.CanInitializationError, match="busy_poll_us"):
         LoopbackBus(channel, busy_poll_us="fast")
+
+
+def test_frames_sent_together_reach_every_bus_stamped_in_order_and_an_unknown_bus_still_gets_its_own(channel):
+    """standbus.together: one frame per bus through libc's sendto with the GIL kept; each frame
+    is stamped when it was handed over and arrives as if bus.send had sent it; a bus without a
+    raw path (python-can's virtual bus) is sent the ordinary way; a bus that fails does not
+    keep the frame from the others, and its failure is raised after."""
+    from standbus import together
+    specs = [f"udp_loopback:{channel}-a", f"udp_loopback:{channel}-b"]
+    senders = [open_bus(s) for s in specs]
+    listeners = [open_bus(s) for s in specs]
+    virtual = can.Bus(interface="virtual", channel=f"{channel}-v")
+    virtual_rx = can.Bus(interface="virtual", channel=f"{channel}-v")
+    try:
+        assert all(together.raw_path(b) is not None for b in senders)
+        assert together.raw_path(virtual) is None
+        msgs = [can.Message(arbitration_id=0x80, data=b"\x07", is_extended_id=False) for _ in range(3)]
+        before = time.time()
+        stamps = together.send_together([*senders, virtual], msgs)
+        assert before <= stamps[0] <= stamps[1] <= stamps[2] <= time.time()
+        assert [m.timestamp for m in msgs] == stamps
+        for rx, stamp in zip([*listeners, virtual_rx], stamps):
+            got = rx.recv(1.0)
+            assert got is not None and got.arbitration_id == 0x80 and bytes(got.data) == b"\x07"
+            if rx in listeners:          # the loopback bus carries the sender's stamp
+                assert got.timestamp == stamp
+        assert all(s.recv(0.05) is None for s in senders), "not back to the sender"
+
+        class Broken(can.BusABC):
+            def __init__(self, channel=None, **kwargs):
+                super().__init__(channel=channel, **kwargs)
+
+            def send(self, msg, timeout=None):
+                raise can.CanOperationError("unplugged")
+
+            def _recv_internal(self, timeout):
+                return None, False
+
+        broken = Broken(channel="x")
+        msgs = [can.Message(arbitration_id=0x80, data=b"\x08", is_extended_id=False) for _ in range(3)]
+        with pytest.raises(can.CanOperationError, match="unplugged"):
+            together.send_together([senders[0], broken, senders[1]], msgs)
+        assert msgs[1].timestamp == 0.0 and msgs[0].timestamp and msgs[2].timestamp
+        assert all(bytes(rx.recv(1.0).data) == b"\x08" for rx in listeners)
+        broken.shutdown()
+    finally:
+        for b in [*senders, *listeners, virtual, virtual_rx]:
+            b.shutdown()
