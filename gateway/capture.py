@@ -183,26 +183,22 @@ class TappedNetwork(canopen.Network):
         self.frame_filter.expect(can_id, lengths)
         self.frame_filter.strict = True
 
-    def _channel(self):
-        """The bus's channel name for captured frames (some interfaces keep other objects in
-        ``bus.channel``: python-can's ``virtual`` keeps its receiver list there); looked up
-        once per bus."""
+    def _of_bus(self) -> "tuple[str | int | None, together.RawPath | None]":
+        """What the sends need to know of the bus, looked up once per bus: its channel name for
+        captured frames (some interfaces keep other objects in ``bus.channel``: python-can's
+        ``virtual`` keeps its receiver list there) and its single-call send path
+        (:mod:`standbus.together`)."""
         bus = self.bus
-        cached = self.__dict__.get("_channel_of")
-        if cached is not None and cached[0] is bus:
-            return cached[1]
-        channel = getattr(bus, "channel", None)
-        channel = channel if isinstance(channel, (str, int)) else None
-        self._channel_of = (bus, channel)
-        return channel
-
-    def _raw_path(self) -> "together.RawPath | None":
-        """The bus's single-call send path (:mod:`standbus.together`), looked up once per bus."""
-        bus = self.bus
-        cached = self.__dict__.get("_raw_path_of")
+        cached = self.__dict__.get("_bus_facts")
         if cached is None or cached[0] is not bus:
-            cached = self._raw_path_of = (bus, together.raw_path(bus))
-        return cached[1]
+            channel = getattr(bus, "channel", None)
+            channel = channel if isinstance(channel, (str, int)) else None
+            cached = self._bus_facts = (bus, channel, together.raw_path(bus))
+        return cached[1], cached[2]
+
+    def _channel(self):
+        """The bus's channel name for captured frames (:meth:`_of_bus`)."""
+        return self._of_bus()[0]
 
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         msg = can.Message(is_extended_id=can_id > 0x7FF, arbitration_id=can_id, data=data,
@@ -229,7 +225,7 @@ def send_together(networks: "list[TappedNetwork]", can_id: int, data: bytes) -> 
             locks.enter_context(net.send_lock)
         try:
             together.send_together([net.bus for net in networks], msgs,
-                                   [net._raw_path() for net in networks])
+                                   [net._of_bus()[1] for net in networks])
         finally:
             for net, msg in zip(networks, msgs):
                 if net.capture is not None and msg.timestamp:
