@@ -97,9 +97,10 @@ def sync_stamps(capture: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.array([f[0] for f in frames]), np.array([f[1] for f in frames])
 
 
-def bus_skew_s(captures: list[Path]) -> np.ndarray:
-    """Per cycle, the latest SYNC of the buses minus the earliest (s), paired by cycle; every
-    capture must hold the same SYNCs (count and counters), else ValueError."""
+def bus_skew_s(captures: list[Path]) -> tuple[np.ndarray, np.ndarray]:
+    """Per cycle, the latest SYNC of the buses minus the earliest (s), paired by cycle, and
+    the earliest (wall-clock s); every capture must hold the same SYNCs (count and counters),
+    else ValueError."""
     stamps = [sync_stamps(c) for c in captures]
     n = {len(t) for t, _ in stamps}
     if len(n) != 1:
@@ -107,7 +108,8 @@ def bus_skew_s(captures: list[Path]) -> np.ndarray:
     if not all(np.array_equal(k, stamps[0][1]) for _, k in stamps[1:]):
         raise ValueError("the buses' SYNC counters differ cycle by cycle")
     t = np.vstack([s for s, _ in stamps])
-    return t.max(axis=0) - t.min(axis=0)
+    first = t.min(axis=0)
+    return t.max(axis=0) - first, first
 
 
 def grid_jitter_ms(sync_time: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -149,8 +151,8 @@ def realtime_rig(channels: int, buses: int, duration_s: float) -> dict:
         host = [wakeup.result(f) for f in floors]
         run = load_run(out)
         captures = [out / f"capture-{b.name}.log" for b in rig.buses]
-        skew = bus_skew_s(captures) * 1e3
-        first_sync = sync_stamps(captures[0])[0]
+        skew, first_sync = bus_skew_s(captures)
+        skew = skew * 1e3
         lag = np.concatenate([answer_lag_ms(c) for c in captures])
     jitter = grid_jitter_ms(np.asarray(run.sync_time), np.asarray(run.t))
     s = result.outcome.stats
