@@ -400,7 +400,7 @@ class ControlLoop:
         # the stamps' tolerance), or within the nodes' synchronous window after the one before
         # (a late SYNC follows its predecessor by less than a period; real time only)
         window = sync_window_s(T, lockstep)
-        fresh_from = sync_wall = -math.inf
+        sync_wall = -math.inf
         counter = 0
         ys = [math.nan] * n
         y_counts = [0] * n

@@ -208,11 +208,10 @@ class StandMaster:
         that discards the answer (CiA 301); a node without the object keeps answering late."""
         for link in self.links:
             link.node.sdo[P.COMM_CYCLE_PERIOD].raw = int(round(period_s * 1e6))
-        if self.stand_clock is not None:  # only a stand that has the object (the emulator)
-            self.valve.node.sdo[P.EMULATOR_CLOCK].raw
-        for link in self.links:
             if P.SYNC_WINDOW in link.node.object_dictionary:
                 link.node.sdo[P.SYNC_WINDOW].raw = int(round(sync_window_s * 1e6))
+        if self.stand_clock is not None:  # only a stand that has the object (the emulator)
+            self.valve.node.sdo[P.EMULATOR_CLOCK].raw
 
     # -- 5. start / stop ------------------------------------------------------------------------
     def start(self, timeout_s: float = 2.0, keepalive_s: float = 0.02) -> None:
