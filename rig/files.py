@@ -28,6 +28,14 @@ def on_private_loopback(rig: RigConfig, tag: str) -> RigConfig:
     return dataclasses.replace(rig, buses=buses, path=None)
 
 
+def write_as_run(rig: RigConfig, path: Path, source, command: str) -> None:
+    """Write ``rig`` (on private loopback buses) to ``path`` as the rig ``command`` ran, from
+    the file ``source``, and make ``path`` its file."""
+    path.write_text(rig_to_toml(rig, header=f"{source} as {command} ran it, on private loopback "
+                                            "buses", path=path))
+    rig.path = path
+
+
 def rig_to_toml(rig: RigConfig, header: str = "", path: str | Path | None = None) -> str:
     """A rig file for ``rig`` (round-trips through :func:`rig.config.rig_from_mapping`);
     ``path``: where it will be written (a plant's plug-in files are named relative to it).

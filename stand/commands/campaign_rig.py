@@ -81,15 +81,13 @@ def _own_emulator(stack: contextlib.ExitStack, rig, out: Path, seed: int):
     is refused before anything starts."""
     from plant_emulator.process import RigEmulatorProcess
     from rig.emulated import emulated_plant
-    from rig.files import on_private_loopback, rig_to_toml
+    from rig.files import on_private_loopback, write_as_run
     source = rig.path
     private = on_private_loopback(rig, f"campaign-{os.getpid()}")
     emulated_plant(private)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "rig.toml"
-    path.write_text(rig_to_toml(private, header=f"{source} as stand campaign --with-emulator ran "
-                                                "it, on private loopback buses", path=path))
-    private.path = path
+    write_as_run(private, path, source, "stand campaign --with-emulator")
     print(f"emulator: rig {private.name!r} from {source}, {len(private.channels)} channels on "
           f"{len(private.buses)} private loopback buses, lockstep, one separate process")
     stack.enter_context(RigEmulatorProcess(path, lockstep=True, seed=seed))

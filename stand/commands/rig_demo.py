@@ -72,16 +72,14 @@ def main_rig(args: argparse.Namespace) -> int:
     from gateway.recorder import write_json
     from gateway.runs import TRUTH_FILE
     from plant_emulator.process import RigEmulatorProcess
-    from rig.files import rig_to_toml
+    from rig.files import write_as_run
 
     rig, driven = demo_rig(args)
     source = _shown(rig.path)
     out = Path(args.out or f"runs/rig-demo-{dt.datetime.now():%Y%m%d-%H%M%S}")
     out.mkdir(parents=True, exist_ok=True)
     rig_file = out / RIG_FILE
-    rig_file.write_text(rig_to_toml(rig, header=f"{source} as stand demo --rig ran it, on private "
-                                                "loopback buses", path=rig_file))
-    rig.path = rig_file
+    write_as_run(rig, rig_file, source, "stand demo --rig")
     lockstep = not args.real_time
     clock = "lockstep" if lockstep else "real time"
     print(f"emulator: rig {rig.name!r} from {source}, {len(rig.channels)} channels on "
