@@ -439,10 +439,10 @@ def _stats_dict(stats) -> dict[str, Any]:
     if math.isfinite(stats.answer_window_min_s):    # real time
         out["answer_window_min_ms"] = stats.answer_window_min_s * 1e3
         out["cycles_begun_behind"] = sum(1 for b in stats.behind_s if b > 0)
-    jitter = stats.sync_jitter_s
-    if jitter:
-        import numpy as np
-        j = np.abs(np.asarray(jitter))
-        out["sync_jitter_ms"] = {"p50": float(np.percentile(j, 50) * 1e3),
-                                 "p99": float(np.percentile(j, 99) * 1e3), "max": float(j.max() * 1e3)}
+    for key, values in (("sync_jitter_ms", stats.sync_jitter_s), ("begun_behind_ms", stats.behind_s)):
+        if values:
+            import numpy as np
+            v = np.abs(np.asarray(values)) * 1e3
+            out[key] = {"p50": float(np.percentile(v, 50)), "p99": float(np.percentile(v, 99)),
+                        "max": float(v.max())}
     return out
