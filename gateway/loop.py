@@ -427,6 +427,9 @@ class ControlLoop:
             self.send_command(CW_ACTIVE, 0.0, i)
         wall0 = time.monotonic()
         t_start = time.perf_counter()
+        # real time: the SYNCs' grid, slot k at t_start + k·T; a row's t is k·T exactly (a
+        # sum of periods in floats drifts off it by ns when perf_counter is large: long uptimes)
+        slot = 0
         next_sync = t_start
         cycle = 0
         # real time: the wait for a cycle's answers ends ``reserve`` before the next SYNC, so
@@ -453,10 +456,11 @@ class ControlLoop:
                     if late > T:
                         missed = int(late / T)
                         stats.overruns += missed
-                        next_sync += missed * T
+                        slot += missed
+                        next_sync = t_start + slot * T
                     if late > overrun_limit:
                         late_trip = sups[0].overrun(late, time.time() - late)
-                    t = next_sync - t_start
+                    t = slot * T
                     deadline = next_sync + T - reserve
                 else:
                     t = cycle * T
@@ -644,7 +648,8 @@ class ControlLoop:
                         reserve = min(WORK_RESERVE_MAX * T,
                                       max(WORK_RESERVE_MIN * T, WORK_MARGIN * high + WORK_SLACK_S))
                         stats.answer_window_min_s = min(stats.answer_window_min_s, T - reserve)
-                next_sync += T
+                slot += 1
+                next_sync = t_start + slot * T
         except BaseException:
             self.safe_state(final_action)
             raise
