@@ -434,6 +434,7 @@ def driven_channels(rig, channels: Sequence[str] | None) -> list[int]:
 
 
 def _stats_dict(stats) -> dict[str, Any]:
+    import numpy as np
     out = {k: v for k, v in asdict(stats).items()
            if k not in ("sync_jitter_s", "answer_window_min_s", "behind_s")}
     if math.isfinite(stats.answer_window_min_s):    # real time
@@ -441,7 +442,6 @@ def _stats_dict(stats) -> dict[str, Any]:
         out["cycles_begun_behind"] = sum(1 for b in stats.behind_s if b > 0)
     for key, values in (("sync_jitter_ms", stats.sync_jitter_s), ("begun_behind_ms", stats.behind_s)):
         if values:
-            import numpy as np
             v = np.abs(np.asarray(values)) * 1e3
             out[key] = {"p50": float(np.percentile(v, 50)), "p99": float(np.percentile(v, 99)),
                         "max": float(v.max())}
