@@ -18,6 +18,11 @@ from .supervisor import SafetyLimits
 if TYPE_CHECKING:
     from rig.config import ChannelConfig, RigConfig
 
+#: how long the master waits for a node's SDO answer (canopen's default is 0.3 s, with no
+#: retry). A device answers in milliseconds; the slack is for a loaded host or a slow emulator
+#: (user-mode Linux), where a lost answer would end a run before it began.
+SDO_TIMEOUT_S = 1.0
+
 #: what a channel's communication or valve fault does to a rig's other channels
 FAULT_ACTIONS = ("hold", "unload")
 
@@ -32,6 +37,8 @@ class GatewayConfig:
     period_s: float = 0.002
     lockstep: bool = False
     boot_timeout_s: float = 5.0
+    #: how long the master waits for a node's SDO answer (SDO_TIMEOUT_S)
+    sdo_timeout_s: float = SDO_TIMEOUT_S
     heartbeat_ms: int = 100
     rpdo_timeout_ms: int = 100
     limits: SafetyLimits = field(default_factory=SafetyLimits)
@@ -65,6 +72,7 @@ class GatewayConfig:
         if self.valve_id == self.dynamometer_id:
             raise ParameterError("valve_id and dynamometer_id must differ")
         check_range("boot_timeout_s", self.boot_timeout_s, 0.1, 600, "s")
+        check_range("sdo_timeout_s", self.sdo_timeout_s, 0.01, 60, "s")
         check_range("heartbeat_ms", self.heartbeat_ms, 10, 10000, "ms", integer=True)
         check_range("rpdo_timeout_ms", self.rpdo_timeout_ms, 0, 60000, "ms", integer=True)
         self.limits.validate()

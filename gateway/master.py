@@ -19,9 +19,11 @@ size once read); anything else is counted and dropped (:class:`gateway.capture.T
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import canopen
@@ -31,12 +33,14 @@ from dbc import profile as P
 from dbc.pdo_codec import PdoLayout, PdoLayoutError
 
 from .capture import TappedNetwork
+from .config import SDO_TIMEOUT_S
 from .errors import NodeError
 
 log = logging.getLogger(__name__)
 
 NMT_START, NMT_PREOP, NMT_RESET_NODE = P.NMT_START, P.NMT_PREOP, P.NMT_RESET_NODE
 _NMT_NAMES = P.NMT_STATE_NAMES
+_SDO_ERRORS = (canopen.SdoCommunicationError, canopen.SdoAbortedError)
 
 
 @dataclass
@@ -58,7 +62,8 @@ class NodeLink:
 class StandMaster:
     """Master of the valve and dynamometer nodes on one :class:`TappedNetwork`."""
 
-    def __init__(self, network: TappedNetwork, valve_id: int, dynamometer_id: int) -> None:
+    def __init__(self, network: TappedNetwork, valve_id: int, dynamometer_id: int,
+                 sdo_timeout_s: float = SDO_TIMEOUT_S) -> None:
         if valve_id == dynamometer_id:
             raise NodeError(valve_id, "the valve and the dynamometer cannot have the same node id")
         for nid in (valve_id, dynamometer_id):
@@ -69,6 +74,7 @@ class StandMaster:
         self.dynamometer = NodeLink("dynamometer", canopen.RemoteNode(dynamometer_id, str(DYNAMOMETER_EDS)))
         self.links = (self.valve, self.dynamometer)
         for link in self.links:
+            link.node.sdo.RESPONSE_TIMEOUT = sdo_timeout_s
             network.add_node(link.node)
             network.subscribe(P.HEARTBEAT_BASE + link.id, self._heartbeat_callback(link))
             if hasattr(network, "expect"):
@@ -106,14 +112,11 @@ class StandMaster:
     def check_identity(self) -> None:
         for link in self.links:
             info = link.node.object_dictionary.device_information
-            try:
+            with sdo_errors(link, "cannot read its identity (0x1018) over SDO"):
                 vendor = link.node.sdo[P.IDENTITY][1].raw
                 product = link.node.sdo[P.IDENTITY][2].raw
                 revision = link.node.sdo[P.IDENTITY][3].raw
                 serial = link.node.sdo[P.IDENTITY][4].raw
-            except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
-                raise NodeError(link.id, f"{link.role} node {link.id}: cannot read its identity "
-                                         f"(0x1018) over SDO: {exc}") from None
             link.identity = dict(vendor=vendor, product=product, revision=revision, serial=serial)
             if (vendor, product) != (info.vendor_number, info.product_number):
                 raise NodeError(
@@ -128,30 +131,25 @@ class StandMaster:
         period_us = int(round(period_s * 1e6))
         for link in self.links:
             sdo = link.node.sdo
-            try:
+            with sdo_errors(link, "configuration over SDO failed"):
                 sdo[P.COMM_CYCLE_PERIOD].raw = period_us
                 sdo[P.PRODUCER_HEARTBEAT].raw = heartbeat_ms
                 link.node.tpdo.read()
                 if link is self.valve:
                     sdo[0x1400][5].raw = rpdo_timeout_ms
                     link.node.rpdo.read()
-            except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
-                raise NodeError(link.id, f"{link.role} node {link.id}: configuration over SDO "
-                                         f"failed: {exc}") from None
         self._set_layouts()
         dyn = self.dynamometer.node.sdo
-        try:
+        with sdo_errors(self.dynamometer, "cannot read its unit/decimals (0x6131/0x6132)"):
             unit = dyn[P.PV_UNIT[0]][P.PV_UNIT[1]].raw
             decimals = dyn[P.PV_DECIMALS[0]][P.PV_DECIMALS[1]].raw
+        try:
             self.force_scale_kgf = P.force_scale_kgf(unit, decimals)
-        except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
-            raise NodeError(self.dynamometer.id, f"dynamometer node {self.dynamometer.id}: cannot read "
-                                                 f"its unit/decimals (0x6131/0x6132): {exc}") from None
         except ValueError as exc:
             raise NodeError(self.dynamometer.id, f"dynamometer node {self.dynamometer.id}: {exc}") from None
         try:
             self.stand_clock = int(self.valve.node.sdo[P.EMULATOR_CLOCK].raw)
-        except (canopen.SdoCommunicationError, canopen.SdoAbortedError, KeyError):
+        except (*_SDO_ERRORS, KeyError):
             self.stand_clock = None  # a real valve: no such object
         self.lockstep_capable = self.stand_clock == 1
 
@@ -207,11 +205,13 @@ class StandMaster:
         the synchronous window 0x1007 (0: none): a node that would answer a SYNC later than
         that discards the answer (CiA 301); a node without the object keeps answering late."""
         for link in self.links:
-            link.node.sdo[P.COMM_CYCLE_PERIOD].raw = int(round(period_s * 1e6))
-            if P.SYNC_WINDOW in link.node.object_dictionary:
-                link.node.sdo[P.SYNC_WINDOW].raw = int(round(sync_window_s * 1e6))
+            with sdo_errors(link, "cannot declare the run (0x1006/0x1007) over SDO"):
+                link.node.sdo[P.COMM_CYCLE_PERIOD].raw = int(round(period_s * 1e6))
+                if P.SYNC_WINDOW in link.node.object_dictionary:
+                    link.node.sdo[P.SYNC_WINDOW].raw = int(round(sync_window_s * 1e6))
         if self.stand_clock is not None:  # only a stand that has the object (the emulator)
-            self.valve.node.sdo[P.EMULATOR_CLOCK].raw
+            with sdo_errors(self.valve, "cannot read its clock (0x2100) over SDO"):
+                self.valve.node.sdo[P.EMULATOR_CLOCK].raw
 
     # -- 5. start / stop ------------------------------------------------------------------------
     def start(self, timeout_s: float = 2.0, keepalive_s: float = 0.02) -> None:
@@ -238,7 +238,8 @@ class StandMaster:
     # -- 6. faults ------------------------------------------------------------------------------
     def valve_state(self) -> P.ValveState | None:
         """The valve's device state from its status word 0x6041 (read by SDO; None if unknown)."""
-        state = int(self.valve.node.sdo[P.STATUS_WORD].raw) & 0xF
+        with sdo_errors(self.valve, "cannot read its status word (0x6041) over SDO"):
+            state = int(self.valve.node.sdo[P.STATUS_WORD].raw) & 0xF
         return P.ValveState(state) if state in P.ValveState._value2member_map_ else None
 
     def reset_valve_fault(self) -> str | None:
@@ -250,9 +251,10 @@ class StandMaster:
         if before is None or not before.is_fault:
             return None
         sdo = self.valve.node.sdo
-        sdo[P.CONTROL_WORD].raw = 0                           # the edge needs the bit low first
-        sdo[P.CONTROL_WORD].raw = int(P.ControlBit.RESET_FAULT)
-        sdo[P.CONTROL_WORD].raw = int(P.CW_DISABLED)
+        with sdo_errors(self.valve, "cannot write its control word (0x6040) over SDO"):
+            sdo[P.CONTROL_WORD].raw = 0                       # the edge needs the bit low first
+            sdo[P.CONTROL_WORD].raw = int(P.ControlBit.RESET_FAULT)
+            sdo[P.CONTROL_WORD].raw = int(P.CW_DISABLED)
         after = self.valve_state()
         if after is None or after.is_fault:
             raise NodeError(self.valve.id, f"valve node {self.valve.id} stayed in "
@@ -267,6 +269,19 @@ class StandMaster:
         of the NMT command) only heartbeats received after it count: one already on its way
         may still carry the state before the command."""
         wait_links(self.links, state, timeout_s, keepalive, keepalive_s, since)
+
+
+@contextlib.contextmanager
+def sdo_errors(link: NodeLink, what: str) -> Iterator[None]:
+    """An SDO timeout or abort on ``link`` as a :class:`NodeError` that names the node and
+    says what the master was doing, not canopen's traceback."""
+    try:
+        yield
+    except _SDO_ERRORS as exc:
+        timeout = link.node.sdo.RESPONSE_TIMEOUT
+        hint = (f" within {timeout * 1e3:g} ms: is it powered and on this bus? On a slow host, "
+                "raise --sdo-timeout" if isinstance(exc, canopen.SdoCommunicationError) else "")
+        raise NodeError(link.id, f"{link.role} node {link.id}: {what}: {exc}{hint}") from None
 
 
 # -- every channel of a bus (or of a rig) at once ------------------------------------------------

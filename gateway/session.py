@@ -135,7 +135,8 @@ class Gateway:
     def _connect(self) -> None:
         cfg = self.config
         plan = self._channels()
-        self.masters = [StandMaster(self.networks[bus], valve, dyn) for _, bus, valve, dyn in plan]
+        self.masters = [StandMaster(self.networks[bus], valve, dyn, cfg.sdo_timeout_s)
+                        for _, bus, valve, dyn in plan]
         with self._naming_channel(None):
             boot_all(self.masters, cfg.boot_timeout_s)
         for i, master in enumerate(self.masters):

@@ -4,8 +4,12 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
+import threading
 
+import can
 import pytest
+
+from standbus.spec import open_bus
 
 
 def stand(*args, timeout=60):
@@ -29,6 +33,32 @@ def test_node_that_never_boots_is_named(bus_spec, tmp_path):
     res = stand("run", "meander", "--bus", bus_spec, "--boot-timeout", "0.5", "--out", str(tmp_path / "r"))
     assert res.returncode == 2
     assert "node 1 did not boot" in res.stderr and "nothing heard from it" in res.stderr
+
+
+def test_node_that_boots_but_never_answers_sdo_is_named_with_the_timeout(bus_spec, tmp_path):
+    # two nodes that answer an NMT reset with their boot-up message, and nothing else
+    bus = open_bus(bus_spec)
+    stop = threading.Event()
+
+    def nodes() -> None:
+        while not stop.is_set():
+            msg = bus.recv(0.05)
+            if msg is not None and msg.arbitration_id == 0 and msg.data[0] == 0x81:
+                for nid in (1, 2):
+                    bus.send(can.Message(arbitration_id=0x700 + nid, data=[0], is_extended_id=False))
+
+    thread = threading.Thread(target=nodes, daemon=True)
+    thread.start()
+    try:
+        res = stand("run", "meander", "--bus", bus_spec, "--sdo-timeout", "150", "--out", str(tmp_path / "r"))
+    finally:
+        stop.set()
+        thread.join(2)
+        bus.shutdown()
+    assert res.returncode == 2, res.stderr
+    assert ("valve node 1: cannot read its identity (0x1018) over SDO: No SDO response received "
+            "within 150 ms") in res.stderr, res.stderr
+    assert "--sdo-timeout" in res.stderr and not (tmp_path / "r").exists()
 
 
 @pytest.mark.e2e

@@ -195,6 +195,7 @@ def test_gateway_limits_are_valid_or_refused(force, cmd, slew, err, hb, stale, o
     (["run", "meander", "--slew-limit", "-3"], "slew_pct_per_s = -3"),
     (["run", "meander", "--heartbeat-timeout", "50"], "must exceed the nodes' heartbeat period"),
     (["run", "meander", "--stale-cycles", "0"], "stale_cycles = 0"),
+    (["run", "meander", "--sdo-timeout", "0"], "sdo_timeout_s = 0"),
     (["run", "meander", "--bus", "udp_loopback:x,drop=7"], "fault injection: drop=7"),
     (["emulate", "--set", "initial.force_kgf=nan"], "initial.force_kgf must be finite"),
     (["emulate", "--set", "initial.force_kgf=1e12"], "outside its physical range"),

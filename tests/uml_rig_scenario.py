@@ -38,10 +38,12 @@ def main(out: Path) -> int:
         with capture.open("w") as fh:
             dump = subprocess.Popen(["candump", "-L", "vcan0", "vcan1"], stdout=fh)
             time.sleep(0.5)        # candump is listening
-            # heartbeats are wall-clock; inside UML (one slow CPU) allow them more slack
+            # heartbeats and SDO answers are wall-clock; inside UML (one slow CPU) allow them
+            # more slack
             done = subprocess.run([sys.executable, "-m", "stand", "run", "meander", "--rig", str(path),
                                    "--channel", DRIVEN, "--lockstep", "--amplitude-pct", "5",
                                    "--period-s", "4", "--cycles", "3", "--heartbeat-timeout", "3000",
+                                   "--sdo-timeout", "3000",
                                    "--out", str(run)], capture_output=True, text=True, timeout=900)
             time.sleep(0.5)
             dump.send_signal(signal.SIGINT)

@@ -32,8 +32,9 @@ def main(out: Path) -> int:
     out.mkdir(parents=True, exist_ok=True)
     config = load_plant_config(None, "base", TRUTH)
     done = {}
-    # heartbeats are wall-clock; inside UML (one slow CPU) allow them more slack
-    gw_config = GatewayConfig(bus=BUS, lockstep=True, limits=SafetyLimits(heartbeat_timeout_s=3.0))
+    # heartbeats and SDO answers are wall-clock; inside UML (one slow CPU) allow them more slack
+    gw_config = GatewayConfig(bus=BUS, lockstep=True, sdo_timeout_s=3.0,
+                              limits=SafetyLimits(heartbeat_timeout_s=3.0))
     with EmulatorProcess(BUS, config, lockstep=True, seed=4, ready_timeout_s=120):
         with Gateway(gw_config) as gw:
             for name, experiment in experiments().items():

@@ -37,6 +37,9 @@ def add_gateway(p: argparse.ArgumentParser) -> None:
                    help="send the next SYNC as soon as a cycle is done (needs the emulator with --lockstep)")
     p.add_argument("--boot-timeout", type=float, default=5.0, metavar="S",
                    help="seconds to wait for the nodes' boot-up (default %(default)s)")
+    p.add_argument("--sdo-timeout", type=float, default=GatewayConfig.sdo_timeout_s * 1e3, metavar="MS",
+                   help="how long to wait for a node's SDO answer while setting up, ms "
+                        "(default %(default)g; raise it on a slow host)")
     add_rt_priority(p, "real time: run the control loop and bus reader threads")
     add_safety(p)
 
@@ -142,6 +145,7 @@ def gateway_config(args: argparse.Namespace) -> GatewayConfig:
                          period_s=(2.0 if period_ms is None else period_ms) / 1000.0,
                          lockstep=args.lockstep,
                          boot_timeout_s=args.boot_timeout,
+                         sdo_timeout_s=getattr(args, "sdo_timeout", GatewayConfig.sdo_timeout_s * 1e3) / 1e3,
                          rt_priority=getattr(args, "rt_priority", DEFAULT_PRIORITY),
                          rpdo_timeout_ms=getattr(args, "rpdo_timeout", GatewayConfig.rpdo_timeout_ms),
                          limits=safety_limits(args), rig=rig,
