@@ -63,13 +63,19 @@ def sync_answers(bus, n: int = 1, pause: float = 0.0) -> list[dict]:
     for _ in range(n):
         while bus.recv(0) is not None:
             pass
-        bus.send(can.Message(arbitration_id=0x80, data=b"\x01", is_extended_id=False))
         got = {}
-        deadline = time.monotonic() + 2
+        deadline = time.monotonic() + 5
         while len(got) < 2 and time.monotonic() < deadline:
-            m = bus.recv(0.1)
-            if m is not None and m.arbitration_id in (0x181, 0x182):
-                got[m.arbitration_id] = bytes(m.data)
+            # again while unanswered: a node that got to a SYNC later than its synchronous
+            # window (0x1007, set by the run) discards its answer, as it should on a stall
+            got = {}
+            bus.send(can.Message(arbitration_id=0x80, data=b"\x01", is_extended_id=False))
+            until = time.monotonic() + 0.3
+            while len(got) < 2 and time.monotonic() < until:
+                m = bus.recv(0.05)
+                if m is not None and m.arbitration_id in (0x181, 0x182):
+                    got[m.arbitration_id] = bytes(m.data)
+        assert len(got) == 2, f"no answer to 5 s of SYNCs: {sorted(got)}"
         status, spool = struct.unpack("<Hh", got[0x181])
         force = struct.unpack_from("<i", got[0x182])[0]
         out.append({"status": status, "spool": spool, "force_counts": force})
