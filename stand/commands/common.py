@@ -145,7 +145,7 @@ def gateway_config(args: argparse.Namespace) -> GatewayConfig:
                          period_s=(2.0 if period_ms is None else period_ms) / 1000.0,
                          lockstep=args.lockstep,
                          boot_timeout_s=args.boot_timeout,
-                         sdo_timeout_s=getattr(args, "sdo_timeout", GatewayConfig.sdo_timeout_s * 1e3) / 1e3,
+                         sdo_timeout_s=args.sdo_timeout / 1e3,
                          rt_priority=getattr(args, "rt_priority", DEFAULT_PRIORITY),
                          rpdo_timeout_ms=getattr(args, "rpdo_timeout", GatewayConfig.rpdo_timeout_ms),
                          limits=safety_limits(args), rig=rig,
