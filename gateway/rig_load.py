@@ -10,6 +10,13 @@ per channel), the report (``report.json``: schema ``hydrostand-load/1`` with ``c
 ``ratio_error_pct``; ``report.txt``) and the last pass's figure (``tracking.png``: a row per
 channel).
 
+**Time scaling** of load cases (``scaling``, :mod:`loading.rig_time_scaling`): the segments
+between load cases change from pass to pass, each on its own, floored at the valve-limited
+minimum through the rig's model (:mod:`loading.rig_minimum_time`), until every channel holds the
+accuracy at every load case as fast as it can; ``out/schedule.toml`` keeps the fastest schedule
+whose pass met it (with the channels' names) and a ``schedule`` replays one. Every pass reports
+the programme's time beside that minimum.
+
 Every channel's supervisor keeps its own tracking-error limit for these passes, unless one is
 given: :data:`ERROR_LIMIT_SHARE` of that channel's programme range (at least 100 kgf), so a
 pass that cannot track stops safely (and, with the rig's safety, every channel with it) and says
@@ -28,9 +35,12 @@ from core.errors import ParameterError
 from loading.rig_compensation import RigCompensation
 from loading.rig_design import RigControllerDesign
 from loading.rig_programme import RigProgramme
+from loading.rig_minimum_time import programme_flow_limit, rig_minimum_durations_s
 from loading.rig_report import RigTrackingReport, plot_rig_tracking, rig_load_summary, rig_tracking_report
+from loading.rig_time_scaling import rig_meets, rig_verdicts
+from loading.time_scaling import ScalingOptions, Schedule, TimeScaler, stretch_to_valve
 
-from .load import ERROR_LIMIT_SHARE
+from .load import ERROR_LIMIT_SHARE, FEEDFORWARD_SHARE, STRETCH_TRIES
 from .rig_load_experiment import RigLoadProgramme
 from .runs import load_run
 
@@ -45,13 +55,27 @@ class RigLoadResult:
     compensation: RigCompensation | None = None
     #: the programme's own time (s), as the one-channel summary's ``programme_time_s``
     programme_time_s: float | None = None
+    #: its valve-limited minimum by the controller's model (load cases only)
+    minimum_time_s: float | None = None
+    #: per pass: its programme's time and, time scaling, the segments' verdicts
+    timings: list[dict] = field(default_factory=list)
+    #: time scaling: the fastest schedule whose pass met the accuracy (None: none did)
+    schedule: Schedule | None = None
+    #: time scaling: did the last pass run every segment settled and meet the accuracy
+    converged: bool | None = None
 
     def summary(self) -> dict:
-        extras = [{"programme_time_s": self.programme_time_s}] * len(self.passes)
+        extras = [{**t, "minimum_time_s": self.minimum_time_s} for t in self.timings]
         d = rig_load_summary(self.passes, self.end_reason or "complete", extras)
         d["runs"] = [str(p) for p in self.run_dirs]
         if self.end_message:
             d["end_message"] = self.end_message
+        if self.converged is not None:
+            s = self.schedule
+            d["schedule"] = ({"time_s": s.time_s, "minimum_time_s": s.minimum_time_s,
+                              "accuracy_pct": s.accuracy_pct, "verified": s.verified}
+                             if s is not None else None)
+            d["converged"] = self.converged
         return d
 
 
@@ -82,16 +106,28 @@ def achieved(run_dir: Path, experiment: RigLoadProgramme) -> tuple[np.ndarray, n
 def run_rig_load(gw, programme: RigProgramme, controller: RigControllerDesign, out: str | Path,
                  repeat: int = 1, compensation: RigCompensation | None = None, learn: bool = True,
                  unload_kgf: float = 0.0, progress: bool | None = None,
-                 error_limit_kgf: float | None = None) -> RigLoadResult:
+                 error_limit_kgf: float | None = None, scaling: ScalingOptions | None = None,
+                 schedule: Schedule | None = None) -> RigLoadResult:
     """Run ``repeat`` passes of ``programme`` on the rig behind ``gw`` (module docstring).
     ``error_limit_kgf``: every channel's tracking-error limit for these passes (default: each
-    supervisor's own, else :data:`ERROR_LIMIT_SHARE` of the channel's programme range)."""
+    supervisor's own, else :data:`ERROR_LIMIT_SHARE` of the channel's programme range).
+    ``schedule``: the load cases' segment durations to run (a rig's ``schedule.toml``).
+    ``scaling``: time scaling of the load cases, at most ``repeat`` passes
+    (:mod:`loading.rig_time_scaling`)."""
     if not (1 <= repeat <= 1000):
         raise ParameterError(f"repeat = {repeat}: it must be from 1 to 1000")
+    if schedule is not None:
+        programme = schedule.apply_rig(programme)
+    if scaling is not None:
+        scaling.check()
+        if not programme.load_cases:
+            raise ParameterError(f"{programme.source}: time scaling needs load cases (a CSV with a "
+                                 "column per channel): per-channel sequences have no common segments")
     out = Path(out)
     comp = compensation if compensation is not None else (
         RigCompensation(programme.names) if learn and repeat > 1 else None)
     first = check_rig_load(gw.config, programme, controller, comp, unload_kgf)
+    minimum = rig_minimum_s(gw.config, programme, controller, required=scaling is not None)
     supervisors = [ch.supervisor for ch in gw.loop.channels]
     own = [s.limits for s in supervisors]
     for s, lim, rng in zip(supervisors, own, programme.ranges_kgf):
@@ -101,37 +137,161 @@ def run_rig_load(gw, programme: RigProgramme, controller: RigControllerDesign, o
         s.limits = replace(lim, error_limit_kgf=limit)
     out.mkdir(parents=True, exist_ok=True)
     (out / "controller.toml").write_text(controller.to_toml(out / "controller.toml"))
-    result = RigLoadResult(out, compensation=comp, programme_time_s=programme.duration_s)
-    last = None
+    result = RigLoadResult(out, compensation=comp, programme_time_s=programme.duration_s,
+                           minimum_time_s=float(minimum.sum()) if minimum is not None else None)
+    shared = _Passes(gw, controller, comp, unload_kgf, learn, progress, result)
     try:
-        for i in range(1, repeat + 1):
-            experiment = first if i == 1 else check_rig_load(gw.config, programme, controller, comp, unload_kgf)
-            res = gw.run(experiment, out / f"pass-{i}", progress=progress)
-            result.run_dirs.append(res.path)
-            if res.status != "complete" or experiment.main_start_s is None:
-                result.end_reason = res.reason or res.status
-                result.end_message = res.outcome.message if res.outcome else None
-                break
-            t, Y = achieved(res.path, experiment)
-            report = rig_tracking_report(programme, t, Y)
-            result.passes.append(report)
-            (res.path / "tracking.json").write_text(json.dumps(report.to_dict(), indent=1) + "\n")
-            if comp is not None and learn:
-                comp.learn(report.channels, programme.ranges_kgf)
-                comp.save(out / "compensation.toml")
-            last = (t, Y)
+        if scaling is not None:
+            last = _scaled_passes(shared, programme, minimum, repeat, scaling)
+        else:
+            last = None
+            for i in range(1, repeat + 1):
+                experiment = first if i == 1 else check_rig_load(gw.config, programme, controller, comp, unload_kgf)
+                done = shared.run(experiment, programme, i)
+                if done is None:
+                    break
+                last = (programme, done)
     finally:
         for s, lim in zip(supervisors, own):
             s.limits = lim
-    _write_reports(result, programme, last)
+    _write_reports(result, *(last or (programme, None)))
     return result
+
+
+def rig_minimum_s(gw_config, programme: RigProgramme, controller: RigControllerDesign,
+                  required: bool = False) -> np.ndarray | None:
+    """Each load-case segment's valve-limited minimum by the controller's rig model
+    (:mod:`loading.rig_minimum_time`); None for per-channel sequences, or when the model says a
+    valve cannot hold and ``required`` is false (only time scaling needs it)."""
+    if not programme.load_cases:
+        return None
+    limit = min(controller.command_limit_pct, gw_config.limits.command_limit_pct)
+    try:
+        return rig_minimum_durations_s(programme, controller.model,
+                                       programme_flow_limit(programme, controller.model, limit))[0]
+    except ParameterError:
+        if required:
+            raise
+        return None
+
+
+@dataclass
+class _Passes:
+    """What every pass of one ``run_rig_load`` shares."""
+
+    gw: object
+    controller: RigControllerDesign
+    compensation: RigCompensation | None
+    unload_kgf: float
+    learn: bool
+    progress: bool | None
+    result: RigLoadResult
+
+    def run(self, experiment: RigLoadProgramme, programme: RigProgramme, i: int):
+        """Pass ``i``: run, report, learn. Returns the forces ``(t, Y)`` on the programme's
+        clock, or None if the pass ended early (``result.end_reason`` says why)."""
+        result = self.result
+        res = self.gw.run(experiment, result.out / f"pass-{i}", progress=self.progress)
+        result.run_dirs.append(res.path)
+        if res.status != "complete" or experiment.main_start_s is None:
+            result.end_reason = res.reason or res.status
+            result.end_message = res.outcome.message if res.outcome else None
+            return None
+        t, Y = achieved(res.path, experiment)
+        report = rig_tracking_report(programme, t, Y)
+        result.passes.append(report)
+        result.timings.append({"programme_time_s": programme.duration_s})
+        (res.path / "tracking.json").write_text(json.dumps(report.to_dict(), indent=1) + "\n")
+        comp = self.compensation
+        if comp is not None and self.learn:
+            comp.learn(report.channels, programme.ranges_kgf)
+            comp.save(result.out / "compensation.toml")
+        return t, Y
+
+
+def _scaled_passes(shared: _Passes, programme: RigProgramme, minimum: np.ndarray, repeat: int,
+                   options: ScalingOptions):
+    """Time scaling of the load cases, pass by pass (loading.rig_time_scaling). Returns the
+    last pass's (programme, forces), or None."""
+    result = shared.result
+    result.converged = False
+    gw, controller = shared.gw, shared.controller
+    scaler = TimeScaler(programme, minimum, programme.segment_durations_s, options)
+    share_limit = FEEDFORWARD_SHARE * min(controller.command_limit_pct, gw.config.limits.command_limit_pct)
+    base = programme
+    last = None
+    for i in range(1, repeat + 1):
+        for _ in range(STRETCH_TRIES):           # lengthen what the valves cannot follow
+            current = base.with_durations(scaler.durations, f"{base.source}, scaled pass {i}")
+            experiment = RigLoadProgramme(current, controller, shared.compensation, shared.unload_kgf)
+            stretched = stretch_to_valve(scaler.durations, segment_peaks(experiment), share_limit)
+            if stretched is None:
+                break
+            scaler.durations = np.maximum(stretched, scaler.floor)
+        settled = scaler.all_settled
+        limits = gw.config.limits
+        experiment.check(gw.config.period_s, [c.limit_kgf for c in gw.config.rig.channels],
+                         limits.command_limit_pct)
+        done = shared.run(experiment, current, i)
+        if done is None:
+            break
+        last = (current, done)
+        report = result.passes[-1]
+        ok = rig_meets(report, options.accuracy_pct)
+        verdicts = rig_verdicts(scaler, current, report, *done)
+        result.timings[-1]["scaling"] = {**scaler.last, "met_accuracy": ok, "all_settled_before": settled}
+        if ok and (result.schedule is None or current.duration_s < result.schedule.time_s):
+            result.schedule = Schedule(base.levels_kgf, current.segment_durations_s, base.period_s,
+                                       options.accuracy_pct, float(np.sum(minimum)), base.source,
+                                       verified=True, notes=[f"pass {i} of {result.out}"],
+                                       channels=list(base.names))
+            result.schedule.save(result.out / "schedule.toml")
+        if ok and settled:
+            result.converged = True
+            break
+        scaler.update(verdicts)
+    if result.schedule is None:                  # none met it: the last durations, unverified
+        Schedule(base.levels_kgf, scaler.durations, base.period_s, options.accuracy_pct,
+                 float(np.sum(minimum)), base.source, verified=False,
+                 notes=["no pass met the accuracy: these durations are the next pass's"],
+                 channels=list(base.names)).save(result.out / "schedule.toml")
+    return last
+
+
+def segment_peaks(e: RigLoadProgramme) -> np.ndarray:
+    """Each load-case segment's largest feedforward command (%) over every channel and both
+    ways its rod may last have moved, each channel's sent its own delay ahead."""
+    programme = e.commanded
+    idx0 = e.lead + programme.turning_idx
+    peaks = np.zeros(len(idx0) - 1)
+    for ff in e.ff.values():
+        for f, m in zip(ff.channels, e.controller.model.channels):
+            idx = idx0 - int(round(m.tau / programme.period_s))
+            u = np.abs(f.u_pct)
+            for j in range(len(peaks)):
+                a, b = max(idx[j], 0), max(idx[j + 1], 1)
+                peaks[j] = max(peaks[j], float(u[a:b].max()))
+    return peaks
 
 
 def _write_reports(result: RigLoadResult, programme: RigProgramme, last) -> None:
     out = result.out
     if last is not None:
-        lines = [f"pass {i}:\n{p.text()}" for i, p in enumerate(result.passes, start=1)]
+        lines = [f"pass {i}:\n{timing_text(t, result.minimum_time_s)}\n{p.text()}"
+                 for i, (p, t) in enumerate(zip(result.passes, result.timings), start=1)]
         (out / "report.txt").write_text("\n\n".join(lines) + "\n")
         plot_rig_tracking(programme, *last, result.passes[-1], out / "tracking.png",
                           title=f"{programme.source}: pass {len(result.passes)}")
     (out / "report.json").write_text(json.dumps(result.summary(), indent=2) + "\n")
+
+
+def timing_text(timing: dict, minimum_time_s: float | None) -> str:
+    """One line: the programme's time, its valve-limited minimum, time scaling's verdicts."""
+    text = f"programme {timing['programme_time_s']:.1f} s"
+    if minimum_time_s:
+        text += (f", valve-limited minimum {minimum_time_s:.1f} s "
+                 f"({timing['programme_time_s'] / minimum_time_s:.2f}x)")
+    s = timing.get("scaling")
+    if s is not None:
+        text += f"; segments landed {s.get('land', 0)}, held {s.get('hold', 0)}, missed {s.get('miss', 0)}"
+    return text

@@ -106,6 +106,21 @@ class RigProgramme:
     def ranges_kgf(self) -> np.ndarray:
         return np.array([p.range_kgf for p in self.channels])
 
+    @property
+    def segment_durations_s(self) -> np.ndarray:
+        """How long each segment between two load cases lasts (s; load cases only)."""
+        self.turning_idx                      # refuses per-channel sequences
+        return self.channels[0].segment_durations_s
+
+    def with_durations(self, durations_s, source: str | None = None) -> "RigProgramme":
+        """The same load cases with each segment lasting ``durations_s`` (s, one per segment;
+        :meth:`Programme.with_durations` on every channel, so they stay on one grid): time
+        scaling."""
+        self.turning_idx                      # refuses per-channel sequences
+        label = source or self.source
+        return RigProgramme(self.names, [p.with_durations(durations_s, label) for p in self.channels],
+                            True, label, self.case_labels)
+
     def channel(self, name: str) -> Programme:
         try:
             return self.channels[self.names.index(name)]

@@ -82,7 +82,9 @@ class ScalingOptions:
 
 @dataclass
 class Schedule:
-    """Segment durations for a programme's turning points (``schedule.toml``)."""
+    """Segment durations for a programme's turning points (``schedule.toml``); a rig's
+    (``stand load --rig``) names its ``channels`` and has a row of levels per channel, its
+    segments being those between load cases."""
 
     levels_kgf: np.ndarray
     durations_s: np.ndarray
@@ -93,6 +95,8 @@ class Schedule:
     #: True when a pass with exactly these durations met the accuracy
     verified: bool = False
     notes: list[str] = field(default_factory=list)
+    #: a rig's schedule: its channels, in the order of the rows of ``levels_kgf``
+    channels: list[str] | None = None
 
     @property
     def time_s(self) -> float:
@@ -100,6 +104,9 @@ class Schedule:
 
     def apply(self, programme: Programme) -> Programme:
         """The programme with these durations; refused if its turning points are not these."""
+        if self.channels is not None:
+            raise ParameterError(f"the schedule ({self.source or 'schedule.toml'}) is a rig's (channels "
+                                 f"{', '.join(self.channels)}): replay it with --rig")
         lv = programme.levels_kgf
         if len(lv) != len(self.levels_kgf) or not np.allclose(lv, self.levels_kgf, atol=0.05):
             where = ("it has " + str(len(lv)) + " turning points, the schedule "
@@ -114,6 +121,33 @@ class Schedule:
         return programme.with_durations(self.durations_s, f"{programme.source}, scheduled "
                                                           f"({self.time_s:.1f} s)")
 
+    def apply_rig(self, programme):
+        """A rig's load-case programme (:class:`loading.rig_programme.RigProgramme`) with these
+        durations; refused if its channels or load cases are not these."""
+        what = self.source or "schedule.toml"
+        if self.channels is None:
+            raise ParameterError(f"the schedule ({what}) is one channel's: it cannot time a rig's load "
+                                 "cases; make one with stand load --rig --fastest")
+        if list(self.channels) != list(programme.names):
+            raise ParameterError(f"the schedule ({what}) is for the channels {', '.join(self.channels)}, "
+                                 f"the rig has {', '.join(programme.names)}")
+        if not programme.load_cases:
+            raise ParameterError(f"{programme.source}: per-channel sequences have no load cases to "
+                                 "time; a schedule times a load-case CSV")
+        lv = programme.levels_kgf
+        if lv.shape != self.levels_kgf.shape or not np.allclose(lv, self.levels_kgf, atol=0.05):
+            where = (f"it has {lv.shape[1]} load cases, the schedule {self.levels_kgf.shape[1]}"
+                     if lv.shape != self.levels_kgf.shape else
+                     f"load case {int(np.flatnonzero(~np.isclose(lv, self.levels_kgf, atol=0.05).all(axis=0))[0]) + 1} differs")
+            raise ParameterError(f"the schedule ({what}) was made for other load cases than "
+                                 f"{programme.source}: {where}; run --fastest or --accuracy on these "
+                                 "load cases to make their schedule")
+        if abs(self.period_s - programme.period_s) > 1e-12:
+            raise ParameterError(f"the schedule was made at a period of {self.period_s * 1e3:g} ms, the "
+                                 f"loop runs at {programme.period_s * 1e3:g} ms")
+        return programme.with_durations(self.durations_s, f"{programme.source}, scheduled "
+                                                          f"({self.time_s:.1f} s)")
+
     def to_toml(self) -> str:
         out = [f"# {SCHEMA}: segment durations made by `stand load --accuracy/--fastest`",
                "# (replay with `stand load PROGRAMME --schedule THIS_FILE`)",
@@ -121,8 +155,13 @@ class Schedule:
                f"accuracy_pct = {float(self.accuracy_pct)!r}", f"verified = {str(self.verified).lower()}",
                f"time_s = {self.time_s!r}", f"minimum_time_s = {float(self.minimum_time_s)!r}"]
         out += [f"notes = [{', '.join(_quote(n) for n in self.notes)}]"]
-        out += ["levels_kgf = [" + ", ".join(repr(float(v)) for v in self.levels_kgf) + "]",
-                "durations_s = [" + ", ".join(f"{v:.9g}" for v in self.durations_s) + "]"]
+        if self.channels is not None:
+            rows = ("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in self.levels_kgf)
+            out += [f"channels = [{', '.join(_quote(n) for n in self.channels)}]",
+                    "levels_kgf = [" + ", ".join(rows) + "]"]
+        else:
+            out += ["levels_kgf = [" + ", ".join(repr(float(v)) for v in self.levels_kgf) + "]"]
+        out += ["durations_s = [" + ", ".join(f"{v:.9g}" for v in self.durations_s) + "]"]
         return "\n".join(out) + "\n"
 
     def save(self, path: str | Path) -> Path:
@@ -139,11 +178,17 @@ class Schedule:
             s = cls(np.asarray(d["levels_kgf"], float), np.asarray(d["durations_s"], float),
                     float(d["period_s"]), float(d.get("accuracy_pct", math.nan)),
                     float(d.get("minimum_time_s", math.nan)), str(d.get("source", path)),
-                    bool(d.get("verified", False)), list(d.get("notes", [])))
+                    bool(d.get("verified", False)), list(d.get("notes", [])),
+                    [str(n) for n in d["channels"]] if "channels" in d else None)
         except (ModelError, KeyError, TypeError, ValueError) as exc:
             raise ParameterError(f"{path}: not a schedule file ({exc}); write one with stand load "
                                  "--fastest or --accuracy") from None
-        if (s.durations_s.shape != (len(s.levels_kgf) - 1,) or not np.isfinite(s.durations_s).all()
+        if s.channels is not None and (s.levels_kgf.ndim != 2 or s.levels_kgf.shape[0] != len(s.channels)):
+            raise ParameterError(f"{path}: a rig's schedule has a row of levels_kgf per channel "
+                                 f"({len(s.channels)} channels)")
+        if s.channels is None and s.levels_kgf.ndim != 1:
+            raise ParameterError(f"{path}: levels_kgf is a table but the schedule names no channels")
+        if (s.durations_s.shape != (s.levels_kgf.shape[-1] - 1,) or not np.isfinite(s.durations_s).all()
                 or not (s.durations_s > 0).all()):
             raise ParameterError(f"{path}: one positive duration per segment (levels - 1) is expected")
         return s

@@ -92,6 +92,54 @@ def test_stand_load_rig_tracks_load_cases_on_every_channel_and_reports_per_chann
         assert (out / f"pass-{k}" / "tracking.json").is_file()
 
 
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_stand_load_rig_fastest_scales_the_load_cases_to_the_valves_and_the_schedule_replays(
+        tmp_path, start_rig_emulator, decoupled):
+    """--fastest with no rate: from twice the valve-limited minimum through G, shortened pass by
+    pass while every channel holds 0.5 %; the schedule it saves replays, and --plan reads it."""
+    rig = start_rig_emulator()
+    (tmp_path / "cases.csv").write_text(CASES)
+    plan = stand("load", tmp_path / "cases.csv", "--rig", rig, "--controller", decoupled, "--fastest",
+                 "--plan", "--json", "--lockstep")
+    assert plan.returncode == 0, plan.stderr
+    start = json.loads(plan.stdout)
+    assert start["ratio"] == pytest.approx(2.0, abs=0.01) and start["segments"] == 5
+    assert set(start["segments_set_by"]) <= set(NAMES)
+    minimum = start["minimum_time_s"]
+    out = tmp_path / "fast"
+    done = stand("load", tmp_path / "cases.csv", "--rig", rig, "--controller", decoupled, "--fastest",
+                 "--repeat", 6, "--lockstep", "--json", "--no-progress", "--out", out)
+    assert done.returncode == 0, done.stderr + done.stdout
+    doc = json.loads(done.stdout)
+    times = [p["programme_time_s"] for p in doc["passes"]]
+    assert times[0] == pytest.approx(2 * minimum, abs=0.01) and min(times) < 0.7 * times[0], times
+    assert all(p["minimum_time_s"] == pytest.approx(minimum) for p in doc["passes"])
+    assert all({"land", "hold", "miss", "met_accuracy"} <= set(p["scaling"]) for p in doc["passes"])
+    sched = doc["schedule"]
+    assert sched is not None and sched["verified"] and sched["accuracy_pct"] == 0.5
+    # never under the floor (whole periods), and it met 0.5 % on every channel in its pass
+    assert minimum - 0.002 * 5 <= sched["time_s"] < 0.7 * times[0]
+    met = [p for p in doc["passes"] if p["programme_time_s"] == pytest.approx(sched["time_s"], abs=1e-6)]
+    assert met and all(f["peak_valley_error_pct"]["p95"] <= 0.5 and f["peak_valley_error_pct"]["max"] <= 1.0
+                       and f["extra_cycles"] == 0 for f in met[0]["channels"].values()), met
+    from loading.time_scaling import Schedule
+    saved = Schedule.load(out / "schedule.toml")
+    assert saved.channels == NAMES and saved.verified and saved.time_s == pytest.approx(sched["time_s"])
+    assert "valve-limited minimum" in (out / "report.txt").read_text()
+    # a production run replays the schedule (no --rate needed) and --plan reads it
+    again = stand("load", tmp_path / "cases.csv", "--rig", rig, "--controller", decoupled, "--schedule",
+                  out / "schedule.toml", "--lockstep", "--json", "--no-progress", "--out", tmp_path / "replay")
+    assert again.returncode == 0, again.stderr + again.stdout
+    replay = json.loads(again.stdout)
+    assert replay["programme_time_s"] == pytest.approx(sched["time_s"], abs=0.002)
+    for name, f in replay["channels"].items():
+        assert f["peak_valley_error_pct"]["max"] <= 1.0 and f["extra_cycles"] == 0, (name, f)
+    text = stand("load", tmp_path / "cases.csv", "--rig", rig, "--controller", decoupled, "--schedule",
+                 out / "schedule.toml", "--plan", "--lockstep")
+    assert text.returncode == 0 and "the schedule:" in text.stdout and "segments set by" in text.stdout, text
+
+
 def in_process(capsys, *args) -> tuple[int, str]:
     """``stand ARGS`` in this process (quicker than a subprocess): exit code and stderr."""
     from stand.cli import main
@@ -106,6 +154,10 @@ def test_stand_load_rig_refuses_before_anything_is_opened(tmp_path, decoupled, c
     (tmp_path / "cases.csv").write_text(CASES)
     (tmp_path / "other.csv").write_text(CASES.replace("tip", "wingtip"))
     (tmp_path / "high.csv").write_text(CASES.replace("5000,4500,2800,2500", "5000,4500,4800,2500"))
+    (tmp_path / "sequences.toml").write_text("".join(
+        f'[channel.{n}]\nprogramme = "sine:mean=1000,amplitude=300,frequency=0.5,cycles=2"\n' for n in NAMES))
+    from loading.time_scaling import Schedule
+    Schedule(np.array([1000.0, 4000.0]), np.array([1.0]), 0.002, source="one channel").save(tmp_path / "one.toml")
     out = tmp_path / "never"
     base = ("--rig", rig, "--controller", decoupled, "--lockstep", "--out", out)
     cases = [
@@ -114,6 +166,11 @@ def test_stand_load_rig_refuses_before_anything_is_opened(tmp_path, decoupled, c
         (("cases.csv", "--rate", 25000), "needs a valve command of .* its valve cannot follow"),
         (("cases.csv",), "load cases need --rate"),
         (("cases.csv", "--rate", 2500, "--pacing", "static"), "--pacing: not available with --rig"),
+        (("cases.csv", "--rate", 2500, "--gain", "watch"), "--gain: not available with --rig"),
+        (("cases.csv", "--fastest", "--schedule", "one.toml"), "give one or the other"),
+        (("cases.csv", "--accuracy", 50), "accuracy 50.0 %: give a share of the range"),
+        (("cases.csv", "--schedule", tmp_path / "one.toml"), "one channel's: it cannot time a rig's load cases"),
+        (("sequences.toml", "--rate", 2500, "--fastest"), "holds per-channel sequences, which share no"),
         (("cases.csv", "--rate", 2500, "--force-limit", 4000), "a rig's force limits are per channel"),
     ]
     for args, message in cases:

@@ -102,7 +102,9 @@ def register(sub) -> None:
                    help="load every channel of a rig at once: PROGRAM is a load-case CSV (a column "
                         "per channel, a row per load case) or a TOML of [channel.NAME] programmes, "
                         "--controller a rig controller (stand design RIG-MODEL.toml); each "
-                        "channel's peak/valley compensation learns between passes")
+                        "channel's peak/valley compensation learns between passes; --plan, "
+                        "--fastest, --accuracy and --schedule time its load cases, every valve's "
+                        "limit counted with its neighbours' flows through G")
     g.add_argument("--fault-action", choices=("hold", "unload"), default="hold",
                    help="with --rig: what a channel's communication or valve fault does to the "
                         "others: hold every channel, or unload them keeping the load ratios "

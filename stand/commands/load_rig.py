@@ -9,39 +9,86 @@ import sys
 
 from core.errors import ParameterError
 
-#: one-channel options that have no rig form yet, and what each is
-NOT_FOR_A_RIG = (("plan", "--plan"), ("accuracy", "--accuracy"), ("fastest", "--fastest"),
-                 ("schedule", "--schedule"))
-
-
 def _refuse_one_channel_options(args: argparse.Namespace) -> None:
-    given = [flag for attr, flag in NOT_FOR_A_RIG if getattr(args, attr, None)]
+    given = []
     if getattr(args, "pacing", "off") != "off":
         given.append("--pacing")
     if getattr(args, "gain", "off") != "off":
         given.append("--gain")
     if given:
         raise ParameterError(f"{', '.join(given)}: not available with --rig yet (a rig's programme "
-                             "runs at its --rate or --frequency, with peak/valley compensation per "
-                             "channel); leave them out")
+                             "runs at its --rate or --frequency, or a schedule's durations, with "
+                             "peak/valley compensation per channel); leave them out")
+
+
+def _plan(args, programme, controller, config) -> int:
+    """``--plan --rig``: the load cases' time beside their valve-limited minimum."""
+    from loading.rig_minimum_time import rig_programme_timing
+    limit = min(controller.command_limit_pct, config.limits.command_limit_pct)
+    timing = rig_programme_timing(programme, controller.model, limit)
+    if args.json:
+        json.dump({"programme": programme.source, "channels": programme.names,
+                   "load_cases": int(len(programme.turning_idx)),
+                   "ranges_kgf": dict(zip(programme.names, programme.ranges_kgf.tolist())),
+                   "command_limit_pct": limit, **timing.to_dict()}, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+        return 0
+    print(f"{programme.source}: {len(programme.turning_idx)} load cases on {programme.n} channels "
+          f"({', '.join(programme.names)}), command limit ±{limit:g} %")
+    label = ("the schedule" if args.schedule else "the starting schedule"
+             if (args.fastest or args.accuracy is not None) and args.rate is None and args.frequency is None
+             else "at the requested rate")
+    print(timing.text(label))
+    return 0
 
 
 def main(args: argparse.Namespace) -> int:
     from gateway import Gateway
-    from gateway.rig_load import check_rig_load, run_rig_load
+    from gateway.rig_load import check_rig_load, run_rig_load, timing_text
     from loading.rig_compensation import RigCompensation
     from loading.rig_design import load_rig_controller
     from loading.rig_programme import load_rig_programme
+    from loading.time_scaling import ScalingOptions, Schedule
 
     from .common import gateway_config, sigterm_as_interrupt
+    from .load import DEFAULT_ACCURACY_PCT, PLACEHOLDER_RATE_KGF_S, SCALING_PASSES
     _refuse_one_channel_options(args)
-    if not args.out:
-        raise ParameterError("give --out DIR for the passes and the report")
     config = gateway_config(args)
     rig = config.rig
     controller = load_rig_controller(args.controller, config.period_s, rig.names)
-    programme = load_rig_programme(args.program, rig.names, config.period_s, args.rate, args.frequency)
-    repeat = args.repeat if args.repeat is not None else 1
+    scaling = None
+    if args.fastest or args.accuracy is not None:
+        if args.schedule:
+            raise ParameterError("--schedule replays a schedule; --fastest/--accuracy make one: give "
+                                 "one or the other")
+        scaling = ScalingOptions(accuracy_pct=args.accuracy if args.accuracy is not None else DEFAULT_ACCURACY_PCT)
+        scaling.check()
+    timed = scaling is not None or args.schedule or args.plan
+    if timed and str(args.program).lower().endswith(".toml"):
+        flags = [f for f, on in (("--fastest/--accuracy", scaling is not None), ("--schedule", args.schedule),
+                                 ("--plan", args.plan)) if on]
+        raise ParameterError(f"{', '.join(flags)} with --rig: time load cases (a CSV with a column per "
+                             f"channel); {args.program} holds per-channel sequences, which share no "
+                             "segments to time")
+    untimed = args.rate is None and args.frequency is None and (scaling is not None or args.schedule)
+    programme = load_rig_programme(args.program, rig.names, config.period_s,
+                                   PLACEHOLDER_RATE_KGF_S if untimed else args.rate, args.frequency)
+    if untimed:                              # the placeholder rate is no part of its name
+        programme = programme.with_durations(programme.segment_durations_s,
+                                             programme.source.rsplit(", ", 1)[0])
+    schedule = Schedule.load(args.schedule) if args.schedule else None
+    if schedule is not None:
+        programme = schedule.apply_rig(programme)
+    if untimed and scaling is not None:
+        from gateway.rig_load import rig_minimum_s
+        programme = programme.with_durations(2 * rig_minimum_s(config, programme, controller, required=True),
+                                             f"{programme.source}, from twice the minimum")
+    if args.plan:
+        return _plan(args, programme, controller, config)
+    if not args.out:
+        raise ParameterError("give --out DIR for the passes and the report (or --plan to see the "
+                             "load cases' time and their valve-limited minimum without loading)")
+    repeat = args.repeat if args.repeat is not None else (SCALING_PASSES if scaling else 1)
     comp = RigCompensation.load(args.compensation, rig.names) if args.compensation else None
     # everything that can be refused is refused before the rig is touched
     check_rig_load(config, programme, controller, comp, args.unload_to)
@@ -51,22 +98,31 @@ def main(args: argparse.Namespace) -> int:
         with Gateway(config) as gw:
             result = run_rig_load(gw, programme, controller, args.out, repeat, comp,
                                   learn=not args.no_learn, unload_kgf=args.unload_to,
-                                  progress=False if args.no_progress else None)
+                                  progress=False if args.no_progress else None, scaling=scaling)
     if args.json:
         json.dump(result.summary(), sys.stdout, indent=2)
         sys.stdout.write("\n")
     else:
-        for i, p in enumerate(result.passes, start=1):
+        for i, (p, timing) in enumerate(zip(result.passes, result.timings), start=1):
             f = p.figures()
             pv = f["peak_valley_error_pct"]
             ratio = p.ratio_error_pct
             print(f"pass {i}: worst channel {p.worst_channel}: peak/valley error p95 {pv['p95']:.2f} %, "
                   f"max {pv['max']:.2f} %; extra cycles (all channels) "
                   f"{sum(r.extra_cycles for r in p.channels):g}"
-                  + (f"; ratio error {ratio:.2f} %" if ratio is not None else ""))
+                  + (f"; ratio error {ratio:.2f} %" if ratio is not None else "")
+                  + f"; {timing_text(timing, result.minimum_time_s)}")
         if result.passes:
             print(result.passes[-1].text())
-        print(f"-> {result.out} (report.txt, report.json, tracking.png, compensation.toml, pass-N/)")
+        if result.converged is not None:
+            s = result.schedule
+            print(f"schedule: {s.time_s:.1f} s, {s.time_s / s.minimum_time_s:.2f}x the valve-limited "
+                  f"minimum {s.minimum_time_s:.1f} s, met {s.accuracy_pct:g} % on every channel "
+                  + ("(converged)" if result.converged else f"(not converged in {repeat} passes: the "
+                     "fastest that met it)") if s is not None else
+                  f"schedule: no pass met {scaling.accuracy_pct:g} % on every channel in {repeat} passes")
+        print(f"-> {result.out} (report.txt, report.json, tracking.png, compensation.toml, pass-N/"
+              + (", schedule.toml" if scaling else "") + ")")
     if result.end_reason not in (None, "complete"):
         print(f"stand load: stopped ({result.end_reason}): {result.end_message}", file=sys.stderr)
         return 1
