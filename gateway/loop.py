@@ -569,8 +569,9 @@ class ControlLoop:
                         if vector.abort is not None:
                             k = vector.abort_channel
                             reason, message = vector.abort
-                            new = self._named(sups[k or 0].make_trip(str(reason), str(message),
-                                                                     sync_wall), k)
+                            new = self._named(sups[k or 0].make_trip(
+                                str(reason), str(message), sync_wall,
+                                getattr(vector, "abort_action", "hold")), k)
                         else:
                             for i in watched_idx:
                                 new = sups[i].check_error(rs[i], ys[i], stale[i], sync_wall)

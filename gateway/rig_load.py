@@ -17,6 +17,9 @@ accuracy at every load case as fast as it can; ``out/schedule.toml`` keeps the f
 whose pass met it (with the channels' names) and a ``schedule`` replays one. Every pass reports
 the programme's time beside that minimum.
 
+**The gain monitor** (``monitor``, :mod:`loading.rig_gain_monitor`): one for all the passes;
+each pass writes its blocks (``pass-N/gain.json``), the summary has ``gain``.
+
 Every channel's supervisor keeps its own tracking-error limit for these passes, unless one is
 given: :data:`ERROR_LIMIT_SHARE` of that channel's programme range (at least 100 kgf), so a
 pass that cannot track stops safely (and, with the rig's safety, every channel with it) and says
@@ -33,7 +36,9 @@ import numpy as np
 
 from core.errors import ParameterError
 from loading.rig_compensation import RigCompensation
+from loading.gain_monitor import MonitorOptions
 from loading.rig_design import RigControllerDesign
+from loading.rig_gain_monitor import RigGainMonitor
 from loading.rig_programme import RigProgramme
 from loading.rig_minimum_time import programme_flow_limit, rig_minimum_durations_s
 from loading.rig_report import RigTrackingReport, plot_rig_tracking, rig_load_summary, rig_tracking_report
@@ -63,6 +68,8 @@ class RigLoadResult:
     schedule: Schedule | None = None
     #: time scaling: did the last pass run every segment settled and meet the accuracy
     converged: bool | None = None
+    #: the gain monitor of the passes (None: not watched)
+    monitor: RigGainMonitor | None = None
 
     def summary(self) -> dict:
         extras = [{**t, "minimum_time_s": self.minimum_time_s} for t in self.timings]
@@ -76,6 +83,8 @@ class RigLoadResult:
                               "accuracy_pct": s.accuracy_pct, "verified": s.verified}
                              if s is not None else None)
             d["converged"] = self.converged
+        if self.monitor is not None:
+            d["gain"] = self.monitor.summary()
         return d
 
 
@@ -85,12 +94,13 @@ def rig_force_limits(gw) -> list[float]:
 
 
 def check_rig_load(gw_config, programme: RigProgramme, controller: RigControllerDesign,
-                   compensation: RigCompensation | None = None, unload_kgf: float = 0.0) -> RigLoadProgramme:
+                   compensation: RigCompensation | None = None, unload_kgf: float = 0.0,
+                   monitor: RigGainMonitor | None = None) -> RigLoadProgramme:
     """The first pass's experiment, checked against the rig (before anything is opened)."""
     rig = gw_config.rig
     if rig is None:
         raise ParameterError("a rig's programme needs the rig (--rig RIG.toml)")
-    e = RigLoadProgramme(programme, controller, compensation, unload_kgf)
+    e = RigLoadProgramme(programme, controller, compensation, unload_kgf, monitor=monitor)
     e.check(gw_config.period_s, [c.limit_kgf for c in rig.channels], gw_config.limits.command_limit_pct)
     return e
 
@@ -107,13 +117,15 @@ def run_rig_load(gw, programme: RigProgramme, controller: RigControllerDesign, o
                  repeat: int = 1, compensation: RigCompensation | None = None, learn: bool = True,
                  unload_kgf: float = 0.0, progress: bool | None = None,
                  error_limit_kgf: float | None = None, scaling: ScalingOptions | None = None,
-                 schedule: Schedule | None = None) -> RigLoadResult:
+                 schedule: Schedule | None = None, monitor: MonitorOptions | None = None) -> RigLoadResult:
     """Run ``repeat`` passes of ``programme`` on the rig behind ``gw`` (module docstring).
     ``error_limit_kgf``: every channel's tracking-error limit for these passes (default: each
     supervisor's own, else :data:`ERROR_LIMIT_SHARE` of the channel's programme range).
     ``schedule``: the load cases' segment durations to run (a rig's ``schedule.toml``).
     ``scaling``: time scaling of the load cases, at most ``repeat`` passes
-    (:mod:`loading.rig_time_scaling`)."""
+    (:mod:`loading.rig_time_scaling`). ``monitor``: every channel's gain estimated block by
+    block through G, followed by the feedforward and watched for a fall or a rise
+    (:mod:`loading.rig_gain_monitor`)."""
     if not (1 <= repeat <= 1000):
         raise ParameterError(f"repeat = {repeat}: it must be from 1 to 1000")
     if schedule is not None:
@@ -126,7 +138,8 @@ def run_rig_load(gw, programme: RigProgramme, controller: RigControllerDesign, o
     out = Path(out)
     comp = compensation if compensation is not None else (
         RigCompensation(programme.names) if learn and repeat > 1 else None)
-    first = check_rig_load(gw.config, programme, controller, comp, unload_kgf)
+    watcher = RigGainMonitor(controller.model, gw.config.period_s, monitor) if monitor is not None else None
+    first = check_rig_load(gw.config, programme, controller, comp, unload_kgf, watcher)
     minimum = rig_minimum_s(gw.config, programme, controller, required=scaling is not None)
     supervisors = [ch.supervisor for ch in gw.loop.channels]
     own = [s.limits for s in supervisors]
@@ -139,14 +152,16 @@ def run_rig_load(gw, programme: RigProgramme, controller: RigControllerDesign, o
     (out / "controller.toml").write_text(controller.to_toml(out / "controller.toml"))
     result = RigLoadResult(out, compensation=comp, programme_time_s=programme.duration_s,
                            minimum_time_s=float(minimum.sum()) if minimum is not None else None)
-    shared = _Passes(gw, controller, comp, unload_kgf, learn, progress, result)
+    result.monitor = watcher
+    shared = _Passes(gw, controller, comp, unload_kgf, learn, progress, result, watcher)
     try:
         if scaling is not None:
             last = _scaled_passes(shared, programme, minimum, repeat, scaling)
         else:
             last = None
             for i in range(1, repeat + 1):
-                experiment = first if i == 1 else check_rig_load(gw.config, programme, controller, comp, unload_kgf)
+                experiment = first if i == 1 else check_rig_load(gw.config, programme, controller, comp,
+                                                                 unload_kgf, watcher)
                 done = shared.run(experiment, programme, i)
                 if done is None:
                     break
@@ -186,6 +201,7 @@ class _Passes:
     learn: bool
     progress: bool | None
     result: RigLoadResult
+    monitor: RigGainMonitor | None = None
 
     def run(self, experiment: RigLoadProgramme, programme: RigProgramme, i: int):
         """Pass ``i``: run, report, learn. Returns the forces ``(t, Y)`` on the programme's
@@ -193,6 +209,10 @@ class _Passes:
         result = self.result
         res = self.gw.run(experiment, result.out / f"pass-{i}", progress=self.progress)
         result.run_dirs.append(res.path)
+        monitor = self.monitor
+        if monitor is not None and monitor.end_pass():
+            (res.path / "gain.json").write_text(json.dumps(
+                {**monitor.summary(), "blocks": monitor.blocks(monitor.pass_index)}, indent=2) + "\n")
         if res.status != "complete" or experiment.main_start_s is None:
             result.end_reason = res.reason or res.status
             result.end_message = res.outcome.message if res.outcome else None
@@ -223,7 +243,8 @@ def _scaled_passes(shared: _Passes, programme: RigProgramme, minimum: np.ndarray
     for i in range(1, repeat + 1):
         for _ in range(STRETCH_TRIES):           # lengthen what the valves cannot follow
             current = base.with_durations(scaler.durations, f"{base.source}, scaled pass {i}")
-            experiment = RigLoadProgramme(current, controller, shared.compensation, shared.unload_kgf)
+            experiment = RigLoadProgramme(current, controller, shared.compensation, shared.unload_kgf,
+                                          monitor=shared.monitor)
             stretched = stretch_to_valve(scaler.durations, segment_peaks(experiment), share_limit)
             if stretched is None:
                 break
@@ -276,10 +297,14 @@ def segment_peaks(e: RigLoadProgramme) -> np.ndarray:
 
 def _write_reports(result: RigLoadResult, programme: RigProgramme, last) -> None:
     out = result.out
+    lines = [f"pass {i}:\n{timing_text(t, result.minimum_time_s)}\n{p.text()}"
+             for i, (p, t) in enumerate(zip(result.passes, result.timings), start=1)]
+    if result.end_reason not in (None, "complete"):
+        lines.append(f"pass {len(result.run_dirs)} stopped ({result.end_reason}): {result.end_message}")
+    if result.monitor is not None:
+        lines.append(result.monitor.text())
+    (out / "report.txt").write_text("\n\n".join(lines) + "\n")
     if last is not None:
-        lines = [f"pass {i}:\n{timing_text(t, result.minimum_time_s)}\n{p.text()}"
-                 for i, (p, t) in enumerate(zip(result.passes, result.timings), start=1)]
-        (out / "report.txt").write_text("\n\n".join(lines) + "\n")
         plot_rig_tracking(programme, *last, result.passes[-1], out / "tracking.png",
                           title=f"{programme.source}: pass {len(result.passes)}")
     (out / "report.json").write_text(json.dumps(result.summary(), indent=2) + "\n")

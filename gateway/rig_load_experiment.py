@@ -30,6 +30,11 @@ first moves.
 feedforward is planned both ways for every channel before the run; at the approach's end each
 channel takes the plan of its own way.
 
+**The gain monitor** (``monitor``, :mod:`loading.rig_gain_monitor`): every cycle of the
+programme feeds it every force and command; following, the feedforward is multiplied by its
+matrix; its alarm holds every valve (``hold``) or unloads every channel keeping the load ratios
+(``unload``: the abort asks the loop for the rig's unload).
+
 **No reversal the model does not plan**, per valve, as for one channel: where the model
 predicts a gain above the channel's ρ and during the pre-roll the valve keeps its feedforward's
 sign or holds.
@@ -49,11 +54,13 @@ import numpy as np
 
 from core.errors import ParameterError
 from loading.feedforward import feedback_scale
+from loading.gain_monitor import GAIN_ALARM
 from loading.minimum_time import FEEDFORWARD_SHARE
 from loading.rig_compensation import RigCompensation
 from loading.rig_controller import RigPIFeedforward
 from loading.rig_design import RigControllerDesign
 from loading.rig_feedforward import RigFeedforward, channel_feedforward, rig_feedforward
+from loading.rig_gain_monitor import RigGainMonitor
 from loading.rig_programme import RigProgramme
 
 from .experiments.phases import FORCE_NEAR_LIMIT, SET_POINT_NOT_REACHED, Dwell
@@ -112,6 +119,7 @@ class _ChannelPlan:
     u: np.ndarray          #: feedforward per cycle
     scale: np.ndarray      #: share of the feedback
     way: np.ndarray        #: sign to keep per cycle (0: free)
+    factor: np.ndarray     #: the model's FLOW factor where the cycle's command acts
 
 
 class RigApproach:
@@ -201,7 +209,7 @@ class RigLoadProgramme(RigExperiment):
     def __init__(self, programme: RigProgramme, controller: RigControllerDesign,
                  compensation: RigCompensation | None = None, unload_kgf: float = 0.0,
                  settle_tolerance_kgf: float = 20.0, settle_max_s: float = 20.0,
-                 guard_fraction: float = 0.95) -> None:
+                 guard_fraction: float = 0.95, monitor: RigGainMonitor | None = None) -> None:
         if list(programme.names) != list(controller.names):
             raise ParameterError(f"the programme is for the channels {', '.join(programme.names)}, the "
                                  f"controller for {', '.join(controller.names)}")
@@ -245,7 +253,11 @@ class RigLoadProgramme(RigExperiment):
         self.main_start_s: float | None = None
         self.abort: tuple[str, str] | None = None
         self.abort_channel: int | None = None
-        self._u = self._scale = self._hold = None
+        #: what the loop does on :attr:`abort`: hold every valve, or the rig's unload
+        self.abort_action = "hold"
+        #: the gain monitor of the test, shared by its passes (loading.rig_gain_monitor)
+        self.monitor = monitor
+        self._u = self._scale = self._hold = self._factor = None
 
     def _plans(self, ff: RigFeedforward, way: float) -> list[_ChannelPlan]:
         """Each channel's feedforward, feedback share and held sign when its rod last moved
@@ -260,7 +272,9 @@ class RigLoadProgramme(RigExperiment):
             held[:self.lead] = True
             if everywhere and c.boost > 1.0:
                 held[:] = True
-            out.append(_ChannelPlan(f.u_pct, scale, np.where(held, held_direction(f.u_pct, way), 0.0)))
+            factor = f.flow_factor if f.flow_factor is not None else np.ones(len(f.u_pct))
+            out.append(_ChannelPlan(f.u_pct, scale, np.where(held, held_direction(f.u_pct, way), 0.0),
+                                    factor))
         return out
 
     # -- what the loop and the reports read --------------------------------------------------
@@ -303,7 +317,8 @@ class RigLoadProgramme(RigExperiment):
                 "pre_roll_from_kgf": self.reference[:, 0].tolist(),
                 "compensated": self.compensation is not None, "unload_kgf": self.unload_kgf,
                 "settle_tolerance_kgf": self.approach.tolerance, "settle_max_s": self.approach.max_s,
-                "guard_fraction": self.guard_fraction}
+                "guard_fraction": self.guard_fraction,
+                **({"gain_monitor": dict(vars(self.monitor.options))} if self.monitor is not None else {})}
 
     def check(self, period_s: float, force_limits_kgf: Sequence[float], command_limit_pct: float) -> None:
         """Refuse what the rig must not be asked for, before anything moves."""
@@ -333,6 +348,7 @@ class RigLoadProgramme(RigExperiment):
     def begin_rig(self, y0: Sequence[float]) -> None:
         self.abort = None
         self.abort_channel = None
+        self.abort_action = "hold"
         self.main_start_s = None
         self.approach.begin(np.asarray(y0, float))
         self.way = self.approach.way.copy()
@@ -347,6 +363,9 @@ class RigLoadProgramme(RigExperiment):
         self._u = np.array([p.u for p in plans])
         self._scale = np.array([p.scale for p in plans])
         self._hold = np.array([p.way for p in plans])
+        self._factor = np.array([p.factor for p in plans])
+        if self.monitor is not None:
+            self.monitor.begin_pass()
 
     def finished_rig(self, t: float, ys: Sequence[float]) -> bool:
         return self.main_start_s is not None and t - self.main_start_s >= self.main_duration_s - 1e-9
@@ -375,5 +394,26 @@ class RigLoadProgramme(RigExperiment):
             self._begin_main(t)
         k = min(int(round((t - self.main_start_s) / self.period_s)), self.reference.shape[1] - 1)
         r = self.reference[:, k]
-        u = self.law.step(r, y, self._u[:, k], self._scale[:, k], self._hold[:, k])
+        monitor = self.monitor
+        ff = self._u[:, k]
+        if monitor is not None and monitor.options.follow:
+            ff = monitor.ff_matrix @ ff
+        u = self.law.step(r, y, ff, self._scale[:, k], self._hold[:, k])
+        if monitor is not None and self.abort is None:
+            self._watch(y, u, k)
         return u.tolist(), r.tolist()
+
+    def _watch(self, y: np.ndarray, u: np.ndarray, k: int) -> None:
+        """The gain monitor's cycle, and its alarm's action on the whole rig."""
+        monitor = self.monitor
+        before = monitor.alarm
+        monitor.add(y, u, self._factor[:, k])
+        if monitor.alarm is None or before is not None or monitor.options.action == "note":
+            return
+        i = self.abort_channel = monitor.alarm_channel
+        own = monitor.channels[i].alarm[1]          # the loop names the channel
+        if monitor.options.action == "unload":
+            self.abort_action = "unload"
+            self.abort = (GAIN_ALARM, own + "; every channel unloads keeping the load ratios")
+        else:
+            self.abort = (GAIN_ALARM, own + "; every valve holds")

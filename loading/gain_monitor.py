@@ -220,6 +220,17 @@ class GainMonitor:
         u.pop(0); g.pop(0); st.pop(0)                        # noqa: E702
         u.append(u_pct); g.append(flow_factor)               # noqa: E702
         st.append(abs(flow_factor - 1.0) <= o.steady_factor - 1.0)
+        # the flow acting until the next reading: the commands sent a delay ago
+        q = (1 - self.f) * u[-1 - self.m] + self.f * u[-2 - self.m]
+        self.add_flow(y, g[-1 - self.m] * q, q, st[-1 - self.m])
+
+    def add_flow(self, y: float, flow: float, q: float, steady: bool) -> None:
+        """One cycle, the flow already known: the force read now, the model's flow ``G·q̃``
+        acting until the next reading (in the command's units, what ``g`` multiplies), the
+        flow whose size and way qualify the chunk (at least ``min_flow_pct``, one way) and
+        whether the model's FLOW factor is steady there. :meth:`add` for one channel; a rig's
+        channel gets its flow through the structure (:mod:`loading.rig_gain_monitor`)."""
+        o = self.options
         self._cycle += 1
         if self._k == self.chunk_cycles:                     # y is the chunk's last reading
             if self._ok and math.isfinite(self._y0):
@@ -232,13 +243,11 @@ class GainMonitor:
             self._reset_chunk(y)
         elif self._k == 0:
             self._y0 = y
-        # the flow acting until the next reading: the commands sent a delay ago
-        q = (1 - self.f) * u[-1 - self.m] + self.f * u[-2 - self.m]
         sign = 1.0 if q > 0 else -1.0
-        if not (st[-1 - self.m] and abs(q) >= o.min_flow_pct and self._sign in (0.0, sign)):
+        if not (steady and abs(q) >= o.min_flow_pct and self._sign in (0.0, sign)):
             self._ok = False
         self._sign = sign
-        self._b += g[-1 - self.m] * q
+        self._b += flow
         self._k += 1
         length = self._cycle - self._block_start
         if length >= self.block_cycles and (self._n >= o.min_chunks or length >= self.longest_block_cycles):
@@ -287,12 +296,13 @@ class GainMonitor:
         self._run_kind = kind
         if kind and self._run >= o.confirm and self.alarm is None:
             block.alarm = kind
-            what = {"fall": f"fell {-block.change_pct:.1f} % (beyond {o.fall_pct:g} %: the structure "
-                            "softens, a crack?)",
-                    "rise": f"rose {block.change_pct:.1f} % (beyond {o.rise_pct:g} %: a jammed part?)",
-                    "margins": f"is {block.change_pct:+.1f} %: the loop's margins there (gain "
-                               f"{block.gain_margin:.2f}, phase {block.phase_margin_deg:.0f}°) are "
-                               "below the design's"}[kind]
+            if kind == "fall":
+                what = f"fell {-block.change_pct:.1f} % (beyond {o.fall_pct:g} %: the structure softens, a crack?)"
+            elif kind == "rise":
+                what = f"rose {block.change_pct:.1f} % (beyond {o.rise_pct:g} %: a jammed part?)"
+            else:
+                what = (f"is {block.change_pct:+.1f} %: the loop's margins there (gain "
+                        f"{block.gain_margin:.2f}, phase {block.phase_margin_deg:.0f}°) are below the design's")
             self.alarm = (kind, f"block {block.index} ({block.start_s:.0f}-{block.end_s:.0f} s of the test): "
                                 f"the stand's g = {block.g:.1f} kgf/(%·s) [{block.low:.1f}, {block.high:.1f}] "
                                 f"{what}; the model's g is {self.g_ref:.1f}")

@@ -140,6 +140,44 @@ def test_stand_load_rig_fastest_scales_the_load_cases_to_the_valves_and_the_sche
     assert text.returncode == 0 and "the schedule:" in text.stdout and "segments set by" in text.stdout, text
 
 
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_stand_load_rig_gain_alarm_on_a_softened_structure_unloads_every_channel_keeping_the_ratios(
+        tmp_path, start_rig_emulator, decoupled, channel):
+    """The emulated structure 10 % softer at root's attachment than the model the controller
+    was designed from (a crack): --gain watch finds root's gain fallen, the others not, and
+    its unload action unloads every channel keeping the load ratios."""
+    from tests.support.rig import example_rig_text
+    text = example_rig_text(channel)
+    cracked = text.replace("K = [[10.0,  3.0,", "K = [[ 9.0,  3.0,")
+    assert cracked != text
+    rig = start_rig_emulator(cracked)
+    (tmp_path / "cases.csv").write_text(CASES)
+    out = tmp_path / "load"
+    done = stand("load", tmp_path / "cases.csv", "--rig", rig, "--controller", decoupled, "--rate", 2500,
+                 "--gain", "watch", "--gain-block-s", 2, "--gain-alarm-action", "unload", "--lockstep",
+                 "--json", "--no-progress", "--out", out)
+    assert done.returncode == 1, done.stderr + done.stdout
+    assert "gain alarm (fall): channel root: block 2" in done.stderr, done.stderr
+    doc = json.loads(done.stdout)
+    assert doc["end_reason"] == "gain_alarm" and doc["gain"]["alarm_channel"] == "root"
+    gains = doc["gain"]["channels"]
+    assert gains["root"]["last_g"] == pytest.approx(0.9 * 120.0, rel=0.03), gains["root"]
+    for name, g in (("inner", 100.0), ("outer", 140.0), ("tip", 110.0)):
+        assert gains[name]["last_g"] == pytest.approx(g, rel=0.02), (name, gains[name])
+    blocks = json.loads((out / "pass-1" / "gain.json").read_text())["blocks"]
+    assert set(blocks) == set(NAMES) and [b["alarm"] for b in blocks["root"]] == [None, "fall"]
+    # the rig's unload: every channel, the ratios kept within 2 % of each channel's range
+    safety = json.loads((out / "pass-1" / "run.json").read_text())["safety"]
+    assert safety["reason"] == "gain_alarm" and safety["channel"] == "root" and safety["action"] == "unload"
+    unload = safety["unload"]
+    assert unload["outcome"] == "unloaded" and set(unload["channels"]) == set(NAMES)
+    for name, c in unload["channels"].items():
+        assert c["unloaded"] and abs(c["to_kgf"]) < 100 and c["max_deviation_pct_of_range"] < 2.0, (name, c)
+    report = (out / "report.txt").read_text()
+    assert "pass 1 stopped (gain_alarm)" in report and "gain root" in report
+
+
 def in_process(capsys, *args) -> tuple[int, str]:
     """``stand ARGS`` in this process (quicker than a subprocess): exit code and stderr."""
     from stand.cli import main
@@ -166,7 +204,6 @@ def test_stand_load_rig_refuses_before_anything_is_opened(tmp_path, decoupled, c
         (("cases.csv", "--rate", 25000), "needs a valve command of .* its valve cannot follow"),
         (("cases.csv",), "load cases need --rate"),
         (("cases.csv", "--rate", 2500, "--pacing", "static"), "--pacing: not available with --rig"),
-        (("cases.csv", "--rate", 2500, "--gain", "watch"), "--gain: not available with --rig"),
         (("cases.csv", "--fastest", "--schedule", "one.toml"), "give one or the other"),
         (("cases.csv", "--accuracy", 50), "accuracy 50.0 %: give a share of the range"),
         (("cases.csv", "--schedule", tmp_path / "one.toml"), "one channel's: it cannot time a rig's load cases"),

@@ -82,7 +82,8 @@ def register(sub) -> None:
     g.add_argument("--gain", choices=GAIN_MODES, default="off",
                    help="watch: re-estimate g block by block from the tracking data and raise an "
                         "alarm when it falls (a crack) or rises (a jammed part); adapt: also let the "
-                        "feedforward follow it (default %(default)s)")
+                        "feedforward follow it; with --rig each channel's row of G, the alarm "
+                        "acting on every channel (default %(default)s)")
     g.add_argument("--gain-block-s", type=float, default=10.0, metavar="S",
                    help="stand time per estimate (default %(default)s)")
     g.add_argument("--gain-fall", type=float, default=2.0, metavar="PCT",

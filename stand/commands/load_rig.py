@@ -10,15 +10,9 @@ import sys
 from core.errors import ParameterError
 
 def _refuse_one_channel_options(args: argparse.Namespace) -> None:
-    given = []
     if getattr(args, "pacing", "off") != "off":
-        given.append("--pacing")
-    if getattr(args, "gain", "off") != "off":
-        given.append("--gain")
-    if given:
-        raise ParameterError(f"{', '.join(given)}: not available with --rig yet (a rig's programme "
-                             "runs at its --rate or --frequency, or a schedule's durations, with "
-                             "peak/valley compensation per channel); leave them out")
+        raise ParameterError("--pacing: not available with --rig yet (a rig's programme runs at its "
+                             "--rate or --frequency, or a schedule's durations); leave it out")
 
 
 def _plan(args, programme, controller, config) -> int:
@@ -45,6 +39,7 @@ def _plan(args, programme, controller, config) -> int:
 def main(args: argparse.Namespace) -> int:
     from gateway import Gateway
     from gateway.rig_load import check_rig_load, run_rig_load, timing_text
+    from loading.gain_monitor import MonitorOptions
     from loading.rig_compensation import RigCompensation
     from loading.rig_design import load_rig_controller
     from loading.rig_programme import load_rig_programme
@@ -89,6 +84,11 @@ def main(args: argparse.Namespace) -> int:
         raise ParameterError("give --out DIR for the passes and the report (or --plan to see the "
                              "load cases' time and their valve-limited minimum without loading)")
     repeat = args.repeat if args.repeat is not None else (SCALING_PASSES if scaling else 1)
+    monitor = None
+    if args.gain != "off":
+        monitor = MonitorOptions(block_s=args.gain_block_s, fall_pct=args.gain_fall, rise_pct=args.gain_rise,
+                                 action=args.gain_alarm_action, follow=args.gain == "adapt")
+        monitor.check()
     comp = RigCompensation.load(args.compensation, rig.names) if args.compensation else None
     # everything that can be refused is refused before the rig is touched
     check_rig_load(config, programme, controller, comp, args.unload_to)
@@ -98,7 +98,8 @@ def main(args: argparse.Namespace) -> int:
         with Gateway(config) as gw:
             result = run_rig_load(gw, programme, controller, args.out, repeat, comp,
                                   learn=not args.no_learn, unload_kgf=args.unload_to,
-                                  progress=False if args.no_progress else None, scaling=scaling)
+                                  progress=False if args.no_progress else None, scaling=scaling,
+                                  monitor=monitor)
     if args.json:
         json.dump(result.summary(), sys.stdout, indent=2)
         sys.stdout.write("\n")
@@ -121,8 +122,13 @@ def main(args: argparse.Namespace) -> int:
                   + ("(converged)" if result.converged else f"(not converged in {repeat} passes: the "
                      "fastest that met it)") if s is not None else
                   f"schedule: no pass met {scaling.accuracy_pct:g} % on every channel in {repeat} passes")
-        print(f"-> {result.out} (report.txt, report.json, tracking.png, compensation.toml, pass-N/"
-              + (", schedule.toml" if scaling else "") + ")")
+        if result.monitor is not None:
+            print(result.monitor.text())
+        written = [n for n in ("report.txt", "report.json", "tracking.png", "compensation.toml",
+                               "schedule.toml") if (result.out / n).is_file()]
+        print(f"-> {result.out} ({', '.join(written + ['pass-N/'])})")
+    if result.monitor is not None and result.monitor.alarm is not None:
+        print(f"stand load: gain alarm ({result.monitor.alarm[0]}): {result.monitor.alarm[1]}", file=sys.stderr)
     if result.end_reason not in (None, "complete"):
         print(f"stand load: stopped ({result.end_reason}): {result.end_message}", file=sys.stderr)
         return 1
