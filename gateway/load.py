@@ -208,9 +208,7 @@ def _run_pass(shared: _Pass, experiment: LoadProgramme, programme: Programme, mi
                         clock.record.pacing_s if clock is not None else 0.0,
                         clock.record.to_dict() if clock is not None else None, gain_blocks=blocks)
     result.timings.append(timing)
-    if res.status != "complete" or experiment.main_start_s is None:
-        result.end_reason = res.reason or res.status
-        result.end_message = res.outcome.message if res.outcome else None
+    if pass_stopped(res, experiment, result):
         return None
     t, y = achieved(res.path, experiment)
     report = tracking_report(programme, t, y)
@@ -223,6 +221,16 @@ def _run_pass(shared: _Pass, experiment: LoadProgramme, programme: Programme, mi
     if clock is not None:
         paced = {int(k) - experiment.lead: v for k, v in clock.paced_by_turning.items()}
     return report, (t, y), paced
+
+
+def pass_stopped(res, experiment, result) -> bool:
+    """True when the pass ``res`` ended before its programme was run through (a stand's or a
+    rig's); ``result.end_reason`` and ``end_message`` then say why."""
+    if res.status == "complete" and experiment.main_start_s is not None:
+        return False
+    result.end_reason = res.reason or res.status
+    result.end_message = res.outcome.message if res.outcome else None
+    return True
 
 
 def _passes(shared: _Pass, programme, minimum, out, repeat, first, learn, progress) -> LoadResult:
@@ -253,13 +261,8 @@ def _scaled_passes(shared: _Pass, programme, minimum, out, repeat, learn, progre
     base = programme
     last = None                                  # (the programme, its forces) of the last pass
     for i in range(1, repeat + 1):
-        for _ in range(STRETCH_TRIES):           # lengthen what the valve cannot follow
-            current = base.with_durations(scaler.durations, f"{base.source}, scaled pass {i}")
-            experiment = shared.experiment(current, check=False)
-            stretched = stretch_to_valve(scaler.durations, _segment_peaks(experiment), share_limit)
-            if stretched is None:
-                break
-            scaler.durations = np.maximum(stretched, scaler.floor)
+        current, experiment = stretched_pass(base, scaler, i, lambda p: shared.experiment(p, check=False),
+                                             _segment_peaks, share_limit)
         settled = scaler.all_settled
         limits = shared.gw.config.limits
         experiment.check(shared.gw.config.period_s, limits.force_limit_kgf, limits.command_limit_pct)
@@ -271,22 +274,52 @@ def _scaled_passes(shared: _Pass, programme, minimum, out, repeat, learn, progre
         ok = meets(report, options.accuracy_pct)
         verdicts = scaler.verdicts(current, report, ringing_turning_points(current, *forces), paced)
         result.timings[-1].scaling = {**scaler.last, "met_accuracy": ok, "all_settled_before": settled}
-        if ok and (result.schedule is None or current.duration_s < result.schedule.time_s):
-            result.schedule = Schedule(base.levels_kgf, current.segment_durations_s, base.period_s,
-                                       options.accuracy_pct, float(np.sum(minimum)), base.source,
-                                       verified=True, notes=[f"pass {i} of {out}"])
-            result.schedule.save(out / "schedule.toml")
+        if ok:
+            keep_if_fastest(result, base, current, i, options, minimum)
         if ok and settled:
             result.converged = True
             break
         scaler.update(verdicts)
-    if result.schedule is None:                  # none met it: the last durations, unverified
-        Schedule(base.levels_kgf, scaler.durations, base.period_s, options.accuracy_pct,
-                 float(np.sum(minimum)), base.source, verified=False,
-                 notes=["no pass met the accuracy: these durations are the next pass's"]
-                 ).save(out / "schedule.toml")
+    if result.schedule is None:
+        save_unverified(result, base, scaler, options, minimum)
     _write_reports(result, *(last or (programme, None)))
     return result
+
+
+def keep_if_fastest(result, base, current, i: int, options: ScalingOptions, minimum: np.ndarray,
+                    channels: list[str] | None = None) -> None:
+    """Pass ``i`` ran ``current`` and met the accuracy: its durations are ``result.schedule``
+    (saved as ``OUT/schedule.toml``) when no faster pass met it. A stand's or (``channels``) a rig's."""
+    if result.schedule is not None and current.duration_s >= result.schedule.time_s:
+        return
+    result.schedule = Schedule(base.levels_kgf, current.segment_durations_s, base.period_s,
+                               options.accuracy_pct, float(np.sum(minimum)), base.source,
+                               verified=True, notes=[f"pass {i} of {result.out}"], channels=channels)
+    result.schedule.save(result.out / "schedule.toml")
+
+
+def save_unverified(result, base, scaler: TimeScaler, options: ScalingOptions, minimum: np.ndarray,
+                    channels: list[str] | None = None) -> None:
+    """No pass met the accuracy: the next pass's durations saved, marked unverified."""
+    Schedule(base.levels_kgf, scaler.durations, base.period_s, options.accuracy_pct,
+             float(np.sum(minimum)), base.source, verified=False,
+             notes=["no pass met the accuracy: these durations are the next pass's"],
+             channels=channels).save(result.out / "schedule.toml")
+
+
+def stretched_pass(base, scaler: TimeScaler, i: int, experiment_for, peaks_of, share_limit: float):
+    """Pass ``i``'s programme (``base`` with the scaler's durations) and its experiment
+    (``experiment_for(programme)``), every segment whose feedforward needs more than
+    ``share_limit`` (``peaks_of(experiment)``: each segment's largest command) lengthened
+    first, at most :data:`STRETCH_TRIES` times. A stand's or a rig's."""
+    for _ in range(STRETCH_TRIES):
+        current = base.with_durations(scaler.durations, f"{base.source}, scaled pass {i}")
+        experiment = experiment_for(current)
+        stretched = stretch_to_valve(scaler.durations, peaks_of(experiment), share_limit)
+        if stretched is None:
+            break
+        scaler.durations = np.maximum(stretched, scaler.floor)
+    return current, experiment
 
 
 def _segment_peaks(e: LoadProgramme) -> np.ndarray:

@@ -43,9 +43,10 @@ from loading.rig_programme import RigProgramme
 from loading.rig_minimum_time import programme_flow_limit, rig_minimum_durations_s
 from loading.rig_report import RigTrackingReport, plot_rig_tracking, rig_load_summary, rig_tracking_report
 from loading.rig_time_scaling import rig_meets, rig_verdicts
-from loading.time_scaling import ScalingOptions, Schedule, TimeScaler, stretch_to_valve
+from loading.time_scaling import ScalingOptions, Schedule, TimeScaler
 
-from .load import ERROR_LIMIT_SHARE, FEEDFORWARD_SHARE, STRETCH_TRIES
+from .load import (ERROR_LIMIT_SHARE, FEEDFORWARD_SHARE, keep_if_fastest, pass_stopped, save_unverified,
+                   stretched_pass)
 from .rig_load_experiment import RigLoadProgramme
 from .runs import load_run
 
@@ -213,9 +214,7 @@ class _Passes:
         if monitor is not None and monitor.end_pass():
             (res.path / "gain.json").write_text(json.dumps(
                 {**monitor.summary(), "blocks": monitor.blocks(monitor.pass_index)}, indent=2) + "\n")
-        if res.status != "complete" or experiment.main_start_s is None:
-            result.end_reason = res.reason or res.status
-            result.end_message = res.outcome.message if res.outcome else None
+        if pass_stopped(res, experiment, result):
             return None
         t, Y = achieved(res.path, experiment)
         report = rig_tracking_report(programme, t, Y)
@@ -241,14 +240,10 @@ def _scaled_passes(shared: _Passes, programme: RigProgramme, minimum: np.ndarray
     base = programme
     last = None
     for i in range(1, repeat + 1):
-        for _ in range(STRETCH_TRIES):           # lengthen what the valves cannot follow
-            current = base.with_durations(scaler.durations, f"{base.source}, scaled pass {i}")
-            experiment = RigLoadProgramme(current, controller, shared.compensation, shared.unload_kgf,
-                                          monitor=shared.monitor)
-            stretched = stretch_to_valve(scaler.durations, segment_peaks(experiment), share_limit)
-            if stretched is None:
-                break
-            scaler.durations = np.maximum(stretched, scaler.floor)
+        current, experiment = stretched_pass(
+            base, scaler, i, lambda p: RigLoadProgramme(p, controller, shared.compensation, shared.unload_kgf,
+                                                        monitor=shared.monitor),
+            segment_peaks, share_limit)
         settled = scaler.all_settled
         limits = gw.config.limits
         experiment.check(gw.config.period_s, [c.limit_kgf for c in gw.config.rig.channels],
@@ -261,21 +256,14 @@ def _scaled_passes(shared: _Passes, programme: RigProgramme, minimum: np.ndarray
         ok = rig_meets(report, options.accuracy_pct)
         verdicts = rig_verdicts(scaler, current, report, *done)
         result.timings[-1]["scaling"] = {**scaler.last, "met_accuracy": ok, "all_settled_before": settled}
-        if ok and (result.schedule is None or current.duration_s < result.schedule.time_s):
-            result.schedule = Schedule(base.levels_kgf, current.segment_durations_s, base.period_s,
-                                       options.accuracy_pct, float(np.sum(minimum)), base.source,
-                                       verified=True, notes=[f"pass {i} of {result.out}"],
-                                       channels=list(base.names))
-            result.schedule.save(result.out / "schedule.toml")
+        if ok:
+            keep_if_fastest(result, base, current, i, options, minimum, list(base.names))
         if ok and settled:
             result.converged = True
             break
         scaler.update(verdicts)
-    if result.schedule is None:                  # none met it: the last durations, unverified
-        Schedule(base.levels_kgf, scaler.durations, base.period_s, options.accuracy_pct,
-                 float(np.sum(minimum)), base.source, verified=False,
-                 notes=["no pass met the accuracy: these durations are the next pass's"],
-                 channels=list(base.names)).save(result.out / "schedule.toml")
+    if result.schedule is None:
+        save_unverified(result, base, scaler, options, minimum, list(base.names))
     return last
 
 

@@ -108,18 +108,13 @@ class Schedule:
             raise ParameterError(f"the schedule ({self.source or 'schedule.toml'}) is a rig's (channels "
                                  f"{', '.join(self.channels)}): replay it with --rig")
         lv = programme.levels_kgf
-        if len(lv) != len(self.levels_kgf) or not np.allclose(lv, self.levels_kgf, atol=0.05):
-            where = ("it has " + str(len(lv)) + " turning points, the schedule "
-                     + str(len(self.levels_kgf))) if len(lv) != len(self.levels_kgf) else \
-                f"turning point {int(np.flatnonzero(~np.isclose(lv, self.levels_kgf, atol=0.05))[0]) + 1} differs"
+        if lv.shape != self.levels_kgf.shape or not np.allclose(lv, self.levels_kgf, atol=0.05):
+            where = (f"it has {len(lv)} turning points, the schedule {len(self.levels_kgf)}"
+                     if lv.shape != self.levels_kgf.shape else f"turning point {self._first_difference(lv)} differs")
             raise ParameterError(f"the schedule ({self.source or 'schedule.toml'}) was made for another "
                                  f"programme than {programme.source}: {where}; run --fastest or "
                                  "--accuracy on this programme to make its schedule")
-        if abs(self.period_s - programme.period_s) > 1e-12:
-            raise ParameterError(f"the schedule was made at a period of {self.period_s * 1e3:g} ms, the "
-                                 f"loop runs at {programme.period_s * 1e3:g} ms")
-        return programme.with_durations(self.durations_s, f"{programme.source}, scheduled "
-                                                          f"({self.time_s:.1f} s)")
+        return self._timed(programme)
 
     def apply_rig(self, programme):
         """A rig's load-case programme (:class:`loading.rig_programme.RigProgramme`) with these
@@ -137,11 +132,18 @@ class Schedule:
         lv = programme.levels_kgf
         if lv.shape != self.levels_kgf.shape or not np.allclose(lv, self.levels_kgf, atol=0.05):
             where = (f"it has {lv.shape[1]} load cases, the schedule {self.levels_kgf.shape[1]}"
-                     if lv.shape != self.levels_kgf.shape else
-                     f"load case {int(np.flatnonzero(~np.isclose(lv, self.levels_kgf, atol=0.05).all(axis=0))[0]) + 1} differs")
+                     if lv.shape != self.levels_kgf.shape else f"load case {self._first_difference(lv)} differs")
             raise ParameterError(f"the schedule ({what}) was made for other load cases than "
                                  f"{programme.source}: {where}; run --fastest or --accuracy on these "
                                  "load cases to make their schedule")
+        return self._timed(programme)
+
+    def _first_difference(self, levels: np.ndarray) -> int:
+        """The first turning point (load case: every channel's) that is not the schedule's, from 1."""
+        close = np.isclose(levels, self.levels_kgf, atol=0.05)
+        return int(np.flatnonzero(~close.reshape(-1, close.shape[-1]).all(axis=0))[0]) + 1
+
+    def _timed(self, programme):
         if abs(self.period_s - programme.period_s) > 1e-12:
             raise ParameterError(f"the schedule was made at a period of {self.period_s * 1e3:g} ms, the "
                                  f"loop runs at {programme.period_s * 1e3:g} ms")

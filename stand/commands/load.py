@@ -120,18 +120,71 @@ def _plan(args, programme, controller, config) -> int:
     from loading.minimum_time import programme_timing
     limit = min(controller.command_limit_pct, config.limits.command_limit_pct)
     timing = programme_timing(programme, controller.model, limit)
+    return print_plan(args, timing, {"programme": programme.source,
+                                     "turning_points": int(len(programme.turning_idx)),
+                                     "range_kgf": programme.range_kgf, "command_limit_pct": limit},
+                      f"{programme.source}: {len(programme.turning_idx)} turning points, range "
+                      f"{programme.range_kgf:.0f} kgf, command limit ±{limit:g} %")
+
+
+def print_plan(args, timing, fields: dict, heading: str) -> int:
+    """``--plan``'s output (a stand's or a rig's): ``fields`` and the timing's as JSON, or the
+    heading and the timing's text."""
     if args.json:
-        json.dump({"programme": programme.source, "turning_points": int(len(programme.turning_idx)),
-                   "range_kgf": programme.range_kgf, "command_limit_pct": limit, **timing.to_dict()},
-                  sys.stdout, indent=2)
+        json.dump({**fields, **timing.to_dict()}, sys.stdout, indent=2)
         sys.stdout.write("\n")
         return 0
-    print(f"{programme.source}: {len(programme.turning_idx)} turning points, range "
-          f"{programme.range_kgf:.0f} kgf, command limit ±{limit:g} %")
+    print(heading)
     label = ("the schedule" if args.schedule else "the starting schedule"
              if (args.fastest or args.accuracy is not None) and args.rate is None and args.frequency is None
              else "at the requested rate")
     print(timing.text(label))
+    return 0
+
+
+def scaling_options(args):
+    """``--fastest``/``--accuracy`` as :class:`loading.time_scaling.ScalingOptions` (None without
+    them), refused beside ``--schedule``."""
+    from loading.time_scaling import ScalingOptions
+    if not (args.fastest or args.accuracy is not None):
+        return None
+    if args.schedule:
+        raise ParameterError("--schedule replays a schedule; --fastest/--accuracy make one: give "
+                             "one or the other")
+    scaling = ScalingOptions(accuracy_pct=args.accuracy if args.accuracy is not None else DEFAULT_ACCURACY_PCT)
+    scaling.check()
+    return scaling
+
+
+def monitor_options(args):
+    """``--gain watch|adapt`` as :class:`loading.gain_monitor.MonitorOptions` (None when off)."""
+    from loading.gain_monitor import MonitorOptions
+    if args.gain == "off":
+        return None
+    monitor = MonitorOptions(block_s=args.gain_block_s, fall_pct=args.gain_fall, rise_pct=args.gain_rise,
+                             action=args.gain_alarm_action, follow=args.gain == "adapt")
+    monitor.check()
+    return monitor
+
+
+def schedule_line(result, scaling, repeat: int, where: str = "") -> str:
+    """Time scaling's outcome in one line (``where``: e.g. " on every channel")."""
+    s = result.schedule
+    if s is None:
+        return f"schedule: no pass met {scaling.accuracy_pct:g} %{where} in {repeat} passes"
+    return (f"schedule: {s.time_s:.1f} s, {s.time_s / s.minimum_time_s:.2f}x the valve-limited minimum "
+            f"{s.minimum_time_s:.1f} s, met {s.accuracy_pct:g} %{where} "
+            + ("(converged)" if result.converged else f"(not converged in {repeat} passes: the fastest "
+               "that met it)"))
+
+
+def exit_code(result, alarm: tuple[str, str] | None) -> int:
+    """The gain alarm and a pass that stopped, on stderr; 1 when a pass stopped."""
+    if alarm is not None:
+        print(f"stand load: gain alarm ({alarm[0]}): {alarm[1]}", file=sys.stderr)
+    if result.end_reason not in (None, "complete"):
+        print(f"stand load: stopped ({result.end_reason}): {result.end_message}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -143,24 +196,17 @@ def main(args: argparse.Namespace) -> int:
     from gateway.load import LoadProgramme, gain_text, run_load, timing_text
     from loading.compensation import Compensation
     from loading.design import load_controller
-    from loading.gain_monitor import MonitorOptions
     from loading.minimum_time import minimum_durations_s, programme_valve_limit
     from loading.pacing import PacingOptions
     from loading.programme import is_sequence, load_programme
-    from loading.time_scaling import ScalingOptions, Schedule
+    from loading.time_scaling import Schedule
     from loading.rig_design import is_rig_file
     if is_rig_file(args.controller):
         raise ParameterError(f"{args.controller} is a rig's controller (stand design RIG-MODEL.toml): "
                              "load a rig with --rig RIG.toml and a programme per channel")
     config = gateway_config(args)
     controller = load_controller(args.controller, config.period_s)
-    scaling = None
-    if args.fastest or args.accuracy is not None:
-        if args.schedule:
-            raise ParameterError("--schedule replays a schedule; --fastest/--accuracy make one: give "
-                                 "one or the other")
-        scaling = ScalingOptions(accuracy_pct=args.accuracy if args.accuracy is not None else DEFAULT_ACCURACY_PCT)
-        scaling.check()
+    scaling = scaling_options(args)
     untimed = (args.rate is None and args.frequency is None and (scaling is not None or args.schedule)
                and is_sequence(args.program))
     programme = load_programme(args.program, config.period_s,
@@ -181,11 +227,7 @@ def main(args: argparse.Namespace) -> int:
     repeat = args.repeat if args.repeat is not None else (SCALING_PASSES if scaling else 1)
     pacing = PacingOptions(args.pacing, args.pacing_tolerance, args.pacing_min_speed, args.pacing_timeout)
     pacing.check()
-    monitor = None
-    if args.gain != "off":
-        monitor = MonitorOptions(block_s=args.gain_block_s, fall_pct=args.gain_fall, rise_pct=args.gain_rise,
-                                 action=args.gain_alarm_action, follow=args.gain == "adapt")
-        monitor.check()
+    monitor = monitor_options(args)
     comp = Compensation.load(args.compensation) if args.compensation else None
     # everything that can be refused is refused before the stand is touched
     LoadProgramme(programme, controller, comp, args.unload_to, pacing=pacing).check(
@@ -207,19 +249,9 @@ def main(args: argparse.Namespace) -> int:
         if result.passes:
             print(result.passes[-1].text())
         if result.converged is not None:
-            s = result.schedule
-            print(f"schedule: {s.time_s:.1f} s, {s.time_s / s.minimum_time_s:.2f}x the valve-limited "
-                  f"minimum {s.minimum_time_s:.1f} s, met {s.accuracy_pct:g} % "
-                  + ("(converged)" if result.converged else f"(not converged in {repeat} passes: the "
-                     "fastest that met it)") if s is not None else
-                  f"schedule: no pass met {scaling.accuracy_pct:g} % in {repeat} passes")
+            print(schedule_line(result, scaling, repeat))
         if result.monitor is not None:
             print(gain_text(result.monitor))
         print(f"-> {result.out} (report.txt, report.json, tracking.png, pass-N/"
               + (", schedule.toml" if scaling else "") + ")")
-    if result.monitor is not None and result.monitor.alarm is not None:
-        print(f"stand load: gain alarm ({result.monitor.alarm[0]}): {result.monitor.alarm[1]}", file=sys.stderr)
-    if result.end_reason not in (None, "complete"):
-        print(f"stand load: stopped ({result.end_reason}): {result.end_message}", file=sys.stderr)
-        return 1
-    return 0
+    return exit_code(result, result.monitor.alarm if result.monitor is not None else None)

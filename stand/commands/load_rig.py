@@ -18,46 +18,34 @@ def _refuse_one_channel_options(args: argparse.Namespace) -> None:
 def _plan(args, programme, controller, config) -> int:
     """``--plan --rig``: the load cases' time beside their valve-limited minimum."""
     from loading.rig_minimum_time import rig_programme_timing
+
+    from .load import print_plan
     limit = min(controller.command_limit_pct, config.limits.command_limit_pct)
     timing = rig_programme_timing(programme, controller.model, limit)
-    if args.json:
-        json.dump({"programme": programme.source, "channels": programme.names,
-                   "load_cases": int(len(programme.turning_idx)),
-                   "ranges_kgf": dict(zip(programme.names, programme.ranges_kgf.tolist())),
-                   "command_limit_pct": limit, **timing.to_dict()}, sys.stdout, indent=2)
-        sys.stdout.write("\n")
-        return 0
-    print(f"{programme.source}: {len(programme.turning_idx)} load cases on {programme.n} channels "
-          f"({', '.join(programme.names)}), command limit ±{limit:g} %")
-    label = ("the schedule" if args.schedule else "the starting schedule"
-             if (args.fastest or args.accuracy is not None) and args.rate is None and args.frequency is None
-             else "at the requested rate")
-    print(timing.text(label))
-    return 0
+    return print_plan(args, timing, {"programme": programme.source, "channels": programme.names,
+                                     "load_cases": int(len(programme.turning_idx)),
+                                     "ranges_kgf": dict(zip(programme.names, programme.ranges_kgf.tolist())),
+                                     "command_limit_pct": limit},
+                      f"{programme.source}: {len(programme.turning_idx)} load cases on {programme.n} "
+                      f"channels ({', '.join(programme.names)}), command limit ±{limit:g} %")
 
 
 def main(args: argparse.Namespace) -> int:
     from gateway import Gateway
     from gateway.rig_load import check_rig_load, run_rig_load, timing_text
-    from loading.gain_monitor import MonitorOptions
     from loading.rig_compensation import RigCompensation
     from loading.rig_design import load_rig_controller
     from loading.rig_programme import load_rig_programme
-    from loading.time_scaling import ScalingOptions, Schedule
+    from loading.time_scaling import Schedule
 
     from .common import gateway_config, sigterm_as_interrupt
-    from .load import DEFAULT_ACCURACY_PCT, PLACEHOLDER_RATE_KGF_S, SCALING_PASSES
+    from .load import (PLACEHOLDER_RATE_KGF_S, SCALING_PASSES, exit_code, monitor_options, scaling_options,
+                       schedule_line)
     _refuse_one_channel_options(args)
     config = gateway_config(args)
     rig = config.rig
     controller = load_rig_controller(args.controller, config.period_s, rig.names)
-    scaling = None
-    if args.fastest or args.accuracy is not None:
-        if args.schedule:
-            raise ParameterError("--schedule replays a schedule; --fastest/--accuracy make one: give "
-                                 "one or the other")
-        scaling = ScalingOptions(accuracy_pct=args.accuracy if args.accuracy is not None else DEFAULT_ACCURACY_PCT)
-        scaling.check()
+    scaling = scaling_options(args)
     timed = scaling is not None or args.schedule or args.plan
     if timed and str(args.program).lower().endswith(".toml"):
         flags = [f for f, on in (("--fastest/--accuracy", scaling is not None), ("--schedule", args.schedule),
@@ -84,11 +72,7 @@ def main(args: argparse.Namespace) -> int:
         raise ParameterError("give --out DIR for the passes and the report (or --plan to see the "
                              "load cases' time and their valve-limited minimum without loading)")
     repeat = args.repeat if args.repeat is not None else (SCALING_PASSES if scaling else 1)
-    monitor = None
-    if args.gain != "off":
-        monitor = MonitorOptions(block_s=args.gain_block_s, fall_pct=args.gain_fall, rise_pct=args.gain_rise,
-                                 action=args.gain_alarm_action, follow=args.gain == "adapt")
-        monitor.check()
+    monitor = monitor_options(args)
     comp = RigCompensation.load(args.compensation, rig.names) if args.compensation else None
     # everything that can be refused is refused before the rig is touched
     check_rig_load(config, programme, controller, comp, args.unload_to)
@@ -116,20 +100,10 @@ def main(args: argparse.Namespace) -> int:
         if result.passes:
             print(result.passes[-1].text())
         if result.converged is not None:
-            s = result.schedule
-            print(f"schedule: {s.time_s:.1f} s, {s.time_s / s.minimum_time_s:.2f}x the valve-limited "
-                  f"minimum {s.minimum_time_s:.1f} s, met {s.accuracy_pct:g} % on every channel "
-                  + ("(converged)" if result.converged else f"(not converged in {repeat} passes: the "
-                     "fastest that met it)") if s is not None else
-                  f"schedule: no pass met {scaling.accuracy_pct:g} % on every channel in {repeat} passes")
+            print(schedule_line(result, scaling, repeat, " on every channel"))
         if result.monitor is not None:
             print(result.monitor.text())
         written = [n for n in ("report.txt", "report.json", "tracking.png", "compensation.toml",
                                "schedule.toml") if (result.out / n).is_file()]
         print(f"-> {result.out} ({', '.join(written + ['pass-N/'])})")
-    if result.monitor is not None and result.monitor.alarm is not None:
-        print(f"stand load: gain alarm ({result.monitor.alarm[0]}): {result.monitor.alarm[1]}", file=sys.stderr)
-    if result.end_reason not in (None, "complete"):
-        print(f"stand load: stopped ({result.end_reason}): {result.end_message}", file=sys.stderr)
-        return 1
-    return 0
+    return exit_code(result, result.monitor.alarm if result.monitor is not None else None)
