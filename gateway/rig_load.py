@@ -35,12 +35,12 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import ParameterError
-from loading.rig_compensation import RigCompensation
 from loading.gain_monitor import MonitorOptions
+from loading.rig_compensation import RigCompensation
 from loading.rig_design import RigControllerDesign
 from loading.rig_gain_monitor import RigGainMonitor
-from loading.rig_programme import RigProgramme
 from loading.rig_minimum_time import programme_flow_limit, rig_minimum_durations_s
+from loading.rig_programme import RigProgramme
 from loading.rig_report import RigTrackingReport, plot_rig_tracking, rig_load_summary, rig_tracking_report
 from loading.rig_time_scaling import rig_meets, rig_verdicts
 from loading.time_scaling import ScalingOptions, Schedule, TimeScaler

@@ -93,8 +93,7 @@ class RigProgramme:
     @property
     def turning_idx(self) -> np.ndarray:
         """The load cases' samples (load cases only)."""
-        if not self.load_cases:
-            raise ParameterError(f"{self.source}: per-channel sequences have no load cases")
+        self._load_cases_only()
         return self.channels[0].turning_idx
 
     @property
@@ -106,17 +105,21 @@ class RigProgramme:
     def ranges_kgf(self) -> np.ndarray:
         return np.array([p.range_kgf for p in self.channels])
 
+    def _load_cases_only(self) -> None:
+        if not self.load_cases:
+            raise ParameterError(f"{self.source}: per-channel sequences have no load cases")
+
     @property
     def segment_durations_s(self) -> np.ndarray:
         """How long each segment between two load cases lasts (s; load cases only)."""
-        self.turning_idx                      # refuses per-channel sequences
+        self._load_cases_only()
         return self.channels[0].segment_durations_s
 
     def with_durations(self, durations_s, source: str | None = None) -> "RigProgramme":
         """The same load cases with each segment lasting ``durations_s`` (s, one per segment;
         :meth:`Programme.with_durations` on every channel, so they stay on one grid): time
         scaling."""
-        self.turning_idx                      # refuses per-channel sequences
+        self._load_cases_only()
         label = source or self.source
         return RigProgramme(self.names, [p.with_durations(durations_s, label) for p in self.channels],
                             True, label, self.case_labels)
