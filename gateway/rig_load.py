@@ -36,6 +36,7 @@ import numpy as np
 
 from core.errors import ParameterError
 from loading.gain_monitor import MonitorOptions
+from loading.pacing import PacingOptions
 from loading.rig_compensation import RigCompensation
 from loading.rig_design import RigControllerDesign
 from loading.rig_gain_monitor import RigGainMonitor
@@ -96,12 +97,12 @@ def rig_force_limits(gw) -> list[float]:
 
 def check_rig_load(gw_config, programme: RigProgramme, controller: RigControllerDesign,
                    compensation: RigCompensation | None = None, unload_kgf: float = 0.0,
-                   monitor: RigGainMonitor | None = None) -> RigLoadProgramme:
+                   monitor: RigGainMonitor | None = None, pacing: PacingOptions | None = None) -> RigLoadProgramme:
     """The first pass's experiment, checked against the rig (before anything is opened)."""
     rig = gw_config.rig
     if rig is None:
         raise ParameterError("a rig's programme needs the rig (--rig RIG.toml)")
-    e = RigLoadProgramme(programme, controller, compensation, unload_kgf, monitor=monitor)
+    e = RigLoadProgramme(programme, controller, compensation, unload_kgf, monitor=monitor, pacing=pacing)
     e.check(gw_config.period_s, [c.limit_kgf for c in rig.channels], gw_config.limits.command_limit_pct)
     return e
 
@@ -110,15 +111,15 @@ def achieved(run_dir: Path, experiment: RigLoadProgramme) -> tuple[np.ndarray, n
     """Every channel's recorded force (N, K) on the programme's clock (0 at its start)."""
     run = load_run(run_dir)
     runs = [run.channel(name) for name in experiment.names]
-    t = np.asarray(runs[0].t, float) - (experiment.programme_start_s or 0.0)
-    return t, np.array([np.asarray(r.y, float) for r in runs])
+    return experiment.programme_times(runs[0].t), np.array([np.asarray(r.y, float) for r in runs])
 
 
 def run_rig_load(gw, programme: RigProgramme, controller: RigControllerDesign, out: str | Path,
                  repeat: int = 1, compensation: RigCompensation | None = None, learn: bool = True,
                  unload_kgf: float = 0.0, progress: bool | None = None,
                  error_limit_kgf: float | None = None, scaling: ScalingOptions | None = None,
-                 schedule: Schedule | None = None, monitor: MonitorOptions | None = None) -> RigLoadResult:
+                 schedule: Schedule | None = None, monitor: MonitorOptions | None = None,
+                 pacing: PacingOptions | None = None) -> RigLoadResult:
     """Run ``repeat`` passes of ``programme`` on the rig behind ``gw`` (module docstring).
     ``error_limit_kgf``: every channel's tracking-error limit for these passes (default: each
     supervisor's own, else :data:`ERROR_LIMIT_SHARE` of the channel's programme range).
@@ -126,7 +127,8 @@ def run_rig_load(gw, programme: RigProgramme, controller: RigControllerDesign, o
     ``scaling``: time scaling of the load cases, at most ``repeat`` passes
     (:mod:`loading.rig_time_scaling`). ``monitor``: every channel's gain estimated block by
     block through G, followed by the feedforward and watched for a fall or a rise
-    (:mod:`loading.rig_gain_monitor`)."""
+    (:mod:`loading.rig_gain_monitor`). ``pacing``: static null pacing at the load cases
+    (:mod:`loading.rig_pacing`)."""
     if not (1 <= repeat <= 1000):
         raise ParameterError(f"repeat = {repeat}: it must be from 1 to 1000")
     if schedule is not None:
@@ -140,7 +142,7 @@ def run_rig_load(gw, programme: RigProgramme, controller: RigControllerDesign, o
     comp = compensation if compensation is not None else (
         RigCompensation(programme.names) if learn and repeat > 1 else None)
     watcher = RigGainMonitor(controller.model, gw.config.period_s, monitor) if monitor is not None else None
-    first = check_rig_load(gw.config, programme, controller, comp, unload_kgf, watcher)
+    first = check_rig_load(gw.config, programme, controller, comp, unload_kgf, watcher, pacing)
     minimum = rig_minimum_s(gw.config, programme, controller, required=scaling is not None)
     supervisors = [ch.supervisor for ch in gw.loop.channels]
     own = [s.limits for s in supervisors]
@@ -154,7 +156,7 @@ def run_rig_load(gw, programme: RigProgramme, controller: RigControllerDesign, o
     result = RigLoadResult(out, compensation=comp, programme_time_s=programme.duration_s,
                            minimum_time_s=float(minimum.sum()) if minimum is not None else None)
     result.monitor = watcher
-    shared = _Passes(gw, controller, comp, unload_kgf, learn, progress, result, watcher)
+    shared = _Passes(gw, controller, comp, unload_kgf, learn, progress, result, watcher, pacing)
     try:
         if scaling is not None:
             last = _scaled_passes(shared, programme, minimum, repeat, scaling)
@@ -162,7 +164,7 @@ def run_rig_load(gw, programme: RigProgramme, controller: RigControllerDesign, o
             last = None
             for i in range(1, repeat + 1):
                 experiment = first if i == 1 else check_rig_load(gw.config, programme, controller, comp,
-                                                                 unload_kgf, watcher)
+                                                                 unload_kgf, watcher, pacing)
                 done = shared.run(experiment, programme, i)
                 if done is None:
                     break
@@ -203,6 +205,7 @@ class _Passes:
     progress: bool | None
     result: RigLoadResult
     monitor: RigGainMonitor | None = None
+    pacing: PacingOptions | None = None
 
     def run(self, experiment: RigLoadProgramme, programme: RigProgramme, i: int):
         """Pass ``i``: run, report, learn. Returns the forces ``(t, Y)`` on the programme's
@@ -219,7 +222,11 @@ class _Passes:
         t, Y = achieved(res.path, experiment)
         report = rig_tracking_report(programme, t, Y)
         result.passes.append(report)
-        result.timings.append({"programme_time_s": programme.duration_s})
+        timing = {"programme_time_s": programme.duration_s}
+        if experiment.clock is not None:
+            timing["pacing_s"] = experiment.clock.record.pacing_s
+            timing["pacing"] = experiment.clock.record.to_dict()
+        result.timings.append(timing)
         (res.path / "tracking.json").write_text(json.dumps(report.to_dict(), indent=1) + "\n")
         comp = self.compensation
         if comp is not None and self.learn:
@@ -242,7 +249,7 @@ def _scaled_passes(shared: _Passes, programme: RigProgramme, minimum: np.ndarray
     for i in range(1, repeat + 1):
         current, experiment = stretched_pass(
             base, scaler, i, lambda p: RigLoadProgramme(p, controller, shared.compensation, shared.unload_kgf,
-                                                        monitor=shared.monitor),
+                                                        monitor=shared.monitor, pacing=shared.pacing),
             segment_peaks, share_limit)
         settled = scaler.all_settled
         limits = gw.config.limits
@@ -254,7 +261,10 @@ def _scaled_passes(shared: _Passes, programme: RigProgramme, minimum: np.ndarray
         last = (current, done)
         report = result.passes[-1]
         ok = rig_meets(report, options.accuracy_pct)
-        verdicts = rig_verdicts(scaler, current, report, *done)
+        clock = experiment.clock
+        paced = ({k - experiment.lead: v for k, v in clock.paced_by_turning.items()}
+                 if clock is not None else None)
+        verdicts = rig_verdicts(scaler, current, report, *done, paced)
         result.timings[-1]["scaling"] = {**scaler.last, "met_accuracy": ok, "all_settled_before": settled}
         if ok:
             keep_if_fastest(result, base, current, i, options, minimum, list(base.names))
@@ -304,6 +314,8 @@ def timing_text(timing: dict, minimum_time_s: float | None) -> str:
     if minimum_time_s:
         text += (f", valve-limited minimum {minimum_time_s:.1f} s "
                  f"({timing['programme_time_s'] / minimum_time_s:.2f}x)")
+    if timing.get("pacing") is not None:
+        text += f", pacing {timing['pacing_s']:.2f} s ({timing['pacing']['waits']} waits)"
     s = timing.get("scaling")
     if s is not None:
         text += f"; segments landed {s.get('land', 0)}, held {s.get('hold', 0)}, missed {s.get('miss', 0)}"

@@ -35,6 +35,11 @@ programme feeds it every force and command; following, the feedforward is multip
 matrix; its alarm holds every valve (``hold``) or unloads every channel keeping the load ratios
 (``unload``: the abort asks the loop for the rig's unload).
 
+**Null pacing** (``pacing``, static only: :mod:`loading.rig_pacing`): the programme's one clock
+waits at a load case's gate until every channel's predicted force is within its tolerance of
+its level; the references, the feedforward and the feedback's schedule are read at the clock's
+position (:attr:`RigLoadProgramme.positions`, per cycle).
+
 **No reversal the model does not plan**, per valve, as for one channel: where the model
 predicts a gain above the channel's ρ and during the pre-roll the valve keeps its feedforward's
 sign or holds.
@@ -55,12 +60,14 @@ import numpy as np
 from core.errors import ParameterError
 from loading.feedforward import feedback_scale
 from loading.gain_monitor import GAIN_ALARM
+from loading.pacing import DEFAULT_TOLERANCE_SHARE, PACING_TIMEOUT, PacingOptions
 from loading.minimum_time import FEEDFORWARD_SHARE
 from loading.rig_compensation import RigCompensation
 from loading.rig_controller import RigPIFeedforward
 from loading.rig_design import RigControllerDesign
 from loading.rig_feedforward import RigFeedforward, channel_feedforward, rig_feedforward
 from loading.rig_gain_monitor import RigGainMonitor
+from loading.rig_pacing import RigProgrammeClock
 from loading.rig_programme import RigProgramme
 
 from .experiments.phases import FORCE_NEAR_LIMIT, SET_POINT_NOT_REACHED, Dwell
@@ -209,10 +216,20 @@ class RigLoadProgramme(RigExperiment):
     def __init__(self, programme: RigProgramme, controller: RigControllerDesign,
                  compensation: RigCompensation | None = None, unload_kgf: float = 0.0,
                  settle_tolerance_kgf: float = 20.0, settle_max_s: float = 20.0,
-                 guard_fraction: float = 0.95, monitor: RigGainMonitor | None = None) -> None:
+                 guard_fraction: float = 0.95, monitor: RigGainMonitor | None = None,
+                 pacing: PacingOptions | None = None) -> None:
         if list(programme.names) != list(controller.names):
             raise ParameterError(f"the programme is for the channels {', '.join(programme.names)}, the "
                                  f"controller for {', '.join(controller.names)}")
+        self.pacing = pacing or PacingOptions()
+        self.pacing.check()
+        if self.pacing.mode == "dynamic":
+            raise ParameterError("--pacing dynamic: a rig's programme paces static only (it waits at a "
+                                 "load case for every channel; slowing the common clock is one "
+                                 "channel's so far)")
+        if self.pacing.on and not programme.load_cases:
+            raise ParameterError(f"{programme.source}: pacing waits at load cases; per-channel "
+                                 "sequences have none (leave --pacing out)")
         self.programme = programme
         self.controller = controller
         self.compensation = compensation
@@ -257,6 +274,12 @@ class RigLoadProgramme(RigExperiment):
         self.abort_action = "hold"
         #: the gain monitor of the test, shared by its passes (loading.rig_gain_monitor)
         self.monitor = monitor
+        #: the flows that hold every force against the trends (the base model's: −G⁻¹Δ)
+        self.u_hold = -np.linalg.solve(controller.G, self.trends)
+        #: with pacing: the programme's clock of the pass, and its position per cycle of the main
+        #: phase (samples of the reference)
+        self.clock: RigProgrammeClock | None = None
+        self.positions: list[int] = []
         self._u = self._scale = self._hold = self._factor = None
 
     def _plans(self, ff: RigFeedforward, way: float) -> list[_ChannelPlan]:
@@ -317,8 +340,31 @@ class RigLoadProgramme(RigExperiment):
                 "pre_roll_from_kgf": self.reference[:, 0].tolist(),
                 "compensated": self.compensation is not None, "unload_kgf": self.unload_kgf,
                 "settle_tolerance_kgf": self.approach.tolerance, "settle_max_s": self.approach.max_s,
-                "guard_fraction": self.guard_fraction,
+                "guard_fraction": self.guard_fraction, "pacing": self.pacing.mode,
+                **({"pacing_tolerance_kgf": self.pacing_tolerances_kgf.tolist(),
+                    "pacing_timeout_s": self.pacing.timeout_s} if self.pacing.on else {}),
                 **({"gain_monitor": dict(vars(self.monitor.options))} if self.monitor is not None else {})}
+
+    @property
+    def pacing_tolerances_kgf(self) -> np.ndarray:
+        """Every channel's ε: the given one, else :data:`DEFAULT_TOLERANCE_SHARE` of its
+        programme's range (at least 5 kgf: a channel that keeps one level)."""
+        if self.pacing.tolerance_kgf is not None:
+            return np.full(self.n, float(self.pacing.tolerance_kgf))
+        return np.maximum(DEFAULT_TOLERANCE_SHARE * self.programme.ranges_kgf, 5.0)
+
+    def programme_times(self, t_s: np.ndarray) -> np.ndarray:
+        """The run's times ``t_s`` on the programme's clock (0 at its start): with pacing, each
+        cycle of the main phase at the clock's position then (a wait's cycles share a time)."""
+        t = np.asarray(t_s, float)
+        t0 = self.programme_start_s or 0.0
+        if not self.positions or self.main_start_s is None:
+            return t - t0
+        T = self.period_s
+        i = np.round((t - self.main_start_s) / T).astype(int)
+        pos = np.asarray(self.positions)
+        inside = (i >= 0) & (i < len(pos))
+        return np.where(inside, (pos[np.clip(i, 0, len(pos) - 1)] - self.lead) * T, t - t0)
 
     def check(self, period_s: float, force_limits_kgf: Sequence[float], command_limit_pct: float) -> None:
         """Refuse what the rig must not be asked for, before anything moves."""
@@ -366,8 +412,19 @@ class RigLoadProgramme(RigExperiment):
         self._factor = np.array([p.factor for p in plans])
         if self.monitor is not None:
             self.monitor.begin_pass()
+        self.positions = []
+        self.clock = None
+        if self.pacing.on:
+            T = self.period_s
+            model = self.controller.model
+            self.clock = RigProgrammeClock(
+                self.reference, self.lead + self.programme.turning_idx[1:],
+                [int(round(m.tau / T)) for m in model.channels], np.diag(self.controller.G), T,
+                self.pacing, self.pacing_tolerances_kgf, start=self.lead)
 
     def finished_rig(self, t: float, ys: Sequence[float]) -> bool:
+        if self.clock is not None:
+            return self.main_start_s is not None and self.clock.finished
         return self.main_start_s is not None and t - self.main_start_s >= self.main_duration_s - 1e-9
 
     def step_rig(self, t: float, ys: Sequence[float]) -> tuple[list[float], list[float]]:
@@ -392,15 +449,52 @@ class RigLoadProgramme(RigExperiment):
                               f"line (last readings {', '.join(f'{v:.0f}' for v in y)} kgf); check the rig")
                 return [0.0] * self.n, [math.nan] * self.n
             self._begin_main(t)
+        if self.clock is not None:
+            return self._paced_step(y)
         k = min(int(round((t - self.main_start_s) / self.period_s)), self.reference.shape[1] - 1)
         r = self.reference[:, k]
-        monitor = self.monitor
-        ff = self._u[:, k]
-        if monitor is not None and monitor.options.follow:
-            ff = monitor.ff_matrix @ ff
-        u = self.law.step(r, y, ff, self._scale[:, k], self._hold[:, k])
-        if monitor is not None and self.abort is None:
+        u = self.law.step(r, y, self._followed(self._u[:, k]), self._scale[:, k], self._hold[:, k])
+        if self.monitor is not None and self.abort is None:
             self._watch(y, u, k)
+        return u.tolist(), r.tolist()
+
+    def _followed(self, ff: np.ndarray) -> np.ndarray:
+        """The feedforward as the gain monitor follows the rig's gains (unchanged without it)."""
+        monitor = self.monitor
+        return monitor.ff_matrix @ ff if monitor is not None and monitor.options.follow else ff
+
+    def _paced_step(self, y: np.ndarray) -> tuple[list[float], list[float]]:
+        """One cycle on the programme's clock (loading.rig_pacing): the references and the
+        feedforward at its position; while it waits at a load case, the flows that hold the
+        forces and a P law on the predicted forces toward the levels."""
+        clock = self.clock
+        p = clock.advance(y)
+        self.positions.append(p)
+        r = self.reference[:, p]
+        if clock.waited_too_long():
+            gate = clock.gate
+            short = clock.short_kgf(gate)
+            tol = self.pacing_tolerances_kgf
+            i = self.abort_channel = int(np.argmax(short / tol))
+            k = int(np.flatnonzero(self.programme.turning_idx == gate.case - self.lead)[0])
+            label = (self.programme.case_labels or [str(j + 1) for j in range(k + 1)])[k]
+            self.abort = (PACING_TIMEOUT,
+                          f"its force did not reach load case {label} ({gate.levels_kgf[i]:.0f} kgf) within "
+                          f"{tol[i]:.0f} kgf in {self.pacing.timeout_s:g} s of waiting (at {y[i]:.0f} kgf, "
+                          f"{clock.predicted_kgf[i]:.0f} predicted): the rig cannot reach it; check the "
+                          "channel, the model and the load case")
+            return [0.0] * self.n, r.tolist()
+        ff = self._followed(self._u[:, p] if clock.step_taken else self.u_hold)
+        if clock.waiting:
+            if clock.wait_began:
+                self.law.reset()
+            gate = clock.gate
+            u = self.law.wait_step(gate.levels_kgf - clock.predicted_kgf, ff, gate.way)
+        else:
+            u = self.law.step(r, y, ff, self._scale[:, p], self._hold[:, p])
+        clock.sent(u, ff)
+        if self.monitor is not None and self.abort is None:
+            self._watch(y, u, p)
         return u.tolist(), r.tolist()
 
     def _watch(self, y: np.ndarray, u: np.ndarray, k: int) -> None:

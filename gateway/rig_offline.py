@@ -71,5 +71,5 @@ def run_rig_pass(experiment: RigLoadProgramme, truth: RigModel, y0: float | Sequ
     start = experiment.programme_start_s
     if start is None or abort is not None:
         return RigOfflinePass(None, np.array(ts), Y, U, abort)
-    tp = np.array(ts) - start
+    tp = experiment.programme_times(np.array(ts))
     return RigOfflinePass(rig_tracking_report(experiment.programme, tp, Y), tp, Y, U, None)

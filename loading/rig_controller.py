@@ -55,3 +55,13 @@ class RigPIFeedforward:
         keep[under] = di[under] > 0
         self.integral = np.where(keep, integral, self.integral)
         return np.clip(u, -self.limit, self.limit)
+
+    def wait_step(self, error_kgf: np.ndarray, u_hold_pct: np.ndarray, way: np.ndarray) -> np.ndarray:
+        """Every command while the programme waits at a load case (:mod:`loading.rig_pacing`):
+        ``error_kgf`` each level minus its predicted force, a P law through M around the flows
+        that hold the forces, each valve with a ``way`` (±1) moving only that way (0: free);
+        the integral is left alone."""
+        u = np.asarray(u_hold_pct, float) + self.Mkp @ np.asarray(error_kgf, float)
+        way = np.asarray(way, float)
+        u = np.where(way * u < 0, 0.0, u)
+        return np.clip(u, -self.limit, self.limit)

@@ -19,11 +19,12 @@ _WORSE = {LAND: 0, HOLD: 1, MISS: 2}
 
 
 def rig_verdicts(scaler: TimeScaler, programme: RigProgramme, report: RigTrackingReport,
-                 t_s: np.ndarray, y_kgf: np.ndarray) -> list[str]:
+                 t_s: np.ndarray, y_kgf: np.ndarray, paced_s: dict[int, float] | None = None) -> list[str]:
     """Per segment between load cases: land, hold or miss, the worst of the channels' (module
     docstring), from the pass that ran ``programme`` and recorded the forces ``y_kgf`` (N, K)
-    at ``t_s`` (the programme's clock)."""
-    per_channel = [scaler.verdicts(p, r, ringing_turning_points(p, t_s, y))
+    at ``t_s`` (the programme's clock); ``paced_s``: the time the programme waited heading to
+    each load case (its sample): a segment it waited for misses, as for one channel."""
+    per_channel = [scaler.verdicts(p, r, ringing_turning_points(p, t_s, y), paced_s)
                    for p, r, y in zip(programme.channels, report.channels, np.asarray(y_kgf, float))]
     out = [max(v, key=_WORSE.__getitem__) for v in zip(*per_channel)]
     scaler.last = {v: out.count(v) for v in (LAND, HOLD, MISS)}

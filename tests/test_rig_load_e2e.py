@@ -178,6 +178,46 @@ def test_stand_load_rig_gain_alarm_on_a_softened_structure_unloads_every_channel
     assert "pass 1 stopped (gain_alarm)" in report and "gain root" in report
 
 
+def with_slow_outer(text: str, limit_pct: float) -> str:
+    """The example rig's text with outer's valve passing at most ``limit_pct`` of flow (a flow
+    limit the controller's model lacks)."""
+    head, sep, rest = text.partition('name = "outer"')
+    rest = rest.replace('model = "base+reversal"', 'model = "base+reversal+saturation"', 1)
+    rest = rest.replace("decay = 0.2\n", f"decay = 0.2\n[channel.plant.effects.saturation]\nlimit = {limit_pct}\n", 1)
+    assert "saturation" in rest
+    return head + sep + rest
+
+
+@pytest.mark.e2e
+@pytest.mark.slow
+def test_stand_load_rig_pacing_waits_for_a_slow_valve_and_keeps_the_load_cases(
+        tmp_path, start_rig_emulator, decoupled, channel):
+    """Outer's valve passes at most 12 % of flow; the load cases at 5000 kgf/s ask up to 17 %:
+    without pacing outer misses them and the ratios bend, with --pacing static the rig's one
+    clock waits for it."""
+    from tests.support.rig import example_rig_text
+    rig = start_rig_emulator(with_slow_outer(example_rig_text(channel), 12.0))
+    (tmp_path / "cases.csv").write_text(CASES)
+    docs = {}
+    for mode in ("off", "static"):     # the pass without pacing lags: let it finish, measured
+        done = stand("load", tmp_path / "cases.csv", "--rig", rig, "--controller", decoupled, "--rate", 5000,
+                     "--pacing", mode, "--error-limit", 2000, "--lockstep", "--json", "--no-progress",
+                     "--out", tmp_path / mode)
+        assert done.returncode == 0, done.stderr + done.stdout
+        docs[mode] = json.loads(done.stdout)
+    off, on = docs["off"], docs["static"]
+    outer_off = off["channels"]["outer"]["peak_valley_error_pct"]["max"]
+    outer_on = on["channels"]["outer"]["peak_valley_error_pct"]["max"]
+    assert outer_off > 1.5 and outer_on < 0.5 * outer_off, (outer_off, outer_on)
+    assert on["ratio_error_pct"] < 0.5 * off["ratio_error_pct"], (off["ratio_error_pct"], on["ratio_error_pct"])
+    assert "pacing" not in off["passes"][0]
+    rec = on["passes"][0]["pacing"]
+    assert rec["waits"] >= 1 and on["passes"][0]["pacing_s"] > 0.5, rec
+    meta = json.loads((tmp_path / "static" / "pass-1" / "run.json").read_text())
+    assert meta["experiment"]["params"]["pacing"] == "static"
+    assert "pacing" in (tmp_path / "static" / "report.txt").read_text()
+
+
 def in_process(capsys, *args) -> tuple[int, str]:
     """``stand ARGS`` in this process (quicker than a subprocess): exit code and stderr."""
     from stand.cli import main
@@ -203,7 +243,8 @@ def test_stand_load_rig_refuses_before_anything_is_opened(tmp_path, decoupled, c
         (("high.csv", "--rate", 2500), "channel outer: .*4800 kgf.* force limit ±4500"),
         (("cases.csv", "--rate", 25000), "needs a valve command of .* its valve cannot follow"),
         (("cases.csv",), "load cases need --rate"),
-        (("cases.csv", "--rate", 2500, "--pacing", "static"), "--pacing: not available with --rig"),
+        (("cases.csv", "--rate", 2500, "--pacing", "dynamic"), "--pacing dynamic: a rig's programme paces static only"),
+        (("sequences.toml", "--rate", 2500, "--pacing", "static"), "pacing waits at load cases; per-channel"),
         (("cases.csv", "--fastest", "--schedule", "one.toml"), "give one or the other"),
         (("cases.csv", "--accuracy", 50), "accuracy 50.0 %: give a share of the range"),
         (("cases.csv", "--schedule", tmp_path / "one.toml"), "one channel's: it cannot time a rig's load cases"),

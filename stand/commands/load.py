@@ -69,7 +69,8 @@ def register(sub) -> None:
                         "(a production run)")
     g.add_argument("--pacing", choices=PACING_MODES, default="off",
                    help="null pacing: static waits at a turning point the force has not reached; "
-                        "dynamic also slows the programme while the force lags (default %(default)s)")
+                        "dynamic also slows the programme while the force lags; with --rig static "
+                        "only, at each load case for every channel (default %(default)s)")
     g.add_argument("--pacing-tolerance", type=float, metavar="KGF",
                    help="how far the force may be from the reference or a turning point before the "
                         "programme paces (default 0.5 %% of the programme's range)")
@@ -156,6 +157,14 @@ def scaling_options(args):
     return scaling
 
 
+def pacing_options(args):
+    """``--pacing`` and its options as :class:`loading.pacing.PacingOptions`, checked."""
+    from loading.pacing import PacingOptions
+    pacing = PacingOptions(args.pacing, args.pacing_tolerance, args.pacing_min_speed, args.pacing_timeout)
+    pacing.check()
+    return pacing
+
+
 def monitor_options(args):
     """``--gain watch|adapt`` as :class:`loading.gain_monitor.MonitorOptions` (None when off)."""
     from loading.gain_monitor import MonitorOptions
@@ -197,7 +206,6 @@ def main(args: argparse.Namespace) -> int:
     from loading.compensation import Compensation
     from loading.design import load_controller
     from loading.minimum_time import minimum_durations_s, programme_valve_limit
-    from loading.pacing import PacingOptions
     from loading.programme import is_sequence, load_programme
     from loading.time_scaling import Schedule
     from loading.rig_design import is_rig_file
@@ -225,8 +233,7 @@ def main(args: argparse.Namespace) -> int:
         raise ParameterError("give --out DIR for the passes and the report (or --plan to see the "
                              "programme's time and its valve-limited minimum without loading)")
     repeat = args.repeat if args.repeat is not None else (SCALING_PASSES if scaling else 1)
-    pacing = PacingOptions(args.pacing, args.pacing_tolerance, args.pacing_min_speed, args.pacing_timeout)
-    pacing.check()
+    pacing = pacing_options(args)
     monitor = monitor_options(args)
     comp = Compensation.load(args.compensation) if args.compensation else None
     # everything that can be refused is refused before the stand is touched

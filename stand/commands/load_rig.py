@@ -9,10 +9,6 @@ import sys
 
 from core.errors import ParameterError
 
-def _refuse_one_channel_options(args: argparse.Namespace) -> None:
-    if getattr(args, "pacing", "off") != "off":
-        raise ParameterError("--pacing: not available with --rig yet (a rig's programme runs at its "
-                             "--rate or --frequency, or a schedule's durations); leave it out")
 
 
 def _plan(args, programme, controller, config) -> int:
@@ -39,9 +35,8 @@ def main(args: argparse.Namespace) -> int:
     from loading.time_scaling import Schedule
 
     from .common import gateway_config, sigterm_as_interrupt
-    from .load import (PLACEHOLDER_RATE_KGF_S, SCALING_PASSES, exit_code, monitor_options, scaling_options,
-                       schedule_line)
-    _refuse_one_channel_options(args)
+    from .load import (PLACEHOLDER_RATE_KGF_S, SCALING_PASSES, exit_code, monitor_options, pacing_options,
+                       scaling_options, schedule_line)
     config = gateway_config(args)
     rig = config.rig
     controller = load_rig_controller(args.controller, config.period_s, rig.names)
@@ -73,9 +68,10 @@ def main(args: argparse.Namespace) -> int:
                              "load cases' time and their valve-limited minimum without loading)")
     repeat = args.repeat if args.repeat is not None else (SCALING_PASSES if scaling else 1)
     monitor = monitor_options(args)
+    pacing = pacing_options(args)
     comp = RigCompensation.load(args.compensation, rig.names) if args.compensation else None
     # everything that can be refused is refused before the rig is touched
-    check_rig_load(config, programme, controller, comp, args.unload_to)
+    check_rig_load(config, programme, controller, comp, args.unload_to, pacing=pacing)
     if not (1 <= repeat <= 1000):
         raise ParameterError(f"--repeat {repeat}: it must be from 1 to 1000")
     with sigterm_as_interrupt():
@@ -83,7 +79,7 @@ def main(args: argparse.Namespace) -> int:
             result = run_rig_load(gw, programme, controller, args.out, repeat, comp,
                                   learn=not args.no_learn, unload_kgf=args.unload_to,
                                   progress=False if args.no_progress else None, scaling=scaling,
-                                  monitor=monitor)
+                                  monitor=monitor, pacing=pacing)
     if args.json:
         json.dump(result.summary(), sys.stdout, indent=2)
         sys.stdout.write("\n")
