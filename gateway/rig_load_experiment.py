@@ -60,8 +60,8 @@ import numpy as np
 from core.errors import ParameterError
 from loading.feedforward import feedback_scale
 from loading.gain_monitor import GAIN_ALARM
-from loading.pacing import DEFAULT_TOLERANCE_SHARE, PACING_TIMEOUT, PacingOptions
 from loading.minimum_time import FEEDFORWARD_SHARE
+from loading.pacing import DEFAULT_TOLERANCE_SHARE, PACING_TIMEOUT, PacingOptions
 from loading.rig_compensation import RigCompensation
 from loading.rig_controller import RigPIFeedforward
 from loading.rig_design import RigControllerDesign
