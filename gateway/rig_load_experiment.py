@@ -35,9 +35,9 @@ programme feeds it every force and command; following, the feedforward is multip
 matrix; its alarm holds every valve (``hold``) or unloads every channel keeping the load ratios
 (``unload``: the abort asks the loop for the rig's unload).
 
-**Null pacing** (``pacing``, static only: :mod:`loading.rig_pacing`): the programme's one clock
-waits at a load case's gate until every channel's predicted force is within its tolerance of
-its level; the references, the feedforward and the feedback's schedule are read at the clock's
+**Null pacing** (``pacing``, :mod:`loading.rig_pacing`): the programme's one clock waits at a
+load case's gate until every channel's predicted force is within its tolerance of its level
+(``static``), and slows for all while any channel lags (``dynamic``); the references, the feedforward and the feedback's schedule are read at the clock's
 position (:attr:`RigLoadProgramme.positions`, per cycle).
 
 **No reversal the model does not plan**, per valve, as for one channel: where the model
@@ -223,10 +223,6 @@ class RigLoadProgramme(RigExperiment):
                                  f"controller for {', '.join(controller.names)}")
         self.pacing = pacing or PacingOptions()
         self.pacing.check()
-        if self.pacing.mode == "dynamic":
-            raise ParameterError("--pacing dynamic: a rig's programme paces static only (it waits at a "
-                                 "load case for every channel; slowing the common clock is one "
-                                 "channel's so far)")
         if self.pacing.on and not programme.load_cases:
             raise ParameterError(f"{programme.source}: pacing waits at load cases; per-channel "
                                  "sequences have none (leave --pacing out)")
@@ -277,9 +273,9 @@ class RigLoadProgramme(RigExperiment):
         #: the flows that hold every force against the trends (the base model's: −G⁻¹Δ)
         self.u_hold = -np.linalg.solve(controller.G, self.trends)
         #: with pacing: the programme's clock of the pass, and its position per cycle of the main
-        #: phase (samples of the reference)
+        #: phase (samples of the reference, fractional while it slows)
         self.clock: RigProgrammeClock | None = None
-        self.positions: list[int] = []
+        self.positions: list[float] = []
         self._u = self._scale = self._hold = self._factor = None
 
     def _plans(self, ff: RigFeedforward, way: float) -> list[_ChannelPlan]:
@@ -315,7 +311,8 @@ class RigLoadProgramme(RigExperiment):
 
     @property
     def max_duration_s(self) -> float:
-        return self.approach.max_s + self.main_duration_s + 10.0
+        slowest = self.pacing.min_speed if self.pacing.mode == "dynamic" else 1.0
+        return self.approach.max_s + self.main_duration_s / slowest + 10.0
 
     @property
     def programme_start_s(self) -> float | None:
@@ -470,13 +467,13 @@ class RigLoadProgramme(RigExperiment):
         clock = self.clock
         p = clock.advance(y)
         self.positions.append(p)
-        r = self.reference[:, p]
+        r = clock.reference_at(p)
         if clock.waited_too_long():
             gate = clock.gate
             short = clock.short_kgf(gate)
             tol = self.pacing_tolerances_kgf
             i = self.abort_channel = int(np.argmax(short / tol))
-            k = int(np.flatnonzero(self.programme.turning_idx == gate.case - self.lead)[0])
+            k = int(np.flatnonzero(self.programme.turning_idx == gate.turning - self.lead)[0])
             label = (self.programme.case_labels or [str(j + 1) for j in range(k + 1)])[k]
             self.abort = (PACING_TIMEOUT,
                           f"its force did not reach load case {label} ({gate.levels_kgf[i]:.0f} kgf) within "
@@ -484,17 +481,21 @@ class RigLoadProgramme(RigExperiment):
                           f"{clock.predicted_kgf[i]:.0f} predicted): the rig cannot reach it; check the "
                           "channel, the model and the load case")
             return [0.0] * self.n, r.tolist()
-        ff = self._followed(self._u[:, p] if clock.step_taken else self.u_hold)
+        k = int(p)
+        k1 = min(k + 1, self.reference.shape[1] - 1)
+        planned = self._u[:, k] + (p - k) * (self._u[:, k1] - self._u[:, k])
+        s = clock.step_taken                 # the slowed programme's flows, holding while it waits
+        ff = self._followed(s * planned + (1.0 - s) * self.u_hold)
         if clock.waiting:
             if clock.wait_began:
                 self.law.reset()
             gate = clock.gate
             u = self.law.wait_step(gate.levels_kgf - clock.predicted_kgf, ff, gate.way)
         else:
-            u = self.law.step(r, y, ff, self._scale[:, p], self._hold[:, p])
+            u = self.law.step(r, y, ff, self._scale[:, k], self._hold[:, k], integrate=s >= 1.0)
         clock.sent(u, ff)
         if self.monitor is not None and self.abort is None:
-            self._watch(y, u, p)
+            self._watch(y, u, k)
         return u.tolist(), r.tolist()
 
     def _watch(self, y: np.ndarray, u: np.ndarray, k: int) -> None:

@@ -118,7 +118,80 @@ class PacingRecord:
         return dict(self.__dict__)
 
 
-class ProgrammeClock:
+class PacedClock:
+    """What a stand's and a rig's programme clocks share (:class:`ProgrammeClock`,
+    :class:`loading.rig_pacing.RigProgrammeClock`): the position and its speed, the waits at
+    the gates (each with a ``turning`` sample), and the record of what pacing did."""
+
+    def _begin_clock(self, n: int, period_s: float, options: PacingOptions) -> None:
+        self.n = n
+        self.T = period_s
+        self.options = options
+        self.position = 0.0
+        self.speed = 1.0
+        self.waiting = False
+        self.next_gate = 0
+        self._wait_start = 0.0
+        self.record = PacingRecord()
+        self.cycles = 0
+        self._step = 1.0
+        #: True in the cycle a wait begins
+        self.wait_began = False
+        #: the time paced (waiting or slowed) heading to each turning point, by its sample
+        self.paced_by_turning: dict[int, float] = {}
+
+    def _wait(self) -> None:
+        """The programme waits at its gate this cycle."""
+        if not self.waiting:
+            self.wait_began = True
+            self.waiting = True
+            self._wait_start = self.cycles * self.T
+            self.record.waits += 1
+
+    def _pass_gate(self, step: float) -> float:
+        """The force is there: the planned motion leaves (at full speed after a wait); returns
+        this cycle's step."""
+        if self.waiting:
+            waited = self.cycles * self.T - self._wait_start
+            self.record.longest_wait_s = max(self.record.longest_wait_s, waited)
+            self.speed = step = 1.0
+        self.waiting = False
+        self.next_gate += 1
+        return step
+
+    def _move(self, step: float) -> float:
+        """Advance by ``step`` and keep the record; returns the position."""
+        step = float(step)
+        if self.waiting:
+            self.record.wait_s += self.T
+        elif self.speed < 1.0:
+            self.record.slowed_s += self.T
+        if step < 1.0 and self.next_gate < len(self.gates):
+            k = self.gates[self.next_gate].turning
+            self.paced_by_turning[k] = self.paced_by_turning.get(k, 0.0) + self.T * (1.0 - step)
+        self.record.pacing_s += self.T * (1.0 - step)
+        self.position = min(self.position + step, self.n - 1.0)
+        self._step = step
+        return self.position
+
+    @property
+    def step_taken(self) -> float:
+        """The speed of this cycle (0 while waiting): the feedforward's share this cycle."""
+        return self._step
+
+    def waited_too_long(self) -> bool:
+        return self.waiting and self.cycles * self.T - self._wait_start > self.options.timeout_s
+
+    @property
+    def gate(self):
+        return self.gates[self.next_gate] if self.next_gate < len(self.gates) else None
+
+    @property
+    def finished(self) -> bool:
+        return self.position >= self.n - 1.0
+
+
+class ProgrammeClock(PacedClock):
     """The programme's position, advanced once a cycle (module docstring).
 
     Parameters
@@ -137,11 +210,9 @@ class ProgrammeClock:
                  gain: float, period_s: float, options: PacingOptions, tolerance_kgf: float,
                  start: int = 0) -> None:
         self.r = np.asarray(reference, float)
-        self.n = len(self.r)
+        self._begin_clock(len(self.r), period_s, options)
         self.m = max(int(delay_samples), 1)
         self.gT = gain * period_s
-        self.T = period_s
-        self.options = options
         self.tol = float(tolerance_kgf)
         self.gates: list[Gate] = []
         previous = start
@@ -149,10 +220,6 @@ class ProgrammeClock:
             way = math.copysign(1.0, self.r[i] - self.r[max(i - 1, 0)])
             self.gates.append(Gate(max(i - self.m, previous + 1), int(i), float(self.r[i]), way))
             previous = int(i)
-        self.position = 0.0
-        self.speed = 1.0
-        self.waiting = False
-        self.next_gate = 0
         self._inflight: deque[float] = deque([0.0] * self.m, maxlen=self.m)
         self._inflight_sum = 0.0
         #: what the commands that acted over the last delay should have made, and the force
@@ -161,15 +228,7 @@ class ProgrammeClock:
         self._acted: deque[float] = deque([0.0] * self.m, maxlen=self.m)
         self._forces: deque[float] = deque(maxlen=self.m)
         self.delivery = 1.0
-        self._wait_start = 0.0
-        self.record = PacingRecord()
         self.predicted_kgf = math.nan
-        self.cycles = 0
-        self._step = 1.0
-        #: True in the cycle a wait begins
-        self.wait_began = False
-        #: the time paced (waiting or slowed) heading to each turning point, by its sample
-        self.paced_by_turning: dict[int, float] = {}
 
     # -- per cycle ---------------------------------------------------------------------------
     def reference_at(self, p: float) -> float:
@@ -210,42 +269,11 @@ class ProgrammeClock:
             if p + step >= gate.position:
                 short = gate.way * (gate.level_kgf - self.predicted_kgf)
                 if short > (RELEASE_SHARE * self.tol if self.waiting else self.tol):
-                    if not self.waiting:
-                        self.wait_began = True
-                        self.waiting = True
-                        self._wait_start = self.cycles * self.T
-                        self.record.waits += 1
+                    self._wait()
                     step = max(gate.position - p, 0.0)
-                else:
-                    if self.waiting:          # the force is there: the reversal leaves as planned
-                        waited = self.cycles * self.T - self._wait_start
-                        self.record.longest_wait_s = max(self.record.longest_wait_s, waited)
-                        self.speed = step = 1.0
-                    self.waiting = False
-                    self.next_gate += 1
-        if self.waiting:
-            self.record.wait_s += self.T
-        elif self.speed < 1.0:
-            self.record.slowed_s += self.T
-        if step < 1.0 and self.next_gate < len(self.gates):
-            k = self.gates[self.next_gate].turning
-            self.paced_by_turning[k] = self.paced_by_turning.get(k, 0.0) + self.T * (1.0 - step)
-        self.record.pacing_s += self.T * (1.0 - step)
-        self.position = min(p + step, self.n - 1.0)
-        self._step = step
-        return self.position
-
-    @property
-    def step_taken(self) -> float:
-        """The speed of this cycle (0 while waiting): the feedforward's share this cycle."""
-        return self._step
-
-    def waited_too_long(self) -> bool:
-        return self.waiting and self.cycles * self.T - self._wait_start > self.options.timeout_s
-
-    @property
-    def gate(self) -> Gate | None:
-        return self.gates[self.next_gate] if self.next_gate < len(self.gates) else None
+                else:                         # the force is there: the reversal leaves as planned
+                    step = self._pass_gate(step)
+        return self._move(step)
 
     def sent(self, command_pct: float, feedforward_pct: float) -> None:
         """The command that went out this cycle and its feedforward share: the plan's delivery
@@ -259,7 +287,3 @@ class ProgrammeClock:
         self._inflight.append(delta)
         self._acted_sum += oldest - self._acted[0]
         self._acted.append(oldest)
-
-    @property
-    def finished(self) -> bool:
-        return self.position >= self.n - 1.0

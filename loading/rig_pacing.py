@@ -1,9 +1,10 @@
 r"""Null pacing for a rig: the programme's one clock waits at a load case until every channel's
 force will be there, so no channel skips a load case and the ratios hold at each one.
 
-As for one channel (:mod:`loading.pacing`, ``static``), the programme does not run on the wall
-clock: its position ``p`` (samples of the planned references, common to every channel) advances
-one sample a cycle, or stands while the programme waits. Every channel's feedforward is sent
+As for one channel (:mod:`loading.pacing`), the programme does not run on the wall clock: its
+position ``p`` (samples of the planned references, common to every channel, fractional)
+advances by a speed ``s ≤ 1`` a cycle, and every reference, feedforward and schedule of the
+feedback is read there. Every channel's feedforward is sent
 its own delay ``τ_i = m_i·T`` ahead, so the decision on load case ``k`` (sample ``n_k``) is taken
 at its *gate* ``n_k − max_i m_i``, before any channel's command toward the next load case
 leaves. There every channel's force is predicted past its own delay from the commands in
@@ -27,8 +28,13 @@ goes on together and the planned motion toward the next load case leaves. A wait
 the timeout stops the pass (:data:`loading.pacing.PACING_TIMEOUT`), naming the channel that is
 furthest from its level.
 
-Only ``static`` pacing on a rig: slowing the common clock for a lagging channel (``dynamic``)
-is one channel's so far.
+**Slowing (dynamic).** While any channel's force lags its reference in its direction of travel
+by more than its tolerance, ``d_i = ±(r_i(p) − y_i) > ε_i``, the one clock slows for all, down
+to ``s_min``: ``s* = clip(min_i(1 − (d_i − ε_i)/ε_i), s_min, 1)``, falling at once and rising
+back over :data:`loading.pacing.RECOVERY_S`; the feedforward is that of the slowed programme,
+``s·u_ff + (1 − s)·u_hold`` per valve. So the structure sees the planned load distribution
+along the way, not only at the load cases: the channels that keep up wait for the one that
+lags. ``static`` waits only.
 """
 from __future__ import annotations
 
@@ -37,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .pacing import DELIVERY_RANGE, RELEASE_SHARE, PacingOptions, PacingRecord
+from .pacing import DELIVERY_RANGE, RECOVERY_S, RELEASE_SHARE, PacedClock, PacingOptions
 
 
 @dataclass
@@ -45,12 +51,12 @@ class RigGate:
     """Where the programme decides on one load case."""
 
     position: int           #: the common sample at which the decision is taken
-    case: int               #: the load case's sample in the references
+    turning: int            #: the load case's sample in the references
     levels_kgf: np.ndarray  #: every channel's level there
     way: np.ndarray         #: per channel +1 rising to it, −1 falling, 0 holding its level
 
 
-class RigProgrammeClock:
+class RigProgrammeClock(PacedClock):
     """The rig programme's common position (module docstring).
 
     Parameters
@@ -68,11 +74,10 @@ class RigProgrammeClock:
     def __init__(self, reference: np.ndarray, cases: np.ndarray, delay_samples, gains, period_s: float,
                  options: PacingOptions, tolerances_kgf, start: int = 0) -> None:
         self.r = np.asarray(reference, float)
-        self.n_ch, self.n = self.r.shape
+        self.n_ch = self.r.shape[0]
+        self._begin_clock(self.r.shape[1], period_s, options)
         self.m = np.maximum(np.asarray(delay_samples, int), 1)
         self.gT = np.asarray(gains, float) * period_s
-        self.T = period_s
-        self.options = options
         self.tol = np.asarray(tolerances_kgf, float)
         lead = int(self.m.max())
         self.gates: list[RigGate] = []
@@ -82,13 +87,6 @@ class RigProgrammeClock:
             self.gates.append(RigGate(max(c - lead, previous + 1), int(c), self.r[:, c].copy(),
                                       np.sign(self.r[:, c] - before)))
             previous = int(c)
-        self.position = 0
-        self.waiting = False
-        self.wait_began = False
-        self.next_gate = 0
-        self.cycles = 0
-        self._step = 1
-        self._wait_start = 0.0
         self._inflight = [deque([0.0] * int(m), maxlen=int(m)) for m in self.m]
         self._inflight_sum = np.zeros(self.n_ch)
         #: what the commands that acted over each channel's last delay should have made, and its
@@ -98,13 +96,19 @@ class RigProgrammeClock:
         self._forces = [deque(maxlen=int(m)) for m in self.m]
         self.delivery = np.ones(self.n_ch)
         self.predicted_kgf = np.full(self.n_ch, np.nan)
-        self.record = PacingRecord()
-        #: the time waited heading to each load case, by its sample
-        self.paced_by_turning: dict[int, float] = {}
 
-    @property
-    def gate(self) -> RigGate | None:
-        return self.gates[self.next_gate] if self.next_gate < len(self.gates) else None
+    def reference_at(self, p: float) -> np.ndarray:
+        """Every channel's reference at the position ``p`` (linear between samples)."""
+        k = int(p)
+        if k >= self.n - 1:
+            return self.r[:, -1].copy()
+        f = p - k
+        return self.r[:, k] + f * (self.r[:, k + 1] - self.r[:, k])
+
+    def way_at(self, p: float) -> np.ndarray:
+        """Every channel's direction of travel at ``p`` (0 where its reference stands)."""
+        k = min(int(p), self.n - 2)
+        return np.sign(self.r[:, k + 1] - self.r[:, k])
 
     def short_kgf(self, gate: RigGate) -> np.ndarray:
         """How far each channel's predicted force is short of the gate's level (along its way;
@@ -112,7 +116,7 @@ class RigProgrammeClock:
         d = gate.levels_kgf - self.predicted_kgf
         return np.where(gate.way != 0, gate.way * d, np.abs(d))
 
-    def advance(self, y) -> int:
+    def advance(self, y) -> float:
         """Move the position for this cycle given every force ``y``; returns the position."""
         self.cycles += 1
         self.wait_began = False
@@ -127,45 +131,27 @@ class RigProgrammeClock:
                     self.delivery[i] = min(max(made / planned, DELIVERY_RANGE[0]), DELIVERY_RANGE[1])
             forces.append(y[i])
         self.predicted_kgf = y + self.delivery * self._inflight_sum
-        step = 1
+        if self.options.mode == "dynamic" and not self.waiting:
+            lag = self.way_at(self.position) * (self.reference_at(self.position) - y)
+            target = float(np.clip(np.min(1.0 - (lag - self.tol) / self.tol), self.options.min_speed, 1.0))
+            self.speed = target if target < self.speed else min(target, self.speed + self.T / RECOVERY_S)
+        step = self.speed
         gate = self.gate
-        if gate is not None and self.position + 1 >= gate.position:
+        if gate is not None and self.position + step >= gate.position:
             limit = (RELEASE_SHARE if self.waiting else 1.0) * self.tol
             if np.any(self.short_kgf(gate) > limit):
-                if not self.waiting:
-                    self.waiting = self.wait_began = True
-                    self._wait_start = self.cycles * self.T
-                    self.record.waits += 1
-                step = max(gate.position - self.position, 0)
-            else:
-                if self.waiting:           # every force is there: the planned motion leaves
-                    waited = self.cycles * self.T - self._wait_start
-                    self.record.longest_wait_s = max(self.record.longest_wait_s, waited)
-                self.waiting = False
-                self.next_gate += 1
-        if self.waiting:
-            self.record.wait_s += self.T
-        if step < 1 and gate is not None:
-            self.paced_by_turning[gate.case] = self.paced_by_turning.get(gate.case, 0.0) + self.T
-            self.record.pacing_s += self.T
-        self.position = min(self.position + step, self.n - 1)
-        self._step = step
-        return self.position
-
-    @property
-    def step_taken(self) -> int:
-        """1 while the programme runs, 0 while it waits: the feedforward's share this cycle."""
-        return self._step
-
-    def waited_too_long(self) -> bool:
-        return self.waiting and self.cycles * self.T - self._wait_start > self.options.timeout_s
+                self._wait()
+                step = max(gate.position - self.position, 0.0)
+            else:                          # every force is there: the planned motion leaves
+                step = self._pass_gate(step)
+        return self._move(step)
 
     def sent(self, command_pct: np.ndarray, feedforward_pct: np.ndarray) -> None:
         """Every command that went out this cycle and its feedforward share (module docstring)."""
         p = self.position
         for i, q in enumerate(self._inflight):
-            k = min(p + int(self.m[i]), self.n - 2)
-            planned = self._step * (self.r[i, k + 1] - self.r[i, k])
+            a = self._ref_at(i, p + self.m[i])
+            planned = self._step * (self._ref_at(i, p + self.m[i] + 1) - a) if self._step else 0.0
             delta = planned + self.gT[i] * (float(command_pct[i]) - float(feedforward_pct[i]))
             oldest = q[0]                  # it acts from now on: over the channel's next delay
             self._inflight_sum[i] += delta - oldest
@@ -174,6 +160,8 @@ class RigProgrammeClock:
             self._acted_sum[i] += oldest - acted[0]
             acted.append(oldest)
 
-    @property
-    def finished(self) -> bool:
-        return self.position >= self.n - 1
+    def _ref_at(self, i: int, p: float) -> float:
+        k = int(p)
+        if k >= self.n - 1:
+            return float(self.r[i, -1])
+        return float(self.r[i, k] + (p - k) * (self.r[i, k + 1] - self.r[i, k]))

@@ -1,7 +1,8 @@
 """Null pacing on a rig, offline (loading.rig_pacing on the emulator's coupled lockstep plant,
 gateway.rig_offline): one channel's valve slower than the model (a flow limit it lacks) misses
 load cases and bends the ratios without pacing; with static pacing the one clock waits for it
-and every channel holds every load case. The clock runs sample for sample while the forces
+and every channel holds every load case, with dynamic pacing it also slows for it, so the load
+distribution holds between the load cases too. The clock runs sample for sample while the forces
 follow, and gives up, naming the channel, on a level the rig cannot reach. Through the gateway:
 tests/test_rig_load_e2e.py."""
 from __future__ import annotations
@@ -86,14 +87,43 @@ def test_a_level_the_rig_cannot_reach_stops_the_pass_naming_the_channel(rig):
     assert "in 1 s of waiting" in res.abort[1]
 
 
-def test_pacing_is_static_and_for_load_cases_only(rig):
+def along_the_way_kgf(res, e) -> np.ndarray:
+    """Each channel's largest |force − its reference at the clock's position| over the main
+    phase: the load distribution the structure saw between the load cases."""
+    R = np.array([e.clock.reference_at(p) for p in e.positions]).T
+    first = int(round(e.main_start_s / T)) - 1          # the reading of the main phase's first cycle
+    n = min(R.shape[1], res.y.shape[1] - first)
+    return np.max(np.abs(res.y[:, first:first + n] - R[:, :n]), axis=1)
+
+
+def test_dynamic_pacing_slows_every_channel_for_the_one_that_lags(rig):
+    """Static pacing keeps the load cases but not the way between them: the channels that keep
+    up run ahead of the slow one; dynamic slows the one clock so the distribution holds along
+    the way too."""
+    model = rig[0]
+    slow = with_flow_limit(model, 2, 12.0)
+    static, es = run(rig, slow, PacingOptions("static"))
+    dynamic, ed = run(rig, slow, PacingOptions("dynamic"))
+    assert static.abort is None and dynamic.abort is None
+    way_static, way_dynamic = along_the_way_kgf(static, es), along_the_way_kgf(dynamic, ed)
+    assert way_dynamic[2] < 0.4 * way_static[2], (way_static, way_dynamic)      # outer
+    assert way_dynamic.max() < 100.0, way_dynamic
+    p95, mx, ratio = figures(dynamic.report)
+    assert max(mx) <= 0.5 and ratio <= 0.5, (mx, ratio)
+    rec = ed.clock.record
+    assert rec.slowed_s > 0.2 and rec.pacing_s > rec.wait_s
+    # slowed positions are fractional, and the report reads the forces on the programme's clock
+    assert any(p != int(p) for p in ed.positions)
+    assert np.all(np.diff(dynamic.t) >= -1e-9)
+
+
+def test_pacing_is_for_load_cases_only(rig):
     from core.errors import ParameterError
     from loading.programme import from_levels
     from loading.rig_programme import from_channel_programmes
     model, _, design, programme = rig
-    with pytest.raises(ParameterError, match="paces static only"):
-        RigLoadProgramme(programme, design, pacing=PacingOptions("dynamic"))
     seqs = from_channel_programmes([from_levels([500, 1000 + 100 * i, 600], T, rate_kgf_s=1000)
                                     for i in range(4)], model.names)
-    with pytest.raises(ParameterError, match="per-channel sequences have none"):
-        RigLoadProgramme(seqs, design, pacing=PacingOptions("static"))
+    for mode in ("static", "dynamic"):
+        with pytest.raises(ParameterError, match="per-channel sequences have none"):
+            RigLoadProgramme(seqs, design, pacing=PacingOptions(mode))

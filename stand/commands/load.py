@@ -69,8 +69,8 @@ def register(sub) -> None:
                         "(a production run)")
     g.add_argument("--pacing", choices=PACING_MODES, default="off",
                    help="null pacing: static waits at a turning point the force has not reached; "
-                        "dynamic also slows the programme while the force lags; with --rig static "
-                        "only, at each load case for every channel (default %(default)s)")
+                        "dynamic also slows the programme while the force lags; with --rig one "
+                        "clock for every channel, waiting at load cases (default %(default)s)")
     g.add_argument("--pacing-tolerance", type=float, metavar="KGF",
                    help="how far the force may be from the reference or a turning point before the "
                         "programme paces (default 0.5 %% of the programme's range)")
