@@ -66,7 +66,7 @@ class RigProgrammeClock(PacedClock):
     delay_samples : (N,) each channel's feedforward lead, whole samples
     gains : (N,) each channel's own gain ``G_ii``, kgf/(%·s)
     period_s : T
-    options : static pacing
+    options : static or dynamic pacing (:class:`~loading.pacing.PacingOptions`)
     tolerances_kgf : (N,) ε per channel
     start : the first sample a gate may lie at (the programme's start)
     """
