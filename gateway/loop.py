@@ -570,8 +570,7 @@ class ControlLoop:
                             k = vector.abort_channel
                             reason, message = vector.abort
                             new = self._named(sups[k or 0].make_trip(
-                                str(reason), str(message), sync_wall,
-                                getattr(vector, "abort_action", "hold")), k)
+                                str(reason), str(message), sync_wall, vector.abort_action), k)
                         else:
                             for i in watched_idx:
                                 new = sups[i].check_error(rs[i], ys[i], stale[i], sync_wall)

@@ -146,6 +146,8 @@ class RigApproach:
         self.to_command = np.linalg.inv(G)
         self.Mkp = controller.M * np.array([c.kp_pct_per_kgf for c in controller.channels])[None, :]
         self.trend = np.array([m.delta for m in self.model.channels])
+        #: the flows that hold every force against the trends (the base model's: −G⁻¹Δ)
+        self.hold_flows = -self.to_command @ self.trend
         self.taus = np.array([m.tau for m in self.model.channels])
         self.done_at: float | None = None
         self.failed = False
@@ -160,7 +162,7 @@ class RigApproach:
         #: after the line each valve holds against its trend: the way of the flow that holds
         #: the forces, −G⁻¹Δ (a valve whose move went the other way reverses once, as planned,
         #: where the line ends; a zero keeps the move's way)
-        hold = -self.to_command @ self.trend
+        hold = self.hold_flows
         self.hold_way = np.where(hold > 0, 1.0, np.where(hold < 0, -1.0, self.way))
         self.duration = math.pi * float(np.max(np.abs(move))) / (2 * self.line_rate)
         self._settled = Dwell(self.hold_s)
@@ -266,12 +268,8 @@ class RigLoadProgramme(RigExperiment):
         self.main_start_s: float | None = None
         self.abort: tuple[str, str] | None = None
         self.abort_channel: int | None = None
-        #: what the loop does on :attr:`abort`: hold every valve, or the rig's unload
-        self.abort_action = "hold"
         #: the gain monitor of the test, shared by its passes (loading.rig_gain_monitor)
         self.monitor = monitor
-        #: the flows that hold every force against the trends (the base model's: −G⁻¹Δ)
-        self.u_hold = -np.linalg.solve(controller.G, self.trends)
         #: with pacing: the programme's clock of the pass, and its position per cycle of the main
         #: phase (samples of the reference, fractional while it slows)
         self.clock: RigProgrammeClock | None = None
@@ -485,7 +483,7 @@ class RigLoadProgramme(RigExperiment):
         k1 = min(k + 1, self.reference.shape[1] - 1)
         planned = self._u[:, k] + (p - k) * (self._u[:, k1] - self._u[:, k])
         s = clock.step_taken                 # the slowed programme's flows, holding while it waits
-        ff = self._followed(s * planned + (1.0 - s) * self.u_hold)
+        ff = self._followed(s * planned + (1.0 - s) * self.approach.hold_flows)
         if clock.waiting:
             if clock.wait_began:
                 self.law.reset()

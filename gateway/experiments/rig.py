@@ -32,6 +32,9 @@ class RigExperiment(ABC):
     abort: tuple[str, str] | None = None
     #: the index of the channel the abort is about (None: the rig as a whole)
     abort_channel: int | None = None
+    #: what the loop does on :attr:`abort`: ``hold`` every valve, or ``unload`` (the rig's
+    #: unload keeping the load ratios)
+    abort_action: str = "hold"
 
     @property
     @abstractmethod

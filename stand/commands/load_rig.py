@@ -10,7 +10,6 @@ import sys
 from core.errors import ParameterError
 
 
-
 def _plan(args, programme, controller, config) -> int:
     """``--plan --rig``: the load cases' time beside their valve-limited minimum."""
     from loading.rig_minimum_time import rig_programme_timing
@@ -41,16 +40,15 @@ def main(args: argparse.Namespace) -> int:
     rig = config.rig
     controller = load_rig_controller(args.controller, config.period_s, rig.names)
     scaling = scaling_options(args)
-    timed = scaling is not None or args.schedule or args.plan
-    if timed and str(args.program).lower().endswith(".toml"):
+    untimed = args.rate is None and args.frequency is None and (scaling is not None or args.schedule)
+    programme = load_rig_programme(args.program, rig.names, config.period_s,
+                                   PLACEHOLDER_RATE_KGF_S if untimed else args.rate, args.frequency)
+    if not programme.load_cases and (scaling is not None or args.schedule or args.plan):
         flags = [f for f, on in (("--fastest/--accuracy", scaling is not None), ("--schedule", args.schedule),
                                  ("--plan", args.plan)) if on]
         raise ParameterError(f"{', '.join(flags)} with --rig: time load cases (a CSV with a column per "
                              f"channel); {args.program} holds per-channel sequences, which share no "
                              "segments to time")
-    untimed = args.rate is None and args.frequency is None and (scaling is not None or args.schedule)
-    programme = load_rig_programme(args.program, rig.names, config.period_s,
-                                   PLACEHOLDER_RATE_KGF_S if untimed else args.rate, args.frequency)
     if untimed:                              # the placeholder rate is no part of its name
         programme = programme.with_durations(programme.segment_durations_s,
                                              programme.source.rsplit(", ", 1)[0])
