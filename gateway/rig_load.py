@@ -154,9 +154,9 @@ def run_rig_load(gw, programme: RigProgramme, controller: RigControllerDesign, o
     out.mkdir(parents=True, exist_ok=True)
     (out / "controller.toml").write_text(controller.to_toml(out / "controller.toml"))
     result = RigLoadResult(out, compensation=comp, programme_time_s=programme.duration_s,
-                           minimum_time_s=float(minimum.sum()) if minimum is not None else None)
-    result.monitor = watcher
-    shared = _Passes(gw, controller, comp, unload_kgf, learn, progress, result, watcher, pacing)
+                           minimum_time_s=float(minimum.sum()) if minimum is not None else None,
+                           monitor=watcher)
+    shared = _Passes(gw, controller, unload_kgf, learn, progress, result, pacing)
     try:
         if scaling is not None:
             last = _scaled_passes(shared, programme, minimum, repeat, scaling)
@@ -195,16 +195,15 @@ def rig_minimum_s(gw_config, programme: RigProgramme, controller: RigControllerD
 
 @dataclass
 class _Passes:
-    """What every pass of one ``run_rig_load`` shares."""
+    """What every pass of one ``run_rig_load`` shares (the compensation and the gain monitor
+    are the result's)."""
 
     gw: object
     controller: RigControllerDesign
-    compensation: RigCompensation | None
     unload_kgf: float
     learn: bool
     progress: bool | None
     result: RigLoadResult
-    monitor: RigGainMonitor | None = None
     pacing: PacingOptions | None = None
 
     def run(self, experiment: RigLoadProgramme, programme: RigProgramme, i: int):
@@ -213,7 +212,7 @@ class _Passes:
         result = self.result
         res = self.gw.run(experiment, result.out / f"pass-{i}", progress=self.progress)
         result.run_dirs.append(res.path)
-        monitor = self.monitor
+        monitor = result.monitor
         if monitor is not None and monitor.end_pass():
             (res.path / "gain.json").write_text(json.dumps(
                 {**monitor.summary(), "blocks": monitor.blocks(monitor.pass_index)}, indent=2) + "\n")
@@ -228,7 +227,7 @@ class _Passes:
             timing["pacing"] = experiment.clock.record.to_dict()
         result.timings.append(timing)
         (res.path / "tracking.json").write_text(json.dumps(report.to_dict(), indent=1) + "\n")
-        comp = self.compensation
+        comp = result.compensation
         if comp is not None and self.learn:
             comp.learn(report.channels, programme.ranges_kgf)
             comp.save(result.out / "compensation.toml")
@@ -248,8 +247,8 @@ def _scaled_passes(shared: _Passes, programme: RigProgramme, minimum: np.ndarray
     last = None
     for i in range(1, repeat + 1):
         current, experiment = stretched_pass(
-            base, scaler, i, lambda p: RigLoadProgramme(p, controller, shared.compensation, shared.unload_kgf,
-                                                        monitor=shared.monitor, pacing=shared.pacing),
+            base, scaler, i, lambda p: RigLoadProgramme(p, controller, result.compensation, shared.unload_kgf,
+                                                        monitor=result.monitor, pacing=shared.pacing),
             segment_peaks, share_limit)
         settled = scaler.all_settled
         limits = gw.config.limits
