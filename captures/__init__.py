@@ -25,7 +25,7 @@ _EXPORTS = {
     "DecodedMessage": ".dbcdecode",
     "DecodeStats": ".dbcdecode",
     "FrameDecoder": ".dbcdecode",
-    "load_dbc": ".dbcdecode",
+    "load_dbc": ".dbctable",
     "DecodeOptions": ".decode",
     "DecodeResult": ".decode",
     "decode_capture": ".decode",

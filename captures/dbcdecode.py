@@ -19,17 +19,15 @@ DBC comes precompiled (:mod:`captures.dbctable`), so decoding with it does not l
 """
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from dbc import STAND_DBC
 from dbc.profile import SYNC_COB_ID
 
 from .codecs import MessageCodec, SignalCodec  # noqa: F401 (SignalCodec re-exported)
-from .dbctable import precompiled_codecs
+from .dbctable import load_dbc, precompiled_codecs
 from .frames import ERROR, EXTENDED, REMOTE, CaptureError, FrameChunk
 
 #: frame id -> a shorter length that is the same message too. CiA 301's SYNC carries a 1-byte
@@ -37,30 +35,6 @@ from .frames import ERROR, EXTENDED, REMOTE, CaptureError, FrameChunk
 #: what most masters send, is a SYNC of DLC 0. Its counter decodes as 0, a value the counter
 #: never takes (it runs from 1).
 SHORTER_FORMS = {SYNC_COB_ID: 0}
-
-DEFAULT_DBC = STAND_DBC
-
-
-def load_dbc(dbc: str | os.PathLike | Any = None):
-    """A cantools database (default: the stand's ``dbc/stand.dbc``); a database is returned as is.
-
-    cantools is imported here, not with this module: ``import cantools`` imports python-can
-    (``cantools.tester``), and with it every python-can log format (``.mf4``'s asammdf and
-    pandas among them)."""
-    if dbc is None:
-        dbc = DEFAULT_DBC
-    if not isinstance(dbc, (str, os.PathLike)):
-        if hasattr(dbc, "messages"):
-            return dbc
-        raise CaptureError(f"a DBC is a file path or a cantools database, not {type(dbc).__name__}")
-    import cantools
-    try:
-        return cantools.database.load_file(str(dbc))
-    except FileNotFoundError:
-        raise CaptureError(f"DBC file {dbc} does not exist") from None
-    except Exception as exc:  # cantools raises many parser-specific errors
-        raise CaptureError(f"cannot read DBC file {dbc}: {exc}") from None
-
 
 @dataclass
 class DecodedMessage:

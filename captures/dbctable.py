@@ -1,4 +1,5 @@
-"""The stand's DBC as a precompiled codec table, so decoding with it needs no cantools at run time.
+"""DBC files: read with cantools (:func:`load_dbc`), and the stand's DBC as a precompiled codec
+table, so decoding with it needs no cantools at run time.
 
 Loading a DBC means ``import cantools``, and cantools imports python-can (``cantools.tester``),
 whose ``can.io`` imports every log format it has: with ``hydrostand[mf4]`` installed, ``.mf4``'s
@@ -32,12 +33,33 @@ FORMAT = 1          #: of the table file; a table of another format is not used
 
 log = logging.getLogger(__name__)
 
+DEFAULT_DBC = STAND_DBC
+
+
+def load_dbc(dbc: str | os.PathLike | Any = None):
+    """A cantools database (default: the stand's ``dbc/stand.dbc``); a database is returned as is.
+
+    cantools is imported here, not with this module: ``import cantools`` imports python-can
+    (``cantools.tester``), and with it every python-can log format (``.mf4``'s asammdf and
+    pandas among them)."""
+    if dbc is None:
+        dbc = DEFAULT_DBC
+    if not isinstance(dbc, (str, os.PathLike)):
+        if hasattr(dbc, "messages"):
+            return dbc
+        raise CaptureError(f"a DBC is a file path or a cantools database, not {type(dbc).__name__}")
+    import cantools
+    try:
+        return cantools.database.load_file(str(dbc))
+    except FileNotFoundError:
+        raise CaptureError(f"DBC file {dbc} does not exist") from None
+    except Exception as exc:  # cantools raises many parser-specific errors
+        raise CaptureError(f"cannot read DBC file {dbc}: {exc}") from None
+
 
 def compile_table(dbc: str | os.PathLike) -> dict[str, Any]:
     """The codec table of a DBC file, read with cantools (every message must be vectorizable)."""
     from importlib.metadata import version
-
-    from .dbcdecode import load_dbc
 
     path = Path(dbc)
     db = load_dbc(path)

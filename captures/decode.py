@@ -33,7 +33,8 @@ from gateway.recorder import prepare_run_dir, versions, write_json
 from gateway.runs import FORMAT, META_FILE, SCHEMA, SIGNALS_FILE
 
 from .cycles import COLUMNS, CycleAssembler, RunInfo, StandSignals
-from .dbcdecode import DEFAULT_DBC, DecodeStats, FrameDecoder
+from .dbcdecode import DecodeStats, FrameDecoder
+from .dbctable import DEFAULT_DBC
 from .frames import CaptureDamaged, CaptureError, Damage, FrameChunk, ReadStats
 from .parquet import PartWriter, frames_schema
 from .readers import capture_format, open_capture

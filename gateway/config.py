@@ -13,7 +13,7 @@ from standbus.spec import DEFAULT_BUS, BusSpec, BusSpecError
 
 from .errors import ParameterError
 from .experiments.base import check_range
-from .supervisor import SafetyLimits
+from .limits import SafetyLimits
 
 if TYPE_CHECKING:
     from rig.config import ChannelConfig, RigConfig

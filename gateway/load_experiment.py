@@ -57,7 +57,8 @@ from loading.pacing import DEFAULT_TOLERANCE_SHARE, PACING_TIMEOUT, PacingOption
 from loading.programme import Programme, check_programme
 
 from .experiments.phases import PhasedExperiment, SetPointApproach
-from .supervisor import SafetyLimits, Unloader
+from .limits import SafetyLimits
+from .supervisor import Unloader
 
 #: the pre-roll into the programme's first level: this share of its range (at least three
 #: times the approach's tolerance), in this time (s)

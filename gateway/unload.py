@@ -37,7 +37,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .supervisor import SafetyLimits, Unloader
+from .limits import SafetyLimits
+from .supervisor import Unloader
 
 #: the plant gain the unload gain ``K`` is stated for, kgf/(%·s) (docs/safety.md)
 G_REF = 120.0

@@ -10,7 +10,7 @@ from typing import Iterator
 from dbc import profile as P
 from core.errors import ParameterError
 from gateway.config import GatewayConfig
-from gateway.supervisor import ACTIONS, SafetyLimits
+from gateway.limits import ACTIONS, SafetyLimits
 from standbus.realtime import DEFAULT_PRIORITY
 from standbus.spec import DEFAULT_BUS
 
