@@ -38,7 +38,7 @@ from gateway import Gateway, GatewayConfig
 from gateway.load import run_load
 from loading.design import design
 from loading.gain_monitor import MonitorOptions
-from loading.minimum_time import minimum_durations_s, programme_valve_limit
+from loading.minimum_time import programme_timing
 from loading.pacing import PacingOptions
 from loading.programme import flight_by_flight, from_levels, random_sequence
 from loading.time_scaling import ScalingOptions, meets
@@ -85,12 +85,13 @@ def measure(name: str, spec: str, values: dict, quick: bool) -> tuple[list[Row],
             rows.append(Row(f"faster, {name}: " + ("the stand's own model" if quick else "identified"), model.spec,
                             note=", ".join(f"{k} {v:.4g}" for k, v in model.params().items())))
             today = from_levels(levels, T, rate_kgf_s=TODAY_KGF_S)
-            limit = programme_valve_limit(today, model, ctl.command_limit_pct)
-            minimum = float(minimum_durations_s(today, limit).sum())
+            timing = programme_timing(today, model, ctl.command_limit_pct)
+            minimum = timing.minimum_time_s
             rows.append(Row(f"faster, {name}: programme at {TODAY_KGF_S:g} kgf/s vs valve-limited minimum",
                             f"{today.duration_s:.1f} s vs {minimum:.1f} s", "",
                             f"{today.duration_s / minimum:.2f}x",
-                            f"{len(levels)} turning points, range {today.range_kgf:.0f} kgf; {limit.text()}"))
+                            f"{len(levels)} turning points, range {today.range_kgf:.0f} kgf; "
+                            f"{timing.limit.rates[0].text()}"))
             t0 = time.monotonic()
             res = run_load(gw, today, ctl, tmp / "today", progress=False)
             rows.append(Row(f"faster, {name}: one pass at {TODAY_KGF_S:g} kgf/s", _acc(res),
@@ -99,7 +100,8 @@ def measure(name: str, spec: str, values: dict, quick: bool) -> tuple[list[Row],
             _log(f"{name}: today's pass done")
             fixed = None
             if not quick:
-                slowest = float(min(limit.up_kgf_s.min(), limit.down_kgf_s.min()))
+                rates = timing.limit.rates[0]
+                slowest = float(min(rates.up_kgf_s.min(), rates.down_kgf_s.min()))
                 tried = []
                 for share in FIXED_SHARES:
                     rate = round(share * slowest, -1)
@@ -152,14 +154,15 @@ def measure(name: str, spec: str, values: dict, quick: bool) -> tuple[list[Row],
                 # a production run replaying it, the gain monitor watching
                 mon = run_load(gw, today, ctl, tmp / "production", progress=False, schedule=s,
                                monitor=MonitorOptions(block_s=5.0, action="note"))
-                est = [b for b in mon.monitor.blocks if b.g is not None] if mon.monitor else []
+                watch = mon.monitor.channels[0] if mon.monitor else None
+                est = [b for b in watch.blocks if b.g is not None] if watch else []
                 spread = (f"g {min(b.g for b in est):.2f}-{max(b.g for b in est):.2f} "
-                          f"(model {mon.monitor.g_ref:.2f}), median interval "
+                          f"(model {watch.g_ref:.2f}), median interval "
                           f"±{np.median([(b.high - b.low) / 2 for b in est]):.2f}") if est else "no estimate"
                 rows.append(Row(f"faster, {name}: production pass replaying the schedule, gain watched",
                                 _acc(mon), "", "",
                                 f"{mon.timings[-1].programme_time_s:.1f} s; {len(est)} of "
-                                f"{len(mon.monitor.blocks)} 5-s blocks estimated, {spread}; alarm "
+                                f"{len(watch.blocks) if watch else 0} 5-s blocks estimated, {spread}; alarm "
                                 f"{mon.monitor.alarm[0] if mon.monitor.alarm else 'none'}"))
             _log(f"{name}: --fastest done")
     return rows, model

@@ -28,8 +28,10 @@ from pathlib import Path
 
 from gateway import Gateway, GatewayConfig
 from gateway.experiments import Meander
-from gateway.load import LoadProgramme, run_load
-from loading.design import critical_p_gain, design, largest_gain_factor, proportional
+from gateway.load import run_load
+from gateway.load_experiment import LoadProgramme
+from loading.design import design, largest_gain_factor, proportional
+from loading.margins import critical_p_gain
 from loading.programme import from_levels, random_sequence, sine
 from plant import PlantModel
 from plant.config import load_model_file, load_plant_config

@@ -30,7 +30,7 @@ from analysis.rig.periods import separating_periods
 from analysis.rig.synthetic import per_column_meanders, rig_meander, rig_truth, write_rig_run
 from plant import PlantModel
 from plant.rig import RigModel
-from plant.rig_config import load_rig_model
+from plant.config import load_rig_model
 
 from .table import Row
 

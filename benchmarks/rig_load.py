@@ -20,10 +20,10 @@ The truth: ``examples/rig.toml`` as ``stand emulate --rig`` runs it (G = K·diag
    valves (``--fastest``, 0.5 %), against their time at 2500 kgf/s and their valve-limited
    minimum by the identified model (``--plan``).
 4. **The sweep offline**: 100 random load cases (each channel alternating between peaks and
-   valleys in its band, the ratios changing from case to case: :func:`loading.rig_programme.
+   valleys in its band, the ratios changing from case to case: :func:`loading.programme.
    random_load_cases`, seed 1), the fastest channel of each segment at 2500 and at 5000 kgf/s,
    3 passes with per-channel compensation, both controllers, on the emulator's own coupled
-   lockstep plant with its noise (:mod:`gateway.rig_offline`: the same plant and law, no bus;
+   lockstep plant with its noise (:mod:`gateway.offline`: the same plant and law, no bus;
    said in the rows).
 
 Rows: G's largest error (% of the diagonal), the designs' margins, the gateway's passes, and per
@@ -96,7 +96,7 @@ def identify(root: Path, rig: Path, truth, quick: bool) -> tuple[Path, list[Row]
     extra = ["--candidates", "reversal,lag"] if quick else []
     _, s_diag = stand("diagnose", *[c / "01-simultaneous" for c in camps], "--rig-model", root / "rig-model.toml",
                       "--stepwise", "--save", root / "model.toml", "--no-progress", *extra)
-    from plant.rig_config import load_rig_model
+    from plant.config import load_rig_model
     found = load_rig_model(root / "model.toml")
     specs = ", ".join(f"{n}: {m.spec}" for n, m in zip(found.names, found.channels))
     rows = [Row("rig load, G identified through the gateway (stand campaign --rig --simultaneous "
@@ -112,7 +112,8 @@ def identify(root: Path, rig: Path, truth, quick: bool) -> tuple[Path, list[Row]
 def load_through_gateway(root: Path, rig: Path, controller: Path, truth, n_cases: int, rate: float,
                          passes: int) -> list[Row]:
     """Step 3: ``stand load --rig`` against the emulator."""
-    from loading.rig_programme import random_load_cases, write_load_cases
+    from loading.programme import random_load_cases
+    from loading.programme_files import write_load_cases
     cases = write_load_cases(root / "cases.csv", random_load_cases(n_cases, BANDS, seed=1), truth.names)
     out, wall = stand("load", cases, "--rig", rig, "--controller", controller, "--rate", rate,
                       "--repeat", passes, "--lockstep", "--json", "--no-progress", "--out", root / "load")
@@ -165,12 +166,12 @@ def fastest_through_gateway(root: Path, rig: Path, controller: Path, n_cases: in
 
 
 def design(root: Path, model: Path) -> tuple[dict, list[Row]]:
-    from loading.rig_design import load_rig_controller
+    from loading.controller_files import load_controller
     controllers, rows = {}, []
     for name, extra in (("decoupled", []), ("independent", ["--independent"])):
         path = root / f"{name}.toml"
         _, s = stand("design", model, "-o", path, *extra)
-        c = load_rig_controller(path, PERIOD_S)
+        c = load_controller(path, PERIOD_S)
         controllers[name] = c
         w = c.worst(True)
         rows.append(Row(f"rig load, design {name}",
@@ -184,20 +185,20 @@ def design(root: Path, model: Path) -> tuple[dict, list[Row]]:
 
 def load(controllers: dict, truth, noise, n_cases: int, rate: float, passes: int) -> tuple[dict, list[Row]]:
     """Step 3 at one rate: every pass's reports per controller, and the rows."""
-    from gateway.rig_load_experiment import RigLoadProgramme
-    from gateway.rig_offline import run_rig_pass
-    from loading.rig_compensation import RigCompensation
-    from loading.rig_programme import from_load_cases, random_load_cases
+    from gateway.load_experiment import LoadProgramme
+    from gateway.offline import run_offline_pass
+    from loading.compensation import Compensation
+    from loading.programme import from_load_cases, random_load_cases
     p = from_load_cases(random_load_cases(n_cases, BANDS, seed=1), truth.names, PERIOD_S, rate_kgf_s=rate)
     limits = [9000.0, 9000.0, 4500.0, 4500.0]
     reports, rows = {}, []
     for name, c in controllers.items():
-        comp = RigCompensation(truth.names)
+        comp = Compensation(truth.names)
         reports[name] = []
         for k in range(passes):
-            e = RigLoadProgramme(p, c, comp)
+            e = LoadProgramme(p, c, comp)
             e.check(PERIOD_S, limits, 100.0)
-            res = run_rig_pass(e, truth, 0.0, 10 + k, noise, force_limits=limits)
+            res = run_offline_pass(e, truth, 0.0, 10 + k, noise, force_limits=limits)
             if res.report is None:
                 rows.append(Row(f"rig load, {rate:g} kgf/s, {name}", f"stopped in pass {k + 1}",
                                 note=str(res.abort)))
@@ -230,7 +231,7 @@ def load(controllers: dict, truth, noise, n_cases: int, rate: float, passes: int
 
 
 def run(quick: bool) -> list[Row]:
-    from gateway.rig_offline import emulated_truth
+    from gateway.offline import emulated_truth
     from plant_emulator.process import RigEmulatorProcess
     truth, noise = emulated_truth(EXAMPLE)
     rows: list[Row] = []

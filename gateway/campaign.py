@@ -1,4 +1,5 @@
-"""The paper's whole experimental program as one campaign, run in ONE gateway session.
+r"""A station's identification campaign, run in ONE gateway session: the paper's whole
+experimental program on a stand, or the meanders that identify a rig's G.
 
 ::
 
@@ -9,7 +10,7 @@
         result = run_campaign(gw, CampaignPlan.default(), "campaigns/c1")
     print(result.stand_s, result.wall_s)
 
-The plan (dataclasses, defaults from the paper):
+**The paper's program** (:class:`CampaignPlan`, dataclasses, defaults from the paper):
 
 * **meander** (Figs. 3-12): u0 = 5, 10, 15, 20 %, period 4 s, 4 periods each;
 * **pfeedback** (Figs. 13-18): k = 0.005 %/kgf, ω = 0.3142, 0.6283, 1.2566, 2.5133 rad/s ×
@@ -18,11 +19,32 @@ The plan (dataclasses, defaults from the paper):
   limit cycle each; r runs up for one amplitude and down for the next, so the force never has
   to travel far between runs.
 
-Every experiment starts with the set-point approach (:class:`~gateway.experiments.meander.SetPointApproach`)
-and guards the force limit. Each writes its own run directory ``OUT/runs/NN-label``; the campaign
-writes ``OUT/campaign.json`` (plan, every run's outcome, stand and wall time). An experiment that
-stopped itself (force near the limit, set point not reached) is recorded and the campaign goes
-on; any other stop (supervisor: force limit, lost heartbeat, EMCY, ...) ends the campaign.
+Every experiment starts with the set-point approach and guards the force limit. Each writes its
+own run directory ``OUT/runs/NN-label``; the campaign writes ``OUT/campaign.json``.
+
+**A rig's G** (:class:`GPlan`, docs/rig.md, "Identifying G"):
+* **per column**: one run per channel, that channel a meander (``±u0``, period ``P``), every
+  other valve at a zero command; run ``k`` is column ``k`` of G;
+* **simultaneous**: one run, every channel a meander of its own period (periods that tell the
+  channels apart: :func:`analysis.rig.periods.separating_periods`, chosen by the caller), as
+  many whole periods as fit in the duration (:class:`~gateway.experiments.each_channel.EachChannel`).
+
+The runs are written as ``OUT/NN-LABEL`` (rig runs: every channel, a capture per bus) beside
+``OUT/rig-campaign.json``, so ``stand estimate OUT --save rig.toml`` reads the directory as it is.
+**Before anything moves**, when the rig file gives the structure G, each channel's planned
+swing is checked: a meander that starts a quarter period in swings each force by at most
+
+.. math::  s_i = \sum_j |G_{ij}|\,u_{0,j}\,P_j/4
+
+about where it started (per column only the moving channel's term). Over
+:data:`SWING_SHARE` of the channel's force limit (room for where the force starts and its
+trend) the plan is refused with the amplitude that would fit. Each meander still stops itself
+at 90 % of its channel's limit (the experiment's guard).
+
+Either way the campaign file holds the plan, every run's outcome (with the channels it drove),
+the stand and wall time. An experiment that stopped itself (force near the limit, set point not
+reached) is recorded and the campaign goes on; any other stop (supervisor: force limit, lost
+heartbeat, EMCY, ...) ends the campaign.
 """
 from __future__ import annotations
 
@@ -30,12 +52,15 @@ import datetime as _dt
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from tqdm import tqdm
 
+import numpy as np
+
 from .errors import ParameterError, StandError
-from .experiments import make_experiment
+from .experiments import Meander, make_experiment
+from .experiments.each_channel import EachChannel
 from .experiments.phases import FORCE_NEAR_LIMIT, SET_POINT_NOT_REACHED
 from .recorder import write_json
 from .runs import TRUTH_FILE
@@ -44,6 +69,11 @@ from .session import Gateway
 CAMPAIGN_FILE = "campaign.json"
 RUNS_DIR = "runs"
 FORMAT = "hydrostand-campaign/1"
+#: a rig's G: its campaign file and format
+G_CAMPAIGN_FILE = "rig-campaign.json"
+G_FORMAT = "hydrostand-rig-campaign/1"
+#: the share of a channel's force limit a planned meander may swing its force (module docstring)
+SWING_SHARE = 0.6
 #: experiment-level stops after which the campaign goes on with the next experiment
 CONTINUE_AFTER = (FORCE_NEAR_LIMIT, SET_POINT_NOT_REACHED)
 #: stand time assumed for a set-point approach when planning (s)
@@ -89,6 +119,14 @@ class PlannedRun:
     params: dict[str, Any]
     label: str                      #: run directory name, e.g. ``07-relay-u10-r-500``
     nominal_s: float                #: expected stand time (main phase + an approach guess), s
+    #: a rig's channels the experiment drives (None: a stand's channel, or every channel for a
+    #: rig experiment)
+    channels: list[str] | None = None
+    #: the experiment itself where it is no registered ``stand run`` experiment
+    made: Any = field(default=None, repr=False)
+
+    def make(self):
+        return self.made if self.made is not None else make_experiment(self.experiment, self.params)
 
 
 @dataclass
@@ -122,7 +160,10 @@ class CampaignPlan:
         return CampaignPlan(**{n: (getattr(self, n) if n in names else None) for n in known},
                             settle_max_s=self.settle_max_s)
 
-    def runs(self) -> list[PlannedRun]:
+    #: where the campaign writes its file and its runs
+    file, format, runs_dir = CAMPAIGN_FILE, FORMAT, RUNS_DIR
+
+    def runs(self, names: Sequence[str] | None = None) -> list[PlannedRun]:
         out: list[PlannedRun] = []
         settle = {"settle_max_s": self.settle_max_s}
 
@@ -157,7 +198,83 @@ class CampaignPlan:
     def nominal_stand_s(self) -> float:
         return sum(r.nominal_s for r in self.runs())
 
+    def check(self, gw: Gateway) -> None:
+        """The paper's program drives one stand."""
+        if gw.rig is not None:
+            raise ParameterError("the paper's campaign drives one stand; a rig's campaign identifies G "
+                                 "(stand campaign --rig)")
+
     def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class GPlan:
+    """The meanders that identify a rig's G (module docstring): ``periods_s`` one per channel
+    (simultaneous) or one for all (per column)."""
+
+    simultaneous: bool
+    amplitude_pct: float = 5.0
+    periods_s: list[float] = field(default_factory=lambda: [8.0])
+    #: per column: periods per run; simultaneous: the run's length (each channel as many whole
+    #: periods as fit, at least 2)
+    cycles: int = 4
+    duration_s: float = 120.0
+
+    file, format, runs_dir = G_CAMPAIGN_FILE, G_FORMAT, ""
+
+    def runs(self, names: Sequence[str]) -> list[PlannedRun]:
+        """One run per column (the channel named drives, the others hold a zero command), or
+        one simultaneous run (every channel its own meander: a rig experiment)."""
+        names = list(names)
+        if self.simultaneous:
+            if len(self.periods_s) != len(names):
+                raise ParameterError(f"{len(self.periods_s)} periods for {len(names)} channels")
+            exps = [Meander(self.amplitude_pct, p, max(2, int(self.duration_s // p))) for p in self.periods_s]
+            each = EachChannel(names, exps)
+            return [PlannedRun(1, "meander", {"periods_s": list(self.periods_s)}, "01-simultaneous",
+                               each.duration_s + APPROACH_GUESS_S, None, each)]
+        out = []
+        for k, n in enumerate(names, start=1):
+            m = Meander(self.amplitude_pct, self.periods_s[0], self.cycles)
+            out.append(PlannedRun(k, "meander", m.params(), f"{k:02d}-column-{n}", m.duration_s + APPROACH_GUESS_S,
+                                  [n], m))
+        return out
+
+    def swings_kgf(self, G: np.ndarray) -> np.ndarray:
+        """Each channel's largest planned swing (kgf) over the runs (module docstring)."""
+        n = G.shape[0]
+        reach = np.abs(G) * self.amplitude_pct
+        if self.simultaneous:
+            return reach @ (np.asarray(self.periods_s, float) / 4)
+        return np.max(reach * (self.periods_s[0] / 4), axis=1) if n else np.zeros(0)
+
+    def check_rig(self, rig) -> None:
+        """Refuse, before anything moves, a plan whose swing the rig's G says is too large."""
+        if not (0 < self.amplitude_pct <= 100):
+            raise ParameterError(f"--amplitude-pct {self.amplitude_pct:g}: it must be from 0 to 100 %")
+        if rig.G is None:
+            return
+        swings = self.swings_kgf(np.asarray(rig.G, float))
+        limits = np.array([c.limit_kgf for c in rig.channels])
+        share = swings / (SWING_SHARE * limits)
+        i = int(np.argmax(share))
+        if share[i] > 1:
+            raise ParameterError(
+                f"{rig.where}: channel {rig.names[i]} would swing ±{swings[i]:.0f} kgf (Σ|G_ij|·u0·P_j/4 "
+                f"with the rig file's G), over {SWING_SHARE:.0%} of its force limit "
+                f"±{limits[i]:.0f} kgf; nothing was started. Lower --amplitude-pct to "
+                f"{self.amplitude_pct / share[i]:.2g} or the meander period")
+
+    def check(self, gw: Gateway) -> None:
+        if gw.rig is None:
+            raise ParameterError("a rig campaign needs a rig (--rig RIG.toml)")
+        self.check_rig(gw.rig)
+
+    def nominal_stand_s(self, names: Sequence[str]) -> float:
+        return sum(r.nominal_s for r in self.runs(names))
+
+    def to_dict(self) -> dict:
         return asdict(self)
 
 
@@ -175,6 +292,8 @@ class CampaignRun:
     cycles: int
     stand_s: float
     wall_s: float
+    #: the channels it drove (a rig's; empty: a stand's one channel)
+    driven: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -195,19 +314,22 @@ class CampaignResult:
         return [Path(r.path) for r in self.runs]
 
 
-def run_campaign(gw: Gateway, plan: CampaignPlan, out_dir: str | Path, progress: bool | None = None,
+def run_campaign(gw: Gateway, plan: CampaignPlan | GPlan, out_dir: str | Path, progress: bool | None = None,
                  truth: dict[str, Any] | None = None,
                  on_run: Callable[[CampaignRun], None] | None = None) -> CampaignResult:
-    """Run every experiment of ``plan`` through the connected gateway ``gw``.
+    """Run every experiment of ``plan`` through the connected gateway ``gw`` (module docstring).
 
-    ``truth`` (the emulator's :meth:`PlantConfig.to_dict`) is written into every run directory as
-    ``truth.json``; the estimators never read it. ``progress``: a bar over the whole campaign's
-    stand time (None: when stderr is a terminal)."""
+    ``truth`` (the emulator's: :meth:`PlantConfig.to_dict`, or a rig's
+    :func:`rig.emulated.rig_truth`) is written into every run directory as ``truth.json``; the
+    estimators never read it. ``progress``: a bar over the whole campaign's stand time (None:
+    when stderr is a terminal)."""
+    plan.check(gw)
     out = Path(out_dir)
-    if out.exists() and any(out.iterdir()):
+    rig = gw.rig
+    if out.exists() and any(p.name != "rig.toml" for p in out.iterdir()):
         raise StandError(f"{out} exists and is not empty; choose a new --out directory")
-    planned = plan.runs()
-    (out / RUNS_DIR).mkdir(parents=True, exist_ok=True)
+    planned = plan.runs(rig.names if rig is not None else None)
+    (out / plan.runs_dir).mkdir(parents=True, exist_ok=True)
     period = gw.config.period_s
     started = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     wall0 = time.monotonic()
@@ -217,9 +339,10 @@ def run_campaign(gw: Gateway, plan: CampaignPlan, out_dir: str | Path, progress:
     def save() -> None:
         stand = sum(r.stand_s for r in done)
         wall = time.monotonic() - wall0
-        write_json(out / CAMPAIGN_FILE, {
-            "format": FORMAT, "status": state["status"], "stopped_by": state["stopped_by"],
-            "bus": gw.config.bus, "clock": "lockstep" if gw.config.lockstep else "realtime",
+        write_json(out / plan.file, {
+            "format": plan.format, "status": state["status"], "stopped_by": state["stopped_by"],
+            **({"rig": rig.name} if rig is not None else {"bus": gw.config.bus}),
+            "clock": "lockstep" if gw.config.lockstep else "realtime",
             "period_s": period, "started": started,
             "ended": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
             "stand_s": stand, "wall_s": wall, "speedup": stand / wall if wall > 0 else None,
@@ -233,7 +356,7 @@ def run_campaign(gw: Gateway, plan: CampaignPlan, out_dir: str | Path, progress:
     save()
     try:
         for i, p in enumerate(planned):
-            experiment = make_experiment(p.experiment, p.params)
+            experiment = p.make()
             base = sum(r.stand_s for r in done)
             bar.set_postfix_str(f"{p.index}/{len(planned)} {p.label}")
 
@@ -242,13 +365,15 @@ def run_campaign(gw: Gateway, plan: CampaignPlan, out_dir: str | Path, progress:
                     bar.update(base + t - bar.n)
 
             t0 = time.monotonic()
-            result = gw.run(experiment, out / RUNS_DIR / p.label, progress=False, on_progress=tick)
+            result = gw.run(experiment, out / plan.runs_dir / p.label, progress=False, on_progress=tick,
+                            channels=p.channels)
             if truth is not None:
                 write_json(result.path / TRUTH_FILE, truth)
             stats = result.outcome.stats
+            driven = p.channels or (list(rig.names) if rig is not None else [])
             run = CampaignRun(p.label, p.experiment, p.params, str(result.path), result.status,
                               result.reason, result.outcome.message, stats.cycles, stats.cycles * period,
-                              time.monotonic() - t0)
+                              time.monotonic() - t0, driven)
             done.append(run)
             # re-plan the bar: what is done plus what is still to come
             bar.total = round(sum(r.stand_s for r in done) + sum(q.nominal_s for q in planned[i + 1:]), 1)

@@ -1,22 +1,28 @@
-"""Loading programmes on the stand, pass by pass (``stand load``): the load experiment
-(:mod:`gateway.load_experiment`) run ``repeat`` times, learning between passes.
+"""Loading a station's programme, pass by pass (``stand load``): the load experiment
+(:mod:`gateway.load_experiment`) run ``repeat`` times on every channel at once, each channel's
+peak/valley compensation learning between passes.
 
-The supervisor's tracking-error limit, when none is set, is :data:`ERROR_LIMIT_SHARE` of the
-programme's range for these passes: a pass that cannot track stops safely and says why.
-``run_load`` runs ``repeat`` passes in a row, each in its own run directory under ``out``
-(``pass-1``, ``pass-2``, ...); after each pass the tracking report is made from the recorded
-force and the peak/valley compensation learns from it before the next. ``out`` also holds the
-controller used, the learned corrections (``compensation.toml``), the report (``report.json``,
-``report.txt``) and a figure of the last pass (``tracking.png``).
+Each pass is one run (``pass-1``, ``pass-2``, ...: a rig's has every channel's columns and a
+capture per bus); after it the tracking report is made from every channel's recorded force and
+each channel's compensation learns from its own peaks and valleys. ``out`` also holds the
+controller used, the corrections (``compensation.toml``), the report (``report.json``: schema
+``hydrostand-load/1``; ``report.txt``) and the last pass's figure (``tracking.png``).
 
-**Time scaling** (``scaling``, :mod:`loading.time_scaling`): the segment durations change
-from pass to pass, each on its own, until every turning point holds the accuracy as fast as it
-can; ``out/schedule.toml`` keeps the fastest schedule whose pass met the accuracy. A
-``schedule`` replays one. Every pass reports the programme's time (without the approach, the
-pre-roll and the unload), the valve-limited minimum (:mod:`loading.minimum_time`) and the time
-spent pacing (:mod:`loading.pacing`).
+**Time scaling** (``scaling``, :mod:`loading.time_scaling`): the segments between load cases
+change from pass to pass, each on its own, floored at the valve-limited minimum through the
+station's model (:mod:`loading.minimum_time`), until every channel holds the accuracy at every
+load case as fast as it can; ``out/schedule.toml`` keeps the fastest schedule whose pass met it
+and a ``schedule`` replays one. Every pass reports the programme's time (without the approach,
+the pre-roll and the unload) beside that minimum, and the time spent pacing
+(:mod:`loading.pacing`).
 
-Everything that can be checked is checked before anything moves (:meth:`LoadProgramme.check`).
+**The gain monitor** (``monitor``, :mod:`loading.gain_monitor`): one for all the passes; each
+pass writes its blocks (``pass-N/gain.json``), the summary has ``gain``.
+
+Every channel's supervisor keeps its own tracking-error limit for these passes, unless one is
+given: :data:`ERROR_LIMIT_SHARE` of that channel's programme range (at least 100 kgf), so a
+pass that cannot track stops safely (on a rig every channel with it) and says why. Everything
+that can be checked is checked before anything moves (:meth:`LoadProgramme.check`).
 """
 from __future__ import annotations
 
@@ -29,22 +35,22 @@ import numpy as np
 from core.errors import ParameterError
 from loading.compensation import Compensation
 from loading.design import ControllerDesign
-from loading.gain_monitor import GainMonitor, MonitorOptions, margin_table
-from loading.minimum_time import minimum_durations_s, programme_valve_limit
+from loading.gain_monitor import GainMonitor, MonitorOptions
+from loading.minimum_time import FEEDFORWARD_SHARE, minimum_durations_s, programme_flow_limit
 from loading.pacing import PacingOptions
-from loading.programme import Programme
+from loading.programme import ChannelProgramme, Programme, as_programme
 from loading.report import TrackingReport, load_summary, plot_tracking, tracking_report
-from loading.time_scaling import (ScalingOptions, Schedule, TimeScaler, meets, ringing_turning_points,
-                                  stretch_to_valve)
+from loading.time_scaling import ScalingOptions, Schedule, TimeScaler, meets, stretch_to_valve
 
-from .load_experiment import (FEEDFORWARD_SHARE, PRE_ROLL_S, PRE_ROLL_SHARE,  # noqa: F401 (re-exported)
-                              LoadProgramme, OneWayApproach, _pre_roll, _unload_tail)
+from .load_experiment import LoadProgramme
 from .runs import load_run
 
 #: the supervisor's tracking-error limit when none is set: this share of the programme's range
 ERROR_LIMIT_SHARE = 0.10
 #: time scaling: at most this many stretches of the segments the valve cannot follow, per pass
 STRETCH_TRIES = 6
+#: the corrections the fastest pass that met the accuracy ran with, beside ``schedule.toml``
+SCHEDULE_COMPENSATION = "schedule-compensation.toml"
 
 
 @dataclass
@@ -52,16 +58,16 @@ class PassTiming:
     """How long a pass's programme took beside its minimum, and what pacing did."""
 
     programme_time_s: float           #: the scheduled programme, without approach/pre-roll/unload
-    minimum_time_s: float             #: the valve-limited minimum of the same programme
+    minimum_time_s: float | None      #: its valve-limited minimum (None: per-channel sequences)
     pacing_s: float = 0.0             #: time on the stand beyond the programme's, pacing
     pacing: dict | None = None        #: the pacing record (waits, slowed time), None: pacing off
     scaling: dict | None = None       #: time scaling: segments landed / held / missed
-    gain_blocks: list | None = None   #: the gain monitor's blocks of this pass (dicts)
+    gain_blocks: list | dict | None = None   #: the gain monitor's blocks of this pass
 
     def figures(self) -> dict:
-        d = {"programme_time_s": self.programme_time_s, "minimum_time_s": self.minimum_time_s,
-             "time_over_minimum": self.programme_time_s / self.minimum_time_s if self.minimum_time_s else None,
-             "pacing_s": self.pacing_s}
+        m = self.minimum_time_s
+        d = {"programme_time_s": self.programme_time_s, "minimum_time_s": m,
+             "time_over_minimum": self.programme_time_s / m if m else None, "pacing_s": self.pacing_s}
         if self.pacing is not None:
             d["pacing"] = self.pacing
         if self.scaling is not None:
@@ -69,6 +75,20 @@ class PassTiming:
         if self.gain_blocks is not None:
             d["gain_blocks"] = self.gain_blocks
         return d
+
+    def text(self) -> str:
+        """One line: the programme's time, the minimum, their ratio, pacing, time scaling."""
+        text = f"programme {self.programme_time_s:.1f} s"
+        if self.minimum_time_s:
+            text += (f", valve-limited minimum {self.minimum_time_s:.1f} s "
+                     f"({self.programme_time_s / self.minimum_time_s:.2f}x)")
+        if self.pacing is not None:
+            text += (f", pacing {self.pacing_s:.2f} s ({self.pacing['waits']} waits, "
+                     f"{self.pacing['slowed_s']:.2f} s slowed)")
+        if self.scaling is not None:
+            s = self.scaling
+            text += f"; segments landed {s.get('land', 0)}, held {s.get('hold', 0)}, missed {s.get('miss', 0)}"
+        return text
 
 
 @dataclass
@@ -79,12 +99,13 @@ class LoadResult:
     end_reason: str | None = None
     end_message: str | None = None
     compensation: Compensation | None = None
+    #: per pass begun: its programme's time, pacing and time scaling
     timings: list[PassTiming] = field(default_factory=list)
     #: time scaling: the fastest schedule whose pass met the accuracy (None: none did)
     schedule: Schedule | None = None
     #: time scaling: did the last pass run every segment settled and meet the accuracy
     converged: bool | None = None
-    #: the gain monitor of the test (None: off)
+    #: the gain monitor of the passes (None: not watched)
     monitor: GainMonitor | None = None
 
     def summary(self) -> dict:
@@ -94,138 +115,170 @@ class LoadResult:
         if self.end_message:
             d["end_message"] = self.end_message
         if self.converged is not None:
-            d["schedule"] = ({"time_s": self.schedule.time_s, "minimum_time_s": self.schedule.minimum_time_s,
-                              "accuracy_pct": self.schedule.accuracy_pct, "verified": self.schedule.verified}
-                             if self.schedule is not None else None)
+            s = self.schedule
+            d["schedule"] = ({"time_s": s.time_s, "minimum_time_s": s.minimum_time_s,
+                              "accuracy_pct": s.accuracy_pct, "verified": s.verified}
+                             if s is not None else None)
             d["converged"] = self.converged
         if self.monitor is not None:
             d["gain"] = self.monitor.summary()
         return d
 
 
+def force_limits(gw_config) -> list[float]:
+    """Every channel's force limit, in the station's order."""
+    if gw_config.rig is None:
+        return [gw_config.limits.force_limit_kgf]
+    return [c.limit_kgf for c in gw_config.rig.channels]
+
+
+def check_load(gw_config, programme: Programme, controller: ControllerDesign,
+               compensation: Compensation | None = None, unload_kgf: float = 0.0,
+               monitor: GainMonitor | None = None, pacing: PacingOptions | None = None) -> LoadProgramme:
+    """The first pass's experiment, checked against the station (before anything is opened)."""
+    e = LoadProgramme(programme, controller, compensation, unload_kgf, monitor=monitor, pacing=pacing)
+    e.check(gw_config.period_s, force_limits(gw_config), gw_config.limits.command_limit_pct)
+    return e
+
+
 def achieved(run_dir: Path, experiment: LoadProgramme) -> tuple[np.ndarray, np.ndarray]:
-    """The recorded force on the programme's clock (t = 0 at its start): with pacing, each
-    sample of the main phase at the clock's position then (a wait's samples share a time)."""
+    """Every channel's recorded force (N, K) on the programme's clock (0 at its start; with
+    pacing, each sample of the main phase at the clock's position then)."""
     run = load_run(run_dir)
-    t = np.asarray(run.t, float)
-    t0 = experiment.programme_start_s or 0.0
-    if not experiment.positions or experiment.main_start_s is None:
-        return t - t0, np.asarray(run.y)
-    T = experiment.programme.period_s
-    i = np.round((t - experiment.main_start_s) / T).astype(int)
-    pos = np.asarray(experiment.positions)
-    inside = (i >= 0) & (i < len(pos))
-    prog = np.where(inside, (pos[np.clip(i, 0, len(pos) - 1)] - experiment.lead) * T, t - t0)
-    return prog, np.asarray(run.y)
+    runs = [run.channel(name) for name in experiment.names] if run.channels else [run]
+    return experiment.programme_times(runs[0].t), np.array([np.asarray(r.y, float) for r in runs])
+
+
+def minimum_s(gw_config, programme: Programme, controller: ControllerDesign,
+              required: bool = False) -> np.ndarray | None:
+    """Each load-case segment's valve-limited minimum by the controller's model
+    (:mod:`loading.minimum_time`); None for per-channel sequences, or when the model says a
+    valve cannot move or hold and ``required`` is false (only time scaling needs it)."""
+    if not programme.load_cases:
+        return None
+    limit = min(controller.command_limit_pct, gw_config.limits.command_limit_pct)
+    try:
+        return minimum_durations_s(programme, controller.model,
+                                   programme_flow_limit(programme, controller.model, limit))[0]
+    except ParameterError:
+        if required:
+            raise
+        return None
+
+
+def run_load(gw, programme: Programme | ChannelProgramme, controller: ControllerDesign, out: str | Path,
+             repeat: int = 1, compensation: Compensation | None = None, learn: bool = True,
+             unload_kgf: float = 0.0, progress: bool | None = None,
+             error_limit_kgf: float | None = None, scaling: ScalingOptions | None = None,
+             schedule: Schedule | None = None, monitor: MonitorOptions | None = None,
+             pacing: PacingOptions | None = None) -> LoadResult:
+    """Run ``repeat`` passes of ``programme`` on the station behind ``gw`` (module docstring).
+    ``error_limit_kgf``: every channel's tracking-error limit for these passes (default: each
+    supervisor's own, else :data:`ERROR_LIMIT_SHARE` of the channel's programme range).
+    ``schedule``: the load cases' segment durations to run (a ``schedule.toml``). ``scaling``:
+    time scaling, at most ``repeat`` passes (:mod:`loading.time_scaling`). ``monitor``: every
+    channel's gain estimated block by block, followed by the feedforward and watched for a fall
+    or a rise (:mod:`loading.gain_monitor`). ``pacing``: null pacing (:mod:`loading.pacing`)."""
+    if not (1 <= repeat <= 1000):
+        raise ParameterError(f"repeat = {repeat}: it must be from 1 to 1000")
+    programme = as_programme(programme)
+    if schedule is not None:
+        programme = schedule.apply(programme)
+    if scaling is not None:
+        scaling.check()
+        if not programme.load_cases:
+            raise ParameterError(f"{programme.source}: time scaling needs load cases (a CSV with a "
+                                 "column per channel): per-channel sequences have no common segments")
+    out = Path(out)
+    comp = compensation if compensation is not None else (
+        Compensation(programme.names) if learn and repeat > 1 else None)
+    watcher = GainMonitor.for_controller(controller, gw.config.period_s, monitor) if monitor is not None else None
+    first = check_load(gw.config, programme, controller, comp, unload_kgf, watcher, pacing)
+    minimum = minimum_s(gw.config, programme, controller, required=scaling is not None)
+    supervisors = [ch.supervisor for ch in gw.loop.channels]
+    own = [s.limits for s in supervisors]
+    for s, lim, rng in zip(supervisors, own, programme.ranges_kgf):
+        limit = error_limit_kgf if error_limit_kgf is not None else lim.error_limit_kgf
+        if limit is None:
+            limit = max(ERROR_LIMIT_SHARE * rng, 100.0)
+        s.limits = replace(lim, error_limit_kgf=limit)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "controller.toml").write_text(controller.to_toml(out / "controller.toml"))
+    result = LoadResult(out, compensation=comp, monitor=watcher)
+    passes = _Passes(gw, controller, unload_kgf, learn, progress, result, pacing)
+    try:
+        if scaling is not None:
+            last = _scaled_passes(passes, programme, minimum, repeat, scaling)
+        else:
+            last = None
+            for i in range(1, repeat + 1):
+                experiment = first if i == 1 else check_load(gw.config, programme, controller, comp,
+                                                             unload_kgf, watcher, pacing)
+                done = passes.run(experiment, programme, minimum, i)
+                if done is None:
+                    break
+                last = (programme, done)
+    finally:
+        for s, lim in zip(supervisors, own):
+            s.limits = lim
+    _write_reports(result, *(last or (programme, None)))
+    return result
 
 
 @dataclass
-class _Pass:
-    """What every pass of one ``run_load`` shares."""
+class _Passes:
+    """What every pass of one ``run_load`` shares (the compensation and the gain monitor are
+    the result's)."""
 
     gw: object
     controller: ControllerDesign
-    compensation: Compensation | None
     unload_kgf: float
-    pacing: PacingOptions | None
-    monitor: GainMonitor | None = None
+    learn: bool
+    progress: bool | None
+    result: LoadResult
+    pacing: PacingOptions | None = None
+    #: the corrections (a compensation file's text) the last pass began with
+    ran_with: str | None = None
 
-    def experiment(self, programme: Programme, check: bool = True) -> LoadProgramme:
-        e = LoadProgramme(programme, self.controller, self.compensation, self.unload_kgf, pacing=self.pacing,
-                          monitor=self.monitor, unload_limits=self.gw.config.limits)
-        if check:
-            limits = self.gw.config.limits
-            e.check(self.gw.config.period_s, limits.force_limit_kgf, limits.command_limit_pct)
-        return e
+    def experiment(self, programme: Programme) -> LoadProgramme:
+        """A pass's experiment, not yet checked (time scaling stretches it first)."""
+        r = self.result
+        return LoadProgramme(programme, self.controller, r.compensation, self.unload_kgf, monitor=r.monitor,
+                             pacing=self.pacing)
 
-    @property
-    def command_limit_pct(self) -> float:
-        return min(self.controller.command_limit_pct, self.gw.config.limits.command_limit_pct)
-
-
-def run_load(gw, programme: Programme, controller: ControllerDesign, out: str | Path,
-             repeat: int = 1, compensation: Compensation | None = None, learn: bool = True,
-             unload_kgf: float = 0.0, progress: bool | None = None,
-             error_limit_kgf: float | None = None, pacing: PacingOptions | None = None,
-             scaling: ScalingOptions | None = None, schedule: Schedule | None = None,
-             monitor: MonitorOptions | None = None) -> LoadResult:
-    """Run ``repeat`` passes of ``programme`` on the gateway ``gw`` (module docstring).
-    ``error_limit_kgf``: the tracking-error limit for these passes (default: the supervisor's,
-    else :data:`ERROR_LIMIT_SHARE` of the programme's range). ``pacing``: null pacing
-    (:mod:`loading.pacing`). ``schedule``: the segment durations to run (a ``schedule.toml``).
-    ``scaling``: time scaling, at most ``repeat`` passes (:mod:`loading.time_scaling`).
-    ``monitor``: the stand's g estimated block by block, followed by the feedforward and
-    watched for a fall or a rise (:mod:`loading.gain_monitor`)."""
-    if not (1 <= repeat <= 1000):
-        raise ParameterError(f"repeat = {repeat}: it must be from 1 to 1000")
-    if scaling is not None:
-        scaling.check()
-        if schedule is None and programme.turning_idx.size < 2:
-            raise ParameterError("time scaling needs a programme with turning points")
-    out = Path(out)
-    if schedule is not None:
-        programme = schedule.apply(programme)
-    comp = compensation if compensation is not None else (Compensation() if learn and repeat > 1 else None)
-    watcher = None
-    if monitor is not None:
-        monitor.check()
-        model = controller.model
-        watcher = GainMonitor(model.g, model.tau, model.delta, gw.config.period_s, monitor,
-                              margin_table(controller.kp_pct_per_kgf, controller.ti_s, model.g, model.tau,
-                                           gw.config.period_s, controller.boost))
-    shared = _Pass(gw, controller, comp, unload_kgf, pacing, watcher)
-    first = shared.experiment(programme)
-    limit = programme_valve_limit(programme, controller.model, shared.command_limit_pct)
-    minimum = minimum_durations_s(programme, limit)
-    supervisor = gw.loop.supervisor
-    own_limits = supervisor.limits
-    if error_limit_kgf is None and own_limits.error_limit_kgf is None:
-        error_limit_kgf = max(ERROR_LIMIT_SHARE * programme.range_kgf, 100.0)
-    if error_limit_kgf is not None:             # this programme's, for these passes only
-        supervisor.limits = replace(own_limits, error_limit_kgf=error_limit_kgf)
-    try:
-        if scaling is not None:
-            return _scaled_passes(shared, programme, minimum, out, repeat, learn, progress, scaling)
-        return _passes(shared, programme, minimum, out, repeat, first, learn, progress)
-    finally:
-        supervisor.limits = own_limits
-
-
-def _run_pass(shared: _Pass, experiment: LoadProgramme, programme: Programme, minimum_s: np.ndarray,
-              path: Path, result: LoadResult, learn: bool, progress):
-    """One pass: run, report, learn. Returns (report, (t, y), paced per turning point) or None
-    if the pass ended early (result.end_reason says why)."""
-    res = shared.gw.run(experiment, path, progress=progress)
-    result.run_dirs.append(res.path)
-    monitor = shared.monitor
-    blocks = None
-    if monitor is not None and monitor.end_pass():
-        blocks = [b.to_dict() for b in monitor.blocks if b.pass_index == monitor.pass_index]
-        (res.path / "gain.json").write_text(json.dumps({**monitor.summary(), "blocks": blocks}, indent=2) + "\n")
-        result.monitor = monitor
-    clock = experiment.clock
-    timing = PassTiming(programme.duration_s, float(np.sum(minimum_s)),
-                        clock.record.pacing_s if clock is not None else 0.0,
-                        clock.record.to_dict() if clock is not None else None, gain_blocks=blocks)
-    result.timings.append(timing)
-    if pass_stopped(res, experiment, result):
-        return None
-    t, y = achieved(res.path, experiment)
-    report = tracking_report(programme, t, y)
-    result.passes.append(report)
-    comp = shared.compensation
-    if comp is not None and learn:
-        comp.learn(report.turning_points, programme.range_kgf)
-        comp.save(result.out / "compensation.toml")
-    paced = {}
-    if clock is not None:
-        paced = {int(k) - experiment.lead: v for k, v in clock.paced_by_turning.items()}
-    return report, (t, y), paced
+    def run(self, experiment: LoadProgramme, programme: Programme, minimum: np.ndarray | None, i: int):
+        """Pass ``i``: run, report, learn. Returns the forces ``(t, Y)`` on the programme's
+        clock, or None if the pass ended early (``result.end_reason`` says why)."""
+        result = self.result
+        self.ran_with = result.compensation.to_toml() if result.compensation is not None else None
+        res = self.gw.run(experiment, result.out / f"pass-{i}", progress=self.progress)
+        result.run_dirs.append(res.path)
+        monitor = result.monitor
+        blocks = None
+        if monitor is not None and monitor.end_pass():
+            blocks = monitor.blocks(monitor.pass_index)
+            (res.path / "gain.json").write_text(json.dumps({**monitor.summary(), "blocks": blocks}, indent=2) + "\n")
+        clock = experiment.clock
+        result.timings.append(PassTiming(programme.duration_s, float(np.sum(minimum)) if minimum is not None else None,
+                                         clock.record.pacing_s if clock is not None else 0.0,
+                                         clock.record.to_dict() if clock is not None else None,
+                                         gain_blocks=blocks))
+        if pass_stopped(res, experiment, result):
+            return None
+        t, Y = achieved(res.path, experiment)
+        report = tracking_report(programme, t, Y)
+        result.passes.append(report)
+        (res.path / "tracking.json").write_text(json.dumps(report.to_dict(), indent=1) + "\n")
+        comp = result.compensation
+        if comp is not None and self.learn:
+            comp.learn(report.channels, programme.ranges_kgf)
+            comp.save(result.out / "compensation.toml")
+        return t, Y
 
 
 def pass_stopped(res, experiment, result) -> bool:
-    """True when the pass ``res`` ended before its programme was run through (a stand's or a
-    rig's); ``result.end_reason`` and ``end_message`` then say why."""
+    """True when the pass ``res`` ended before its programme was run through; ``result.end_reason``
+    and ``end_message`` then say why."""
     if res.status == "complete" and experiment.main_start_s is not None:
         return False
     result.end_reason = res.reason or res.status
@@ -233,85 +286,65 @@ def pass_stopped(res, experiment, result) -> bool:
     return True
 
 
-def _passes(shared: _Pass, programme, minimum, out, repeat, first, learn, progress) -> LoadResult:
-    out.mkdir(parents=True, exist_ok=True)
-    controller = shared.controller
-    (out / "controller.toml").write_text(controller.to_toml(out / "controller.toml"))
-    result = LoadResult(out, compensation=shared.compensation)
+def _scaled_passes(passes: _Passes, programme: Programme, minimum: np.ndarray, repeat: int,
+                   options: ScalingOptions):
+    """Time scaling of the load cases, pass by pass (loading.time_scaling). Returns the last
+    pass's (programme, forces), or None."""
+    result = passes.result
+    result.converged = False
+    gw, controller = passes.gw, passes.controller
+    scaler = TimeScaler(programme, minimum, programme.segment_durations_s, options)
+    share_limit = FEEDFORWARD_SHARE * min(controller.command_limit_pct, gw.config.limits.command_limit_pct)
+    base = programme
     last = None
     for i in range(1, repeat + 1):
-        experiment = first if i == 1 else shared.experiment(programme)
-        done = _run_pass(shared, experiment, programme, minimum, out / f"pass-{i}", result, learn, progress)
-        if done is None:
-            break
-        last = done[1]
-    _write_reports(result, programme, last)
-    return result
-
-
-def _scaled_passes(shared: _Pass, programme, minimum, out, repeat, learn, progress,
-                   options: ScalingOptions) -> LoadResult:
-    """Time scaling, pass by pass (loading.time_scaling)."""
-    out.mkdir(parents=True, exist_ok=True)
-    controller = shared.controller
-    (out / "controller.toml").write_text(controller.to_toml(out / "controller.toml"))
-    result = LoadResult(out, compensation=shared.compensation, converged=False)
-    scaler = TimeScaler(programme, minimum, programme.segment_durations_s, options)
-    share_limit = FEEDFORWARD_SHARE * shared.command_limit_pct
-    base = programme
-    last = None                                  # (the programme, its forces) of the last pass
-    for i in range(1, repeat + 1):
-        current, experiment = stretched_pass(base, scaler, i, lambda p: shared.experiment(p, check=False),
-                                             _segment_peaks, share_limit)
+        current, experiment = stretched_pass(base, scaler, i, passes.experiment, segment_peaks, share_limit)
         settled = scaler.all_settled
-        limits = shared.gw.config.limits
-        experiment.check(shared.gw.config.period_s, limits.force_limit_kgf, limits.command_limit_pct)
-        done = _run_pass(shared, experiment, current, minimum, out / f"pass-{i}", result, learn, progress)
+        experiment.check(gw.config.period_s, force_limits(gw.config), gw.config.limits.command_limit_pct)
+        done = passes.run(experiment, current, minimum, i)
         if done is None:
             break
-        report, forces, paced = done
-        last = (current, forces)
+        last = (current, done)
+        report = result.passes[-1]
         ok = meets(report, options.accuracy_pct)
-        verdicts = scaler.verdicts(current, report, ringing_turning_points(current, *forces), paced)
+        clock = experiment.clock
+        paced = ({k - experiment.lead: v for k, v in clock.paced_by_turning.items()}
+                 if clock is not None else None)
+        verdicts = scaler.station_verdicts(current, report, *done, paced)
         result.timings[-1].scaling = {**scaler.last, "met_accuracy": ok, "all_settled_before": settled}
         if ok:
-            keep_if_fastest(result, base, current, i, options, minimum)
+            keep_if_fastest(result, base, current, i, options, minimum, passes.ran_with)
         if ok and settled:
             result.converged = True
             break
         scaler.update(verdicts)
     if result.schedule is None:
-        save_unverified(result, base, scaler, options, minimum)
-    _write_reports(result, *(last or (programme, None)))
-    return result
+        Schedule.of(base, scaler.durations, options.accuracy_pct, float(np.sum(minimum)), False,
+                    ["no pass met the accuracy: these durations are the next pass's"]).save(result.out / "schedule.toml")
+    return last
 
 
-def keep_if_fastest(result, base, current, i: int, options: ScalingOptions, minimum: np.ndarray,
-                    channels: list[str] | None = None) -> None:
+def keep_if_fastest(result: LoadResult, base: Programme, current: Programme, i: int, options: ScalingOptions,
+                    minimum: np.ndarray, compensation: str | None = None) -> None:
     """Pass ``i`` ran ``current`` and met the accuracy: its durations are ``result.schedule``
-    (saved as ``OUT/schedule.toml``) when no faster pass met it. A stand's or (``channels``) a rig's."""
+    (saved as ``OUT/schedule.toml``) when no faster pass met it, with the corrections it ran
+    with (``compensation``: a compensation file's text, saved beside it as
+    :data:`SCHEDULE_COMPENSATION`), which a replay starts from: it holds what the pass did."""
     if result.schedule is not None and current.duration_s >= result.schedule.time_s:
         return
-    result.schedule = Schedule(base.levels_kgf, current.segment_durations_s, base.period_s,
-                               options.accuracy_pct, float(np.sum(minimum)), base.source,
-                               verified=True, notes=[f"pass {i} of {result.out}"], channels=channels)
+    result.schedule = Schedule.of(base, current.segment_durations_s, options.accuracy_pct, float(np.sum(minimum)),
+                                  True, [f"pass {i} of {result.out}"])
+    if compensation is not None:
+        (result.out / SCHEDULE_COMPENSATION).write_text(compensation)
+        result.schedule.compensation = SCHEDULE_COMPENSATION
     result.schedule.save(result.out / "schedule.toml")
 
 
-def save_unverified(result, base, scaler: TimeScaler, options: ScalingOptions, minimum: np.ndarray,
-                    channels: list[str] | None = None) -> None:
-    """No pass met the accuracy: the next pass's durations saved, marked unverified."""
-    Schedule(base.levels_kgf, scaler.durations, base.period_s, options.accuracy_pct,
-             float(np.sum(minimum)), base.source, verified=False,
-             notes=["no pass met the accuracy: these durations are the next pass's"],
-             channels=channels).save(result.out / "schedule.toml")
-
-
-def stretched_pass(base, scaler: TimeScaler, i: int, experiment_for, peaks_of, share_limit: float):
+def stretched_pass(base: Programme, scaler: TimeScaler, i: int, experiment_for, peaks_of, share_limit: float):
     """Pass ``i``'s programme (``base`` with the scaler's durations) and its experiment
     (``experiment_for(programme)``), every segment whose feedforward needs more than
     ``share_limit`` (``peaks_of(experiment)``: each segment's largest command) lengthened
-    first, at most :data:`STRETCH_TRIES` times. A stand's or a rig's."""
+    first, at most :data:`STRETCH_TRIES` times."""
     for _ in range(STRETCH_TRIES):
         current = base.with_durations(scaler.durations, f"{base.source}, scaled pass {i}")
         experiment = experiment_for(current)
@@ -322,58 +355,32 @@ def stretched_pass(base, scaler: TimeScaler, i: int, experiment_for, peaks_of, s
     return current, experiment
 
 
-def _segment_peaks(e: LoadProgramme) -> np.ndarray:
-    """Each segment's largest feedforward command (%), both ways into the programme."""
+def segment_peaks(e: LoadProgramme) -> np.ndarray:
+    """Each load-case segment's largest feedforward command (%) over every channel and both
+    ways its rod may last have moved, each channel's sent its own delay ahead."""
     programme = e.commanded
-    m = int(round(e.controller.model.tau / programme.period_s))
-    idx = e.lead + programme.turning_idx - m
-    peaks = np.zeros(len(idx) - 1)
-    for plan in e.plans.values():
-        u = np.abs(plan.ff.u_pct)
-        for j in range(len(peaks)):
-            a, b = max(idx[j], 0), max(idx[j + 1], 1)
-            peaks[j] = max(peaks[j], float(u[a:b].max()))
+    idx0 = e.lead + programme.turning_idx
+    peaks = np.zeros(len(idx0) - 1)
+    for ff in e.ff.values():
+        for f, m in zip(ff.channels, e.controller.model.channels):
+            idx = idx0 - int(round(m.tau / programme.period_s))
+            u = np.abs(f.u_pct)
+            for j in range(len(peaks)):
+                a, b = max(idx[j], 0), max(idx[j + 1], 1)
+                peaks[j] = max(peaks[j], float(u[a:b].max()))
     return peaks
 
 
 def _write_reports(result: LoadResult, programme: Programme, last) -> None:
     out = result.out
+    lines = [f"pass {i}:\n{t.text()}\n{p.text()}" for i, (p, t) in enumerate(zip(result.passes, result.timings),
+                                                                               start=1)]
+    if result.end_reason not in (None, "complete"):
+        lines.append(f"pass {len(result.run_dirs)} stopped ({result.end_reason}): {result.end_message}")
+    if result.monitor is not None:
+        lines.append(result.monitor.text())
+    (out / "report.txt").write_text("\n\n".join(lines) + "\n")
     if last is not None:
-        lines = []
-        for i, (p, timing) in enumerate(zip(result.passes, result.timings), start=1):
-            lines.append(f"pass {i}:\n{timing_text(timing)}\n{p.text()}")
-        if result.monitor is not None:
-            lines.append(gain_text(result.monitor))
-        (out / "report.txt").write_text("\n\n".join(lines) + "\n")
-        t, y = last
-        plot_tracking(programme, t, y, result.passes[-1], out / "tracking.png",
+        plot_tracking(programme, *last, result.passes[-1], out / "tracking.png",
                       title=f"{programme.source}: pass {len(result.passes)}")
     (out / "report.json").write_text(json.dumps(result.summary(), indent=2) + "\n")
-
-
-def timing_text(timing: PassTiming) -> str:
-    """One line: the programme's time, the minimum, their ratio, pacing."""
-    text = (f"programme {timing.programme_time_s:.1f} s, valve-limited minimum {timing.minimum_time_s:.1f} s "
-            f"({timing.programme_time_s / timing.minimum_time_s:.2f}x)")
-    if timing.pacing is not None:
-        text += (f", pacing {timing.pacing_s:.2f} s ({timing.pacing['waits']} waits, "
-                 f"{timing.pacing['slowed_s']:.2f} s slowed)")
-    if timing.scaling is not None:
-        s = timing.scaling
-        text += f"; segments landed {s.get('land', 0)}, held {s.get('hold', 0)}, missed {s.get('miss', 0)}"
-    return text
-
-
-def gain_text(monitor: GainMonitor) -> str:
-    """The gain monitor's blocks in a few lines: the estimates' span, the last, the alarm."""
-    est = [b for b in monitor.blocks if b.g is not None]
-    if not est:
-        return f"gain: no block had enough steady motion for an estimate ({len(monitor.blocks)} blocks)"
-    last = est[-1]
-    lines = [f"gain: {len(est)} of {len(monitor.blocks)} blocks estimated, g from {min(b.g for b in est):.1f} "
-             f"to {max(b.g for b in est):.1f} kgf/(%·s) (model {monitor.g_ref:.1f}); last "
-             f"{last.g:.1f} [{last.low:.1f}, {last.high:.1f}] ({last.change_pct:+.1f} %), feedforward at "
-             f"g = {monitor.g_follow:.1f}"]
-    if monitor.alarm is not None:
-        lines.append(f"gain alarm ({monitor.alarm[0]}, action {monitor.options.action}): {monitor.alarm[1]}")
-    return "\n".join(lines)

@@ -1,15 +1,21 @@
-"""The load experiment: one pass of a loading programme under the designed controller.
+r"""The load experiment: one pass of a station's programme under its controller.
 
-A pass is one run of the gateway like any experiment (same supervisor, limits, recorder, run
-directory, capture)::
+Every channel at once, each cycle (stepped with every channel's force, it returns every
+channel's command: :meth:`LoadProgramme.step_rig`; a one-channel stand is the station of one
+channel)::
 
-    approach   the force is brought to the pre-roll's start by a short P loop that moves the
-               rod one way only (holding rather than reversing it)
-    pre-roll   a haversine into the first level (:data:`PRE_ROLL_SHARE` of the range, in
-               :data:`PRE_ROLL_S`), moving the way the valve holds the force against the
-               model's trend Δ (down for Δ > 0)
-    programme  u = feedforward through the model's inverse + PI (loading.controller)
-    unload     a haversine from the last level to the unload level, tracked the same way
+    approach   to the pre-roll's start: one channel by a short P loop that moves the rod one
+               way only (holding rather than reversing it); several along one straight line
+               (a haversine in time, the ratio-keeping line), the feedforward of the base model
+               through G⁻¹ and the designed P gains through the mixing matrix, each valve moving
+               one way only, then held until every force is within the tolerance, each valve
+               then on the way of the flow that holds its force against the trends (−G⁻¹Δ:
+               one planned reversal where the line ends)
+    pre-roll   a haversine into the first load case (:data:`PRE_ROLL_S`) along the trend, so
+               that every valve keeps the sign of the command that holds the forces
+    programme  u = feedforward through the model's inverse + PI through M (loading.controller)
+    unload     a haversine from the last load case to the unload level (every channel in the
+               same time: the ratios kept), tracked the same way
 
 **No reversal the model does not plan.** With a reversal effect the stand's gain right after
 the rod reverses at a small command is many times the steady one (17× at b = 2, p = 0.7, where
@@ -17,32 +23,49 @@ the design's margins hold up to ``ρ`` = 3); on the emulated stands a reversal b
 of force the steady gain does not predict. The feedforward plans it at every turning point of
 the programme; a reversal it does not plan throws the force off by as much, and a feedback that
 reverses the valve near a turning point, where the planned command is small, rings (the extra
-cycles of the tracking report). So: wherever the model predicts a gain above ``ρ`` (the
-feedback is scaled down there, see :func:`loading.feedforward.feedback_scale`) and during the
-pre-roll, the command keeps the feedforward's sign or holds (0): the feedback slows the rod, it
-does not reverse it, and the rod reverses where and when the feedforward plans.
+cycles of the tracking report). So, per valve: wherever its channel's model predicts a gain
+above its ``ρ`` (the feedback is scaled down there, :func:`loading.feedforward.feedback_scale`)
+and during the pre-roll, the command keeps the feedforward's sign or holds (0): the feedback
+slows the rod, it does not reverse it. A feedforward through G⁻¹ (a rig's, ``feedforward =
+"rig"``) holds each valve's sign everywhere its channel's model has a reversal boost: its
+neighbours' flows would otherwise make its feedback reverse it at small flows.
 
 **The approach and the pre-roll** give the programme a start the model plans. A plain P loop
 ends holding the force with small commands of either sign (its noise, and with a reversal
-effect a limit cycle), so the way the rod last moved would be unknown. Here the approach moves
-the rod one way only, so that way is known, and the feedforward is computed knowing it (both
-ways are planned before the run; the one the force starts on is used). The pre-roll moves the
-way a held force's command points (against the trend: a held force needs ``q = −Δ/g``), so the
-command keeps one sign from the pre-roll into the hold at the first level: the programme's
-first motion is a single planned reversal or none, never a brief reversal back and forth at a
-small command. The programme's first commands, due a delay before it starts, go out during the
-pre-roll: a programme that starts at full rate (a sine) starts on time. A pre-roll that would
-cross 0 kgf starts at 0 kgf.
+effect a limit cycle), so the way the rod last moved would be unknown. Here every valve moves
+one way only, so that way is known, and the feedforward is planned both ways for every channel
+before the run; at the approach's end each channel takes the plan of its own way. A held
+station needs the flows ``w = −G^{-1}Δ`` (Δ the trends); a pre-roll that moves the forces by
+``d`` needs ``G^{-1}(d·ḣ − Δ)``: with ``d = −c·Δ`` (``c > 0``) both have the same sign at every
+valve, so every command keeps one sign from the pre-roll into the hold at the first load case
+and the programme's first motion is, on each channel, a single planned reversal or none, never a
+brief reversal back and forth at a small command. ``c`` makes the channel with the largest trend
+for its range move :data:`PRE_ROLL_SHARE` of its range (at least three tolerances); a start
+that would cross or leave 0 kgf on some channel shortens ``c`` (that channel starts at 0 kgf).
+Without trends the pre-roll comes from behind the first motion. The programme's first commands,
+due a delay before it starts, go out during the pre-roll: a programme that starts at full rate
+(a sine) starts on time.
 
-Everything that can be checked is checked before anything moves: the controller's period
-against the loop's, the programme against the force limit, the feedforward's peak command
-against the command limit.
+**The gain monitor** (``monitor``, :mod:`loading.gain_monitor`): every cycle of the programme
+feeds it every force and command; following, the feedforward is scaled by its factors; its
+alarm holds every valve (``hold``) or unloads every channel keeping the load ratios (``unload``:
+the abort asks the loop for its unload).
+
+**Null pacing** (``pacing``, :mod:`loading.pacing`): the programme's one clock waits at a load
+case where a channel turns until every channel's predicted force is within its tolerance of its
+level (``static``), and slows for all while any channel lags (``dynamic``); the references, the
+feedforward and the feedback's schedule are read at the clock's position (:attr:`positions`).
+
+Everything that can be checked is checked before anything moves (:meth:`LoadProgramme.check`):
+the controller's period and channels against the station's, every channel's programme against
+its force limit, every valve's feedforward peak against the command limit (naming the channel
+and the time).
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -54,69 +77,85 @@ from loading.feedforward import Feedforward, feedback_scale, feedforward
 from loading.gain_monitor import GAIN_ALARM, GainMonitor
 from loading.minimum_time import FEEDFORWARD_SHARE
 from loading.pacing import DEFAULT_TOLERANCE_SHARE, PACING_TIMEOUT, PacingOptions, ProgrammeClock
-from loading.programme import Programme, check_programme
+from loading.programme import ChannelProgramme, Programme, as_programme
 
-from .experiments.phases import PhasedExperiment, SetPointApproach
-from .limits import SafetyLimits
-from .supervisor import Unloader
+from .experiments.phases import FORCE_NEAR_LIMIT, SET_POINT_NOT_REACHED, Dwell, SetPointApproach
+from .experiments.rig import RigExperiment
 
-#: the pre-roll into the programme's first level: this share of its range (at least three
-#: times the approach's tolerance), in this time (s)
+#: the pre-roll into the programme's first load case: this share of the range of the channel
+#: with the largest trend for its range (at least three times the approach's tolerance), in
+#: this time (s)
 PRE_ROLL_SHARE = 0.02
 PRE_ROLL_S = 0.6
+#: the line approach's peak rate (kgf/s, the channel that moves the most) and its command limit (%)
+APPROACH_RATE_KGF_S = 1000.0
+APPROACH_LIMIT_PCT = 20.0
 
 
-def _unload_tail(last_kgf: float, unload_kgf: float, rate_kgf_s: float, period_s: float) -> np.ndarray:
-    """A haversine from the last level to the unload level at a peak rate (samples after the
-    programme's last)."""
-    span = unload_kgf - last_kgf
-    if abs(span) < 1e-9:
-        return np.zeros(0)
-    n = max(int(round(math.pi * abs(span) / (2 * rate_kgf_s) / period_s)), 1)
-    s = np.arange(1, n + 1) / n
-    return last_kgf + span * (1 - np.cos(np.pi * s)) / 2
+def haversine_line(start: np.ndarray, end: np.ndarray, rate_kgf_s: float, period_s: float,
+                   include_start: bool) -> np.ndarray:
+    """(N, n): a haversine in time from ``start`` to ``end`` on every channel at once, its
+    duration set by the channel that moves the most at ``rate_kgf_s`` peak rate."""
+    span = float(np.max(np.abs(end - start)))
+    if span < 1e-9:
+        return np.zeros((len(start), 0))
+    n = max(int(round(math.pi * span / (2 * rate_kgf_s) / period_s)), 1)
+    s = (np.arange(n) if include_start else np.arange(1, n + 1)) / n
+    return start[:, None] + (end - start)[:, None] * (1 - np.cos(np.pi * s))[None, :] / 2
 
 
-def _pre_roll(programme: Programme, trend_kgf_s: float, tolerance_kgf: float) -> np.ndarray:
-    """The pre-roll's samples before the programme's first (module docstring): a haversine
-    into the first level, moving the way a held force's command points (against the trend; the
-    programme's first way without one)."""
-    r = programme.r_kgf
-    if trend_kgf_s:
-        way = -math.copysign(1.0, trend_kgf_s)
-    else:
-        moves = np.flatnonzero(r != r[0])
-        way = float(np.sign(r[moves[0]] - r[0])) if len(moves) else 1.0
-    start = r[0] - way * max(PRE_ROLL_SHARE * programme.range_kgf, 3 * tolerance_kgf)
-    if np.sign(start) != np.sign(r[0]):
-        start = 0.0
+def pre_roll_start(levels0: np.ndarray, levels1: np.ndarray, trends: np.ndarray,
+                   ranges: np.ndarray, tolerance_kgf: float) -> np.ndarray:
+    """The pre-roll's start (module docstring): ``L0 + c·Δ``, or from behind the first motion
+    ``L1 − L0`` without trends; no channel's start on the other side of 0 kgf than its level
+    (the channel that shortens ``c`` starts at 0 kgf)."""
+    levels0 = np.asarray(levels0, float)
+    direction = np.asarray(trends, float)
+    if not np.any(direction):
+        direction = -(np.asarray(levels1, float) - levels0)
+    size = np.abs(direction)
+    if not size.any():
+        return levels0.copy()
+    lead = int(np.argmax(size / np.maximum(ranges, 1.0)))
+    # the lead channel moves this far (kgf), every other one in proportion to its direction
+    reach = max(PRE_ROLL_SHARE * float(ranges[lead]), 3 * tolerance_kgf * (size[lead] / size.max()))
+    move = reach * (direction / size[lead])
+    start = levels0 + move
+    crossing = (np.sign(start) != np.sign(levels0)) & (direction != 0)
+    if np.any(crossing):
+        share = np.full(len(start), np.inf)
+        share[crossing] = np.abs(levels0[crossing]) / np.abs(move[crossing])
+        j = int(np.argmin(share))
+        start = levels0 + share[j] * move
+        start[j] = 0.0
+    return start
+
+
+def pre_roll(programme: Programme, trends: Sequence[float], tolerance_kgf: float) -> np.ndarray:
+    """(N, n): the pre-roll's samples before the programme's first (module docstring)."""
+    R = programme.r_kgf
+    moving = np.flatnonzero(np.any(R != R[:, :1], axis=0))
+    first_move = R[:, moving[0]] if len(moving) else R[:, 0]
+    start = pre_roll_start(R[:, 0], first_move, np.asarray(trends, float), programme.ranges_kgf, tolerance_kgf)
     n = max(int(round(PRE_ROLL_S / programme.period_s)), 1)
     s = np.arange(n) / n
-    return start + (r[0] - start) * (1 - np.cos(np.pi * s)) / 2
+    return start[:, None] + (R[:, 0] - start)[:, None] * (1 - np.cos(np.pi * s))[None, :] / 2
+
+
+def held_direction(u: np.ndarray, way0: float) -> np.ndarray:
+    """The sign of ``u`` with a zero keeping the last nonzero sign (``way0`` before the first):
+    the way the valve's command points, as the rod's direction is counted."""
+    sgn = np.sign(u)
+    idx = np.maximum.accumulate(np.where(sgn != 0, np.arange(len(u)), -1))
+    return np.where(idx >= 0, sgn[np.maximum(idx, 0)], float(way0))
 
 
 @dataclass
-class _Plan:
-    """What one pass commands, for one way into the programme (module docstring)."""
-
-    reference: np.ndarray     #: pre-roll, programme, unload (kgf per cycle)
-    ff: Feedforward
-    scale: np.ndarray         #: the share of the feedback gain per cycle
-    way: np.ndarray           #: the sign the command must keep per cycle (0: free)
-
-
-def _plan(controller: ControllerDesign, reference: np.ndarray, lead: int, period_s: float,
-          way: float) -> _Plan:
-    """The pass's commands when the rod last moved ``way`` before the pre-roll."""
-    if controller.feedforward:
-        ff = feedforward(controller.model, reference, period_s, direction=way)
-    else:
-        ff = Feedforward(np.zeros_like(reference), np.zeros_like(reference), [], ["all: feedback alone"])
-    # feedback alone (P control) runs as it was given: scale 1, and its sign is never held
-    scale = feedback_scale(ff, controller.boost)
-    held = scale < 1.0
-    held[:lead] = True
-    return _Plan(reference, ff, scale, np.where(held, np.sign(ff.u_pct), 0.0))
+class _ChannelPlan:
+    u: np.ndarray          #: feedforward per cycle
+    scale: np.ndarray      #: share of the feedback
+    way: np.ndarray        #: sign to keep per cycle (0: free)
+    factor: np.ndarray     #: the model's FLOW factor where the cycle's command acts
 
 
 class OneWayApproach(SetPointApproach):
@@ -130,225 +169,444 @@ class OneWayApproach(SetPointApproach):
         return 0.0 if u is not None and self.way * u < 0 else u
 
 
-class LoadProgramme(PhasedExperiment):
-    """One pass of a loading programme under the designed controller (module docstring)."""
+class SetPointLine:
+    """One channel's approach (module docstring): :class:`OneWayApproach` to the pre-roll's
+    start, moving the rod toward it from where the force starts; the station's interface
+    (forces and commands as arrays of one)."""
+
+    def __init__(self, target_kgf: np.ndarray, gain_pct_per_kgf: float = 0.02, limit_pct: float = 20.0,
+                 tolerance_kgf: float = 20.0, max_s: float = 20.0) -> None:
+        self.inner = OneWayApproach(float(target_kgf[0]), gain_pct_per_kgf, limit_pct, tolerance_kgf,
+                                    max_s=max_s)
+        self.target = np.asarray(target_kgf, float)
+        self.tolerance, self.max_s = tolerance_kgf, max_s
+        self.way = np.ones(1)
+
+    @property
+    def done_at(self) -> float | None:
+        return self.inner.done_at
+
+    @property
+    def failed(self) -> bool:
+        return self.inner.failed
+
+    def begin(self, y0: np.ndarray) -> None:
+        way = 1.0 if y0[0] <= self.target[0] else -1.0
+        self.inner.way = way
+        self.way = np.array([way])
+        self.inner.begin(float(y0[0]))
+
+    def step(self, t: float, y: np.ndarray) -> np.ndarray | None:
+        u = self.inner.step(t, float(y[0]))
+        return None if u is None else np.array([u])
+
+    def failure_message(self, y: np.ndarray) -> str:
+        return self.inner.failure_message(float(y[0]))
+
+
+class RatioLine:
+    """Every force to the pre-roll's start along one straight line (module docstring)."""
+
+    def __init__(self, controller: ControllerDesign, target_kgf: np.ndarray, period_s: float,
+                 tolerance_kgf: float = 20.0, hold_s: float = 0.1, max_s: float = 20.0,
+                 rate_kgf_s: float = APPROACH_RATE_KGF_S, limit_pct: float = APPROACH_LIMIT_PCT) -> None:
+        self.target = np.asarray(target_kgf, float)
+        self.T = period_s
+        self.tolerance = tolerance_kgf
+        self.hold_s, self.max_s = hold_s, max_s
+        self.line_rate, self.limit = rate_kgf_s, limit_pct
+        model = controller.model
+        #: rates (kgf/s) to commands (%): the base model's inverse
+        self.to_command = np.linalg.inv(controller.G)
+        self.Mkp = controller.M * np.array([c.kp_pct_per_kgf for c in controller.channels])[None, :]
+        self.trend = np.array([m.delta for m in model.channels])
+        #: the flows that hold every force against the trends (the base model's: −G⁻¹Δ)
+        self.hold_flows = -self.to_command @ self.trend
+        self.taus = np.array([m.tau for m in model.channels])
+        self.done_at: float | None = None
+        self.failed = False
+        self.way = np.ones(len(self.target))
+
+    def begin(self, y0: np.ndarray) -> None:
+        y0 = np.asarray(y0, float)
+        self.start = y0.copy()
+        move = self.target - y0
+        flows = self.to_command @ move
+        self.way = np.where(flows < 0, -1.0, 1.0)
+        #: after the line each valve holds against its trend: the way of the flow that holds
+        #: the forces, −G⁻¹Δ (a valve whose move went the other way reverses once, as planned,
+        #: where the line ends; a zero keeps the move's way)
+        hold = self.hold_flows
+        self.hold_way = np.where(hold > 0, 1.0, np.where(hold < 0, -1.0, self.way))
+        self.duration = math.pi * float(np.max(np.abs(move))) / (2 * self.line_rate)
+        self._settled = Dwell(self.hold_s)
+        self.done_at = 0.0 if np.all(np.abs(move) <= self.tolerance) else None
+        self.failed = False
+
+    def reference(self, t: float) -> np.ndarray:
+        """The line's forces at ``t``."""
+        if t >= self.duration:
+            return self.target
+        s = t / self.duration
+        return self.start + (self.target - self.start) * (1 - math.cos(math.pi * s)) / 2
+
+    def rate(self, t: float) -> np.ndarray:
+        """The line's force rates at ``t`` (kgf/s)."""
+        if t >= self.duration or t < 0:
+            return np.zeros_like(self.target)
+        span = self.target - self.start
+        return span * math.pi / (2 * self.duration) * math.sin(math.pi * t / self.duration)
+
+    def feedforward(self, t: float) -> np.ndarray:
+        """Each valve's command for the line, sent its own delay ahead: valve j makes the
+        flow of the rates a delay ``τ_j`` later."""
+        return np.array([self.to_command[j] @ (self.rate(t + tau) - self.trend)
+                         for j, tau in enumerate(self.taus)])
+
+    def step(self, t: float, y: np.ndarray) -> np.ndarray | None:
+        """Every channel's command, or None once done (or failed: :attr:`failed`)."""
+        if self.done_at is not None:
+            return None
+        r = self.reference(t)
+        if self._settled(t, t >= self.duration and bool(np.all(np.abs(self.target - y) <= self.tolerance))):
+            self.done_at = t
+            return None
+        if t >= self.max_s + self.duration:
+            self.failed = True
+            return None
+        if t >= self.duration:
+            self.way = self.hold_way
+        u = self.feedforward(t) + self.Mkp @ (r - y)
+        u = np.where(self.way * u < 0, 0.0, u)
+        return np.clip(u, -self.limit, self.limit)
+
+    def failure_message(self, y: np.ndarray) -> str:
+        return (f"the forces did not reach the pre-roll's start within {self.tolerance:.0f} kgf in "
+                f"{self.max_s:g} s after the line (last readings {', '.join(f'{v:.0f}' for v in y)} "
+                "kgf); check the rig")
+
+
+class LoadProgramme(RigExperiment):
+    """One pass of a station's programme under its controller (module docstring).
+
+    Stepped for every channel at once: :meth:`configure_rig`, :meth:`begin_rig` with the first
+    forces, then :meth:`step_rig` each cycle until :meth:`finished_rig`."""
 
     name = "load"
 
-    def __init__(self, programme: Programme, controller: ControllerDesign,
+    def __init__(self, programme: Programme | ChannelProgramme, controller: ControllerDesign,
                  compensation: Compensation | None = None, unload_kgf: float = 0.0,
                  settle_gain: float = 0.02, settle_limit_pct: float = 20.0,
                  settle_tolerance_kgf: float = 20.0, settle_max_s: float = 20.0,
-                 guard_fraction: float = 0.95, pacing: PacingOptions | None = None,
-                 monitor: GainMonitor | None = None, unload_limits: SafetyLimits | None = None) -> None:
+                 guard_fraction: float = 0.95, monitor: GainMonitor | None = None,
+                 pacing: PacingOptions | None = None) -> None:
+        programme = as_programme(programme)
+        if list(programme.names) != list(controller.names):
+            raise ParameterError(f"the programme is for the channels {', '.join(programme.names)}, the "
+                                 f"controller for {', '.join(controller.names)}")
+        self.pacing = pacing or PacingOptions()
+        self.pacing.check()
+        if self.pacing.on and not programme.load_cases:
+            raise ParameterError(f"{programme.source}: pacing waits at load cases; per-channel "
+                                 "sequences have none (leave --pacing out)")
         self.programme = programme
         self.controller = controller
         self.compensation = compensation
-        self.pacing = pacing or PacingOptions()
-        self.pacing.check()
-        #: the programme's clock of the pass (None without pacing: the clock is the cycle count)
-        self.clock: ProgrammeClock | None = None
-        #: with pacing: the clock's position per cycle of the main phase (samples of reference)
-        self.positions: list[float] = []
-        #: the gain monitor of the test (loading.gain_monitor), shared by its passes
-        self.monitor = monitor
-        self.unload_limits = unload_limits or SafetyLimits()
-        #: a gain alarm's controlled unload, once it began
-        self.unloader: Unloader | None = None
-        kinds = programme.kinds()
-        self.commanded = (programme.with_levels(compensation.levels(programme.levels_kgf, kinds))
+        self.names = list(programme.names)
+        self.n = programme.n
+        T = programme.period_s
+        self.commanded = (programme.with_levels(compensation.levels(programme))
                           if compensation is not None else programme)
-        peak_rate = float(np.max(np.abs(programme.rate_kgf_s()))) or 1000.0
-        tail = _unload_tail(float(self.commanded.r_kgf[-1]), unload_kgf, min(peak_rate, 2500.0),
-                            programme.period_s)
-        pre = _pre_roll(self.commanded, controller.model.delta, settle_tolerance_kgf)
+        model = controller.model
+        self.trends = np.array([m.delta for m in model.channels])
+        pre = pre_roll(self.commanded, self.trends, settle_tolerance_kgf)
+        R = self.commanded.r_kgf
+        peak = float(np.abs(np.array([p.rate_kgf_s() for p in programme.channels])).max()) or 1000.0
+        tail = haversine_line(R[:, -1], np.full(self.n, float(unload_kgf)), min(peak, 2500.0), T, False)
         #: cycles of the main phase before the programme's start (the pre-roll)
-        self.lead = len(pre)
-        reference = np.r_[pre, self.commanded.r_kgf, tail]
-        #: by the way the approach moves the rod (+1: up to the pre-roll's start)
-        self.plans = {way: _plan(controller, reference, self.lead, programme.period_s, way)
-                      for way in (1.0, -1.0)}
-        self.plan = self.plans[1.0]
+        self.lead = pre.shape[1]
+        self.reference = np.concatenate([pre, R, tail], axis=1)
         self.unload_kgf = unload_kgf
+        #: the feedforward for every channel, planned for each way its rod may last have moved
+        self.ff: dict[float, Feedforward] = {
+            way: feedforward(model, self.reference, T, [way] * self.n, controller.feedforward)
+            for way in (1.0, -1.0)}
+        self.plans = {way: self._plans(ff, way) for way, ff in self.ff.items()}
         self.max_command_pct = controller.command_limit_pct
-        self.law = PIFeedforward(controller.kp_pct_per_kgf, controller.ti_s, programme.period_s,
-                                 controller.command_limit_pct)
-        self._init_phases(float(self.reference[0]), settle_gain, settle_limit_pct,
-                          settle_tolerance_kgf, settle_max_s, guard_fraction)
-        self.approach = OneWayApproach(float(self.reference[0]), settle_gain, settle_limit_pct,
-                                       settle_tolerance_kgf, max_s=settle_max_s)
+        self.law = PIFeedforward([c.kp_pct_per_kgf for c in controller.channels],
+                                 [c.ti_s for c in controller.channels], T,
+                                 controller.command_limit_pct, controller.M)
+        if self.n == 1:
+            self.approach = SetPointLine(self.reference[:, 0], settle_gain, settle_limit_pct,
+                                         settle_tolerance_kgf, settle_max_s)
+        else:
+            self.approach = RatioLine(controller, self.reference[:, 0], T, settle_tolerance_kgf,
+                                      max_s=settle_max_s)
+        #: the flows that hold the forces (the base model's, as the feedforward makes them)
+        self.hold_flows = controller.hold_flows()
+        self.guard_fraction = guard_fraction
+        self.force_limits = np.full(self.n, math.inf)
+        self.way = np.ones(self.n)
+        self.main_start_s: float | None = None
+        self.abort: tuple[str, str] | None = None
+        self.abort_channel: int | None = None
+        #: the gain monitor of the test, shared by its passes (loading.gain_monitor)
+        self.monitor = monitor
+        #: with pacing: the programme's clock of the pass, and its position per cycle of the main
+        #: phase (samples of the reference, fractional while it slows)
+        self.clock: ProgrammeClock | None = None
+        self.positions: list[float] = []
+        self._u = self._scale = self._hold = self._factor = None
 
-    @property
-    def reference(self) -> np.ndarray:
-        return self.plan.reference
+    def _plans(self, ff: Feedforward, way: float) -> list[_ChannelPlan]:
+        """Each channel's feedforward, feedback share and held sign when its rod last moved
+        ``way`` (module docstring). Without a feedforward (feedback alone) no sign is held."""
+        out = []
+        mode = self.controller.feedforward
+        for f, c in zip(ff.channels, self.controller.channels):
+            scale = feedback_scale(f, c.boost)
+            held = scale < 1.0
+            held[:self.lead] = True
+            if mode == "rig" and c.boost > 1.0:
+                held[:] = True
+            factor = f.flow_factor if f.flow_factor is not None else np.ones(len(f.u_pct))
+            keep = held_direction(f.u_pct, way) if mode != "none" else np.zeros(len(f.u_pct))
+            out.append(_ChannelPlan(f.u_pct, scale, np.where(held, keep, 0.0), factor))
+        return out
 
+    # -- what the loop and the reports read --------------------------------------------------
     @property
-    def ff(self) -> Feedforward:
-        return self.plan.ff
+    def period_s(self) -> float:
+        return self.programme.period_s
 
     @property
     def main_duration_s(self) -> float:
-        return len(self.reference) * self.programme.period_s
+        return self.reference.shape[1] * self.period_s
+
+    @property
+    def duration_s(self) -> float:
+        return self.main_duration_s
 
     @property
     def max_duration_s(self) -> float:
         slowest = self.pacing.min_speed if self.pacing.mode == "dynamic" else 1.0
-        return self.approach.max_s + self.main_duration_s / slowest
-
-    @property
-    def pacing_tolerance_kgf(self) -> float:
-        p = self.pacing
-        return p.tolerance_kgf if p.tolerance_kgf is not None else \
-            DEFAULT_TOLERANCE_SHARE * self.programme.range_kgf
+        return self.approach.max_s + self.main_duration_s / slowest + 10.0
 
     @property
     def programme_start_s(self) -> float | None:
         """The run's time at the programme's start (None before the approach ended)."""
         if self.main_start_s is None:
             return None
-        return self.main_start_s + self.lead * self.programme.period_s
+        return self.main_start_s + self.lead * self.period_s
 
     def params(self) -> dict[str, Any]:
-        return {"programme": self.programme.source, "turning_points": int(len(self.programme.turning_idx)),
-                "range_kgf": self.programme.range_kgf, "controller_model": self.controller.model_spec,
-                "kp_pct_per_kgf": self.controller.kp_pct_per_kgf, "ti_s": self.controller.ti_s,
-                "feedforward_inverts": self.ff.inverted, "feedforward_does_not_invert": self.ff.not_inverted,
-                "feedback_scale_min": float(self.plan.scale.min()),
-                "sign_held_share": float(np.mean(self.plan.way != 0)),
-                "pre_roll_from_kgf": float(self.reference[0]),
-                "compensated": self.compensation is not None, "unload_kgf": self.unload_kgf,
-                "pacing": self.pacing.mode,
-                **({"pacing_tolerance_kgf": self.pacing_tolerance_kgf, "pacing_min_speed": self.pacing.min_speed,
-                    "pacing_timeout_s": self.pacing.timeout_s} if self.pacing.on else {}),
-                **({"gain_monitor": {k: v for k, v in vars(self.monitor.options).items()},
-                    "feedforward_g": self.monitor.g_follow} if self.monitor is not None else {}),
-                **self.phase_params()}
+        c = self.controller
+        ff = self.ff[1.0]
+        out = {"programme": self.programme.source, "channels": self.names,
+               "load_cases": int(len(self.programme.turning_idx)) if self.programme.load_cases else None,
+               "ranges_kgf": self.programme.ranges_kgf.tolist(), "feedback": c.feedback,
+               "feedforward": c.feedforward, "detuning": c.detuning,
+               "kp_pct_per_kgf": [ch.kp_pct_per_kgf for ch in c.channels],
+               "ti_s": [ch.ti_s for ch in c.channels],
+               "models": [ch.model_spec for ch in c.channels],
+               "feedforward_inverts": [f.inverted for f in ff.channels],
+               "feedforward_does_not_invert": [f.not_inverted for f in ff.channels],
+               "feedback_scale_min": [float(p.scale.min()) for p in self.plans[1.0]],
+               "sign_held_share": [float(np.mean(p.way != 0)) for p in self.plans[1.0]],
+               "pre_roll_from_kgf": self.reference[:, 0].tolist(),
+               "compensated": self.compensation is not None, "unload_kgf": self.unload_kgf,
+               "settle_tolerance_kgf": self.approach.tolerance, "settle_max_s": self.approach.max_s,
+               "guard_fraction": self.guard_fraction, "pacing": self.pacing.mode,
+               **({"pacing_tolerance_kgf": self.pacing_tolerances_kgf.tolist(),
+                   "pacing_min_speed": self.pacing.min_speed,
+                   "pacing_timeout_s": self.pacing.timeout_s} if self.pacing.on else {}),
+               **({"gain_monitor": dict(vars(self.monitor.options))} if self.monitor is not None else {})}
+        return out
 
-    def check(self, period_s: float, force_limit_kgf: float, command_limit_pct: float) -> None:
-        """Refuse what the stand must not be asked for, before anything moves."""
+    @property
+    def pacing_tolerances_kgf(self) -> np.ndarray:
+        """Every channel's ε: the given one, else :data:`DEFAULT_TOLERANCE_SHARE` of its
+        programme's range (at least 5 kgf: a channel that keeps one level)."""
+        if self.pacing.tolerance_kgf is not None:
+            return np.full(self.n, float(self.pacing.tolerance_kgf))
+        return np.maximum(DEFAULT_TOLERANCE_SHARE * self.programme.ranges_kgf, 5.0)
+
+    def programme_times(self, t_s: np.ndarray) -> np.ndarray:
+        """The run's times ``t_s`` on the programme's clock (0 at its start): with pacing, each
+        cycle of the main phase at the clock's position then (a wait's cycles share a time)."""
+        t = np.asarray(t_s, float)
+        t0 = self.programme_start_s or 0.0
+        if not self.positions or self.main_start_s is None:
+            return t - t0
+        T = self.period_s
+        i = np.round((t - self.main_start_s) / T).astype(int)
+        pos = np.asarray(self.positions)
+        inside = (i >= 0) & (i < len(pos))
+        return np.where(inside, (pos[np.clip(i, 0, len(pos) - 1)] - self.lead) * T, t - t0)
+
+    def check(self, period_s: float, force_limits_kgf: Sequence[float], command_limit_pct: float) -> None:
+        """Refuse what the station must not be asked for, before anything moves."""
         if abs(self.controller.period_s - period_s) > 1e-9:
             raise ParameterError(
                 f"the controller was designed for a period of {self.controller.period_s * 1e3:g} ms but "
-                f"the loop runs at {period_s * 1e3:g} ms; design it again with --period-ms "
-                f"{period_s * 1e3:g}")
-        check_programme(self.programme, force_limit_kgf)
-        check_programme(self.commanded, force_limit_kgf)
+                f"the loop runs at {period_s * 1e3:g} ms; design it again with --period-ms {period_s * 1e3:g}")
+        self.programme.check(force_limits_kgf)
+        self.commanded.check(force_limits_kgf)
         limit = min(command_limit_pct, self.controller.command_limit_pct)
-        ff = max((plan.ff for plan in self.plans.values()), key=lambda f: f.peak_pct)
-        peak = ff.peak_pct
+        worst = max(((i, ff) for ff in self.ff.values() for i in range(self.n)),
+                    key=lambda x: x[1].channels[x[0]].peak_pct)
+        i, ff = worst
+        peak = ff.channels[i].peak_pct
         if peak > FEEDFORWARD_SHARE * limit:
-            k = int(np.argmax(np.abs(ff.u_pct)))
+            k = int(np.argmax(np.abs(ff.channels[i].u_pct)))
+            at = f"at t = {(k - self.lead) * period_s:.2f} s"
+            if self.n == 1:
+                raise ParameterError(
+                    f"{self.programme.source}: {at} the programme needs a valve command of {peak:.1f} % by "
+                    f"the model, over {FEEDFORWARD_SHARE:.0%} of the command limit ±{limit:g} %: the valve "
+                    "cannot follow this rate; lower --rate or --frequency")
             raise ParameterError(
-                f"{self.programme.source}: at t = {(k - self.lead) * period_s:.2f} s the programme needs a valve "
-                f"command of {peak:.1f} % by the model, over {FEEDFORWARD_SHARE:.0%} of the command "
-                f"limit ±{limit:g} %: the valve cannot follow this rate; lower --rate or --frequency")
+                f"{self.programme.source}: channel {self.names[i]} {at} needs a valve command of {peak:.1f} % "
+                f"by the rig's model, over {FEEDFORWARD_SHARE:.0%} of the command limit ±{limit:g} %: its "
+                "valve cannot follow this rate (with the neighbours' flows through the structure); lower "
+                "--rate or --frequency")
 
-    def begin(self, y0: float) -> None:
-        # the approach moves the rod one way, to the pre-roll's start (module docstring)
-        way = 1.0 if y0 <= self.reference[0] else -1.0
-        self.plan = self.plans[way]
-        self.approach.way = way
-        super().begin(y0)
+    # -- the loop's calls ----------------------------------------------------------------------
+    def configure_rig(self, period_s: float, force_limits_kgf: Sequence[float]) -> None:
+        self.force_limits = np.asarray(force_limits_kgf, float)
 
-    def begin_main(self, y0: float) -> None:
+    def begin_rig(self, y0: Sequence[float]) -> None:
+        self.abort = None
+        self.abort_channel = None
+        self.abort_action = "hold"
+        self.main_start_s = None
+        self.approach.begin(np.asarray(y0, float))
+        self.way = self.approach.way.copy()
+        if self.approach.done_at is not None:
+            self._begin_main(0.0)
+
+    def _begin_main(self, t: float) -> None:
+        self.main_start_s = t
         self.law.reset()
-        self.positions = []
-        self.clock = None
-        self.unloader = None
+        self.way = self.approach.way.copy()
+        plans = [self.plans[float(w)][i] for i, w in enumerate(self.way)]
+        self._u = np.array([p.u for p in plans])
+        self._scale = np.array([p.scale for p in plans])
+        self._hold = np.array([p.way for p in plans])
+        self._factor = np.array([p.factor for p in plans])
         if self.monitor is not None:
             self.monitor.begin_pass()
+        self.positions = []
+        self.clock = None
         if self.pacing.on:
-            T = self.programme.period_s
-            kinds = self.commanded.kinds()
-            turnings = self.lead + self.commanded.turning_idx[[k in ("peak", "valley") for k in kinds]]
+            T = self.period_s
             model = self.controller.model
-            self.clock = ProgrammeClock(self.reference, turnings, int(round(model.tau / T)), model.g, T,
-                                        self.pacing, self.pacing_tolerance_kgf, start=self.lead)
-            #: the feedforward that holds a force (the base model's: −Δ/g)
-            self.u_hold = -model.delta / model.g if self.controller.feedforward else 0.0
+            cases = self.commanded.turning_idx[self.commanded.turning_cases()]
+            self.clock = ProgrammeClock(
+                self.reference, self.lead + cases, [int(round(m.tau / T)) for m in model.channels],
+                np.diag(self.controller.G), T, self.pacing, self.pacing_tolerances_kgf, start=self.lead)
 
-    def finished(self, t: float, y: float) -> bool:
+    def finished_rig(self, t: float, ys: Sequence[float]) -> bool:
         if self.clock is not None:
             return self.main_start_s is not None and self.clock.finished
-        return super().finished(t, y)
+        return self.main_start_s is not None and t - self.main_start_s >= self.main_duration_s - 1e-9
 
-    def step(self, t: float, y: float) -> tuple[float, float]:
-        u, r = super().step(t, y)
-        # during the approach the reference is not recorded: the supervisor's error limit is
-        # for tracking the programme, not for the way to its first level
-        return (u, r) if self.main_start_s is not None else (u, math.nan)
-
-    def main_step(self, tm: float, y: float) -> tuple[float, float]:
-        if self.unloader is not None:
-            return self._unload_step(y)
+    def step_rig(self, t: float, ys: Sequence[float]) -> tuple[list[float], list[float]]:
+        """Every channel's command (%) and reference (kgf, NaN during the approach)."""
+        y = np.asarray(ys, float)
+        near = np.abs(y) >= self.guard_fraction * self.force_limits
+        if np.any(near):
+            i = int(np.flatnonzero(near)[0])
+            self.abort_channel = i          # the message is the channel's (the loop names it)
+            self.abort = (FORCE_NEAR_LIMIT,
+                          f"force {y[i]:.0f} kgf reached {self.guard_fraction:.0%} of "
+                          f"its force limit ±{self.force_limits[i]:.0f} kgf; the load stopped itself")
+            return [0.0] * self.n, [math.nan] * self.n
+        if self.main_start_s is None:
+            u = self.approach.step(t, y)
+            if u is not None:
+                return u.tolist(), [math.nan] * self.n
+            if self.approach.failed:
+                self.abort = (SET_POINT_NOT_REACHED, self.approach.failure_message(y))
+                return [0.0] * self.n, [math.nan] * self.n
+            self._begin_main(t)
         if self.clock is not None:
-            u, r, k = self._paced_step(y)
-        else:
-            k = min(int(round(tm / self.programme.period_s)), len(self.reference) - 1)
-            r = float(self.reference[k])
-            plan = self.plan
-            u = self.law.step(r, y, self.ff_scale * float(plan.ff.u_pct[k]), float(plan.scale[k]),
-                              float(plan.way[k]))
+            return self._paced_step(y)
+        k = min(int(round((t - self.main_start_s) / self.period_s)), self.reference.shape[1] - 1)
+        r = self.reference[:, k]
+        u = self.law.step(r, y, self._followed(self._u[:, k]), self._scale[:, k], self._hold[:, k])
         if self.monitor is not None and self.abort is None:
             self._watch(y, u, k)
-        return u, r
+        return u.tolist(), r.tolist()
 
-    @property
-    def ff_scale(self) -> float:
-        """The feedforward's factor: 1, or the model's g over the gain monitor's estimate."""
-        return self.monitor.ff_scale if self.monitor is not None else 1.0
-
-    def _watch(self, y: float, u: float, k: int) -> None:
-        """The gain monitor's cycle (loading.gain_monitor), and its alarm's action."""
+    def _followed(self, ff: np.ndarray) -> np.ndarray:
+        """The feedforward as the gain monitor follows the station's gains (unchanged without
+        it): through G⁻¹ the rows' factors, ``G⁻¹·diag(G_ii/ĝ_i)·G``; each channel's own
+        feedforward its own ``G_ii/ĝ_i``."""
         monitor = self.monitor
-        factor = self.plan.ff.flow_factor
-        before = monitor.alarm
-        monitor.add(y, u, float(factor[k]) if factor is not None else 1.0)
-        if monitor.alarm is None or before is not None:
-            return
-        action = monitor.options.action
-        if action == "hold":
-            self.abort = (GAIN_ALARM, monitor.alarm[1] + "; the valve holds")
-        elif action == "unload":
-            self.unloader = Unloader(y, self.unload_limits, self.programme.period_s)
+        if monitor is None or not monitor.options.follow:
+            return ff
+        if self.controller.feedforward == "rig":
+            return monitor.ff_matrix @ ff
+        return monitor.ff_scales * ff
 
-    def _unload_step(self, y: float) -> tuple[float, float]:
-        """A gain alarm's controlled unload (the supervisor's), then the pass ends in hold."""
-        u, r = self.unloader.step(y)
-        if self.unloader.done:
-            self.abort = (GAIN_ALARM, f"{self.monitor.alarm[1]}; unloaded ({self.unloader.outcome}) to "
-                                      f"{y:.0f} kgf in {self.unloader.t:.2f} s, then hold")
-        return u, r
-
-    def _paced_step(self, y: float) -> tuple[float, float, int]:
-        """One cycle on the programme's clock (loading.pacing): the reference and the
-        feedforward at its position, slowed by its speed; while it waits at a turning point the
-        feedback drives the predicted force to the level, only toward it."""
+    def _paced_step(self, y: np.ndarray) -> tuple[list[float], list[float]]:
+        """One cycle on the programme's clock (loading.pacing): the references and the
+        feedforward at its position; while it waits at a load case, the flows that hold the
+        forces and a P law on the predicted forces toward the levels."""
         clock = self.clock
         p = clock.advance(y)
         self.positions.append(p)
         r = clock.reference_at(p)
         if clock.waited_too_long():
-            gate = clock.gate
-            self.abort = (PACING_TIMEOUT,
-                          f"the force did not reach the turning point {gate.level_kgf:.0f} kgf within "
-                          f"{self.pacing_tolerance_kgf:.0f} kgf in {self.pacing.timeout_s:g} s of waiting "
-                          f"(at {y:.0f} kgf): the stand cannot reach it; check the stand, the model "
-                          "and the programme's levels")
-            return 0.0, r, int(p)
-        plan = self.plan
+            self._waited_too_long(clock, y)
+            return [0.0] * self.n, r.tolist()
         k = int(p)
-        f = p - k
-        k1 = min(k + 1, len(self.reference) - 1)
-        ff = plan.ff.u_pct
-        s = clock.step_taken
-        u_ff = self.ff_scale * (s * float(ff[k] + f * (ff[k1] - ff[k])) + (1.0 - s) * self.u_hold)
+        k1 = min(k + 1, self.reference.shape[1] - 1)
+        planned = self._u[:, k] + (p - k) * (self._u[:, k1] - self._u[:, k])
+        s = clock.step_taken                 # the slowed programme's flows, holding while it waits
+        ff = self._followed(s * planned + (1.0 - s) * self.hold_flows)
         if clock.waiting:
-            gate = clock.gate
             if clock.wait_began:
                 self.law.reset()
-            u = self.law.wait_step(gate.level_kgf - clock.predicted_kgf, u_ff, gate.way)
+            gate = clock.gate
+            u = self.law.wait_step(gate.levels_kgf - clock.predicted_kgf, ff, gate.way)
         else:
-            u = self.law.step(r, y, u_ff, float(plan.scale[k]), float(plan.way[k]), integrate=s >= 1.0)
-        clock.sent(u, u_ff)
-        return u, r, k
+            u = self.law.step(r, y, ff, self._scale[:, k], self._hold[:, k], integrate=s >= 1.0)
+        clock.sent(u, ff)
+        if self.monitor is not None and self.abort is None:
+            self._watch(y, u, k)
+        return u.tolist(), r.tolist()
+
+    def _waited_too_long(self, clock: ProgrammeClock, y: np.ndarray) -> None:
+        """A wait beyond the timeout: the pass stops, naming the channel furthest from its level."""
+        gate = clock.gate
+        tol = self.pacing_tolerances_kgf
+        i = self.abort_channel = int(np.argmax(clock.short_kgf(gate) / tol))
+        if self.n == 1:
+            what = f"the force did not reach the turning point {gate.levels_kgf[0]:.0f} kgf"
+        else:
+            k = int(np.flatnonzero(self.programme.turning_idx == gate.turning - self.lead)[0])
+            label = (self.programme.case_labels or [str(j + 1) for j in range(k + 1)])[k]
+            what = f"its force did not reach load case {label} ({gate.levels_kgf[i]:.0f} kgf)"
+        self.abort = (PACING_TIMEOUT,
+                      f"{what} within {tol[i]:.0f} kgf in {self.pacing.timeout_s:g} s of waiting (at "
+                      f"{y[i]:.0f} kgf, {clock.predicted_kgf[i]:.0f} predicted): the "
+                      + ("stand" if self.n == 1 else "rig") + " cannot reach it; check the "
+                      + ("stand" if self.n == 1 else "channel") + ", the model and the programme's levels")
+
+    def _watch(self, y: np.ndarray, u: np.ndarray, k: int) -> None:
+        """The gain monitor's cycle, and its alarm's action on the whole station."""
+        monitor = self.monitor
+        before = monitor.alarm
+        monitor.add(y, u, self._factor[:, k])
+        if monitor.alarm is None or before is not None or monitor.options.action == "note":
+            return
+        i = self.abort_channel = monitor.alarm_channel
+        own = monitor.channels[i].alarm[1]          # the loop names the channel
+        if monitor.options.action == "unload":
+            self.abort_action = "unload"
+            self.abort = (GAIN_ALARM, own + ("; the stand unloads" if self.n == 1 else
+                                             "; every channel unloads keeping the load ratios"))
+        else:
+            self.abort = (GAIN_ALARM, own + ("; the valve holds" if self.n == 1 else "; every valve holds"))

@@ -360,6 +360,8 @@ class ControlLoop:
         if drivers:
             raise ParameterError(f"{vector.name}: a rig experiment drives every channel itself; "
                                  "give no per-channel drivers (--channel) with it")
+        if not self.rig and len(getattr(vector, "names", names)) == 1:
+            return                             # a one-channel stand's channel has no name here
         if list(getattr(vector, "names", names)) != names:
             raise ParameterError(f"{vector.name}: the experiment is for the channels "
                                  f"{', '.join(vector.names)}; the rig has {', '.join(names)}")
@@ -678,11 +680,7 @@ class ControlLoop:
                 safety["unload"]["note"] = unload_note
                 message += f"; {unload_note}"
             elif n == 1:
-                y = ys[0]
-                if unloader.outcome == "unloaded":
-                    message += f"; unloaded to {y:.0f} kgf in {unloader.t:.2f} s, then hold"
-                else:
-                    message += f"; unload ended ({unloader.outcome}) at {y:.0f} kgf after {unloader.t:.2f} s, hold"
+                message += f"; unloaded ({unloader.outcome}) to {ys[0]:.0f} kgf in {unloader.t:.2f} s, then hold"
             else:
                 message += "; " + _unload_text(safety["unload"], unloader, excluded, chans)
         elif self.rig:

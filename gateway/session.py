@@ -266,15 +266,18 @@ class Gateway:
                 for k, i in enumerate(indices)}
 
     def _vector_drivers(self, experiment: RigExperiment, channels: Sequence[str] | None) -> None:
-        """A rig experiment drives every channel of the rig: refuse a one-channel stand,
-        ``channels``, and an experiment made for other channels (before anything moves)."""
+        """A station's experiment drives every channel: refuse ``channels``, and an experiment
+        made for other channels (before anything moves): a rig's names its channels, in order;
+        on a one-channel stand it is one channel's."""
+        names = list(getattr(experiment, "names", [""]))
         if self.rig is None:
-            raise ParameterError(f"{experiment.name}: a rig experiment drives every channel of a rig; "
-                                 "give --rig RIG.toml (this gateway drives one stand)")
+            if len(names) != 1:
+                raise ParameterError(f"{experiment.name}: the experiment drives the channels "
+                                     f"{', '.join(names)}; give --rig RIG.toml (this gateway drives one stand)")
+            return None
         if channels:
             raise ParameterError(f"{experiment.name}: a rig experiment drives every channel itself; "
                                  "leave --channel out")
-        names = list(getattr(experiment, "names", self.rig.names))
         if names != list(self.rig.names):
             raise ParameterError(f"{experiment.name}: the experiment is for the channels "
                                  f"{', '.join(names)}; the rig {self.rig.where} has "
@@ -296,7 +299,7 @@ class Gateway:
             raise StandError("the gateway is not connected; use it as a context manager")
         if is_rig_experiment(experiment):
             drivers = self._vector_drivers(experiment, channels)
-            driven = list(self.rig.names)
+            driven = list(self.rig.names) if self.rig is not None else []
         else:
             drivers = self.drivers(experiment, channels)
             driven = [self.rig.names[i] for i in sorted(drivers)] if self.rig is not None else []

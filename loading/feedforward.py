@@ -1,8 +1,9 @@
-r"""Feedforward through the model's inverse: the command that makes the model follow a programme.
+r"""Feedforward through the model's inverse: every channel's command that makes the model follow a
+programme.
 
 The programme is known in advance, so the whole command can be computed before the run. For the
 paper's model ``dy/dt = g·u(t−τ) + Δ`` the force must rise by ``r[k+1] − r[k]`` over step k, so
-the flow command is
+one channel's flow command is
 
 .. math::  q_k = \frac{(r_{k+1} - r_k)/T - \Delta - \sum_j F_j(r_k)}{g}
 
@@ -18,7 +19,22 @@ inverted on the way:
   dead zone (``u = q + d·sign q``), a valve lag (``u = q + T_v·dq/dt``), a plug-in's.
 
 Effects it cannot invert (saturation, a play, a sensor filter, disturbances) are listed in
-:attr:`Feedforward.not_inverted`: the feedback handles what they do.
+:attr:`ChannelFeedforward.not_inverted`: the feedback handles what they do.
+
+**A station of channels** (:func:`feedforward`): for the rig's model ``dy/dt = G·w(t − τ) + Δ +
+F(y)`` (:mod:`plant.rig`) the forces follow the references ``r`` when the flows are
+
+.. math::  w_k = G^{-1}\Big(\frac{r_{k+1} - r_k}{T} - \Delta - F(r_k)\Big),
+
+and each channel's flow ``w_j`` is then made by its own valve as above (its FLOW effects
+inverted, knowing the way its rod last moved; its VALVE effects; its command sent its own delay
+``τ_j`` ahead). That is the mode ``rig``; the mode ``channel`` gives each channel the feedforward
+of its own model (``w_j = (ṙ_j − Δ_j − F_j)/g_j``: the coupling left to the feedback, the
+independent baseline; for one channel the same flows), and ``none`` no feedforward (feedback
+alone). Through G⁻¹ a valve whose channel's force is made by its neighbours runs at small flows
+for long, so there no flow command below the valve's resolution is planned
+(:data:`RESOLUTION_PCT`): a flow of a fraction of a count would be a reversal the rod never
+makes.
 
 **The gain the feedback meets.** Along the planned flow the FLOW effects also say how strongly
 the stand answers a small change of the command: the secant slope of ``q·ΠG(q)`` over
@@ -32,10 +48,12 @@ lowers the feedback's gain there so the loop never meets more than ``ρ``
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Sequence
 
 import numpy as np
 
 from plant import PlantModel, Stage
+from plant.rig import RigModel
 
 #: bisection steps on |q| (2^-40 of the bracket)
 BISECTION_STEPS = 40
@@ -46,9 +64,15 @@ Q_MAX = 400.0
 SECANT_PCT = 0.5
 
 
+#: the valve command's resolution (%): one count of the CiA 408 setpoint (16384 counts per
+#: 100 %, dbc.profile); the feedforward through G⁻¹ plans no flow below it
+RESOLUTION_PCT = 100.0 / 16384
+
+
 @dataclass
-class Feedforward:
-    """The command to send in each cycle of a programme (%), and what the inversion covered."""
+class ChannelFeedforward:
+    """One channel's command to send in each cycle of a programme (%), and what the inversion
+    covered."""
 
     u_pct: np.ndarray
     q_pct: np.ndarray          #: the flow command the model needs at each step (before the valve)
@@ -170,8 +194,8 @@ def _below_resolution(q: np.ndarray, resolution_pct: float, direction0: float) -
     return out
 
 
-def feedforward(model: PlantModel, r_kgf: np.ndarray, period_s: float,
-                t_s: np.ndarray | None = None, direction: float | None = None) -> Feedforward:
+def channel_feedforward(model: PlantModel, r_kgf: np.ndarray, period_s: float,
+                        t_s: np.ndarray | None = None, direction: float | None = None) -> ChannelFeedforward:
     """The command (%) for each cycle that makes ``model`` follow the reference ``r_kgf``
     sampled at ``period_s`` (see the module docstring). ``direction`` (±1): the way the rod
     last moved before the reference starts, where it is known (a first motion the other way
@@ -197,13 +221,13 @@ def own_rate(model: PlantModel, r_kgf: np.ndarray, period_s: float) -> tuple[np.
 
 def feedforward_flow(model: PlantModel, flow_pct: np.ndarray, r_kgf: np.ndarray, period_s: float,
                      t_s: np.ndarray | None = None, direction: float | None = None,
-                     inverted: list[str] | None = None, resolution_pct: float = 0.0) -> Feedforward:
+                     inverted: list[str] | None = None, resolution_pct: float = 0.0) -> ChannelFeedforward:
     r"""The command (%) for each cycle that makes the channel's flow ``w = q·ΠG(q)`` (in the
     units of the command, the flow the base's ``g`` multiplies) be ``flow_pct`` per step, its
     own force following ``r_kgf``: the FLOW effects inverted per sample, then the VALVE
-    effects, then sent the model's delay ahead (module docstring). :func:`feedforward` is the
-    one-channel case ``w = (ṙ − Δ − ΣF)/g``; a rig's channel gets its ``w`` from
-    ``G⁻¹`` (:mod:`loading.rig_feedforward`). ``inverted``: what made ``flow_pct`` (names);
+    effects, then sent the model's delay ahead (module docstring). :func:`channel_feedforward`
+    is the case ``w = (ṙ − Δ − ΣF)/g``; a rig's channel gets its ``w`` from ``G⁻¹``
+    (:func:`feedforward`). ``inverted``: what made ``flow_pct`` (names);
     ``resolution_pct``: the valve's command resolution, a planned flow command below it is 0
     (where a valve runs at small flows for long, as a rig's may, a planned flow of a fraction
     of a count would be a reversal the rod never makes)."""
@@ -238,13 +262,79 @@ def feedforward_flow(model: PlantModel, flow_pct: np.ndarray, r_kgf: np.ndarray,
     # the FLOW factor where each cycle's command acts (a delay later)
     flow = np.r_[factor, np.full(m + 2, factor[-1] if len(factor) else 1.0)]
     flow_ahead = (1 - f) * flow[m:m + len(u)] + f * flow[m + 1:m + 1 + len(u)]
-    return Feedforward(ahead, q, inverted, skipped, window, flow_ahead)
+    return ChannelFeedforward(ahead, q, inverted, skipped, window, flow_ahead)
 
 
-def feedback_scale(ff: Feedforward, rho: float) -> np.ndarray:
+def feedback_scale(ff: ChannelFeedforward, rho: float) -> np.ndarray:
     """Per cycle, the share of the designed feedback gain that keeps the loop's gain within
     the ``rho`` the design's margins were computed at: ``min(1, ρ/gain_factor)`` (1 wherever the
     model's gain stays within ρ, so a model without FLOW effects keeps its full feedback)."""
     if ff.gain_factor is None:
         return np.ones_like(ff.u_pct)
     return np.minimum(1.0, max(rho, 1.0) / np.maximum(ff.gain_factor, 1e-12))
+
+
+# -- a station ----------------------------------------------------------------------------------
+#: the station's feedforward modes (module docstring)
+MODES = ("rig", "channel", "none")
+
+
+@dataclass
+class Feedforward:
+    """Every channel's :class:`ChannelFeedforward` for one programme, and the flows ``w``
+    (N, K) they were made for."""
+
+    channels: list[ChannelFeedforward]
+    flow_pct: np.ndarray
+
+    @property
+    def u_pct(self) -> np.ndarray:
+        """(N, K): every channel's command per cycle."""
+        return np.array([f.u_pct for f in self.channels])
+
+    @property
+    def peak_pct(self) -> np.ndarray:
+        return np.array([f.peak_pct for f in self.channels])
+
+    def scales(self, boosts: Sequence[float]) -> np.ndarray:
+        """(N, K): each valve's share of the feedback (:func:`feedback_scale` at its channel's ρ)."""
+        return np.array([feedback_scale(f, b) for f, b in zip(self.channels, boosts)])
+
+
+def required_flows(model: RigModel, r_kgf: np.ndarray, period_s: float) -> tuple[np.ndarray, list[list[str]]]:
+    """``w`` (N, K) for the references ``r_kgf`` (N, K) through G⁻¹ (module docstring), and per
+    channel the names of what was taken off its rate (``base``, its FORCE effects)."""
+    R = np.asarray(r_kgf, float)
+    rates, taken = [], []
+    for m, r in zip(model.channels, R):
+        rate, names = own_rate(m, r, period_s)
+        rates.append(rate)
+        taken.append(names)
+    return np.linalg.solve(model.G, np.array(rates)), taken
+
+
+def feedforward(model: RigModel, r_kgf: np.ndarray, period_s: float,
+                directions: Sequence[float | None] | None = None, mode: str = "rig",
+                resolution_pct: float = RESOLUTION_PCT) -> Feedforward:
+    """Every channel's command for the references ``r_kgf`` (N, K) (module docstring):
+    ``mode`` ``rig`` through G⁻¹ (no planned flow command below ``resolution_pct``),
+    ``channel`` each channel from its own model, ``none`` zero commands (feedback alone);
+    ``directions``: per channel the way its rod last moved before the references start (±1,
+    None: the way it first moves)."""
+    R = np.asarray(r_kgf, float)
+    directions = list(directions) if directions is not None else [None] * model.n
+    if mode == "rig":
+        w, taken = required_flows(model, R, period_s)
+        ffs = [feedforward_flow(m, w[i], R[i], period_s, direction=directions[i], inverted=taken[i] + ["G⁻¹"],
+                                resolution_pct=resolution_pct)
+               for i, m in enumerate(model.channels)]
+        return Feedforward(ffs, w)
+    if mode == "channel":
+        ffs = [channel_feedforward(m, R[i], period_s, direction=directions[i])
+               for i, m in enumerate(model.channels)]
+        return Feedforward(ffs, np.array([f.q_pct for f in ffs]))
+    if mode == "none":
+        ffs = [ChannelFeedforward(np.zeros(R.shape[1]), np.zeros(R.shape[1]), [], ["all: feedback alone"])
+               for _ in model.channels]
+        return Feedforward(ffs, np.zeros_like(R))
+    raise ValueError(f"feedforward mode {mode!r}: one of {', '.join(MODES)}")

@@ -1,4 +1,4 @@
-r"""A gain that adapts and watches the specimen: the stand's g re-estimated block by block.
+r"""A gain that adapts and watches the specimen: every channel's gain re-estimated block by block.
 
 During a loading run the force and the commands say how strongly the stand answers. Over a
 *chunk* of ``c`` cycles (:data:`MonitorOptions.chunk_s`) the model says
@@ -36,13 +36,52 @@ beyond ``rise_pct`` (a jammed part), relative to the model's g (the stand as ide
 estimate beyond the threshold, its 95 % interval clear of the model's g (a change, not the
 noise), in ``confirm`` consecutive blocks; or margins below the design's. Its action: ``note`` (recorded, the test goes on), ``hold`` (the valve holds, the
 pass ends) or ``unload`` (a controlled unload, then hold).
+
+**A station of channels** (:class:`GainMonitor`; one channel's estimator is
+:class:`ChannelGainMonitor`, above). On a rig the structure answers channel i's force to every
+channel's flow,
+``ẏ_i = Σ_j G_ij·w_j(t − τ_j) + Δ_i``. A crack near an attachment point softens the structure
+there, and channel i's force answers all the flows less. The monitor follows one factor per
+channel, ``κ_i``, on its row of G (the stand's row over the model's), with the one-channel
+estimator: over a chunk of ``c`` cycles
+
+.. math::  a_i = y_{i,end} - y_{i,start} - Δ_i\,c\,T = κ_i\,b_i,\qquad
+           b_i = G_{ii}\,T \sum_k \sum_j \frac{G_{ij}}{G_{ii}}\,F_{j,k}\,\tilde q_{j,k}
+
+(``q̃_j``: the commands channel j actually sent, delayed by its own ``τ_j``; ``F_j`` its model's
+FLOW factor there), least squares per block, its 95 % interval, ``ĝ_i = κ_i·G_ii`` reported as
+channel i's gain. A chunk counts for channel i where every flow that reaches it (``G_ij ≠ 0``)
+is steady and the commands that reach it, ``Σ_j (G_ij/G_ii)·q̃_j``, keep one way with at least
+``min_flow_pct`` (in channel i's own command units). One channel with ``G = [g]`` is the
+one-channel monitor, sample for sample; its loop's margins are re-checked as one loop's
+(:meth:`GainMonitor.for_controller`).
+
+**The alarm** is the one-channel alarm per channel (a fall beyond ``fall_pct``, a rise beyond
+``rise_pct``, the interval clear of the model's, ``confirm`` blocks running), named after the
+channel, the first to fire for the rig. Its action acts on the whole rig: ``note``, ``hold``
+(every valve holds) or ``unload`` (every channel unloads keeping the load ratios, the rig's
+safety: :mod:`gateway.unload`). A rig's design margins are not re-checked in the loop (they
+are the characteristic loci of the whole loop, :mod:`loading.margins`, not a gain per channel).
+
+**The feedforward follows it** (``follow``): with the rows scaled, the flows that make the
+rates are ``w' = G⁻¹·diag(1/κ)·(ṙ − d) = G⁻¹·diag(1/κ)·G·w``, so from the next block on the
+feedforward of every cycle is multiplied by ``M = G⁻¹·diag(G_ii/ĝ_i)·G`` (exact for the base
+model, first order for FLOW effects; each ``ĝ_i`` within ``follow_limit_pct`` of ``G_ii``); a
+feedforward from each channel's own model is multiplied by its own ``G_ii/ĝ_i``.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
 
+from typing import Sequence
+
+import numpy as np
+
 from core.errors import ParameterError
+from plant.rig import RigModel
+
+from .programme import STAND
 
 ALARM_ACTIONS = ("note", "hold", "unload")
 #: a block with too few steady chunks goes on, up to this many times its length
@@ -121,7 +160,6 @@ class MarginTable:
     phase_margin_min_deg: float
 
     def at(self, ratio: float) -> tuple[float, float]:
-        import numpy as np
         return (self.gain_margin_boosted / ratio,
                 float(np.interp(ratio, self.ratios, self.phase_margin_deg)))
 
@@ -129,7 +167,6 @@ class MarginTable:
 def margin_table(kp: float, ti: float, g: float, tau: float, period_s: float, rho: float,
                  points: int = 2000) -> MarginTable:
     """:class:`MarginTable` of the PI (kp, ti) on ``g·e^{-sτ}/s`` at ``T``, boost ρ."""
-    import numpy as np
     from .design import GAIN_MARGIN_MIN, PHASE_MARGIN_MIN_DEG, margins
     ratios = list(np.geomspace(0.5, 2.0, 25))
     pm = [min(margins(kp, ti, g * k, tau, period_s, check=False, points=points).phase_margin_deg,
@@ -144,8 +181,9 @@ def _t_quantiles(n: int = 200) -> list[float]:
     return [math.inf] + [float(t.ppf(0.975, k)) for k in range(1, n + 1)]
 
 
-class GainMonitor:
-    """Block-by-block estimate of g, the feedforward's gain, the alarm (module docstring).
+class ChannelGainMonitor:
+    """One channel's block-by-block estimate of g, the feedforward's gain, the alarm (module
+    docstring).
 
     One monitor lives through a whole test (every pass): :meth:`begin_pass` at each pass's main
     phase, :meth:`add` every cycle, :attr:`ff_scale` for the feedforward, :attr:`alarm` once
@@ -229,7 +267,7 @@ class GainMonitor:
         acting until the next reading (in the command's units, what ``g`` multiplies), the
         flow whose size and way qualify the chunk (at least ``min_flow_pct``, one way) and
         whether the model's FLOW factor is steady there. :meth:`add` for one channel; a rig's
-        channel gets its flow through the structure (:mod:`loading.rig_gain_monitor`)."""
+        channel gets its flow through the structure (:class:`GainMonitor`)."""
         o = self.options
         self._cycle += 1
         if self._k == self.chunk_cycles:                     # y is the chunk's last reading
@@ -307,6 +345,20 @@ class GainMonitor:
                                 f"the stand's g = {block.g:.1f} kgf/(%·s) [{block.low:.1f}, {block.high:.1f}] "
                                 f"{what}; the model's g is {self.g_ref:.1f}")
 
+    def text(self) -> str:
+        """The blocks in a few lines: the estimates' span, the last, the alarm."""
+        est = [b for b in self.blocks if b.g is not None]
+        if not est:
+            return f"gain: no block had enough steady motion for an estimate ({len(self.blocks)} blocks)"
+        last = est[-1]
+        lines = [f"gain: {len(est)} of {len(self.blocks)} blocks estimated, g from {min(b.g for b in est):.1f} "
+                 f"to {max(b.g for b in est):.1f} kgf/(%·s) (model {self.g_ref:.1f}); last "
+                 f"{last.g:.1f} [{last.low:.1f}, {last.high:.1f}] ({last.change_pct:+.1f} %), feedforward at "
+                 f"g = {self.g_follow:.1f}"]
+        if self.alarm is not None:
+            lines.append(f"gain alarm ({self.alarm[0]}, action {self.options.action}): {self.alarm[1]}")
+        return "\n".join(lines)
+
     def summary(self) -> dict:
         est = [b for b in self.blocks if b.g is not None]
         return {"g_reference": self.g_ref, "blocks_total": len(self.blocks), "blocks_estimated": len(est),
@@ -316,3 +368,146 @@ class GainMonitor:
                 "action": self.options.action, "fall_pct": self.options.fall_pct,
                 "rise_pct": self.options.rise_pct, "block_s": self.options.block_s,
                 "follows": self.options.follow, "g_follow": self.g_follow}
+
+
+class GainMonitor:
+    """A :class:`ChannelGainMonitor` per channel, fed through G (module docstring). One lives through a whole test: :meth:`begin_pass` at each pass's main phase,
+    :meth:`add` every cycle, :attr:`ff_matrix` for the feedforward, :attr:`alarm` once it fired
+    (``(kind, message)``, :attr:`alarm_channel` the channel's index)."""
+
+    def __init__(self, model: RigModel, period_s: float, options: MonitorOptions,
+                 margins: Sequence[MarginTable | None] | None = None) -> None:
+        options.check()
+        self.options = options
+        self.names = list(model.names)
+        self.G = np.asarray(model.G, float)
+        self.Ginv = np.linalg.inv(self.G)
+        diag = np.diag(self.G)
+        #: the row of G per channel over its own gain: what each flow does to its force
+        self.rows = self.G / diag[:, None]
+        self.reaches = self.rows != 0.0
+        margins = list(margins) if margins is not None else [None] * len(diag)
+        self.channels = [ChannelGainMonitor(G_ii, m.tau, m.delta, period_s, options, table)
+                         for G_ii, m, table in zip(diag, model.channels, margins)]
+        self.m = np.array([c.m for c in self.channels])
+        self.f = np.array([c.f for c in self.channels])
+        self._len = int(self.m.max()) + 2
+        self.alarm: tuple[str, str] | None = None
+        self.alarm_channel: int | None = None
+        self._follow: tuple[float, ...] | None = None
+        self._matrix = np.eye(len(self.names))
+
+    @classmethod
+    def for_controller(cls, controller, period_s: float, options: MonitorOptions) -> "GainMonitor":
+        """The monitor of a station's controller: the model's G and, for one channel, its loop's
+        margins across gains to re-check (a rig's loops share their margins: the
+        characteristic loci, not a margin per channel)."""
+        tables = None
+        if controller.n == 1:
+            c = controller.channels[0]
+            m = c.model
+            tables = [margin_table(c.kp_pct_per_kgf, c.ti_s, m.g, m.tau, period_s, c.boost)]
+        return cls(controller.model, period_s, options, tables)
+
+    @property
+    def n(self) -> int:
+        return len(self.channels)
+
+    @property
+    def pass_index(self) -> int:
+        return self.channels[0].pass_index
+
+    # -- the feedforward's gain ----------------------------------------------------------------
+    @property
+    def ff_scales(self) -> np.ndarray:
+        """Each channel's factor on its own feedforward, ``G_ii/ĝ_i`` (a feedforward from each
+        channel's own model follows its own gain)."""
+        return np.array([c.g_ref / c.g_follow for c in self.channels])
+
+    @property
+    def ff_matrix(self) -> np.ndarray:
+        """The factor on every cycle's feedforward (N×N): ``G⁻¹·diag(G_ii/ĝ_i)·G`` (identity
+        while every channel follows its model's gain)."""
+        follow = tuple(c.g_follow for c in self.channels)
+        if follow != self._follow:
+            self._follow = follow
+            scale = np.array([c.g_ref / g for c, g in zip(self.channels, follow)])
+            self._matrix = self.Ginv @ (scale[:, None] * self.G)
+        return self._matrix
+
+    # -- per pass, per cycle -------------------------------------------------------------------
+    def begin_pass(self) -> None:
+        for c in self.channels:
+            c.begin_pass()
+        self._u = np.zeros((self.n, self._len))          # the last commands, a ring
+        self._g = np.ones((self.n, self._len))           # their FLOW factors
+        self._steady = np.zeros((self.n, self._len), bool)
+        self._pos = 0
+
+    def end_pass(self) -> bool:
+        """Close the pass on every channel (:meth:`ChannelGainMonitor.end_pass`)."""
+        return all([c.end_pass() for c in self.channels])
+
+    def add(self, y: Sequence[float], u_pct: Sequence[float], flow_factor: Sequence[float]) -> None:
+        """One cycle of the main phase: every force read now, every command sent now and each
+        channel's model FLOW factor where its command will act (its delay later)."""
+        o = self.options
+        L = self._len
+        self._pos = pos = (self._pos + 1) % L
+        factor = np.asarray(flow_factor, float)
+        self._u[:, pos] = u_pct
+        self._g[:, pos] = factor
+        self._steady[:, pos] = np.abs(factor - 1.0) <= o.steady_factor - 1.0
+        rows = np.arange(self.n)
+        now, before = (pos - self.m) % L, (pos - self.m - 1) % L
+        q = (1 - self.f) * self._u[rows, now] + self.f * self._u[rows, before]
+        flows = self.rows @ (self._g[rows, now] * q)
+        commanded = self.rows @ q
+        unsteady = ~self._steady[rows, now]
+        steady = ~(self.reaches & unsteady[None, :]).any(axis=1)
+        for i, c in enumerate(self.channels):
+            c.add_flow(float(y[i]), float(flows[i]), float(commanded[i]), bool(steady[i]))
+            if c.alarm is not None and self.alarm is None:
+                self.alarm_channel = i
+                self.alarm = (c.alarm[0], c.alarm[1] if self.n == 1 else f"channel {self.names[i]}: {c.alarm[1]}")
+
+    # -- what the reports read -------------------------------------------------------------------
+    def summary(self) -> dict:
+        """The ``gain`` of ``report.json``: the alarm, the options and every channel's summary
+        (a one-channel stand's also at the top level, as :meth:`ChannelGainMonitor.summary`)."""
+        o = self.options
+        return {**(self.channels[0].summary() if self.n == 1 else {}),
+                "alarm": self.alarm[0] if self.alarm else None,
+                "alarm_channel": self.names[self.alarm_channel] if self.alarm else None,
+                "alarm_message": self.alarm[1] if self.alarm else None,
+                "action": o.action, "fall_pct": o.fall_pct, "rise_pct": o.rise_pct,
+                "block_s": o.block_s, "follows": o.follow,
+                "channels": {n: c.summary() for n, c in zip(self.names, self.channels)}}
+
+    def blocks(self, pass_index: int | None = None) -> dict[str, list[dict]] | list[dict]:
+        """Every channel's blocks (of one pass, or all) as dicts, by channel (a one-channel
+        stand's: the list)."""
+        out = {n: [b.to_dict() for b in c.blocks if pass_index is None or b.pass_index == pass_index]
+               for n, c in zip(self.names, self.channels)}
+        return out[STAND] if self.names == [STAND] else out
+
+    def text(self) -> str:
+        """A line per channel: its estimates' span, the last, then the alarm."""
+        if self.n == 1:
+            return self.channels[0].text()
+        lines = []
+        width = max(len(n) for n in self.names)
+        for n, c in zip(self.names, self.channels):
+            est = [b for b in c.blocks if b.g is not None]
+            if not est:
+                lines.append(f"gain {n:<{width}}: no block had enough steady flow for an estimate "
+                             f"({len(c.blocks)} blocks)")
+                continue
+            last = est[-1]
+            lines.append(f"gain {n:<{width}}: {len(est)} of {len(c.blocks)} blocks estimated, ĝ from "
+                         f"{min(b.g for b in est):.1f} to {max(b.g for b in est):.1f} kgf/(%·s) (model "
+                         f"G_ii {c.g_ref:.1f}); last {last.g:.1f} [{last.low:.1f}, {last.high:.1f}] "
+                         f"({last.change_pct:+.1f} %), feedforward at {c.g_follow:.1f}")
+        if self.alarm is not None:
+            lines.append(f"gain alarm ({self.alarm[0]}, action {self.options.action}): {self.alarm[1]}")
+        return "\n".join(lines)

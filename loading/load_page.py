@@ -1,6 +1,7 @@
 """The page of a loading test (``stand report LOAD_DIR``): the passes' figures, the tracking
-figure and the stand's g through the test, from what ``stand load`` wrote (``report.json``,
-``tracking.png``, ``pass-N/gain.json``). Self-contained HTML (images embedded), no network."""
+figure and every channel's gain through the test, from what ``stand load`` wrote
+(``report.json``, ``tracking.png``, ``pass-N/gain.json``). Self-contained HTML (images
+embedded), no network."""
 from __future__ import annotations
 
 import base64
@@ -25,11 +26,14 @@ def is_load_dir(path: str | Path) -> bool:
         return False
 
 
-def gain_blocks(load_dir: str | Path) -> list[dict]:
-    """Every pass's gain blocks in test order (empty when the test ran without the monitor)."""
-    out = []
+def gain_blocks(load_dir: str | Path) -> dict[str | None, list[dict]]:
+    """Every pass's gain blocks in test order, by channel (a one-channel stand's under None;
+    empty when the test ran without the monitor)."""
+    out: dict[str | None, list[dict]] = {}
     for p in sorted(Path(load_dir).glob("pass-*/gain.json"), key=lambda f: int(f.parent.name.split("-")[1])):
-        out += json.loads(p.read_text()).get("blocks", [])
+        blocks = json.loads(p.read_text()).get("blocks", [])
+        for name, bs in (blocks.items() if isinstance(blocks, dict) else [(None, blocks)]):
+            out.setdefault(name, []).extend(bs)
     return out
 
 
@@ -118,14 +122,19 @@ def write_load_page(load_dir: str | Path, title: str | None = None) -> Path:
                      f"({'converged' if summary.get('converged') else 'not converged'})</p>")
     if (d / "tracking.png").is_file():
         parts += ["<h2>Tracking, last pass</h2>", _img(d / "tracking.png")]
-    blocks = gain_blocks(d)
     gain = summary.get("gain")
-    if blocks and gain:
-        png = plot_gain(blocks, gain["g_reference"], gain.get("fall_pct"), gain.get("rise_pct"), d / "gain.png")
-        parts += ["<h2>The stand's g through the test</h2>", _img(png),
-                  f"<p>{gain['blocks_estimated']} of {gain['blocks_total']} blocks estimated; alarm: "
-                  f"{e(str(gain.get('alarm')))}"
-                  + (f" — {e(gain['alarm_message'])} (action {e(gain['action'])})" if gain.get("alarm") else "")
+    for name, blocks in gain_blocks(d).items():
+        if not blocks or not gain:
+            continue
+        own = gain if name is None else gain["channels"][name]
+        png = plot_gain(blocks, own["g_reference"], gain.get("fall_pct"), gain.get("rise_pct"),
+                        d / ("gain.png" if name is None else f"gain-{name}.png"),
+                        title="" if name is None else f"channel {name}: its gain through the test")
+        heading = "The stand's g through the test" if name is None else f"Channel {e(name)}: its gain through the test"
+        parts += [f"<h2>{heading}</h2>", _img(png),
+                  f"<p>{own['blocks_estimated']} of {own['blocks_total']} blocks estimated; alarm: "
+                  f"{e(str(own.get('alarm')))}"
+                  + (f" — {e(own['alarm_message'])} (action {e(gain['action'])})" if own.get("alarm") else "")
                   + "</p>"]
     parts.append("</body></html>")
     out = d / "report.html"

@@ -1,44 +1,54 @@
-r"""Null pacing: the programme's clock waits or slows for the force, so no turning point is skipped.
+r"""Null pacing: the programme's one clock waits or slows for the forces, so no turning point and
+no load case is skipped.
 
 As commercial test controllers do, the programme does not run on the wall clock: its position
-``p`` (in samples of the planned reference, fractional) advances by a speed ``s ≤ 1`` a cycle,
+``p`` (in samples of the planned references, common to every channel, fractional) advances by a
+speed ``s ≤ 1`` a cycle,
 
 .. math::  p_{n+1} = p_n + s_n,
 
-and the reference, the feedforward and the feedback's schedule are read at ``p``. At ``s = 1``
-(the force follows) this is the planned programme, sample for sample.
+and every reference, feedforward and the feedback's schedule are read at ``p``. At ``s = 1``
+(the forces follow) this is the planned programme, sample for sample.
 
-**Slowing (dynamic).** While the force lags the reference in the direction of travel by more
-than the tolerance ``ε``, ``d = ±(r(p) − y) > ε``, the programme slows, down to ``s_min``:
+**Slowing (dynamic).** While any channel's force lags its reference in its direction of travel
+by more than its tolerance ``ε_i``, ``d_i = ±(r_i(p) − y_i) > ε_i``, the one clock slows for
+all, down to ``s_min``:
 
-.. math::  s^* = \operatorname{clip}\big(1 - (d - ε)/ε,\ s_{min},\ 1\big),
+.. math::  s^* = \operatorname{clip}\big(\min_i\,1 - (d_i - ε_i)/ε_i,\ s_{min},\ 1\big),
 
 and the speed falls at once, rising back over :data:`RECOVERY_S`. The feedforward is that of the
-slowed programme: for the base model, the flow for the rate ``s·ṙ`` is
-``s·u_ff + (1 − s)·u_hold``, with ``u_hold = −Δ/g`` the command that holds a force.
+slowed programme: ``s·u_ff + (1 − s)·u_hold`` per valve, ``u_hold`` the flows that hold the
+forces (for the base model ``−G⁻¹Δ``; one channel ``−Δ/g``). So the structure sees the planned
+load distribution along the way, not only at the load cases: the channels that keep up wait for
+the one that lags.
 
-**Waiting at a turning point (static and dynamic).** The feedforward is sent a delay ``τ``
-ahead, so the reversal toward the next turning point leaves ``m = τ/T`` samples before the
-reference reaches it: that is the point to decide, the turning point's *gate*. The force the
-commands in flight will have made when the next one acts is predicted from the plan,
+**Waiting at a load case (static and dynamic).** Every channel's feedforward is sent its own
+delay ``τ_i = m_i·T`` ahead, so the decision on load case ``k`` (sample ``n_k``) is taken at its
+*gate* ``n_k − max_i m_i``, before any channel's command toward the next load case leaves. There
+every channel's force is predicted past its own delay from the commands in flight,
 
-.. math::  \hat y_n = y_n + \sum_{j=n-m}^{n-1} \Big( s_j\,\big(r(p_j + m + 1) - r(p_j + m)\big)
-           + g\,T\,(u_j - u^{ff}_j) \Big)
+.. math::  \hat y_i = y_i + \sum_{\text{in flight}} \Big( s\,\big(r_i(p + m_i + 1) - r_i(p + m_i)\big)
+           + G_{ii}\,T\,(u_i - u^{ff}_i) \Big)
 
 (what the feedforward's share of each command in flight delivers by the plan, and the
-feedback's share through the gain), scaled by what the stand delivered of the plan over the
-last delay, ``ρ = (y_n − y_{n−m}) / Σ_{acted}(…)`` (kept while the plan asked for less than
-2ε, within :data:`DELIVERY_RANGE`): a valve slower than the model (a flow limit it lacks)
-delivers less than the plan of the commands in flight too. At the gate, while ``±(L − ŷ) > ε`` the programme waits:
-the reference stands, the feedforward holds, and a P law drives the predicted force to the
-level ``L`` (a Smith predictor: no overshoot from the delay), moving the rod only toward it
-(:meth:`loading.controller.PIFeedforward.wait_step`). Once the force will be within ``ε/2`` of
-``L`` (:data:`RELEASE_SHARE`) the programme goes on and the planned reversal leaves. A wait longer than ``timeout_s`` stops the pass (:data:`PACING_TIMEOUT`): the stand
-cannot reach the level. A segment shorter than the delay has its gate right after the turning
-point before it (the decision cannot come earlier).
+feedback's share through the channel's own gain), scaled by what the channel delivered of the
+plan over its last delay, ``ρ_i = (y_n − y_{n−m}) / Σ_{acted}(…)`` (kept while the plan asked
+for more than 2ε, within :data:`DELIVERY_RANGE`): a valve slower than the model (a flow limit it
+lacks, a neighbour's flow through a softer structure) delivers less than the plan of the
+commands in flight too. The programme waits while any channel is short of its level by more
+than ``ε_i`` (``L_i − ŷ_i`` along its way; a channel whose level does not change, either side):
+every reference stands, each valve's feedforward holds the forces, and a P law through the
+design's mixing matrix drives the predicted forces to the levels (a Smith predictor: no
+overshoot from the delay), each valve moving only toward its level
+(:meth:`loading.controller.PIFeedforward.wait_step`). Once every channel will be within ``ε_i/2``
+(:data:`RELEASE_SHARE`) the clock goes on together and the planned motion toward the next load
+case leaves. A wait longer than ``timeout_s`` stops the pass (:data:`PACING_TIMEOUT`), naming the
+channel furthest from its level. Gates are the load cases where some channel turns (a peak or a
+valley: for one channel its peaks and valleys); a segment shorter than the delay has its gate
+right after the load case before it (the decision cannot come earlier).
 
-``static`` waits only; ``dynamic`` slows and waits. The time the programme spent pacing
-(its length on the stand minus its planned length) is reported per pass.
+``static`` waits only; ``dynamic`` slows and waits. The time the programme spent pacing (its
+length on the stand minus its planned length) is reported per pass.
 """
 from __future__ import annotations
 
@@ -96,12 +106,12 @@ DEFAULT_TOLERANCE_SHARE = 0.005
 
 @dataclass
 class Gate:
-    """Where the programme decides on one turning point (module docstring)."""
+    """Where the programme decides on one load case (module docstring)."""
 
-    position: int      #: sample of the reference at which the reversal toward it would leave
-    turning: int       #: the turning point's sample in the reference
-    level_kgf: float
-    way: float         #: +1 approaching a peak, −1 a valley
+    position: int           #: the common sample at which the decision is taken
+    turning: int            #: the load case's sample in the references
+    levels_kgf: np.ndarray  #: every channel's level there
+    way: np.ndarray         #: per channel +1 rising to it, −1 falling, 0 holding its level
 
 
 @dataclass
@@ -118,10 +128,46 @@ class PacingRecord:
         return dict(self.__dict__)
 
 
-class PacedClock:
-    """What a stand's and a rig's programme clocks share (:class:`ProgrammeClock`,
-    :class:`loading.rig_pacing.RigProgrammeClock`): the position and its speed, the waits at
-    the gates (each with a ``turning`` sample), and the record of what pacing did."""
+class ProgrammeClock:
+    """The programme's common position, advanced once a cycle (module docstring).
+
+    Parameters
+    ----------
+    reference : (N, K) every channel's planned reference per sample (pre-roll, programme, unload)
+    cases : the samples of the load cases it gates, increasing
+    delay_samples : (N,) each channel's feedforward lead, whole samples
+    gains : (N,) each channel's own gain ``G_ii``, kgf/(%·s)
+    period_s : T
+    options : static or dynamic pacing (:class:`PacingOptions`)
+    tolerances_kgf : (N,) ε per channel
+    start : the first sample a gate may lie at (the programme's start)
+    """
+
+    def __init__(self, reference: np.ndarray, cases: np.ndarray, delay_samples, gains, period_s: float,
+                 options: PacingOptions, tolerances_kgf, start: int = 0) -> None:
+        self.r = np.asarray(reference, float)
+        self.n_ch = self.r.shape[0]
+        self._begin_clock(self.r.shape[1], period_s, options)
+        self.m = np.maximum(np.asarray(delay_samples, int), 1)
+        self.gT = np.asarray(gains, float) * period_s
+        self.tol = np.asarray(tolerances_kgf, float)
+        lead = int(self.m.max())
+        self.gates: list[Gate] = []
+        previous = start
+        for c in np.asarray(cases, int):
+            before = self.r[:, max(c - 1, 0)]
+            self.gates.append(Gate(max(c - lead, previous + 1), int(c), self.r[:, c].copy(),
+                                      np.sign(self.r[:, c] - before)))
+            previous = int(c)
+        self._inflight = [deque([0.0] * int(m), maxlen=int(m)) for m in self.m]
+        self._inflight_sum = np.zeros(self.n_ch)
+        #: what the commands that acted over each channel's last delay should have made, and its
+        #: force a delay ago: the delivery against the plan's (module docstring)
+        self._acted = [deque([0.0] * int(m), maxlen=int(m)) for m in self.m]
+        self._acted_sum = np.zeros(self.n_ch)
+        self._forces = [deque(maxlen=int(m)) for m in self.m]
+        self.delivery = np.ones(self.n_ch)
+        self.predicted_kgf = np.full(self.n_ch, np.nan)
 
     def _begin_clock(self, n: int, period_s: float, options: PacingOptions) -> None:
         self.n = n
@@ -190,100 +236,71 @@ class PacedClock:
     def finished(self) -> bool:
         return self.position >= self.n - 1.0
 
-
-class ProgrammeClock(PacedClock):
-    """The programme's position, advanced once a cycle (module docstring).
-
-    Parameters
-    ----------
-    reference : (N,) the planned reference per sample (pre-roll, programme, unload), kgf
-    turnings : the reference's samples that are peaks or valleys, increasing
-    delay_samples : m, the whole samples of the feedforward's lead (τ/T rounded)
-    gain : g of the controller's model, kgf/(%·s)
-    period_s : T
-    options : :class:`PacingOptions` (mode ``off``: the position is the cycle count)
-    tolerance_kgf : ε
-    start : the first sample gates may lie at (the programme's start after the pre-roll)
-    """
-
-    def __init__(self, reference: np.ndarray, turnings: np.ndarray, delay_samples: int,
-                 gain: float, period_s: float, options: PacingOptions, tolerance_kgf: float,
-                 start: int = 0) -> None:
-        self.r = np.asarray(reference, float)
-        self._begin_clock(len(self.r), period_s, options)
-        self.m = max(int(delay_samples), 1)
-        self.gT = gain * period_s
-        self.tol = float(tolerance_kgf)
-        self.gates: list[Gate] = []
-        previous = start
-        for i in np.asarray(turnings, int):
-            way = math.copysign(1.0, self.r[i] - self.r[max(i - 1, 0)])
-            self.gates.append(Gate(max(i - self.m, previous + 1), int(i), float(self.r[i]), way))
-            previous = int(i)
-        self._inflight: deque[float] = deque([0.0] * self.m, maxlen=self.m)
-        self._inflight_sum = 0.0
-        #: what the commands that acted over the last delay should have made, and the force
-        #: a delay ago: the stand's delivery against the plan's (module docstring)
-        self._acted_sum = 0.0
-        self._acted: deque[float] = deque([0.0] * self.m, maxlen=self.m)
-        self._forces: deque[float] = deque(maxlen=self.m)
-        self.delivery = 1.0
-        self.predicted_kgf = math.nan
-
-    # -- per cycle ---------------------------------------------------------------------------
-    def reference_at(self, p: float) -> float:
+    def reference_at(self, p: float) -> np.ndarray:
+        """Every channel's reference at the position ``p`` (linear between samples)."""
         k = int(p)
         if k >= self.n - 1:
-            return float(self.r[-1])
+            return self.r[:, -1].copy()
         f = p - k
-        return float(self.r[k] + f * (self.r[k + 1] - self.r[k]))
+        return self.r[:, k] + f * (self.r[:, k + 1] - self.r[:, k])
 
-    def way_at(self, p: float) -> float:
-        """The direction of travel of the planned reference at ``p`` (0 where it stands)."""
+    def way_at(self, p: float) -> np.ndarray:
+        """Every channel's direction of travel at ``p`` (0 where its reference stands)."""
         k = min(int(p), self.n - 2)
-        d = self.r[k + 1] - self.r[k]
-        return 0.0 if d == 0 else math.copysign(1.0, d)
+        return np.sign(self.r[:, k + 1] - self.r[:, k])
 
-    def advance(self, y: float) -> float:
-        """Move the position for this cycle given the force ``y``; returns the position."""
+    def short_kgf(self, gate: Gate) -> np.ndarray:
+        """How far each channel's predicted force is short of the gate's level (along its way;
+        either side for a channel that holds its level)."""
+        d = gate.levels_kgf - self.predicted_kgf
+        return np.where(gate.way != 0, gate.way * d, np.abs(d))
+
+    def advance(self, y) -> float:
+        """Move the position for this cycle given every force ``y``; returns the position."""
         self.cycles += 1
-        if self.cycles == 1:               # the first cycle reads the start
-            return self.position
-        mode = self.options.mode
         self.wait_began = False
-        if len(self._forces) == self.m:
-            made = y - self._forces[0]
-            planned = self._acted_sum
-            if abs(planned) > 2 * self.tol and made * planned > 0:
-                self.delivery = min(max(made / planned, DELIVERY_RANGE[0]), DELIVERY_RANGE[1])
-        self._forces.append(y)
+        y = np.asarray(y, float)
+        if self.cycles == 1:               # the first cycle reads the start
+            self.predicted_kgf = y + self._inflight_sum
+            return self.position
+        for i, forces in enumerate(self._forces):
+            if len(forces) == self.m[i]:
+                made, planned = y[i] - forces[0], self._acted_sum[i]
+                if abs(planned) > 2 * self.tol[i] and made * planned > 0:
+                    self.delivery[i] = min(max(made / planned, DELIVERY_RANGE[0]), DELIVERY_RANGE[1])
+            forces.append(y[i])
         self.predicted_kgf = y + self.delivery * self._inflight_sum
-        if mode == "dynamic" and not self.waiting:
+        if self.options.mode == "dynamic" and not self.waiting:
             lag = self.way_at(self.position) * (self.reference_at(self.position) - y)
-            target = min(1.0, max(self.options.min_speed, 1.0 - (lag - self.tol) / self.tol))
+            target = float(np.clip(np.min(1.0 - (lag - self.tol) / self.tol), self.options.min_speed, 1.0))
             self.speed = target if target < self.speed else min(target, self.speed + self.T / RECOVERY_S)
         step = self.speed
-        p = self.position
-        if self.next_gate < len(self.gates):
-            gate = self.gates[self.next_gate]
-            if p + step >= gate.position:
-                short = gate.way * (gate.level_kgf - self.predicted_kgf)
-                if short > (RELEASE_SHARE * self.tol if self.waiting else self.tol):
-                    self._wait()
-                    step = max(gate.position - p, 0.0)
-                else:                         # the force is there: the reversal leaves as planned
-                    step = self._pass_gate(step)
+        gate = self.gate
+        if gate is not None and self.position + step >= gate.position:
+            limit = (RELEASE_SHARE if self.waiting else 1.0) * self.tol
+            if np.any(self.short_kgf(gate) > limit):
+                self._wait()
+                step = max(gate.position - self.position, 0.0)
+            else:                          # every force is there: the planned motion leaves
+                step = self._pass_gate(step)
         return self._move(step)
 
-    def sent(self, command_pct: float, feedforward_pct: float) -> None:
-        """The command that went out this cycle and its feedforward share: the plan's delivery
-        of the command in flight (module docstring)."""
-        s = self._step
+    def sent(self, command_pct: np.ndarray, feedforward_pct: np.ndarray) -> None:
+        """Every command that went out this cycle and its feedforward share (module docstring)."""
         p = self.position
-        planned = s * (self.reference_at(p + self.m + 1) - self.reference_at(p + self.m)) if s else 0.0
-        delta = planned + self.gT * (command_pct - feedforward_pct)
-        oldest = self._inflight[0]                 # it acts from now on: over the next delay
-        self._inflight_sum += delta - oldest
-        self._inflight.append(delta)
-        self._acted_sum += oldest - self._acted[0]
-        self._acted.append(oldest)
+        for i, q in enumerate(self._inflight):
+            a = self._ref_at(i, p + self.m[i])
+            planned = self._step * (self._ref_at(i, p + self.m[i] + 1) - a) if self._step else 0.0
+            delta = planned + self.gT[i] * (float(command_pct[i]) - float(feedforward_pct[i]))
+            oldest = q[0]                  # it acts from now on: over the channel's next delay
+            self._inflight_sum[i] += delta - oldest
+            q.append(delta)
+            acted = self._acted[i]
+            self._acted_sum[i] += oldest - acted[0]
+            acted.append(oldest)
+
+    def _ref_at(self, i: int, p: float) -> float:
+        k = int(p)
+        if k >= self.n - 1:
+            return float(self.r[i, -1])
+        return float(self.r[i, k] + (p - k) * (self.r[i, k + 1] - self.r[i, k]))

@@ -1,32 +1,44 @@
-r"""Loading programmes: what force the structure must see, sampled at the loop period.
+r"""Loading programmes: what force every channel of the station must see, on one clock, sampled
+at the loop period.
 
-Four forms, read by :func:`load_programme`:
+A **station** is N loading channels (a rig's; a one-channel stand is a station of one, its
+channel called :data:`STAND`). Its programme is a :class:`Programme`: one
+:class:`ChannelProgramme` per channel on a common time grid and, where every channel's turning
+points fall on the same samples, **load cases**: a row of N levels, every channel's turning
+point at the same moment (a one-channel programme's turning points are its load cases).
+Between two load cases every channel moves along a haversine of one common duration, set by the
+channel that moves the most:
 
-* a **turning-point sequence**: a CSV with one column ``level`` (kgf), one turning point per
-  line. Between two points the reference is a haversine
+.. math::  T_k = \max_i \frac{\pi\,|L_{i,k+1} - L_{i,k}|}{2\,R},
+
+(``R`` the peak rate in kgf/s), or ``T_k = 1/(2f)`` with a frequency, so every channel arrives
+at the next load case together and its ratios between the channels hold at its turning point.
+A channel may keep its level from one case to the next (it holds while the others move).
+
+One channel's programme (:class:`ChannelProgramme`) comes in four forms:
+
+* a **turning-point sequence** (:func:`from_levels`): haversines between levels,
 
   .. math::  r(s) = L_0 + (L_1 - L_0)\,\frac{1 - \cos \pi s}{2},\qquad s \in [0, 1],
 
-  whose peak rate ``π·|L_1 − L_0|/(2T)`` is ``rate_kgf_s`` (so the half-cycle lasts
-  ``T = π·|L_1 − L_0|/(2·rate)``), or which lasts ``1/(2·frequency)``;
-* a **time history**: a CSV ``t,r`` (s, kgf), resampled to the period; its turning points are
+  at a peak rate ``π·|L_1 − L_0|/(2T)`` or lasting ``1/(2·frequency)``;
+* a **time history** (:func:`from_history`), resampled to the period; its turning points are
   its peaks and valleys (reversals by more than 0.5 % of its range);
-* **constant amplitude**: ``sine:mean=3000,amplitude=2000,frequency=0.2,cycles=20``;
-* a **block programme**: a TOML file of ``[[block]]`` tables with ``mean``, ``amplitude``,
-  ``frequency`` and ``cycles``; consecutive blocks join through a haversine at the next block's
-  rate.
+* **constant amplitude** (:func:`sine`);
+* a **block programme** (:func:`blocks`): constant-amplitude blocks joined by haversines.
 
-Every form becomes a :class:`Programme`: the reference ``r`` on a uniform time grid and the
-indices of its turning points (first point, each peak and valley, last point), which peak/valley
-compensation moves (:meth:`Programme.with_levels`) and the tracking report measures against.
+A station's programme is made of load cases (:func:`from_load_cases`, N levels per row) or of
+independent per-channel programmes on one clock (:func:`from_channel_programmes`: each shorter
+one holds its last level; with several channels there are no load cases, so no ratios).
+Programmes are read from files by :mod:`loading.programme_files`. Peak/valley compensation
+moves turning points (:meth:`Programme.with_levels`), time scaling moves their times
+(:meth:`Programme.with_durations`), and the tracking report measures against them.
 """
 from __future__ import annotations
 
-import csv
 import math
-import re
 from dataclasses import dataclass, field
-from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -34,11 +46,13 @@ from core.errors import DataError, ParameterError
 
 #: a time history's reversals smaller than this share of its range are not turning points
 HYSTERESIS_SHARE = 0.005
+#: the name of a one-channel stand's channel (a rig's channels are named in its file)
+STAND = "stand"
 
 
 @dataclass(frozen=True)
-class Programme:
-    """A loading programme sampled at the loop period.
+class ChannelProgramme:
+    """One channel's loading programme sampled at the loop period.
 
     Attributes
     ----------
@@ -86,7 +100,8 @@ class Programme:
 
     def kinds(self) -> list[str]:
         """Per turning point: 'start', 'end', 'peak' or 'valley' where the programme reverses, or
-        'through' for a point it passes on the way (two segments the same way)."""
+        'rising' / 'falling' for a point it passes on the way (two segments the same way: on a
+        station, a load case where other channels turn)."""
         lv = self.levels_kgf
         out = []
         for i in range(len(lv)):
@@ -99,10 +114,10 @@ class Programme:
             elif lv[i] < lv[i - 1] and lv[i] < lv[i + 1]:
                 out.append("valley")
             else:
-                out.append("through")
+                out.append("rising" if lv[i + 1] > lv[i - 1] else "falling")
         return out
 
-    def with_levels(self, levels_kgf: np.ndarray) -> "Programme":
+    def with_levels(self, levels_kgf: np.ndarray) -> "ChannelProgramme":
         """The same programme with its turning points moved to ``levels_kgf`` (peak/valley
         compensation): each segment between two turning points is mapped affinely from its old
         end levels onto the new ones; times are unchanged."""
@@ -119,10 +134,10 @@ class Programme:
             r[a:b + 1] = new[j] + (self.r_kgf[a:b + 1] - old[j]) * scale
             if rate is not None:
                 rate[a:b + 1] = self._rate[a:b + 1] * scale
-        return Programme(self.t_s, r, self.turning_idx, self.period_s, self.source, rate,
+        return ChannelProgramme(self.t_s, r, self.turning_idx, self.period_s, self.source, rate,
                          self.haversine)
 
-    def with_durations(self, durations_s, source: str | None = None) -> "Programme":
+    def with_durations(self, durations_s, source: str | None = None) -> "ChannelProgramme":
         """The same turning points with each segment lasting ``durations_s`` (s, one per
         segment, rounded to whole periods, at least one): time scaling. Haversine segments are
         made anew; any other shape is stretched or squeezed (cubic interpolation of the
@@ -135,7 +150,7 @@ class Programme:
         label = source or self.source
         if self.haversine:
             t, r, rate, idx = _haversine(self.levels_kgf, d, self.period_s)
-            return Programme(t, r, idx, self.period_s, label, rate, True)
+            return ChannelProgramme(t, r, idx, self.period_s, label, rate, True)
         from scipy.interpolate import CubicSpline
         steps = np.maximum(np.round(d / self.period_s).astype(int), 1)
         idx = np.r_[0, np.cumsum(steps)]
@@ -154,7 +169,7 @@ class Programme:
                 rate[idx[j]:idx[j + 1]] = np.interp(s_new, s_old, old_rate[a:b + 1]) * (b - a) / k
         r[-1] = self.r_kgf[-1]
         rate[-1] = old_rate[-1] * (self.turning_idx[-1] - self.turning_idx[-2]) / steps[-1]
-        return Programme(np.arange(len(r)) * self.period_s, r, idx, self.period_s, label, rate)
+        return ChannelProgramme(np.arange(len(r)) * self.period_s, r, idx, self.period_s, label, rate)
 
 
 # -- making programmes ----------------------------------------------------------------------------
@@ -176,7 +191,7 @@ def _haversine(levels: np.ndarray, durations: np.ndarray, period_s: float) -> tu
 
 
 def from_levels(levels_kgf, period_s: float, rate_kgf_s: float | None = None,
-                frequency_hz: float | None = None, source: str = "levels") -> Programme:
+                frequency_hz: float | None = None, source: str = "levels") -> ChannelProgramme:
     """A turning-point sequence: haversines between ``levels_kgf`` at a peak rate or frequency."""
     levels = np.asarray(levels_kgf, float)
     _check_period(period_s)
@@ -202,11 +217,11 @@ def from_levels(levels_kgf, period_s: float, rate_kgf_s: float | None = None,
         durations = np.full(len(levels) - 1, 1 / (2 * frequency_hz))
         how = f"{frequency_hz:g} Hz"
     t, r, rate, idx = _haversine(levels, durations, period_s)
-    return Programme(t, r, idx, period_s, f"{source}, {how}", rate, True)
+    return ChannelProgramme(t, r, idx, period_s, f"{source}, {how}", rate, True)
 
 
 def sine(mean_kgf: float, amplitude_kgf: float, frequency_hz: float, cycles: float,
-         period_s: float) -> Programme:
+         period_s: float) -> ChannelProgramme:
     """Constant amplitude: ``mean + amplitude·sin(2πft)`` for whole ``cycles``, entered from the
     mean by a quarter cycle so the first turning point is the mean."""
     _check_period(period_s)
@@ -224,12 +239,12 @@ def sine(mean_kgf: float, amplitude_kgf: float, frequency_hz: float, cycles: flo
     quarter = 1 / (4 * frequency_hz)
     extremes = np.round(np.arange(quarter, t[-1] - 1e-9, 2 * quarter) / period_s).astype(int)
     idx = np.unique(np.r_[0, extremes, n])
-    return Programme(t, r, idx, period_s,
+    return ChannelProgramme(t, r, idx, period_s,
                      f"sine mean {mean_kgf:g} kgf, amplitude {amplitude_kgf:g} kgf, "
                      f"{frequency_hz:g} Hz, {cycles:g} cycles", rate)
 
 
-def blocks(table: list[dict], period_s: float, source: str = "blocks") -> Programme:
+def blocks(table: list[dict], period_s: float, source: str = "blocks") -> ChannelProgramme:
     """A block programme: constant-amplitude blocks one after the other. Each block is
     ``cycles`` full cycles mean → peak → mean → valley → mean as haversines at its frequency
     (a quarter cycle each); the programme starts at the first block's mean."""
@@ -261,10 +276,10 @@ def blocks(table: list[dict], period_s: float, source: str = "blocks") -> Progra
     levels.append(last_mean)
     durations.append(1 / (4 * last_freq))
     t, r, rate, idx = _haversine(np.asarray(levels, float), np.asarray(durations, float), period_s)
-    return Programme(t, r, idx, period_s, source, rate, True)
+    return ChannelProgramme(t, r, idx, period_s, source, rate, True)
 
 
-def from_history(t_s, r_kgf, period_s: float, source: str = "history") -> Programme:
+def from_history(t_s, r_kgf, period_s: float, source: str = "history") -> ChannelProgramme:
     """A reference time history resampled (linearly) to the period; its turning points are its
     reversals by more than :data:`HYSTERESIS_SHARE` of its range."""
     t = np.asarray(t_s, float)
@@ -283,7 +298,7 @@ def from_history(t_s, r_kgf, period_s: float, source: str = "history") -> Progra
     idx = turning_points(rr, HYSTERESIS_SHARE * float(np.ptp(rr)))
     if len(idx) < 2 or np.ptp(rr) == 0:
         raise DataError(f"{source}: the reference never changes; nothing to load")
-    return Programme(grid - grid[0], rr, idx, period_s, source)
+    return ChannelProgramme(grid - grid[0], rr, idx, period_s, source)
 
 
 def turning_points(x: np.ndarray, hysteresis: float) -> np.ndarray:
@@ -366,136 +381,12 @@ def flight_by_flight(flights: int, seed: int = 0, ground_kgf: float = 500.0,
     return np.asarray(out)
 
 
-# -- reading programmes -------------------------------------------------------------------------
-_SINE = re.compile(r"^sine:(.*)$", re.I)
-
-
-def load_programme(spec: str, period_s: float, rate_kgf_s: float | None = None,
-                   frequency_hz: float | None = None) -> Programme:
-    """A programme from a file or a spec (see the module docstring for the forms).
-
-    Raises :class:`~core.errors.DataError` / :class:`~core.errors.ParameterError` with the file,
-    the line and what to write when the programme cannot be read."""
-    m = _SINE.match(spec.strip())
-    if m:
-        fields = _keyvalues(m.group(1), spec)
-        need = ("mean", "amplitude", "frequency", "cycles")
-        missing = [k for k in need if k not in fields]
-        extra = sorted(set(fields) - set(need))
-        if missing or extra:
-            raise ParameterError(f"{spec!r}: write sine:mean=KGF,amplitude=KGF,frequency=HZ,cycles=N"
-                                 + (f" (missing {', '.join(missing)})" if missing else "")
-                                 + (f" (unknown {', '.join(extra)})" if extra else ""))
-        return sine(fields["mean"], fields["amplitude"], fields["frequency"], fields["cycles"], period_s)
-    path = Path(spec)
-    if not path.is_file():
-        raise DataError(f"programme {spec!r}: no such file; give a turning-point CSV (column "
-                        "'level'), a time history CSV (columns 't,r'), a block programme (.toml) or "
-                        "sine:mean=...,amplitude=...,frequency=...,cycles=...")
-    if path.suffix.lower() == ".toml":
-        from plant.config import read_toml
-        data = read_toml(path)
-        table = data.get("block")
-        if not isinstance(table, list):
-            raise DataError(f"{path}: a block programme is a list of [[block]] tables with mean, "
-                            "amplitude, frequency and cycles")
-        return blocks(table, period_s, source=f"blocks {path.name}")
-    header, rows = _read_rows(path)
-    if header == ["level"] or (header is None and rows and len(rows[0][1]) == 1):
-        levels = [v[0] for _, v in rows]
-        if rate_kgf_s is None and frequency_hz is None:
-            raise ParameterError(f"{path}: a turning-point sequence needs --rate KGF_PER_S (the "
-                                 "haversines' peak rate) or --frequency HZ")
-        return from_levels(levels, period_s, rate_kgf_s, frequency_hz, source=f"sequence {path.name}")
-    if header in (["t", "r"], None) and rows and len(rows[0][1]) == 2:
-        a = np.array([v for _, v in rows], float)
-        return from_history(a[:, 0], a[:, 1], period_s, source=f"history {path.name}")
-    raise DataError(f"{path}: the header {','.join(header or [])!r} is neither 'level' (a turning-"
-                    "point sequence) nor 't,r' (a time history in s, kgf)")
-
-
-def is_sequence(spec: str) -> bool:
-    """True if ``spec`` names a turning-point sequence (a CSV of levels), whose segments take
-    their time from a rate or a frequency (the other forms carry their own)."""
-    path = Path(spec)
-    if _SINE.match(spec.strip()) or not path.is_file() or path.suffix.lower() == ".toml":
-        return False
-    header, rows = _read_rows(path)
-    return header == ["level"] or (header is None and bool(rows) and len(rows[0][1]) == 1)
-
-
-def _keyvalues(text: str, spec: str) -> dict[str, float]:
-    out = {}
-    for part in filter(None, (p.strip() for p in text.split(","))):
-        key, sep, value = part.partition("=")
-        try:
-            if not sep:
-                raise ValueError
-            out[key.strip().lower()] = float(value)
-        except ValueError:
-            raise ParameterError(f"{spec!r}: {part!r} is not key=number") from None
-    return out
-
-
-def _read_rows(path: Path) -> tuple[list[str] | None, list[tuple[int, list[float]]]]:
-    """A small CSV: an optional header, '#' comments, ',' ';' or tab separated, a decimal comma
-    with ';'. Rows as (line number, values)."""
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError:
-        text = path.read_text(encoding="cp1251")
-    except OSError as exc:
-        raise DataError(f"cannot read {path}: {exc}") from None
-    lines = [(i, ln.strip()) for i, ln in enumerate(text.splitlines(), start=1)
-             if ln.strip() and not ln.lstrip().startswith("#")]
-    if not lines:
-        raise DataError(f"{path}: empty programme")
-    delim = ";" if ";" in lines[0][1] else "\t" if "\t" in lines[0][1] else ","
-    decimal_comma = delim != ","
-    header = None
-    first = [c.strip().lower() for c in next(csv.reader([lines[0][1]], delimiter=delim))]
-    if not all(_is_number(c, decimal_comma) for c in first if c):
-        header = [re.sub(r"\s*[\[(].*$", "", c) for c in first if c]
-        lines = lines[1:]
-    rows = []
-    for lineno, ln in lines:
-        cells = [c.strip() for c in next(csv.reader([ln], delimiter=delim)) if c.strip()]
-        try:
-            rows.append((lineno, [_number(c, decimal_comma) for c in cells]))
-        except ValueError as exc:
-            raise DataError(f"{path}:{lineno}: {exc}") from None
-        if header and len(cells) != len(header):
-            raise DataError(f"{path}:{lineno}: {len(cells)} values for the {len(header)} columns "
-                            f"{','.join(header)}")
-    if not rows:
-        raise DataError(f"{path}: empty programme (a header and no values)")
-    return header, rows
-
-
-def _is_number(text: str, decimal_comma: bool) -> bool:
-    try:
-        _number(text, decimal_comma)
-        return True
-    except ValueError:
-        return False
-
-
-def _number(text: str, decimal_comma: bool) -> float:
-    try:
-        v = float(text.replace(",", ".") if decimal_comma else text)
-    except ValueError:
-        raise ValueError(f"{text!r} is not a number") from None
-    if not math.isfinite(v):
-        raise ValueError(f"{text!r} is not a finite number")
-    return v
-
-
 def _check_period(period_s: float) -> None:
     if not (math.isfinite(period_s) and 0 < period_s <= 0.1):
         raise ParameterError(f"period = {period_s} s: it must be from 0 to 0.1 s")
 
 
-def check_programme(p: Programme, force_limit_kgf: float) -> None:
+def check_programme(p: ChannelProgramme, force_limit_kgf: float) -> None:
     """Refuse a programme the stand must not be asked for: a level at or beyond the force limit."""
     worst = int(np.argmax(np.abs(p.r_kgf)))
     if abs(p.r_kgf[worst]) >= force_limit_kgf:
@@ -504,3 +395,227 @@ def check_programme(p: Programme, force_limit_kgf: float) -> None:
             f"t = {p.t_s[worst]:.3f} s ({p.r_kgf[worst]:g} kgf)"
         raise ParameterError(f"{p.source}: {where} is at or beyond the force limit "
                              f"±{force_limit_kgf:g} kgf; lower the programme or raise the limit")
+
+
+# -- a station's programme ----------------------------------------------------------------------
+@dataclass(frozen=True)
+class Programme:
+    """A programme for every channel of a station on one time grid (module docstring).
+
+    Attributes
+    ----------
+    names : the channels, in the station's order (a one-channel stand's: ``[STAND]``)
+    channels : one programme per channel, all with the same ``t_s``
+    load_cases : True when a turning point is a load case of every channel (the same
+        ``turning_idx`` for all; always for one channel): the ratios between channels at each
+        is part of the report
+    source : what it was made from, for reports
+    case_labels : a label per load case (the CSV's ``case`` column, or 1, 2, ...)
+    """
+
+    names: list[str]
+    channels: list[ChannelProgramme]
+    load_cases: bool
+    source: str
+    case_labels: list[str] | None = None
+
+    def __post_init__(self) -> None:
+        if len(self.names) != len(self.channels) or not self.channels:
+            raise ParameterError(f"{len(self.names)} names for {len(self.channels)} programmes")
+        n = len(self.channels[0].t_s)
+        if any(len(p.t_s) != n for p in self.channels):
+            raise ParameterError("every channel's programme must have the same time grid")
+
+    @classmethod
+    def of(cls, channel: ChannelProgramme, name: str = STAND) -> "Programme":
+        """One channel's programme as a station's of one channel (its turning points are
+        its load cases)."""
+        return cls([name], [channel], True, channel.source)
+
+    @property
+    def n(self) -> int:
+        return len(self.channels)
+
+    @property
+    def stand(self) -> bool:
+        """True for a one-channel stand's programme (its files keep the one-channel forms)."""
+        return self.names == [STAND]
+
+    @property
+    def period_s(self) -> float:
+        return self.channels[0].period_s
+
+    @property
+    def t_s(self) -> np.ndarray:
+        return self.channels[0].t_s
+
+    @property
+    def duration_s(self) -> float:
+        return self.channels[0].duration_s
+
+    @property
+    def r_kgf(self) -> np.ndarray:
+        """(N, K): every channel's reference."""
+        return np.array([p.r_kgf for p in self.channels])
+
+    @property
+    def turning_idx(self) -> np.ndarray:
+        """The load cases' samples (load cases only)."""
+        self._load_cases_only()
+        return self.channels[0].turning_idx
+
+    @property
+    def levels_kgf(self) -> np.ndarray:
+        """(N, M): every channel's level at each load case (load cases only)."""
+        return np.array([p.r_kgf[self.turning_idx] for p in self.channels])
+
+    @property
+    def ranges_kgf(self) -> np.ndarray:
+        return np.array([p.range_kgf for p in self.channels])
+
+    def kinds(self) -> list[list[str]]:
+        """Per channel, per turning point: :meth:`ChannelProgramme.kinds`."""
+        return [p.kinds() for p in self.channels]
+
+    def turning_cases(self) -> np.ndarray:
+        """The load cases (indices from 0, the first and the last left out) where some
+        channel turns (a peak or a valley of its own): where the programme's clock waits for
+        the forces (null pacing) and the tracking report judges the ratios."""
+        kinds = self.kinds()
+        return np.array([k for k in range(1, len(self.turning_idx) - 1)
+                         if any(c[k] in ("peak", "valley") for c in kinds)], int)
+
+    def _load_cases_only(self) -> None:
+        if not self.load_cases:
+            raise ParameterError(f"{self.source}: per-channel sequences have no load cases")
+
+    @property
+    def segment_durations_s(self) -> np.ndarray:
+        """How long each segment between two load cases lasts (s; load cases only)."""
+        self._load_cases_only()
+        return self.channels[0].segment_durations_s
+
+    def with_durations(self, durations_s, source: str | None = None) -> "Programme":
+        """The same load cases with each segment lasting ``durations_s`` (s, one per segment;
+        :meth:`ChannelProgramme.with_durations` on every channel, so they stay on one grid): time
+        scaling."""
+        self._load_cases_only()
+        label = source or self.source
+        return Programme(self.names, [p.with_durations(durations_s, label) for p in self.channels],
+                         True, label, self.case_labels)
+
+    def channel(self, name: str) -> ChannelProgramme:
+        try:
+            return self.channels[self.names.index(name)]
+        except ValueError:
+            raise ParameterError(f"{self.source}: no channel {name!r}; it has "
+                                 f"{', '.join(self.names)}") from None
+
+    def with_levels(self, levels: Sequence[np.ndarray]) -> "Programme":
+        """Each channel's turning points moved to ``levels[i]`` (peak/valley compensation,
+        :meth:`ChannelProgramme.with_levels`); the times are kept, so load cases stay load cases."""
+        return Programme(self.names, [p.with_levels(lv) for p, lv in zip(self.channels, levels)],
+                         self.load_cases, self.source, self.case_labels)
+
+    def check(self, force_limits_kgf: Sequence[float]) -> None:
+        """Refuse a level at or beyond a channel's force limit (naming the channel)."""
+        for name, p, limit in zip(self.names, self.channels, force_limits_kgf):
+            try:
+                check_programme(p, limit)
+            except ParameterError as exc:
+                raise ParameterError(f"channel {name}: {exc}") from None
+
+
+def as_programme(programme: "Programme | ChannelProgramme") -> Programme:
+    """A station's programme as it is, or one channel's as a one-channel stand's
+    (:meth:`Programme.of`): what a station's functions take, as numpy takes a scalar."""
+    return Programme.of(programme) if isinstance(programme, ChannelProgramme) else programme
+
+
+# -- making a station's programmes ------------------------------------------------------------------
+def from_load_cases(levels_kgf, names: Sequence[str], period_s: float,
+                    rate_kgf_s: float | None = None, frequency_hz: float | None = None,
+                    source: str = "load cases", labels: Sequence[str] | None = None) -> Programme:
+    """Load cases ``levels_kgf`` (N channels × M cases): haversines of a common duration per
+    segment, the channel that moves the most at ``rate_kgf_s`` (module docstring), or one half
+    cycle at ``frequency_hz``."""
+    L = np.asarray(levels_kgf, float)
+    names = list(names)
+    _check_period(period_s)
+    if L.ndim != 2 or L.shape[0] != len(names):
+        raise DataError(f"{source}: {len(names)} channels expected, got levels of shape {L.shape}")
+    if L.shape[1] < 2:
+        raise DataError(f"{source}: a programme needs at least 2 load cases, got {L.shape[1]}")
+    if not np.isfinite(L).all():
+        raise DataError(f"{source}: a level is not a finite number")
+    span = np.max(np.abs(np.diff(L, axis=1)), axis=0)
+    still = np.flatnonzero(span == 0)
+    if len(still):
+        k = int(still[0])
+        raise DataError(f"{source}: load cases {_label(labels, k)} and {_label(labels, k + 1)} are "
+                        "the same for every channel; a load case must differ from the one before")
+    if (rate_kgf_s is None) == (frequency_hz is None):
+        raise ParameterError("give either a rate (kgf/s) or a frequency (Hz) for the haversines "
+                             "between load cases, not both or neither")
+    if rate_kgf_s is not None:
+        if not (math.isfinite(rate_kgf_s) and rate_kgf_s > 0):
+            raise ParameterError(f"rate = {rate_kgf_s} kgf/s: it must be a positive number")
+        durations = np.pi * span / (2 * rate_kgf_s)
+        how = f"{rate_kgf_s:g} kgf/s"
+    else:
+        if not (math.isfinite(frequency_hz) and frequency_hz > 0):
+            raise ParameterError(f"frequency = {frequency_hz} Hz: it must be a positive number")
+        durations = np.full(L.shape[1] - 1, 1 / (2 * frequency_hz))
+        how = f"{frequency_hz:g} Hz"
+    label = f"{source}, {how}"
+    programmes = []
+    for row in L:
+        t, r, rate, idx = _haversine(row, durations, period_s)
+        programmes.append(ChannelProgramme(t, r, idx, period_s, label, rate, True))
+    return Programme(names, programmes, True, label,
+                     list(labels) if labels is not None else [str(k + 1) for k in range(L.shape[1])])
+
+
+def from_channel_programmes(programmes: Sequence[ChannelProgramme], names: Sequence[str],
+                            source: str = "per-channel sequences") -> Programme:
+    """Independent programmes on one clock: each shorter one holds its last level until the
+    longest ends (its last turning point moves to the end, the hold is part of its last
+    segment). With several channels they share no load cases; one channel's turning points
+    are its load cases."""
+    programmes = list(programmes)
+    if len({p.period_s for p in programmes}) != 1:
+        raise ParameterError("every channel's programme must be sampled at the same period")
+    n = max(len(p.t_s) for p in programmes)
+    T = programmes[0].period_s
+    out = []
+    for p in programmes:
+        pad = n - len(p.t_s)
+        if pad:
+            r = np.r_[p.r_kgf, np.full(pad, p.r_kgf[-1])]
+            rate = np.r_[p.rate_kgf_s(), np.zeros(pad)]
+            idx = p.turning_idx.copy()
+            idx[-1] = n - 1
+            p = ChannelProgramme(np.arange(n) * T, r, idx, T, p.source, rate)
+        out.append(p)
+    return Programme(list(names), out, len(out) == 1, source)
+
+
+def random_load_cases(n_cases: int, bands_kgf: Sequence[tuple[float, float]], seed: int = 0,
+                      antiphase: Sequence[bool] | None = None) -> np.ndarray:
+    r"""``n_cases`` load cases (N × n_cases) alternating between peaks and valleys on every
+    channel at once: each channel's levels drawn uniformly in its band (low, high), at least
+    5 % of the band from the one before (:func:`random_sequence`, a seed per
+    channel from ``seed``), so the ratios between the channels change from case to case. A
+    channel in ``antiphase`` is mirrored in its band (its valleys at the others' peaks). For
+    benchmarks and tests: the structure of a multi-channel test's load cases, not any test's
+    content."""
+    antiphase = list(antiphase) if antiphase is not None else [False] * len(bands_kgf)
+    rows = []
+    for i, ((low, high), anti) in enumerate(zip(bands_kgf, antiphase)):
+        seq = random_sequence(n_cases, low, high, seed=seed * 1000 + i)
+        rows.append(low + high - seq if anti else seq)
+    return np.array(rows)
+
+
+def _label(labels: Sequence[str] | None, k: int) -> str:
+    return labels[k] if labels is not None else str(k + 1)

@@ -35,6 +35,13 @@ result (``schedule.toml``), which a production run replays (``stand load --sched
 The duration a segment is given is rounded to whole loop periods, never below the floor's.
 Before a pass the feedforward's check may still find a segment the valve cannot follow (a lag,
 a slew limit the minimum does not count): :func:`stretch_to_valve` lengthens it by the excess.
+
+**A station of channels**: between two load cases every channel moves (one common duration, so
+the load case's ratios hold at its turning point), so a segment's verdict is the worst of its
+channels' at the load case it arrives at (:meth:`TimeScaler.station_verdicts`): it lands only
+when every channel lands, misses when one misses. A pass meets the accuracy when every channel
+does (:func:`meets`). The floors are each segment's valve-limited minimum through the station's
+model (:mod:`loading.minimum_time`).
 """
 from __future__ import annotations
 
@@ -46,11 +53,12 @@ import numpy as np
 
 from core.errors import ParameterError
 
-from .programme import Programme, turning_points
-from .report import GATE_PCT, TrackingReport
+from .programme import ChannelProgramme, Programme, as_programme, turning_points
+from .report import GATE_PCT, ChannelReport, TrackingReport
 
 SCHEMA = "hydrostand-schedule/1"
 LAND, HOLD, MISS = "land", "hold", "miss"
+_WORSE = {LAND: 0, HOLD: 1, MISS: 2}
 #: a segment is never made longer than this many times its start (or twice its floor)
 CEILING = 4.0
 #: the programme counts as settled when this share of its segments are
@@ -82,9 +90,9 @@ class ScalingOptions:
 
 @dataclass
 class Schedule:
-    """Segment durations for a programme's turning points (``schedule.toml``); a rig's
-    (``stand load --rig``) names its ``channels`` and has a row of levels per channel, its
-    segments being those between load cases."""
+    """Segment durations for a programme's load cases (``schedule.toml``): a one-channel
+    stand's has its turning points' levels; a rig's (``stand load --rig``) names its
+    ``channels`` and has a row of levels per channel."""
 
     levels_kgf: np.ndarray
     durations_s: np.ndarray
@@ -97,40 +105,51 @@ class Schedule:
     notes: list[str] = field(default_factory=list)
     #: a rig's schedule: its channels, in the order of the rows of ``levels_kgf``
     channels: list[str] | None = None
+    #: the peak/valley corrections the pass that met the accuracy ran with: a compensation file
+    #: beside the schedule (its name), which a replay starts from
+    compensation: str | None = None
+    #: where the schedule was read from (a compensation file is named relative to it)
+    path: Path | None = field(default=None, compare=False)
 
     @property
     def time_s(self) -> float:
         return float(np.sum(self.durations_s))
 
-    def apply(self, programme: Programme) -> Programme:
-        """The programme with these durations; refused if its turning points are not these."""
-        if self.channels is not None:
-            raise ParameterError(f"the schedule ({self.source or 'schedule.toml'}) is a rig's (channels "
-                                 f"{', '.join(self.channels)}): replay it with --rig")
-        lv = programme.levels_kgf
-        if lv.shape != self.levels_kgf.shape or not np.allclose(lv, self.levels_kgf, atol=0.05):
-            where = (f"it has {len(lv)} turning points, the schedule {len(self.levels_kgf)}"
-                     if lv.shape != self.levels_kgf.shape else f"turning point {self._first_difference(lv)} differs")
-            raise ParameterError(f"the schedule ({self.source or 'schedule.toml'}) was made for another "
-                                 f"programme than {programme.source}: {where}; run --fastest or "
-                                 "--accuracy on this programme to make its schedule")
-        return self._timed(programme)
+    @classmethod
+    def of(cls, programme: Programme, durations_s: np.ndarray, accuracy_pct: float, minimum_time_s: float,
+           verified: bool, notes: list[str]) -> "Schedule":
+        """The schedule of a station's programme with these durations (a one-channel stand's
+        in the one-channel form)."""
+        stand = programme.stand
+        return cls(programme.levels_kgf[0] if stand else programme.levels_kgf, np.asarray(durations_s, float),
+                   programme.period_s, accuracy_pct, minimum_time_s, programme.source, verified, notes,
+                   None if stand else list(programme.names))
 
-    def apply_rig(self, programme):
-        """A rig's load-case programme (:class:`loading.rig_programme.RigProgramme`) with these
-        durations; refused if its channels or load cases are not these."""
+    def apply(self, programme: Programme | ChannelProgramme) -> Programme:
+        """The station's programme with these durations; refused if its channels or load
+        cases are not these."""
+        programme = as_programme(programme)
         what = self.source or "schedule.toml"
-        if self.channels is None:
+        if self.channels is not None and programme.stand:
+            raise ParameterError(f"the schedule ({what}) is a rig's (channels {', '.join(self.channels)}): "
+                                 "replay it with --rig")
+        if self.channels is None and not programme.stand:
             raise ParameterError(f"the schedule ({what}) is one channel's: it cannot time a rig's load "
                                  "cases; make one with stand load --rig --fastest")
-        if list(self.channels) != list(programme.names):
+        if self.channels is not None and list(self.channels) != list(programme.names):
             raise ParameterError(f"the schedule ({what}) is for the channels {', '.join(self.channels)}, "
                                  f"the rig has {', '.join(programme.names)}")
         if not programme.load_cases:
             raise ParameterError(f"{programme.source}: per-channel sequences have no load cases to "
                                  "time; a schedule times a load-case CSV")
-        lv = programme.levels_kgf
+        lv = programme.levels_kgf[0] if self.channels is None else programme.levels_kgf
         if lv.shape != self.levels_kgf.shape or not np.allclose(lv, self.levels_kgf, atol=0.05):
+            if self.channels is None:
+                where = (f"it has {len(lv)} turning points, the schedule {len(self.levels_kgf)}"
+                         if lv.shape != self.levels_kgf.shape else f"turning point {self._first_difference(lv)} differs")
+                raise ParameterError(f"the schedule ({what}) was made for another programme than "
+                                     f"{programme.source}: {where}; run --fastest or --accuracy on this "
+                                     "programme to make its schedule")
             where = (f"it has {lv.shape[1]} load cases, the schedule {self.levels_kgf.shape[1]}"
                      if lv.shape != self.levels_kgf.shape else f"load case {self._first_difference(lv)} differs")
             raise ParameterError(f"the schedule ({what}) was made for other load cases than "
@@ -164,7 +183,16 @@ class Schedule:
         else:
             out += ["levels_kgf = [" + ", ".join(repr(float(v)) for v in self.levels_kgf) + "]"]
         out += ["durations_s = [" + ", ".join(f"{v:.9g}" for v in self.durations_s) + "]"]
+        if self.compensation is not None:
+            out += [f"compensation = {_quote(self.compensation)}"]
         return "\n".join(out) + "\n"
+
+    @property
+    def compensation_path(self) -> Path | None:
+        """The compensation file the schedule's pass ran with (None: it ran without one)."""
+        if self.compensation is None:
+            return None
+        return (self.path.parent if self.path is not None else Path(".")) / self.compensation
 
     def save(self, path: str | Path) -> Path:
         path = Path(path)
@@ -181,7 +209,8 @@ class Schedule:
                     float(d["period_s"]), float(d.get("accuracy_pct", math.nan)),
                     float(d.get("minimum_time_s", math.nan)), str(d.get("source", path)),
                     bool(d.get("verified", False)), list(d.get("notes", [])),
-                    [str(n) for n in d["channels"]] if "channels" in d else None)
+                    [str(n) for n in d["channels"]] if "channels" in d else None,
+                    str(d["compensation"]) if "compensation" in d else None, Path(path))
         except (ModelError, KeyError, TypeError, ValueError) as exc:
             raise ParameterError(f"{path}: not a schedule file ({exc}); write one with stand load "
                                  "--fastest or --accuracy") from None
@@ -200,7 +229,7 @@ def _quote(text: str) -> str:
     return '"' + str(text).replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
-def ringing_turning_points(programme: Programme, t_s: np.ndarray, y_kgf: np.ndarray,
+def ringing_turning_points(programme: ChannelProgramme, t_s: np.ndarray, y_kgf: np.ndarray,
                            gate_pct: float = GATE_PCT) -> set[int]:
     """The turning points (their sample in the programme) near which the force reversed more
     than once beyond the gate: where an extra cycle rang. Each turning point's window runs from
@@ -221,7 +250,7 @@ def ringing_turning_points(programme: Programme, t_s: np.ndarray, y_kgf: np.ndar
 class TimeScaler:
     """The per-segment bisection of the module docstring, pass after pass."""
 
-    def __init__(self, programme: Programme, minimum_s: np.ndarray, start_s: np.ndarray,
+    def __init__(self, programme: Programme | ChannelProgramme, minimum_s: np.ndarray, start_s: np.ndarray,
                  options: ScalingOptions) -> None:
         options.check()
         T = programme.period_s
@@ -236,11 +265,11 @@ class TimeScaler:
         self.settled = np.zeros(len(self.floor), bool)
         self.last: dict[str, int] = {}
 
-    def verdicts(self, programme: Programme, report: TrackingReport, ringing: set[int] = frozenset(),
+    def verdicts(self, programme: ChannelProgramme, report: ChannelReport, ringing: set[int] = frozenset(),
                  paced_s: dict[int, float] | None = None) -> list[str]:
-        """Per segment: land, hold or miss (module docstring), from the ``report`` of the pass
-        that ran ``programme`` (the scaled one: turning points by its samples); a segment
-        arriving at no peak or valley (the last) lands."""
+        """Per segment: land, hold or miss (module docstring), from one channel's ``report``
+        of the pass that ran ``programme`` (the scaled one: turning points by its samples); a
+        segment arriving at no peak or valley (the last) lands."""
         a = self.options.accuracy_pct
         idx = programme.turning_idx
         arriving = {int(s): j for j, s in enumerate(idx[1:])}
@@ -255,6 +284,18 @@ class TimeScaler:
                 out[j] = MISS
             elif err > self.options.land_share * a:
                 out[j] = HOLD
+        self.last = {v: out.count(v) for v in (LAND, HOLD, MISS)}
+        return out
+
+    def station_verdicts(self, programme: Programme, report: TrackingReport, t_s: np.ndarray,
+                         y_kgf: np.ndarray, paced_s: dict[int, float] | None = None) -> list[str]:
+        """Per segment between load cases: land, hold or miss, the worst of the channels'
+        (module docstring), from the pass that ran ``programme`` and recorded the forces
+        ``y_kgf`` (N, K) at ``t_s`` (the programme's clock); ``paced_s``: the time the programme
+        waited heading to each load case (its sample): a segment it waited for misses."""
+        per_channel = [self.verdicts(p, r, ringing_turning_points(p, t_s, y), paced_s)
+                       for p, r, y in zip(programme.channels, report.channels, np.asarray(y_kgf, float))]
+        out = [max(v, key=_WORSE.__getitem__) for v in zip(*per_channel)]
         self.last = {v: out.count(v) for v in (LAND, HOLD, MISS)}
         return out
 
@@ -297,7 +338,14 @@ class TimeScaler:
 
 
 def meets(report: TrackingReport, accuracy_pct: float) -> bool:
-    """p95 of the peak/valley error within the accuracy, max within twice it, no extra cycle."""
+    """On every channel: p95 of the peak/valley error within the accuracy, max within twice
+    it, no extra cycle."""
+    return all(channel_meets(r, accuracy_pct) for r in report.channels)
+
+
+def channel_meets(report: ChannelReport, accuracy_pct: float) -> bool:
+    """One channel's p95 of the peak/valley error within the accuracy, max within twice it, no
+    extra cycle."""
     pv = report.peak_valley_error_pct
     return pv["p95"] <= accuracy_pct and pv["max"] <= 2 * accuracy_pct and report.extra_cycles == 0
 

@@ -68,7 +68,7 @@ PART_LEVELS = {
     ],
     # the effect contract at the bottom, the built-ins and the loader above it, the model above
     # them, then what loads a user's plug-ins (it checks them by simulating), the rig's coupled
-    # channels, the files, and the rig model files (G and a model file's tables per channel)
+    # channels, then the files (model files, a rig's among them, and emulator configurations)
     "plant": [
         {"params", "evidence"},
         {"signals", "start_grids", "sensor"},
@@ -78,7 +78,6 @@ PART_LEVELS = {
         {"model"},
         {"plugins", "rig"},
         {"config", "skeleton"},
-        {"rig_config"},
     ],
 }
 

@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 
 from core.errors import ParameterError
-from loading.compensation import Compensation
+from loading.compensation import ChannelCompensation
 from loading.controller import PIFeedforward
-from loading.design import design, load_controller, margins
-from loading.feedforward import feedforward
+from loading.controller_files import load_controller
+from loading.design import design_channel as design
+from loading.feedforward import channel_feedforward as feedforward
+from loading.margins import margins
 from loading.programme import from_levels, random_sequence
 from plant import PlantModel
 
@@ -73,7 +75,7 @@ def test_the_pi_law_holds_its_integral_at_the_command_limit():
 
 
 def test_compensation_learns_a_level_dependent_error_away():
-    comp = Compensation()
+    comp = ChannelCompensation()
     levels = np.array([3000.0, 5000, 1000, 5500, 800, 3000])
     kinds = ["start", "peak", "valley", "peak", "valley", "end"]
     worst = []
@@ -92,10 +94,10 @@ def test_compensation_learns_a_level_dependent_error_away():
 
 
 def test_a_correction_is_bounded_by_5_percent_of_the_range(tmp_path):
-    comp = Compensation()
+    comp = ChannelCompensation()
     comp.learn([SimpleNamespace(kind="peak", commanded_kgf=5000, error_kgf=-2000)], 4000.0)
     assert comp.correction("peak", 5000) == pytest.approx(200.0)
-    back = Compensation.load(comp.save(tmp_path / "c.toml"))
+    back = ChannelCompensation.load(comp.save(tmp_path / "c.toml"))
     assert back.table == comp.table
 
 
@@ -103,7 +105,7 @@ def test_a_controller_file_round_trips_and_is_validated(tmp_path):
     c = design(PlantModel.from_spec("base+reversal", TRUTH), T)
     f = tmp_path / "c.toml"
     f.write_text(c.to_toml())
-    back = load_controller(f, T)
+    back = load_controller(f, T).channels[0]
     assert back.kp_pct_per_kgf == c.kp_pct_per_kgf and back.model.params() == c.model.params()
     with pytest.raises(ParameterError, match="designed for a period of 2 ms.*runs at 5 ms"):
         load_controller(f, 0.005)
@@ -141,7 +143,7 @@ def test_compensation_learns_each_level_from_the_correction_it_ran_with():
     from zero. (It once took as the old value the interpolation of the corrections learned a
     moment before at other levels of the same pass: one level's error moved them all, and a
     random sequence came out worse after compensation than before.)"""
-    comp = Compensation()
+    comp = ChannelCompensation()
     errors = {1000.0: 12.0, 5000.0: 4.0, 3000.0: -6.0, 6000.0: 3.0}
     comp.learn([SimpleNamespace(kind="peak", commanded_kgf=lv, error_kgf=e) for lv, e in errors.items()],
                5000.0)
@@ -168,7 +170,7 @@ def test_compensation_is_never_worse_than_the_best_it_has_seen():
     levels = np.array([3000.0, 5000, 1000, 3000])
     kinds = ["start", "peak", "valley", "end"]
     offset = np.array([0.0, 20.0, -15.0, 0.0])
-    comp = Compensation()
+    comp = ChannelCompensation()
     worst = []
     for _ in range(12):
         pts = _respond(comp, levels, kinds, 3.0, offset)
@@ -184,7 +186,7 @@ def test_compensation_is_never_worse_than_the_best_it_has_seen():
 def test_compensation_leaves_errors_within_the_tolerance_band_alone():
     levels = np.array([3000.0, 5000, 1000, 3000])
     kinds = ["start", "peak", "valley", "end"]
-    comp = Compensation()
+    comp = ChannelCompensation()
     noise = np.random.default_rng(4)
     for _ in range(10):
         comp.learn(_respond(comp, levels, kinds, 1.0, 0.0, noise.uniform(-1.9, 1.9, 4)), 4000.0)

@@ -53,7 +53,7 @@ def test_a_stable_stand_gives_no_false_alarm_over_50_blocks(bus_spec, start_emul
         res = run_load(gw, sine(3500, 2500, 0.25, 8, T), controller(), tmp_path / "stable", progress=False,
                        monitor=MonitorOptions(block_s=0.5, action="hold"))
     assert res.end_reason is None, res.end_message
-    blocks = res.monitor.blocks
+    blocks = res.monitor.channels[0].blocks
     est = [b for b in blocks if b.g is not None]
     assert len(blocks) >= 50 and len(est) >= 0.9 * len(blocks), (len(blocks), len(est))
     assert res.monitor.alarm is None and not any(b.alarm for b in blocks)
@@ -79,7 +79,7 @@ def test_a_g_falling_3_percent_over_the_run_raises_the_alarm_within_8_blocks_and
                        monitor=MonitorOptions(block_s=1.0, action="hold", fall_pct=2.0))
     assert res.end_reason == "gain_alarm" and "fell" in res.end_message and "holds" in res.end_message
     offset = approach_s(res.run_dirs[0])
-    est = [b for b in res.monitor.blocks if b.g is not None]
+    est = [b for b in res.monitor.channels[0].blocks if b.g is not None]
 
     def true_g(b) -> float:
         return 120.0 * (1 + rate * (offset + (b.start_s + b.end_s) / 2))
@@ -87,7 +87,7 @@ def test_a_g_falling_3_percent_over_the_run_raises_the_alarm_within_8_blocks_and
     crossing = next(i for i, b in enumerate(est) if true_g(b) < 0.98 * 120)
     alarm = next(i for i, b in enumerate(est) if b.alarm)
     assert est[alarm].alarm == "fall" and 0 <= alarm - crossing <= ALARM_WITHIN_BLOCKS, (crossing, alarm)
-    assert res.monitor.g_follow == pytest.approx(est[alarm].g), "the feedforward followed the estimate"
+    assert res.monitor.channels[0].g_follow == pytest.approx(est[alarm].g), "the feedforward followed the estimate"
     meta = json.loads((res.run_dirs[0] / "run.json").read_text())
     assert meta["status"] == "stopped" and meta["end_reason"] == "gain_alarm"
     # stand report plots g through the test
@@ -107,7 +107,7 @@ def test_a_crack_raises_the_alarm_and_the_stand_is_unloaded(bus_spec, start_emul
                        monitor=MonitorOptions(block_s=1.0, action="unload"))
     assert res.end_reason == "gain_alarm" and "unloaded (unloaded)" in res.end_message, res.end_message
     offset = approach_s(res.run_dirs[0])
-    est = [b for b in res.monitor.blocks if b.g is not None]
+    est = [b for b in res.monitor.channels[0].blocks if b.g is not None]
     after = [i for i, b in enumerate(est) if offset + b.start_s >= 12.0]
     alarm = next(i for i, b in enumerate(est) if b.alarm)
     assert 0 <= alarm - after[0] <= 2, (after[0], alarm)

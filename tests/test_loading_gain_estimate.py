@@ -9,33 +9,34 @@ import pytest
 from core.errors import ParameterError
 from gateway.load_experiment import LoadProgramme
 from loading.design import design
-from loading.gain_monitor import GainMonitor, MonitorOptions, margin_table
+from loading.gain_monitor import ChannelGainMonitor, GainMonitor, MonitorOptions
 from loading.programme import from_levels, random_sequence
 from plant import PlantModel
 from plant_emulator.lockstep_plant import LockstepPlant
+from tests.support.station_step import stepper
 
 T = 0.002
 MODEL = {"g": 120.0, "tau": 0.05, "delta": 8.0, "reversal.boost": 2.0}
 
 
-def watched(truth: PlantModel, options: MonitorOptions, seed: int = 1) -> GainMonitor:
-    """A pass of 40 random turning points at 5000 kgf/s against ``truth``, 2 kgf of noise."""
+def watched(truth: PlantModel, options: MonitorOptions, seed: int = 1) -> ChannelGainMonitor:
+    """A pass of 40 random turning points at 5000 kgf/s against ``truth``, 2 kgf of noise; the
+    stand's one channel's monitor."""
     model = PlantModel.from_spec("base+reversal", MODEL)
     c = design(model, T)
-    monitor = GainMonitor(model.g, model.tau, model.delta, T, options,
-                          margin_table(c.kp_pct_per_kgf, c.ti_s, model.g, model.tau, T, c.boost))
+    monitor = GainMonitor.for_controller(c, T, options)
     e = LoadProgramme(from_levels(random_sequence(40, 400, 6200, seed=3), T, rate_kgf_s=5000), c, monitor=monitor)
     plant = LockstepPlant(truth, 0.0, 0.0005)
     rng = np.random.default_rng(seed)
-    e.configure(T, 10000.0)
+    begin, finished, step, _aborted = stepper(e, T, 10000.0)
     y, t = 0.0, 0.0
-    e.begin(y)
-    while not e.finished(t, y) and e.abort is None:
-        u, _ = e.step(t, y)
+    begin(y)
+    while not finished(t, y) and e.abort is None:
+        u, _ = step(t, y)
         y = plant.step(T, u) + rng.normal(0.0, 2.0)
         t += T
     monitor.end_pass()
-    return monitor
+    return monitor.channels[0]
 
 
 def test_a_lower_g_is_read_within_its_interval_and_a_wrong_boost_does_not_bend_it():

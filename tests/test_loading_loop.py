@@ -14,14 +14,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gateway.load import LoadProgramme, OneWayApproach, _pre_roll
+from gateway.load_experiment import LoadProgramme, OneWayApproach, pre_roll
 from loading.controller import PIFeedforward
 from loading.design import design
-from loading.feedforward import feedback_scale, feedforward
-from loading.programme import from_levels, random_sequence, sine
-from loading.report import tracking_report
+from loading.feedforward import channel_feedforward as feedforward
+from loading.feedforward import feedback_scale
+from loading.programme import Programme, from_levels, random_sequence, sine
+from loading.report import channel_report as tracking_report
 from plant import PlantModel
 from plant_emulator.lockstep_plant import LockstepPlant
+from tests.support.station_step import stepper
 
 T = 0.002
 STANDS = {
@@ -35,23 +37,25 @@ def closed_loop(truth: PlantModel, experiment: LoadProgramme, y0: float, seed: i
     """Run one pass of ``experiment`` against ``truth``; the tracking report."""
     plant = LockstepPlant(truth, y0, 0.0005)
     rng = np.random.default_rng(seed)
-    experiment.configure(T, 10000.0)
+    begin, finished, step, _aborted = stepper(experiment, T, 10000.0)
     y, t = y0, 0.0
-    experiment.begin(y)
+    begin(y)
     ts, ys = [], []
-    while not experiment.finished(t, y):
-        u, _ = experiment.step(t, y)
+    while not finished(t, y):
+        u, _ = step(t, y)
         y = plant.step(T, u) + rng.normal(0.0, 2.0)
         t += T
         ts.append(t)
         ys.append(y)
-    return tracking_report(experiment.programme, np.array(ts) - experiment.programme_start_s, np.array(ys))
+    return tracking_report(experiment.programme.channels[0], np.array(ts) - experiment.programme_start_s,
+                           np.array(ys))
 
 
 def without_schedule_and_sign_hold(experiment: LoadProgramme) -> LoadProgramme:
-    for plan in experiment.plans.values():
-        plan.scale[:] = 1.0
-        plan.way[:] = 0.0
+    for plans in experiment.plans.values():
+        for plan in plans:
+            plan.scale[:] = 1.0
+            plan.way[:] = 0.0
     return experiment
 
 
@@ -89,7 +93,7 @@ def test_the_first_turning_point_is_as_good_as_the_others_whichever_side_the_for
 def test_the_feedback_is_scaled_where_the_model_gain_exceeds_rho():
     spec, values = STANDS["default"]
     model = PlantModel.from_spec(spec, values)
-    c = design(model, T)
+    c = design(model, T).channels[0]
     p = from_levels([1000, 5000, 1000], T, rate_kgf_s=2500)
     ff = feedforward(model, p.r_kgf, T)
     scale = feedback_scale(ff, c.boost)
@@ -120,9 +124,9 @@ def test_the_approach_moves_one_way_and_the_pre_roll_goes_against_the_trend():
     assert a.step(0.0, 100.0) > 0 and a.step(0.1, 3100.0) == 0.0
     p = from_levels([400, 5000, 1000], T, rate_kgf_s=2500)
     for trend, side in ((8.0, 1.0), (-8.0, -1.0)):      # starts above the level for Δ > 0
-        pre = _pre_roll(p, trend, 20.0)
+        pre = pre_roll(Programme.of(p), [trend], 20.0)[0]
         assert np.sign(pre[0] - 400) == side and abs(pre[0] - 400) == pytest.approx(0.02 * 4600)
         assert np.all(np.diff(pre) * side <= 0) and abs(pre[-1] - 400) < 0.1
-    assert _pre_roll(p, 0.0, 20.0)[0] < 400, "no trend: from behind the first motion"
+    assert pre_roll(Programme.of(p), [0.0], 20.0)[0][0] < 400, "no trend: from behind the first motion"
     low = from_levels([50, 5000, 1000], T, rate_kgf_s=2500)
-    assert _pre_roll(low, -8.0, 20.0)[0] == 0.0, "a pre-roll never crosses 0 kgf"
+    assert pre_roll(Programme.of(low), [-8.0], 20.0)[0][0] == 0.0, "a pre-roll never crosses 0 kgf"

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from core.errors import ParameterError
-from loading.minimum_time import FEEDFORWARD_SHARE, minimum_durations_s, programme_timing, valve_limit
+from loading.minimum_time import FEEDFORWARD_SHARE, programme_timing, valve_limit
 from loading.programme import from_levels
 from plant import PlantModel
 from stand.cli import main as stand
@@ -27,7 +27,7 @@ def test_on_the_base_model_each_segment_takes_pi_span_over_twice_the_valve_rate(
     up, down = 120.0 * FEEDFORWARD_SHARE * 100 + 8.0, 120.0 * FEEDFORWARD_SHARE * 100 - 8.0
     spans = np.diff(LEVELS)
     want = [math.pi * abs(s) / (2 * (up if s > 0 else down)) for s in spans]
-    assert np.allclose(minimum_durations_s(p, timing.limit), want, rtol=1e-6)
+    assert np.allclose(timing.minimum_s, want, rtol=1e-6)
     assert timing.minimum_time_s == pytest.approx(sum(want), rel=1e-6)
     assert timing.programme_time_s == pytest.approx(p.duration_s)
     # 2500 kgf/s against 10 800: the programme is 4.3 times slower than the valve allows

@@ -20,6 +20,7 @@ from plant import PlantModel
 from plant_emulator.lockstep_plant import LockstepPlant
 from stand.cli import main as stand
 from tests.support.stand import BASE, plant
+from tests.support.station_step import stepper
 
 T = 0.002
 MODEL = {**BASE, "reversal.boost": 2.0}
@@ -69,11 +70,11 @@ def test_a_slow_valve_misses_turning_points_without_pacing_and_none_with_it(bus_
 def closed_loop(truth: PlantModel, e: LoadProgramme, steps: int | None = None) -> list[float]:
     """Run ``e`` against ``truth`` offline (no noise); the forces read."""
     plant_ = LockstepPlant(truth, 0.0, 0.0005)
-    e.configure(T, 10000.0)
+    begin, finished, step, _aborted = stepper(e, T, 10000.0)
     y, t, ys = 0.0, 0.0, []
-    e.begin(y)
-    while not e.finished(t, y) and (steps is None or len(ys) < steps):
-        u, _ = e.step(t, y)
+    begin(y)
+    while not finished(t, y) and (steps is None or len(ys) < steps):
+        u, _ = step(t, y)
         if e.abort:
             break
         y = plant_.step(T, u)
@@ -89,7 +90,7 @@ def test_the_clock_runs_sample_for_sample_while_the_force_follows():
     closed_loop(model, paced)
     assert paced.clock.record.pacing_s == 0.0 and paced.clock.record.waits == 0
     assert np.array_equal(paced.positions, np.arange(len(paced.positions)))
-    assert len(paced.positions) == len(paced.reference)
+    assert len(paced.positions) == paced.reference.shape[1]
 
 
 def test_a_level_the_stand_cannot_reach_stops_the_pass_after_the_timeout():
@@ -108,7 +109,7 @@ def test_a_level_the_stand_cannot_reach_stops_the_pass_after_the_timeout():
 def test_the_gate_sits_a_delay_before_its_turning_point_and_never_before_the_last_one():
     r = np.r_[np.linspace(0, 1000, 101), np.linspace(990, 900, 10), np.linspace(910, 2000, 100)]
     turnings = np.array([100, 110])
-    clock = ProgrammeClock(r, turnings, 25, 120.0, T, PacingOptions("static"), 20.0)
+    clock = ProgrammeClock(r[None, :], turnings, [25], [120.0], T, PacingOptions("static"), [20.0])
     assert [g.position for g in clock.gates] == [75, 101]
     assert [g.way for g in clock.gates] == [1.0, -1.0]
     for bad, match in ((PacingOptions("sometimes"), "choose one of off, static, dynamic"),

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from core.errors import DataError, ParameterError
-from loading.programme import (check_programme, flight_by_flight, from_levels, load_programme,
-                               random_sequence, sine)
+from loading.programme import check_programme, flight_by_flight, from_levels, random_sequence, sine
+from loading.programme_files import load_channel_programme
 
 T = 0.002
 
@@ -16,7 +16,7 @@ T = 0.002
 def test_a_turning_point_csv_becomes_haversines_at_the_peak_rate(tmp_path):
     f = tmp_path / "tp.csv"
     f.write_text("level\n400\n6200\n# a comment\n1000\n5000\n")
-    p = load_programme(str(f), T, rate_kgf_s=2500)
+    p = load_channel_programme(str(f), T, rate_kgf_s=2500)
     assert np.allclose(p.levels_kgf, [400, 6200, 1000, 5000])
     assert abs(np.max(np.abs(np.diff(p.r_kgf))) / T - 2500) < 5
     assert p.kinds() == ["start", "peak", "valley", "end"]
@@ -27,13 +27,13 @@ def test_a_turning_point_csv_becomes_haversines_at_the_peak_rate(tmp_path):
 def test_a_decimal_comma_sequence_and_a_frequency_are_read(tmp_path):
     f = tmp_path / "tp.csv"
     f.write_text("level;\n400,5;\n3000,25;\n1000;\n", encoding="utf-8")
-    p = load_programme(str(f), T, frequency_hz=0.5)
+    p = load_channel_programme(str(f), T, frequency_hz=0.5)
     assert np.allclose(p.levels_kgf, [400.5, 3000.25, 1000])
     assert np.allclose(np.diff(p.t_s[p.turning_idx]), 1.0)
 
 
 def test_a_sine_spec_has_its_peaks_and_valleys_at_mean_plus_minus_amplitude():
-    p = load_programme("sine:mean=3000,amplitude=2000,frequency=0.2,cycles=3", T)
+    p = load_channel_programme("sine:mean=3000,amplitude=2000,frequency=0.2,cycles=3", T)
     kinds = p.kinds()
     peaks = p.levels_kgf[[k == "peak" for k in kinds]]
     valleys = p.levels_kgf[[k == "valley" for k in kinds]]
@@ -46,7 +46,7 @@ def test_a_block_programme_joins_its_blocks(tmp_path):
     f = tmp_path / "blocks.toml"
     f.write_text("[[block]]\nmean = 3000\namplitude = 1000\nfrequency = 0.5\ncycles = 2\n"
                  "[[block]]\nmean = 3000\namplitude = 2000\nfrequency = 0.2\ncycles = 1\n")
-    p = load_programme(str(f), T)
+    p = load_channel_programme(str(f), T)
     assert np.allclose(p.levels_kgf, [3000, 4000, 2000, 4000, 2000, 5000, 1000, 3000])
     assert np.isclose(p.duration_s, 0.5 + 1 + 1 + 1 + 2.5 + 2.5 + 1.25, atol=T)
 
@@ -56,7 +56,7 @@ def test_a_time_history_is_resampled_and_its_reversals_found(tmp_path):
     r = 3000 + 2000 * np.sin(2 * np.pi * 0.2 * t) + np.random.default_rng(0).normal(0, 2, t.size)
     f = tmp_path / "hist.csv"
     f.write_text("t,r\n" + "\n".join(f"{a:.4f},{b:.3f}" for a, b in zip(t, r)))
-    p = load_programme(str(f), T)
+    p = load_channel_programme(str(f), T)
     assert len(p.t_s) == 5001 and p.kinds().count("peak") == 2 and p.kinds().count("valley") == 2
 
 
@@ -108,21 +108,21 @@ def test_a_bad_turning_point_file_says_where_and_what_to_write(tmp_path, text, m
     f = tmp_path / "tp.csv"
     f.write_text(text)
     with pytest.raises((DataError, ParameterError), match=match):
-        load_programme(str(f), T, rate_kgf_s=2500)
+        load_channel_programme(str(f), T, rate_kgf_s=2500)
 
 
 def test_bad_specs_and_rates_are_refused():
     with pytest.raises(ParameterError, match="missing cycles"):
-        load_programme("sine:mean=3000,amplitude=2000,frequency=0.2", T)
+        load_channel_programme("sine:mean=3000,amplitude=2000,frequency=0.2", T)
     with pytest.raises(DataError, match="no such file"):
-        load_programme("nothere.csv", T, rate_kgf_s=100)
+        load_channel_programme("nothere.csv", T, rate_kgf_s=100)
     with pytest.raises(ParameterError, match="positive"):
         from_levels([0, 100], T, rate_kgf_s=-5)
     with pytest.raises(ParameterError, match="--rate"):
         import tempfile, pathlib
         d = pathlib.Path(tempfile.mkdtemp()) / "tp.csv"
         d.write_text("level\n1\n2\n")
-        load_programme(str(d), T)
+        load_channel_programme(str(d), T)
 
 
 def test_a_level_beyond_the_force_limit_is_refused_naming_the_point():

@@ -12,7 +12,7 @@ import pytest
 
 from analysis.rig.periods import separating_periods
 from analysis.rig.synthetic import rig_meander, rig_truth, write_rig_run
-from plant.rig_config import load_rig_model
+from plant.config import load_rig_model
 from tests.support.rig_models import CHANNELS3, chain_rig
 
 
@@ -90,7 +90,7 @@ def test_estimate_save_then_diagnose_one_channel_writes_the_rig_model_it_arrives
 def test_diagnose_mistakes_with_a_rig_are_one_line(runs, tmp_path, args, message):
     rig, good, _ = runs
     path = tmp_path / "rig.toml"
-    from plant.rig_config import rig_model_to_toml
+    from plant.config import rig_model_to_toml
     path.write_text(rig_model_to_toml(rig))
     res = stand("diagnose", good, *[a.format(rig=path) for a in args])
     assert res.returncode == 2 and message in res.stderr, res.stderr

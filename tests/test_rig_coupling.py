@@ -1,6 +1,6 @@
 """One channel of a rig as a one-channel record with the others' part of its force rate as a
 known input (analysis.rig.coupling), and the rig model file that gives G and the channels'
-models (plant.rig_config)."""
+models (plant.config)."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -15,7 +15,7 @@ from analysis.rig.record import make_rig_record
 from analysis.rig.synthetic import rig_meander
 from plant import PlantModel
 from plant.params import ModelError
-from plant.rig_config import load_rig_model, rig_model_from_mapping, rig_model_to_toml
+from plant.config import load_rig_model, rig_model_from_mapping, rig_model_to_toml
 from tests.support.rig_models import chain_rig, two_channel_rig
 
 DT = 0.002

@@ -14,7 +14,7 @@ import pytest
 
 from core.errors import ParameterError
 from rig.config import RigError, load_rig_file
-from stand.commands.rig_demo import demo_rig
+from stand.commands.demo import demo_rig
 from tests.support.rig import EXAMPLE_RIG
 
 pytestmark = pytest.mark.e2e

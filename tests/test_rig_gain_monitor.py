@@ -1,5 +1,5 @@
-"""The rig's gain monitor, offline (loading.rig_gain_monitor on the emulator's coupled lockstep
-plant, gateway.rig_offline): one channel is the one-channel monitor; a softened row of G is
+"""The station's gain monitor, offline (loading.gain_monitor on the emulator's coupled lockstep
+plant, gateway.offline): one channel is the one-channel estimator, cycle for cycle; a softened row of G is
 found on its channel only, the feedforward follows it, and the alarm acts on the whole rig.
 Through the gateway, with the rig's unload: tests/test_rig_load_e2e.py."""
 from __future__ import annotations
@@ -7,24 +7,23 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gateway.rig_load_experiment import RigLoadProgramme
-from loading.gain_monitor import GAIN_ALARM, GainMonitor, MonitorOptions
-from loading.rig_design import design_rig
-from loading.rig_gain_monitor import RigGainMonitor
-from loading.rig_programme import from_load_cases, random_load_cases
+from gateway.load_experiment import LoadProgramme
+from loading.design import design
+from loading.gain_monitor import GAIN_ALARM, ChannelGainMonitor, GainMonitor, MonitorOptions
+from loading.programme import from_load_cases, random_load_cases
 from plant import PlantModel
 from plant.rig import RigModel
-from tests.support.rig_offline import T, example_truth, run_rig_pass
+from tests.support.rig_offline import T, example_truth, run_offline_pass
 
 LIMITS = [9000, 9000, 4500, 4500]
 BANDS = [(500, 6000), (500, 6000), (300, 3200), (300, 3200)]
 
 
-def test_a_one_channel_rig_monitor_is_the_one_channel_monitor():
+def test_a_one_channel_station_monitor_is_the_one_channel_estimator():
     m = PlantModel.from_spec("base", {"g": 120.0, "tau": 0.047, "delta": 8.0})
     options = MonitorOptions(block_s=0.5, chunk_s=0.02, min_chunks=3)
-    one = GainMonitor(m.g, m.tau, m.delta, T, options)
-    rig = RigGainMonitor(RigModel([m], names=["only"]), T, options)
+    one = ChannelGainMonitor(m.g, m.tau, m.delta, T, options)
+    rig = GainMonitor(RigModel([m], names=["only"]), T, options)
     rng = np.random.default_rng(4)
     for _ in range(2):
         one.begin_pass()
@@ -42,14 +41,14 @@ def test_a_one_channel_rig_monitor_is_the_one_channel_monitor():
     assert len(a) == len(b) > 4 and sum(x.g is not None for x in a) > 4
     for x, z in zip(a, b):
         assert (x.g, x.low, x.high, x.chunks, x.alarm) == (z.g, z.low, z.high, z.chunks, z.alarm)
-    assert one.alarm is not None and rig.alarm == (one.alarm[0], f"channel only: {one.alarm[1]}")
+    assert one.alarm is not None and rig.alarm == one.alarm, "one channel's alarm, in its own words"
 
 
 @pytest.fixture(scope="module")
 def rig():
     model, noise = example_truth()
     L = random_load_cases(16, BANDS, seed=7)
-    return model, noise, design_rig(model, T), from_load_cases(L, model.names, T, rate_kgf_s=2500)
+    return model, noise, design(model, T), from_load_cases(L, model.names, T, rate_kgf_s=2500)
 
 
 def watched_pass(rig, crack: float, **options):
@@ -59,9 +58,9 @@ def watched_pass(rig, crack: float, **options):
     G = model.G.copy()
     G[0, :] *= crack
     truth = RigModel(model.channels, G, names=model.names)
-    monitor = RigGainMonitor(model, T, MonitorOptions(block_s=2.0, **options))
-    experiment = RigLoadProgramme(programme, design, monitor=monitor)
-    res = run_rig_pass(experiment, truth, 0.0, 1, noise, force_limits=LIMITS)
+    monitor = GainMonitor(model, T, MonitorOptions(block_s=2.0, **options))
+    experiment = LoadProgramme(programme, design, monitor=monitor)
+    res = run_offline_pass(experiment, truth, 0.0, 1, noise, force_limits=LIMITS)
     monitor.end_pass()
     return res, monitor, experiment
 

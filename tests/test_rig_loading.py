@@ -1,5 +1,5 @@
-"""Loading a rig together, offline (loading.rig_feedforward, rig_controller, rig_report;
-gateway.rig_load_experiment): the emulator's own coupled lockstep plant of the example rig
+"""Loading a rig together, offline (loading.feedforward, loading.controller, loading.report;
+gateway.load_experiment): the emulator's own coupled lockstep plant of the example rig
 (4 channels, neighbours 30 %, each with its own g, τ and reversal boost) stepped one period per
 cycle with its noise, the commands quantized to counts as on the wire.
 
@@ -15,20 +15,17 @@ import pytest
 
 from core.errors import ParameterError
 from dbc import profile as P
-from gateway.rig_load_experiment import RigLoadProgramme, held_direction, pre_roll_start
+from gateway.load_experiment import LoadProgramme, held_direction, pre_roll_start
+from loading.compensation import Compensation
 from loading.controller import PIFeedforward
-from loading.feedforward import feedforward
-from loading.rig_compensation import RigCompensation
-from loading.rig_controller import RigPIFeedforward
-from loading.rig_design import design_rig
-from loading.rig_feedforward import channel_feedforward, rig_feedforward
-from loading.rig_programme import from_channel_programmes, from_load_cases, random_load_cases
-from loading.rig_report import rig_tracking_report
-from loading.programme import from_levels, sine
+from loading.design import design
+from loading.feedforward import channel_feedforward, feedforward
+from loading.programme import from_channel_programmes, from_levels, from_load_cases, random_load_cases, sine
+from loading.report import tracking_report
 from plant import PlantModel
 from plant.rig import RigModel
 
-from tests.support.rig_offline import T, example_truth, run_rig_pass
+from tests.support.rig_offline import T, example_truth, run_offline_pass
 
 BANDS = [(500, 6000), (500, 6000), (300, 3200), (300, 3200)]
 LIMITS = [9000, 9000, 4500, 4500]
@@ -42,7 +39,7 @@ def truth():
 @pytest.fixture(scope="module")
 def designs(truth):
     model, _ = truth
-    return {"decoupled": design_rig(model, T), "independent": design_rig(model, T, feedback="independent")}
+    return {"decoupled": design(model, T), "independent": design(model, T, feedback="independent")}
 
 
 def quantized(u: np.ndarray) -> np.ndarray:
@@ -56,13 +53,37 @@ def open_loop_error(model: RigModel, U: np.ndarray, R: np.ndarray) -> np.ndarray
     return np.max(np.abs(Y - R), axis=1)
 
 
-def test_the_rig_feedforward_and_law_of_one_channel_are_todays():
+class OneLoopPI:
+    """The one-channel law, written out from its equation (loading.controller's docstring):
+    ``u = clip(u_ff + s·Kp·e + i)``, ``i += s·Kp·T/Ti·e`` with conditional integration and a
+    held sign."""
+
+    def __init__(self, kp, ti, period_s, limit):
+        self.kp, self.ki, self.limit, self.integral = kp, kp * period_s / ti, limit, 0.0
+
+    def step(self, r, y, u_ff, scale, way):
+        e = r - y
+        integral = self.integral + scale * self.ki * e
+        u = u_ff + scale * self.kp * e + integral
+        if way * u < 0:
+            if way * e > 0:
+                self.integral = integral
+            return 0.0
+        if abs(u) > self.limit:
+            if u * e < 0:
+                self.integral = integral
+            return max(-self.limit, min(self.limit, u))
+        self.integral = integral
+        return u
+
+
+def test_the_feedforward_through_G_inverse_and_the_law_of_one_channel_are_the_channels_own():
     m = PlantModel.from_spec("base+reversal", {"g": 120.0, "tau": 0.05, "delta": 8.0})
     p = from_levels(random_sequence_levels(), T, rate_kgf_s=2500)
-    one = feedforward(m, p.r_kgf, T, direction=1.0)
-    rig = rig_feedforward(RigModel([m]), p.r_kgf[None, :], T, directions=[1.0], resolution_pct=0.0)
+    one = channel_feedforward(m, p.r_kgf, T, direction=1.0)
+    rig = feedforward(RigModel([m]), p.r_kgf[None, :], T, directions=[1.0], resolution_pct=0.0)
     assert np.allclose(rig.u_pct[0], one.u_pct, atol=1e-9)
-    a, b = PIFeedforward(0.04, 0.9, T, 100.0), RigPIFeedforward([0.04], [0.9], T, 100.0)
+    a, b = OneLoopPI(0.04, 0.9, T, 100.0), PIFeedforward([0.04], [0.9], T, 100.0)
     rng = np.random.default_rng(0)
     for _ in range(2000):
         r, y, uff = rng.normal(0, 3000), rng.normal(0, 3000), rng.normal(0, 60)
@@ -80,13 +101,13 @@ def test_the_feedforward_through_G_inverse_makes_the_coupled_rig_follow_every_ch
     model, _ = truth
     p = from_load_cases(random_load_cases(8, BANDS, seed=5), model.names, T, rate_kgf_s=2500)
     R = p.r_kgf
-    rig = rig_feedforward(model, R, T, directions=[1.0] * 4)
-    own = channel_feedforward(model, R, T, directions=[1.0] * 4)
+    rig = feedforward(model, R, T, directions=[1.0] * 4)
+    own = feedforward(model, R, T, directions=[1.0] * 4, mode="channel")
     assert np.all(open_loop_error(model, quantized(rig.u_pct), R) < 15.0)
     assert np.max(open_loop_error(model, quantized(own.u_pct), R)) > 1000.0, "the neighbours' flows"
     # planned on the valve's resolution: a planned reversal of a fraction of a count would be one
     # the rod never makes, and a reversal at a small flow is a 17x gain
-    exact = rig_feedforward(model, R, T, directions=[1.0] * 4, resolution_pct=0.0)
+    exact = feedforward(model, R, T, directions=[1.0] * 4, resolution_pct=0.0)
     assert np.all(open_loop_error(model, exact.u_pct, R) < 15.0)
     assert np.max(open_loop_error(model, quantized(exact.u_pct), R)) > 30.0
 
@@ -96,9 +117,9 @@ def test_decoupled_control_tracks_load_cases_where_todays_controller_per_channel
     p = from_load_cases(random_load_cases(16, BANDS, seed=1), model.names, T, rate_kgf_s=2500)
     results = {}
     for name, c in designs.items():
-        e = RigLoadProgramme(p, c)
+        e = LoadProgramme(p, c)
         e.check(T, LIMITS, 100.0)
-        res = run_rig_pass(e, model, 0.0, 1, noise, force_limits=LIMITS)
+        res = run_offline_pass(e, model, 0.0, 1, noise, force_limits=LIMITS)
         assert res.abort is None
         results[name] = res.report
     dec, ind = results["decoupled"], results["independent"]
@@ -127,13 +148,13 @@ def test_decoupled_control_with_a_g_off_by_1_percent_of_the_diagonal_holds_the_f
     G[off] += rng.uniform(-0.01, 0.01, off.sum()) * np.broadcast_to(d[None, :], G.shape)[off]
     G[np.diag_indices(4)] *= 1 + rng.uniform(-0.003, 0.003, 4)
     believed = RigModel([m.with_params({"g": float(G[i, i])}) for i, m in enumerate(model.channels)], G, model.names)
-    c = design_rig(believed, T)
+    c = design(believed, T)
     p = from_load_cases(random_load_cases(12, BANDS, seed=7), model.names, T, rate_kgf_s=2500)
-    comp = RigCompensation(model.names)
+    comp = Compensation(model.names)
     reports = []
     for k in range(3):
-        e = RigLoadProgramme(p, c, comp)
-        res = run_rig_pass(e, model, 0.0, k, noise, force_limits=LIMITS)
+        e = LoadProgramme(p, c, comp)
+        res = run_offline_pass(e, model, 0.0, k, noise, force_limits=LIMITS)
         reports.append(res.report)
         comp.learn(res.report.channels, p.ranges_kgf)
     for rep in reports:
@@ -145,12 +166,39 @@ def test_decoupled_control_with_a_g_off_by_1_percent_of_the_diagonal_holds_the_f
     assert last < 0.6 * first, [rep.text() for rep in reports]
 
 
+def test_a_channel_passing_its_level_at_a_load_case_is_judged_and_learns_there(truth):
+    """tip rises through four load cases and falls back through three while the others turn
+    at every one: its levels there are part of each load case's distribution, measured and
+    compensated as the others' peaks and valleys are. The design believes tip's g 6 % high, so
+    it lags there by more than the tolerance band at first."""
+    model, noise = truth
+    G = model.G.copy()
+    G[3, 3] *= 1.06
+    believed = RigModel([m.with_params({"g": float(G[i, i])}) for i, m in enumerate(model.channels)], G, model.names)
+    c = design(believed, T)
+    L = random_load_cases(9, BANDS[:3], seed=3)
+    tip = np.array([300.0, 900, 1500, 2100, 2700, 2000, 1300, 600, 400])
+    p = from_load_cases(np.vstack([L, tip]), model.names, T, rate_kgf_s=2500)
+    passing = [k for k, kind in enumerate(p.channels[3].kinds()) if kind in ("rising", "falling")]
+    assert len(passing) == 6 and p.turning_cases().tolist() == list(range(1, 8))
+    comp = Compensation(model.names)
+    errors = []
+    for k in range(3):
+        res = run_offline_pass(LoadProgramme(p, c, comp), model, 0.0, k, noise, force_limits=LIMITS)
+        points = [tp for tp in res.report.channels[3].turning_points if tp.kind in ("rising", "falling")]
+        assert len(points) == 6, "every level tip passes at a load case is judged"
+        errors.append(max(abs(tp.error_pct) for tp in points))
+        comp.learn(res.report.channels, p.ranges_kgf)
+    assert comp.channels["tip"].table.get("rising") and comp.channels["tip"].table.get("falling")
+    assert errors[0] > 0.1 and errors[-1] < 0.5 * errors[0], errors
+
+
 def test_per_channel_sequences_run_together_without_load_cases(truth, designs):
     model, noise = truth
     progs = [sine(3000, 1500, 0.2, 2, T), from_levels([800, 4000, 1500, 3500], T, rate_kgf_s=2000),
              sine(1500, 800, 0.3, 3, T), from_levels([600, 3000, 900], T, rate_kgf_s=1500)]
     p = from_channel_programmes(progs, model.names)
-    res = run_rig_pass(RigLoadProgramme(p, designs["decoupled"]), model, 0.0, 2, noise, force_limits=LIMITS)
+    res = run_offline_pass(LoadProgramme(p, designs["decoupled"]), model, 0.0, 2, noise, force_limits=LIMITS)
     assert res.report.ratio_error_pct is None and res.report.cases is None
     for r in res.report.channels:
         assert r.peak_valley_error_pct["max"] <= 0.5 and r.extra_cycles == 0, res.report.text()
@@ -167,9 +215,9 @@ def test_the_approach_holds_every_force_against_its_trend_with_a_model_20_percen
     low = RigModel(model.channels, model.G * 0.8, names=model.names)
     p = from_load_cases(random_load_cases(4, BANDS, seed=1), model.names, T, rate_kgf_s=2500)
     for y0 in ([0.0] * 4, [846.0, 709.0, 329.0, 406.0]):
-        e = RigLoadProgramme(p, design_rig(low, T), None)
+        e = LoadProgramme(p, design(low, T), None)
         e.check(T, LIMITS, 100.0)
-        res = run_rig_pass(e, model, y0, 3, noise, force_limits=LIMITS)
+        res = run_offline_pass(e, model, y0, 3, noise, force_limits=LIMITS)
         assert res.abort is None and res.report is not None, res.abort
         hold = -np.linalg.inv(low.G) @ np.array([m.delta for m in low.channels])
         assert np.array_equal(e.approach.way, np.sign(hold))
@@ -180,13 +228,13 @@ def test_the_ratio_error_counts_what_a_common_scaling_of_a_load_case_does_not():
     p = from_load_cases([[100, 4000, 1000, 3000], [100, 2000, 400, 1400]], ["a", "b"], T, rate_kgf_s=2500)
     t = p.t_s
     scaled = p.r_kgf * 1.01                          # every channel 1 % high: the ratios hold
-    rep = rig_tracking_report(p, t, scaled)
+    rep = tracking_report(p, t, scaled)
     assert rep.ratio_error_pct == pytest.approx(0.0, abs=1e-9)
     assert rep.channels[0].peak_valley_error_pct["max"] > 0.5
     off = p.r_kgf.copy()
     k = p.turning_idx[2]
     off[1, k - 5:k + 5] -= 10.0                      # b misses its valley at case 3 by 10 kgf
-    rep = rig_tracking_report(p, t, off)
+    rep = tracking_report(p, t, off)
     case = rep.cases[1]                              # a at 1000 of 3900, b at 400 of 1900: a leads
     assert case.lead == "a" and case.deviation_pct[1] == pytest.approx(-100 * 10 / p.ranges_kgf[1], rel=1e-6)
     assert rep.ratio_error_pct == pytest.approx(100 * 10 / p.ranges_kgf[1], rel=1e-6)
@@ -214,13 +262,13 @@ def test_a_bad_programme_is_refused_before_anything_moves(truth, designs):
     high = from_load_cases([[500, 4000, 600], [500, 4700, 600], [300, 2000, 400], [300, 2500, 400]],
                            model.names, T, rate_kgf_s=2500)
     with pytest.raises(ParameterError, match="channel inner: .*4700 kgf.*force limit"):
-        RigLoadProgramme(high, c).check(T, [9000, 4500, 4500, 4500], 100.0)
+        LoadProgramme(high, c).check(T, [9000, 4500, 4500, 4500], 100.0)
     fast = from_load_cases([[500, 6000], [500, 600], [300, 300], [300, 3000]], model.names, T, rate_kgf_s=12000)
     with pytest.raises(ParameterError, match=r"channel \w+ at t = .* needs a valve command of .* its valve cannot follow"):
-        RigLoadProgramme(fast, c).check(T, LIMITS, 100.0)
+        LoadProgramme(fast, c).check(T, LIMITS, 100.0)
     ok = from_load_cases([[500, 600], [500, 600], [300, 400], [300, 400]], model.names, T, rate_kgf_s=2500)
     with pytest.raises(ParameterError, match="period of 2 ms but the loop runs at 4 ms"):
-        RigLoadProgramme(ok, c).check(0.004, LIMITS, 100.0)
+        LoadProgramme(ok, c).check(0.004, LIMITS, 100.0)
     other = from_load_cases([[500, 600], [500, 600]], ["root", "tip"], T, rate_kgf_s=2500)
     with pytest.raises(ParameterError, match="the programme is for the channels root, tip"):
-        RigLoadProgramme(other, c)
+        LoadProgramme(other, c)

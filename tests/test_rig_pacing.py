@@ -1,5 +1,5 @@
-"""Null pacing on a rig, offline (loading.rig_pacing on the emulator's coupled lockstep plant,
-gateway.rig_offline): one channel's valve slower than the model (a flow limit it lacks) misses
+"""Null pacing on a rig, offline (loading.pacing on the emulator's coupled lockstep plant,
+gateway.offline): one channel's valve slower than the model (a flow limit it lacks) misses
 load cases and bends the ratios without pacing; with static pacing the one clock waits for it
 and every channel holds every load case, with dynamic pacing it also slows for it, so the load
 distribution holds between the load cases too. The clock runs sample for sample while the forces
@@ -10,13 +10,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gateway.rig_load_experiment import RigLoadProgramme
+from gateway.load_experiment import LoadProgramme
+from loading.design import design
 from loading.pacing import PACING_TIMEOUT, PacingOptions
-from loading.rig_design import design_rig
-from loading.rig_programme import from_load_cases, random_load_cases
+from loading.programme import from_load_cases, random_load_cases
 from plant import PlantModel
 from plant.rig import RigModel
-from tests.support.rig_offline import T, example_truth, run_rig_pass
+from tests.support.rig_offline import T, example_truth, run_offline_pass
 
 LIMITS = [9000, 9000, 4500, 4500]
 BANDS = [(500, 6000), (500, 6000), (300, 3200), (300, 3200)]
@@ -27,7 +27,7 @@ def rig():
     model, noise = example_truth()
     L = random_load_cases(12, BANDS, seed=3)
     # 5000 kgf/s: outer's feedforward needs up to 17 % of its valve
-    return model, noise, design_rig(model, T), from_load_cases(L, model.names, T, rate_kgf_s=5000)
+    return model, noise, design(model, T), from_load_cases(L, model.names, T, rate_kgf_s=5000)
 
 
 def with_flow_limit(model: RigModel, channel: int, limit_pct: float) -> RigModel:
@@ -40,8 +40,8 @@ def with_flow_limit(model: RigModel, channel: int, limit_pct: float) -> RigModel
 
 def run(rig, truth, pacing=None):
     model, noise, design, programme = rig
-    e = RigLoadProgramme(programme, design, pacing=pacing)
-    return run_rig_pass(e, truth, 0.0, 1, noise, force_limits=LIMITS), e
+    e = LoadProgramme(programme, design, pacing=pacing)
+    return run_offline_pass(e, truth, 0.0, 1, noise, force_limits=LIMITS), e
 
 
 def figures(report):
@@ -119,11 +119,10 @@ def test_dynamic_pacing_slows_every_channel_for_the_one_that_lags(rig):
 
 def test_pacing_is_for_load_cases_only(rig):
     from core.errors import ParameterError
-    from loading.programme import from_levels
-    from loading.rig_programme import from_channel_programmes
+    from loading.programme import from_channel_programmes, from_levels
     model, _, design, programme = rig
     seqs = from_channel_programmes([from_levels([500, 1000 + 100 * i, 600], T, rate_kgf_s=1000)
                                     for i in range(4)], model.names)
     for mode in ("static", "dynamic"):
         with pytest.raises(ParameterError, match="per-channel sequences have none"):
-            RigLoadProgramme(seqs, design, pacing=PacingOptions(mode))
+            LoadProgramme(seqs, design, pacing=PacingOptions(mode))

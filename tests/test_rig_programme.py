@@ -1,4 +1,4 @@
-"""Multi-channel programmes (loading.rig_programme): load cases where every channel arrives at
+"""Multi-channel programmes (loading.programme, loading.programme_files): load cases where every channel arrives at
 the same moment, per-channel sequences on one clock, and every mistake named before anything
 moves."""
 from __future__ import annotations
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from core.errors import DataError, ParameterError
-from loading.rig_programme import (from_load_cases, load_rig_programme, random_load_cases,
-                                   write_load_cases)
+from loading.programme import from_load_cases, random_load_cases
+from loading.programme_files import load_programme, write_load_cases
 
 T = 0.002
 NAMES = ["root", "inner", "outer", "tip"]
@@ -25,7 +25,7 @@ def write(tmp_path, text, name="cases.csv"):
 def test_every_channel_reaches_each_load_case_together_at_the_rate_of_the_one_that_moves_most(tmp_path):
     p = write(tmp_path, "case,tip,root,inner,outer\n"
                         "1,300,500,500,300\n2,1500,4000,2500,300\n3,800,1000,2600,2000\n")
-    prog = load_rig_programme(str(p), NAMES, T, rate_kgf_s=2500)
+    prog = load_programme(str(p), NAMES, T, rate_kgf_s=2500)
     assert prog.load_cases and prog.names == NAMES and prog.case_labels == ["1", "2", "3"]
     idx = prog.turning_idx
     for ch in prog.channels:
@@ -56,18 +56,18 @@ def test_a_frequency_gives_every_segment_half_a_period():
 ])
 def test_a_bad_load_case_file_is_refused_naming_the_file_the_line_or_the_column(tmp_path, text, match):
     with pytest.raises((DataError, ParameterError), match=match):
-        load_rig_programme(str(write(tmp_path, text)), NAMES, T, rate_kgf_s=2500)
+        load_programme(str(write(tmp_path, text)), NAMES, T, rate_kgf_s=2500)
 
 
 def test_load_cases_need_a_rate_or_a_frequency(tmp_path):
     p = write(tmp_path, "case,root,inner,outer,tip\n1,1,2,3,4\n2,2,3,4,5\n")
     with pytest.raises(ParameterError, match="--rate"):
-        load_rig_programme(str(p), NAMES, T)
+        load_programme(str(p), NAMES, T)
 
 
 def test_channel_names_match_regardless_of_case(tmp_path):
     p = write(tmp_path, "CASE,Left,right\n1,100,200\n2,900,300\n")
-    prog = load_rig_programme(str(p), ["left", "Right"], T, rate_kgf_s=1000)
+    prog = load_programme(str(p), ["left", "Right"], T, rate_kgf_s=1000)
     assert prog.levels_kgf.tolist() == [[100, 900], [200, 300]]
 
 
@@ -75,7 +75,7 @@ def test_per_channel_sequences_run_on_one_clock_the_shorter_holding_its_last_lev
     write(tmp_path, "level\n0\n2000\n500\n", "a.csv")
     (tmp_path / "prog.toml").write_text('[channel.a]\nprogramme = "a.csv"\nrate = 1000\n'
                                         '[channel.b]\nprogramme = "sine:mean=1000,amplitude=200,frequency=1,cycles=2"\n')
-    prog = load_rig_programme(str(tmp_path / "prog.toml"), ["a", "b"], T)
+    prog = load_programme(str(tmp_path / "prog.toml"), ["a", "b"], T)
     assert not prog.load_cases and prog.names == ["a", "b"]
     a, b = prog.channels
     assert len(a.t_s) == len(b.t_s)
@@ -89,10 +89,10 @@ def test_per_channel_sequences_run_on_one_clock_the_shorter_holding_its_last_lev
 def test_a_per_channel_file_names_the_channel_whose_programme_is_wrong(tmp_path):
     (tmp_path / "prog.toml").write_text('[channel.a]\nprogramme = "missing.csv"\n[channel.b]\nprogramme = "x.csv"\n')
     with pytest.raises(DataError, match=r"\[channel.a\]: programme .*missing.csv"):
-        load_rig_programme(str(tmp_path / "prog.toml"), ["a", "b"], T, rate_kgf_s=1000)
+        load_programme(str(tmp_path / "prog.toml"), ["a", "b"], T, rate_kgf_s=1000)
     (tmp_path / "p2.toml").write_text('[channel.a]\nprogramme = "sine:mean=0,amplitude=1,frequency=1,cycles=1"\n')
     with pytest.raises(DataError, match=r"no \[channel.b\]"):
-        load_rig_programme(str(tmp_path / "p2.toml"), ["a", "b"], T)
+        load_programme(str(tmp_path / "p2.toml"), ["a", "b"], T)
 
 
 def test_a_level_beyond_a_channels_force_limit_is_refused_naming_the_channel():
@@ -110,5 +110,5 @@ def test_random_load_cases_alternate_on_every_channel_and_their_ratios_change(tm
     ratios = L[1] / L[0]
     assert np.ptp(ratios) > 0.5
     p = write_load_cases(tmp_path / "lc.csv", L, ["a", "b", "c"])
-    back = load_rig_programme(str(p), ["a", "b", "c"], T, rate_kgf_s=2500)
+    back = load_programme(str(p), ["a", "b", "c"], T, rate_kgf_s=2500)
     assert np.allclose(back.levels_kgf, L, atol=0.05)

@@ -1,6 +1,7 @@
 """Time scaling of a rig's load cases, offline: the valve-limited minimum through G
-(loading.rig_minimum_time), a segment's verdict the worst of its channels'
-(loading.rig_time_scaling), a rig's schedule file (loading.time_scaling.Schedule). The passes
+(loading.minimum_time), a segment's verdict the worst of its channels'
+(loading.time_scaling.TimeScaler.station_verdicts), a rig's schedule file
+(loading.time_scaling.Schedule). The passes
 on the emulated rig: tests/test_rig_load_e2e.py."""
 from __future__ import annotations
 
@@ -10,19 +11,16 @@ import numpy as np
 import pytest
 
 from core.errors import ParameterError
-from gateway.rig_load_experiment import RigLoadProgramme
-from loading.minimum_time import minimum_durations_s, programme_valve_limit
-from loading.programme import from_levels
-from loading.rig_design import design_rig
-from loading.rig_feedforward import rig_feedforward
-from loading.rig_minimum_time import rig_programme_timing
-from loading.rig_programme import from_channel_programmes, from_load_cases, random_load_cases
-from loading.rig_report import rig_tracking_report
-from loading.rig_time_scaling import rig_meets, rig_verdicts
-from loading.time_scaling import HOLD, LAND, MISS, ScalingOptions, Schedule, TimeScaler
+from gateway.load_experiment import LoadProgramme
+from loading.design import design
+from loading.feedforward import feedforward
+from loading.minimum_time import FEEDFORWARD_SHARE, programme_timing
+from loading.programme import Programme, from_channel_programmes, from_levels, from_load_cases, random_load_cases
+from loading.report import tracking_report
+from loading.time_scaling import HOLD, LAND, MISS, ScalingOptions, Schedule, TimeScaler, meets
 from plant import PlantModel
 from plant.rig import RigModel
-from tests.support.rig_offline import T, example_truth, run_rig_pass
+from tests.support.rig_offline import T, example_truth, run_offline_pass
 
 NAMES = ["a", "b", "c"]
 BANDS = [(500, 6000), (500, 6000), (300, 3200)]
@@ -36,11 +34,13 @@ def channels():
 def test_an_uncoupled_rigs_minimum_is_its_slowest_channels_own_minimum_per_segment():
     L = random_load_cases(7, BANDS, seed=3)
     p = from_load_cases(L, NAMES, T, rate_kgf_s=2500)
-    timing = rig_programme_timing(p, RigModel(channels(), names=NAMES), 100.0)
+    timing = programme_timing(p, RigModel(channels(), names=NAMES), 100.0)
+    # each channel alone: every segment a haversine at its valve's largest rate, π·|ΔL|/(2R)
     own = []
     for m, row in zip(channels(), L):
-        q = from_levels(row, T, rate_kgf_s=2500)
-        own.append(minimum_durations_s(q, programme_valve_limit(q, m, 100.0)))
+        span = np.diff(row)
+        rate = m.g * FEEDFORWARD_SHARE * 100 + np.where(span > 0, m.delta, -m.delta)
+        own.append(np.pi * np.abs(span) / (2 * rate))
     own = np.array(own)
     assert timing.minimum_s == pytest.approx(own.max(axis=0), rel=1e-9)
     assert list(timing.binding) == list(own.argmax(axis=0))
@@ -57,12 +57,12 @@ def test_at_a_coupled_rigs_minimum_the_binding_valve_just_reaches_its_share_of_t
     L = random_load_cases(6, BANDS, seed=4)
     L[2, 2] = L[2, 1]                      # c holds from case 2 to 3; its valve still moves
     p = from_load_cases(L, NAMES, T, rate_kgf_s=2500)
-    timing = rig_programme_timing(p, model, 100.0)
-    uncoupled = rig_programme_timing(p, RigModel(channels(), names=NAMES), 100.0)
+    timing = programme_timing(p, model, 100.0)
+    uncoupled = programme_timing(p, RigModel(channels(), names=NAMES), 100.0)
     assert not np.allclose(timing.minimum_s, uncoupled.minimum_s, rtol=0.02), "G counted"
     for scale, low, high in ((1.0, 88.0, 91.5), (0.9, 98.0, 101.5)):
         q = p.with_durations(timing.minimum_s * scale)
-        ff = rig_feedforward(model, q.r_kgf, T, directions=[1.0] * 3, resolution_pct=0.0)
+        ff = feedforward(model, q.r_kgf, T, directions=[1.0] * 3, resolution_pct=0.0)
         idx = q.turning_idx - int(round(0.05 / T))           # each command sent τ ahead
         for k, i in enumerate(timing.binding):
             peak = np.abs(ff.channels[i].u_pct[max(idx[k], 0):idx[k + 1] + 1]).max()
@@ -77,14 +77,14 @@ def test_a_valve_that_cannot_hold_its_force_against_the_trends_is_named():
     p = from_load_cases([[100, 900, 200], [100, 300, 500]], ["x", "y"], T, rate_kgf_s=1000)
     with pytest.raises(ParameterError, match="channel y cannot hold its force against the trends "
                                              "between load cases 1 and 2"):
-        rig_programme_timing(p, RigModel(weak, names=["x", "y"]), 100.0)
+        programme_timing(p, RigModel(weak, names=["x", "y"]), 100.0)
 
 
 def test_per_channel_sequences_have_no_common_segments_to_time():
     seqs = [from_levels([0, 1000, 200], T, rate_kgf_s=1000), from_levels([0, 500, 100, 600], T, rate_kgf_s=1000)]
     p = from_channel_programmes(seqs, ["x", "y"])
     with pytest.raises(ParameterError, match="per-channel sequences"):
-        rig_programme_timing(p, RigModel(channels()[:2], names=["x", "y"]), 100.0)
+        programme_timing(p, RigModel(channels()[:2], names=["x", "y"]), 100.0)
     with pytest.raises(ParameterError, match="per-channel sequences"):
         p.with_durations([1.0, 1.0])
 
@@ -97,21 +97,21 @@ def test_a_rigs_schedule_round_trips_and_refuses_what_it_was_not_made_for(tmp_pa
     back = Schedule.load(s.save(tmp_path / "schedule.toml"))
     assert back.channels == NAMES and np.array_equal(back.levels_kgf, p.levels_kgf)
     assert np.allclose(back.durations_s, d) and back.verified
-    timed = back.apply_rig(p)
+    timed = back.apply(p)
     assert timed.segment_durations_s == pytest.approx(d, abs=T / 2)
     assert all(np.array_equal(c.t_s, timed.t_s) for c in timed.channels)
     assert np.array_equal(timed.levels_kgf, p.levels_kgf) and timed.load_cases
     other = L.copy()
     other[1, 2] += 300
     with pytest.raises(ParameterError, match="load case 3 differs"):
-        back.apply_rig(from_load_cases(other, NAMES, T, rate_kgf_s=2500))
+        back.apply(from_load_cases(other, NAMES, T, rate_kgf_s=2500))
     with pytest.raises(ParameterError, match="for the channels a, b, c, the rig has a, b, d"):
-        back.apply_rig(from_load_cases(L, ["a", "b", "d"], T, rate_kgf_s=2500))
+        back.apply(from_load_cases(L, ["a", "b", "d"], T, rate_kgf_s=2500))
     with pytest.raises(ParameterError, match="a rig's .*replay it with --rig"):
-        back.apply(from_levels(L[0], T, rate_kgf_s=2500))
+        back.apply(Programme.of(from_levels(L[0], T, rate_kgf_s=2500)))
     one = Schedule(L[0], d, T, 0.5, 1.2, "one channel")
     with pytest.raises(ParameterError, match="one channel's: it cannot time a rig's load cases"):
-        Schedule.load(one.save(tmp_path / "one.toml")).apply_rig(p)
+        Schedule.load(one.save(tmp_path / "one.toml")).apply(p)
     (tmp_path / "bad.toml").write_text(s.to_toml().replace('channels = ["a", "b", "c"]',
                                                            'channels = ["a", "b"]'))
     with pytest.raises(ParameterError, match="a row of levels_kgf per channel"):
@@ -121,20 +121,20 @@ def test_a_rigs_schedule_round_trips_and_refuses_what_it_was_not_made_for(tmp_pa
 @pytest.fixture(scope="module")
 def example():
     model, noise = example_truth()
-    return model, noise, design_rig(model, T)
+    return model, noise, design(model, T)
 
 
 def test_a_segment_misses_when_one_channel_misses_and_lands_only_when_all_land(example):
     model, noise, design = example
     L = random_load_cases(6, [(500, 6000), (500, 6000), (300, 3200), (300, 3200)], seed=2)
     p = from_load_cases(L, model.names, T, rate_kgf_s=2500)
-    res = run_rig_pass(RigLoadProgramme(p, design), model, 0.0, 1, noise, force_limits=[9000, 9000, 4500, 4500])
+    res = run_offline_pass(LoadProgramme(p, design), model, 0.0, 1, noise, force_limits=[9000, 9000, 4500, 4500])
     assert res.abort is None
     report = res.report
     options = ScalingOptions(accuracy_pct=0.5)
-    verdicts = rig_verdicts(TimeScaler(p, np.full(5, 0.1), p.segment_durations_s, options), p, report, res.t, res.y)
+    verdicts = TimeScaler(p, np.full(5, 0.1), p.segment_durations_s, options).station_verdicts(p, report, res.t, res.y)
     assert verdicts == [LAND] * 5, report.text()          # 0.3 % on every channel offline
-    assert rig_meets(report, 0.5)
+    assert meets(report, 0.5)
     # one channel off at one load case: that segment misses (or holds), the others stay
     ch = report.channels[2]
     tp = ch.turning_points[1]
@@ -144,9 +144,9 @@ def test_a_segment_misses_when_one_channel_misses_and_lands_only_when_all_land(e
                                                       if q is tp else q for q in ch.turning_points])
         worse = dataclasses.replace(report, channels=[bad if r is ch else r for r in report.channels])
         scaler = TimeScaler(p, np.full(5, 0.1), p.segment_durations_s, options)
-        got = rig_verdicts(scaler, p, worse, res.t, res.y)
+        got = scaler.station_verdicts(p, worse, res.t, res.y)
         assert got[j] == verdict and got[:j] + got[j + 1:] == [LAND] * 4, got
         assert scaler.last[verdict] == 1
     # the tracking report on another channel's bad pass: a pass meets only when every channel does
-    far = rig_tracking_report(p, res.t, res.y + np.array([0, 0, 0, 40.0])[:, None])
-    assert not rig_meets(far, 0.5) and rig_meets(far, 5.0)
+    far = tracking_report(p, res.t, res.y + np.array([0, 0, 0, 40.0])[:, None])
+    assert not meets(far, 0.5) and meets(far, 5.0)

@@ -9,7 +9,7 @@ its own one-channel model (``g = G_ii``, its own delay, valve and flow effects, 
 terms) plus the coupling ``c_i``: the other channels' flows ``w_j`` (each through channel j's own
 model: its delay, valve effects, reversal boost, ...; force-dependent flow laws read channel j's
 measured force) times the structure's ``G_ij``. With the other channels' models known (a rig
-model file, :mod:`plant.rig_config`; their base models at first), ``c_i`` is a known force rate
+model file, :mod:`plant.config`; their base models at first), ``c_i`` is a known force rate
 along the run, and channel i is a one-channel record that carries it
 (:attr:`~analysis.records.record.Record.known_rate_kgf_s`): the one-channel fit, comparison and
 diagnosis add it to the model's rate as they add a disturbance, and find channel i's own

@@ -42,44 +42,30 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from loading.rig_design import is_rig_file
-    if is_rig_file(args.model):
-        return _rig(args)
-    if args.independent or args.coupling_error != 20.0:
-        from core.errors import ParameterError
-        raise ParameterError("--independent and --coupling-error are for a rig: give a rig model file "
-                             "(stand estimate RIG_RUNS --save) or a rig file")
-    from analysis import resolve_model
+    from loading.controller_files import is_rig_file, read_rig_model
     from loading.design import design
-    model, _path = resolve_model(args.model, complete=True)
-    c = design(model, args.period_ms / 1e3, args.command_limit)
+    rig = is_rig_file(args.model)
+    if rig:
+        model, source = read_rig_model(args.model)
+    else:
+        if args.independent or args.coupling_error != 20.0:
+            from core.errors import ParameterError
+            raise ParameterError("--independent and --coupling-error are for a rig: give a rig model file "
+                                 "(stand estimate RIG_RUNS --save) or a rig file")
+        from analysis import resolve_model
+        model, source = resolve_model(args.model, complete=True)[0], None
+    c = design(model, args.period_ms / 1e3, args.command_limit,
+               feedback="independent" if args.independent else "decoupled",
+               coupling_error=args.coupling_error / 100)
     if args.out:
         Path(args.out).write_text(c.to_toml(args.out))
     if args.json:
-        json.dump(c.to_dict(), sys.stdout, indent=2)
+        json.dump({**c.to_dict(), **({"model": source} if rig else {})}, sys.stdout, indent=2)
         sys.stdout.write("\n")
         return 0
+    if rig:
+        print(f"from {source}")
     print(c.text())
     if args.out:
-        print(f"controller file written: {args.out}")
-    return 0
-
-
-def _rig(args: argparse.Namespace) -> int:
-    """A rig's controller (loading.rig_design)."""
-    from loading.rig_design import design_rig, read_rig_model
-    model, source = read_rig_model(args.model)
-    c = design_rig(model, args.period_ms / 1e3, args.command_limit,
-                   feedback="independent" if args.independent else "decoupled",
-                   coupling_error=args.coupling_error / 100)
-    if args.out:
-        Path(args.out).write_text(c.to_toml(args.out))
-    if args.json:
-        json.dump({**c.to_dict(), "model": source}, sys.stdout, indent=2)
-        sys.stdout.write("\n")
-        return 0
-    print(f"from {source}")
-    print(c.text())
-    if args.out:
-        print(f"rig controller file written: {args.out}")
+        print(f"{'rig controller' if rig else 'controller'} file written: {args.out}")
     return 0

@@ -121,11 +121,18 @@ def _plan(args, programme, controller, config) -> int:
     from loading.minimum_time import programme_timing
     limit = min(controller.command_limit_pct, config.limits.command_limit_pct)
     timing = programme_timing(programme, controller.model, limit)
-    return print_plan(args, timing, {"programme": programme.source,
-                                     "turning_points": int(len(programme.turning_idx)),
-                                     "range_kgf": programme.range_kgf, "command_limit_pct": limit},
-                      f"{programme.source}: {len(programme.turning_idx)} turning points, range "
-                      f"{programme.range_kgf:.0f} kgf, command limit ±{limit:g} %")
+    if programme.stand:
+        p = programme.channels[0]
+        return print_plan(args, timing, {"programme": p.source, "turning_points": int(len(p.turning_idx)),
+                                         "range_kgf": p.range_kgf, "command_limit_pct": limit},
+                          f"{p.source}: {len(p.turning_idx)} turning points, range {p.range_kgf:.0f} kgf, "
+                          f"command limit ±{limit:g} %")
+    return print_plan(args, timing, {"programme": programme.source, "channels": programme.names,
+                                     "load_cases": int(len(programme.turning_idx)),
+                                     "ranges_kgf": dict(zip(programme.names, programme.ranges_kgf.tolist())),
+                                     "command_limit_pct": limit},
+                      f"{programme.source}: {len(programme.turning_idx)} load cases on {programme.n} "
+                      f"channels ({', '.join(programme.names)}), command limit ±{limit:g} %")
 
 
 def print_plan(args, timing, fields: dict, heading: str) -> int:
@@ -198,67 +205,89 @@ def exit_code(result, alarm: tuple[str, str] | None) -> int:
 
 
 def main(args: argparse.Namespace) -> int:
-    if args.rig:
-        from .load_rig import main as rig_main
-        return rig_main(args)
     from gateway import Gateway
-    from gateway.load import LoadProgramme, gain_text, run_load, timing_text
+    from gateway.load import check_load, minimum_s, run_load
     from loading.compensation import Compensation
-    from loading.design import load_controller
-    from loading.minimum_time import minimum_durations_s, programme_valve_limit
-    from loading.programme import is_sequence, load_programme
+    from loading.controller_files import load_controller
+    from loading.programme import STAND
+    from loading.programme_files import load_programme, needs_rate
     from loading.time_scaling import Schedule
-    from loading.rig_design import is_rig_file
-    if is_rig_file(args.controller):
-        raise ParameterError(f"{args.controller} is a rig's controller (stand design RIG-MODEL.toml): "
-                             "load a rig with --rig RIG.toml and a programme per channel")
     config = gateway_config(args)
-    controller = load_controller(args.controller, config.period_s)
+    names = config.rig.names if config.rig is not None else [STAND]
+    controller = load_controller(args.controller, config.period_s, names)
     scaling = scaling_options(args)
     untimed = (args.rate is None and args.frequency is None and (scaling is not None or args.schedule)
-               and is_sequence(args.program))
-    programme = load_programme(args.program, config.period_s,
+               and needs_rate(args.program))
+    programme = load_programme(args.program, names, config.period_s,
                                PLACEHOLDER_RATE_KGF_S if untimed else args.rate, args.frequency)
+    if not programme.load_cases and (scaling is not None or args.schedule or args.plan):
+        flags = [f for f, on in (("--fastest/--accuracy", scaling is not None), ("--schedule", args.schedule),
+                                 ("--plan", args.plan)) if on]
+        raise ParameterError(f"{', '.join(flags)} with --rig: time load cases (a CSV with a column per "
+                             f"channel); {args.program} holds per-channel sequences, which share no "
+                             "segments to time")
+    if untimed:                              # the placeholder rate is no part of its name
+        programme = programme.with_durations(programme.segment_durations_s,
+                                             programme.source.rsplit(", ", 1)[0])
     schedule = Schedule.load(args.schedule) if args.schedule else None
     if schedule is not None:
         programme = schedule.apply(programme)
-    command_limit = min(controller.command_limit_pct, config.limits.command_limit_pct)
     if untimed and scaling is not None:
-        limit = programme_valve_limit(programme, controller.model, command_limit)
-        programme = programme.with_durations(2 * minimum_durations_s(programme, limit),
-                                             f"{programme.source.split(',')[0]}, from twice the minimum")
+        programme = programme.with_durations(2 * minimum_s(config, programme, controller, required=True),
+                                             f"{programme.source}, from twice the minimum")
     if args.plan:
         return _plan(args, programme, controller, config)
     if not args.out:
         raise ParameterError("give --out DIR for the passes and the report (or --plan to see the "
                              "programme's time and its valve-limited minimum without loading)")
     repeat = args.repeat if args.repeat is not None else (SCALING_PASSES if scaling else 1)
+    if not (1 <= repeat <= 1000):
+        raise ParameterError(f"--repeat {repeat}: it must be from 1 to 1000")
     pacing = pacing_options(args)
     monitor = monitor_options(args)
-    comp = Compensation.load(args.compensation) if args.compensation else None
-    # everything that can be refused is refused before the stand is touched
-    LoadProgramme(programme, controller, comp, args.unload_to, pacing=pacing).check(
-        config.period_s, config.limits.force_limit_kgf, config.limits.command_limit_pct)
+    # a schedule replays with the corrections its pass ran with, unless others are given
+    from_schedule = schedule.compensation_path if schedule is not None and not args.compensation else None
+    if from_schedule is not None and not from_schedule.is_file():
+        raise ParameterError(f"{args.schedule} was met with the corrections of {from_schedule}, which is not "
+                             "there: keep it beside the schedule, or give --compensation FILE")
+    comp = (Compensation.load(args.compensation or from_schedule, names)
+            if args.compensation or from_schedule else None)
+    # everything that can be refused is refused before the station is touched
+    check_load(config, programme, controller, comp, args.unload_to, pacing=pacing)
     with sigterm_as_interrupt():
         with Gateway(config) as gw:
             result = run_load(gw, programme, controller, args.out, repeat, comp,
                               learn=not args.no_learn, unload_kgf=args.unload_to,
-                              progress=False if args.no_progress else None, pacing=pacing,
-                              scaling=scaling, monitor=monitor)
+                              progress=False if args.no_progress else None, scaling=scaling,
+                              monitor=monitor, pacing=pacing)
     if args.json:
         json.dump(result.summary(), sys.stdout, indent=2)
         sys.stdout.write("\n")
     else:
-        for i, (p, timing) in enumerate(zip(result.passes, result.timings), start=1):
-            print(f"pass {i}: peak/valley error p95 {p.peak_valley_error_pct['p95']:.2f} %, max "
-                  f"{p.peak_valley_error_pct['max']:.2f} %, RMS {p.rms_error_pct:.2f} %, extra cycles "
-                  f"{p.extra_cycles:g}; {timing_text(timing)}")
-        if result.passes:
-            print(result.passes[-1].text())
-        if result.converged is not None:
-            print(schedule_line(result, scaling, repeat))
-        if result.monitor is not None:
-            print(gain_text(result.monitor))
-        print(f"-> {result.out} (report.txt, report.json, tracking.png, pass-N/"
-              + (", schedule.toml" if scaling else "") + ")")
+        _print_result(result, programme, scaling, repeat)
     return exit_code(result, result.monitor.alarm if result.monitor is not None else None)
+
+
+def _print_result(result, programme, scaling, repeat: int) -> None:
+    """Each pass in a line, the last pass's report, time scaling's outcome, the gain."""
+    for i, (p, timing) in enumerate(zip(result.passes, result.timings), start=1):
+        if programme.n == 1:
+            r = p.channels[0]
+            pv = r.peak_valley_error_pct
+            print(f"pass {i}: peak/valley error p95 {pv['p95']:.2f} %, max {pv['max']:.2f} %, RMS "
+                  f"{r.rms_error_pct:.2f} %, extra cycles {r.extra_cycles:g}; {timing.text()}")
+            continue
+        pv = p.figures()["peak_valley_error_pct"]
+        ratio = p.ratio_error_pct
+        print(f"pass {i}: worst channel {p.worst_channel}: peak/valley error p95 {pv['p95']:.2f} %, "
+              f"max {pv['max']:.2f} %; extra cycles (all channels) {sum(r.extra_cycles for r in p.channels):g}"
+              + (f"; ratio error {ratio:.2f} %" if ratio is not None else "") + f"; {timing.text()}")
+    if result.passes:
+        print(result.passes[-1].text())
+    if result.converged is not None:
+        print(schedule_line(result, scaling, repeat, "" if programme.n == 1 else " on every channel"))
+    if result.monitor is not None:
+        print(result.monitor.text())
+    written = [n for n in ("report.txt", "report.json", "tracking.png", "compensation.toml", "schedule.toml")
+               if (result.out / n).is_file()]
+    print(f"-> {result.out} ({', '.join(written + ['pass-N/'])})")

@@ -74,7 +74,7 @@ def main_estimate(args: argparse.Namespace) -> int:
 def save_estimate(args: argparse.Namespace, est: "RigEstimate") -> Path:
     from analysis.rig.result import starting_models
     from core.errors import DataError
-    from plant.rig_config import rig_model_to_toml
+    from plant.config import rig_model_to_toml
     unknown = [n for n, col in zip(est.names, est.G.T) if not all(map(math.isfinite, col))]
     if unknown:
         raise DataError(f"--save: the columns of {', '.join(unknown)} are unknown (no run moved "
@@ -169,7 +169,7 @@ def main_diagnose(args: argparse.Namespace) -> int:
     from analysis.diagnosis.rig import diagnose_rig
     from analysis.executors import rig_executor
     from core.errors import ParameterError
-    from plant.rig_config import load_rig_model, rig_model_to_toml
+    from plant.config import load_rig_model, rig_model_to_toml
     for opt in ("plots", "report"):
         if getattr(args, opt, None) is not None:
             raise ParameterError(f"--{opt} is for one channel's data; with --rig-model use --json "

@@ -1,8 +1,8 @@
-"""The example rig for offline load passes (gateway.rig_offline: the emulator's coupled
-lockstep plant, no bus)."""
+"""The example rig for offline load passes (gateway.offline: the emulator's coupled lockstep
+plant, no bus)."""
 from __future__ import annotations
 
-from gateway.rig_offline import RigOfflinePass, emulated_truth, run_rig_pass  # noqa: F401
+from gateway.offline import OfflinePass, emulated_truth, run_offline_pass  # noqa: F401
 
 from .rig import EXAMPLE_RIG
 

@@ -10,8 +10,12 @@ T = 0.002
 
 def stepper(experiment, period_s: float, force_limit_kgf: float):
     """(begin, finished, step, aborted) for one channel, as the control loop calls them."""
-    experiment.configure(period_s, force_limit_kgf)
-    return (experiment.begin, experiment.finished, experiment.step,
+    experiment.configure_rig(period_s, [force_limit_kgf])
+
+    def step(t: float, y: float) -> tuple[float, float]:
+        u, r = experiment.step_rig(t, [y])
+        return float(u[0]), float(r[0])
+    return (lambda y: experiment.begin_rig([y]), lambda t, y: experiment.finished_rig(t, [y]), step,
             lambda: experiment.abort is not None)
 
 
@@ -37,7 +41,8 @@ def programme_sine():
 
 def compensation():
     from loading.compensation import Compensation
-    return Compensation()
+    from loading.programme import STAND
+    return Compensation([STAND])
 
 
 def pacing(mode: str):
@@ -46,17 +51,14 @@ def pacing(mode: str):
 
 
 def gain_monitor(controller, block_s: float, follow: bool):
-    from loading.gain_monitor import GainMonitor, MonitorOptions, margin_table
-    model = controller.model
-    options = MonitorOptions(block_s=block_s, follow=follow)
-    return GainMonitor(model.g, model.tau, model.delta, T, options,
-                       margin_table(controller.kp_pct_per_kgf, controller.ti_s, model.g, model.tau, T,
-                                    controller.boost))
+    from loading.gain_monitor import GainMonitor, MonitorOptions
+    return GainMonitor.for_controller(controller, T, MonitorOptions(block_s=block_s, follow=follow))
 
 
 def load_programme_for(programme, controller, compensation=None, pacing=None, monitor=None):
     from gateway.load_experiment import LoadProgramme
-    return LoadProgramme(programme, controller, compensation, pacing=pacing, monitor=monitor)
+    from loading.programme import Programme
+    return LoadProgramme(Programme.of(programme), controller, compensation, pacing=pacing, monitor=monitor)
 
 
 def learn(experiment, u: np.ndarray, r: np.ndarray, y: np.ndarray, period_s: float) -> None:
@@ -67,14 +69,6 @@ def learn(experiment, u: np.ndarray, r: np.ndarray, y: np.ndarray, period_s: flo
         experiment.monitor.end_pass()
     if experiment.compensation is None:
         return
-    t = np.arange(len(y)) * period_s
-    start = experiment.programme_start_s
-    if experiment.positions:
-        i = np.round((t - experiment.main_start_s) / period_s).astype(int)
-        pos = np.asarray(experiment.positions)
-        inside = (i >= 0) & (i < len(pos))
-        t = np.where(inside, (pos[np.clip(i, 0, len(pos) - 1)] - experiment.lead) * period_s, t - start)
-    else:
-        t = t - start
-    report = tracking_report(experiment.programme, t, y)
-    experiment.compensation.learn(report.turning_points, experiment.programme.range_kgf)
+    t = experiment.programme_times(np.arange(len(y)) * period_s)
+    report = tracking_report(experiment.programme, t, np.asarray(y, float)[None, :])
+    experiment.compensation.learn(report.channels, experiment.programme.ranges_kgf)

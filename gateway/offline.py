@@ -1,8 +1,9 @@
-"""A rig's load pass without a bus: the rig emulator's own coupled lockstep plant
+"""A station's load pass without a bus: the emulator's own coupled lockstep plant
 (:class:`plant_emulator.lockstep_plant.LockstepRig`, what ``stand emulate --rig --lockstep``
-runs) stepped one period per cycle with each dynamometer's noise, the commands quantized to
-counts as on the wire. For tests and benchmarks of the control law apart from the CANopen
-gateway; a pass on the rig (``stand load --rig``) is :func:`gateway.rig_load.run_rig_load`.
+runs; one channel's is the stand's) stepped one period per cycle with each dynamometer's noise,
+the commands quantized to counts as on the wire. For tests and benchmarks of the control law
+apart from the CANopen gateway; a pass on the station (``stand load``) is
+:func:`gateway.load.run_load`.
 
 At cycle k the plant has advanced to t_k under the commands of cycle k-1; the experiment reads
 every force and returns every command, which acts over [t_k, t_k + T)."""
@@ -15,16 +16,16 @@ from typing import Sequence
 import numpy as np
 
 from dbc import profile as P
-from loading.rig_report import RigTrackingReport, rig_tracking_report
+from loading.report import TrackingReport, tracking_report
 from plant.rig import RigModel
 from plant_emulator.lockstep_plant import LockstepRig
 
-from .rig_load_experiment import RigLoadProgramme
+from .load_experiment import LoadProgramme
 
 
 @dataclass
-class RigOfflinePass:
-    report: RigTrackingReport | None
+class OfflinePass:
+    report: TrackingReport | None
     t: np.ndarray                  #: the programme's clock (0 at its start)
     y: np.ndarray                  #: (N, K) forces read
     u: np.ndarray                  #: (N, K) commands sent
@@ -39,10 +40,10 @@ def emulated_truth(rig_file: str | Path) -> tuple[RigModel, list[float]]:
     return plant.model, [float(p.sensor.get("noise_kgf", 0.0)) for p in plant.plants]
 
 
-def run_rig_pass(experiment: RigLoadProgramme, truth: RigModel, y0: float | Sequence[float] = 0.0,
+def run_offline_pass(experiment: LoadProgramme, truth: RigModel, y0: float | Sequence[float] = 0.0,
                  seed: int = 0, noise_kgf: float | Sequence[float] = 2.0,
                  force_limits: Sequence[float] | None = None, period_s: float = 0.002,
-                 max_s: float = 5000.0) -> RigOfflinePass:
+                 max_s: float = 5000.0) -> OfflinePass:
     """One pass of ``experiment`` on ``truth`` (module docstring)."""
     n = truth.n
     T = period_s
@@ -70,6 +71,6 @@ def run_rig_pass(experiment: RigLoadProgramme, truth: RigModel, y0: float | Sequ
         abort = (abort[0], f"channel {experiment.names[experiment.abort_channel]}: {abort[1]}")
     start = experiment.programme_start_s
     if start is None or abort is not None:
-        return RigOfflinePass(None, np.array(ts), Y, U, abort)
+        return OfflinePass(None, np.array(ts), Y, U, abort)
     tp = experiment.programme_times(np.array(ts))
-    return RigOfflinePass(rig_tracking_report(experiment.programme, tp, Y), tp, Y, U, None)
+    return OfflinePass(tracking_report(experiment.programme, tp, Y), tp, Y, U, None)

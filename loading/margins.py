@@ -1,7 +1,19 @@
-r"""Stability and margins of a rig's N loops together: characteristic loci in discrete time.
+r"""Stability margins of the station's loops: one loop's in discrete time, and N loops together
+by their characteristic loci.
 
-The loop, at the control period ``T``, each channel with its own delay ``τ_j = (m_j + f_j)·T``
-(zero-order hold, exact, as :mod:`loading.design` has it for one channel):
+**One loop** (:func:`margins`): at the control period ``T`` the force is read at SYNC k and the
+command ``u_k`` applies from then to the next SYNC; the model's delay ``τ = (m + f)·T`` and
+integrator give, exactly in discrete time (zero-order hold, no Padé approximation),
+
+.. math::  P(z) = g\,T\,\frac{(1 - f)\,z + f}{z^{m+1}\,(z - 1)},\qquad
+           C(z) = K_p\left(1 + \frac{T}{T_i}\,\frac{z}{z - 1}\right),
+
+and the margins of ``L = C·P`` come from a dense frequency grid up to Nyquist, cross-checked
+against python-control's ``stability_margins(method='frd')``: the crossover, the gain and phase
+margins and the peak sensitivity ``Ms = max |1/(1 + L)|``.
+
+**The loops together** (:class:`StationLoop`): at the control period ``T``, each channel with
+its own delay ``τ_j = (m_j + f_j)·T`` (zero-order hold, exact, as for one loop):
 
 .. math::  \hat P_j(z) = T\,\frac{(1 - f_j)\,z + f_j}{z^{m_j+1}\,(z - 1)},\qquad
            P(z) = G\,\operatorname{diag}(\rho_j\,\hat P_j(z)),
@@ -51,6 +63,90 @@ from typing import Sequence
 
 import numpy as np
 
+
+@dataclass
+class Margins:
+    """Stability margins of one loop gain."""
+
+    gain: float                 #: the plant gain the loop was evaluated at, kgf/(%·s)
+    crossover_hz: float
+    gain_margin: float
+    phase_margin_deg: float
+    peak_sensitivity: float     #: Ms = max |1/(1 + L)|
+    #: the same margins from python-control's stability_margins (cross-check)
+    control_gain_margin: float = math.nan
+    control_phase_margin_deg: float = math.nan
+
+    def text(self, label: str) -> str:
+        return (f"{label:<8} g = {self.gain:7.1f} kgf/(%·s): crossover {self.crossover_hz:6.3f} Hz, "
+                f"gain margin {self.gain_margin:5.2f}, phase margin {self.phase_margin_deg:5.1f}°, "
+                f"Ms {self.peak_sensitivity:4.2f}")
+
+
+def plant_tf(g: float, tau: float, period_s: float):
+    """P(z) of the loop as a python-control transfer function (see the module docstring)."""
+    import control
+    whole = tau / period_s
+    m = int(math.floor(whole + 1e-9))
+    f = whole - m
+    den = np.polymul(np.r_[1.0, np.zeros(m + 1)], [1.0, -1.0])      # z^(m+1)·(z − 1)
+    num = g * period_s * np.array([1.0 - f, f])
+    return control.tf(num, den, period_s)
+
+
+def pi_tf(kp: float, ti: float, period_s: float):
+    import control
+    a = period_s / ti
+    return control.tf([kp * (1 + a), -kp], [1.0, -1.0], period_s)
+
+
+def _frequency_response(kp: float, ti: float, g: float, tau: float, T: float, w: np.ndarray) -> np.ndarray:
+    z = np.exp(1j * w * T)
+    whole = tau / T
+    m = math.floor(whole + 1e-9)
+    f = whole - m
+    P = g * T * ((1 - f) * z + f) / (z ** (m + 1) * (z - 1))
+    C = kp * (1 + (T / ti) * z / (z - 1))
+    return C * P
+
+
+def margins(kp: float, ti: float, g: float, tau: float, period_s: float, check: bool = True,
+            points: int = 20000) -> Margins:
+    """Margins of the loop on a dense frequency grid up to Nyquist; with ``check``, python-
+    control's ``stability_margins(method='frd')`` beside them (on every 5th point)."""
+    w = np.geomspace(1e-3, math.pi / period_s * 0.9999, points)
+    L = _frequency_response(kp, ti, g, tau, period_s, w)
+    mag = np.abs(L)
+    phase = np.unwrap(np.angle(L))
+    cross = np.flatnonzero((mag[:-1] >= 1) & (mag[1:] < 1))
+    if len(cross):
+        k = cross[0]
+        wc = float(w[k])
+        pm = math.degrees(phase[k]) + 180.0
+        pm = (pm + 180.0) % 360.0 - 180.0
+    else:
+        wc, pm = math.nan, math.inf
+    turns = np.flatnonzero(np.diff(np.floor((phase + math.pi) / (2 * math.pi))) != 0)
+    gm = min((1 / mag[k] for k in turns), default=math.inf)
+    ms = float(np.max(1 / np.abs(1 + L)))
+    out = Margins(g, wc / (2 * math.pi), float(gm), float(pm), ms)
+    if check:
+        import control
+        import warnings
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            frd = control.frd(L[::5], w[::5])
+            cgm, cpm, *_ = control.stability_margins(frd, method="frd")
+        out.control_gain_margin = float(cgm) if cgm is not None else math.inf
+        out.control_phase_margin_deg = float(cpm) if cpm is not None else math.inf
+    return out
+
+
+def critical_p_gain(g: float, tau: float, period_s: float) -> float:
+    """The P gain (%/kgf) at which the loop with plant gain ``g`` reaches its stability limit."""
+    return margins(1.0, math.inf, g, tau, period_s, check=False).gain_margin
+
+
 #: frequency points of the loci (up to Nyquist)
 POINTS = 2000
 
@@ -80,7 +176,7 @@ class LoopMargins:
 
 
 @dataclass(frozen=True)
-class RigLoop:
+class StationLoop:
     """What the loop is made of (module docstring): the model's G (the controller's), each
     channel's delay and PI, and the mixing matrix ``M``."""
 
@@ -186,14 +282,13 @@ def peak_sensitivity(L: np.ndarray) -> float:
     return float(np.max(np.linalg.svd(S, compute_uv=False)[:, 0]))
 
 
-def closed_loop_poles(loop: RigLoop, factors: Sequence[float], coupling_error: float = 0.0,
+def closed_loop_poles(loop: StationLoop, factors: Sequence[float], coupling_error: float = 0.0,
                       scale: float = 1.0) -> np.ndarray:
     """The closed loop's poles (python-control): each channel's ``P̂_j`` and ``C_i`` as
     discrete transfer functions, the loop ``scale·Gp·diag(ρ)·diag(P̂)·M·diag(C)`` as one
     state-space system, unity negative feedback. Stable iff every |pole| < 1 (the brute-force
     check of the loci)."""
     import control
-    from .design import pi_tf, plant_tf
     T = loop.period_s
     plants = [control.ss(plant_tf(1.0, tau, T)) for tau in loop.taus_s]
     pis = [control.ss(pi_tf(kp, ti, T) if math.isfinite(ti) else control.tf([kp], [1.0], T))
@@ -208,7 +303,7 @@ def closed_loop_poles(loop: RigLoop, factors: Sequence[float], coupling_error: f
     return np.asarray(closed.poles())
 
 
-def critical_scale(loop: RigLoop, factors: Sequence[float], coupling_error: float = 0.0,
+def critical_scale(loop: StationLoop, factors: Sequence[float], coupling_error: float = 0.0,
                    upper: float = 20.0, steps: int = 30) -> float:
     """The common gain factor at which the closed loop's poles leave the unit circle, by
     bisection on the closed loop's eigenvalues (the brute-force gain margin, for checks)."""
