@@ -92,6 +92,28 @@ def test_a_channel_that_never_moves_leaves_its_column_unknown_and_says_so(rig, c
     assert est.to_dict()["G"][0][2] is None
 
 
+def test_a_run_that_starts_with_the_valves_held_the_other_way_guards_the_reversal_at_its_start(rig):
+    """After a trip the valves were held (the rod moving the other way): each meander reverses
+    the rod at its first sample, and the boost after it is no steady stretch. Unguarded, the
+    start's long first stretch (a quarter period, weighted by its length cubed) put G 14 % off
+    here (60 % through the emulator at 3 s periods)."""
+    held = per_column_meanders(rig, 5.0, 4.0, 3, seed=5, u_before_pct=-1.0, y0_kgf=1500.0)
+    est = estimate_rig(held)
+    err = np.abs(est.G - rig.G) / np.diag(rig.G)[None, :]
+    assert err.max() < 0.002, est.G
+    assert within(est, rig.G, widen=1.5).all(), (est.G, est.G_ci)
+
+
+def test_meanders_too_short_for_the_guard_after_their_reversals_are_refused_saying_what_to_do(rig):
+    """At 2.5 s a half period (1.25 s) is shorter than the guard after a reversal (4 × the 0.3 s
+    transitional window) and a stretch: no steady stretch moves a column of a coupled row."""
+    short = per_column_meanders(rig, 5.0, 2.5, 3, seed=5, u_before_pct=-1.0)
+    with pytest.raises(DataError, match=r"no steady stretch where channel \w+'s valve moves") as err:
+        estimate_rig(short)
+    assert "reverses every 1.25 s" in str(err.value)
+    assert "--meander-period-s" in str(err.value) and "--guard-ms" in str(err.value)
+
+
 def test_a_closed_loop_command_is_refused(rig):
     n = 5000
     rng = np.random.default_rng(0)
