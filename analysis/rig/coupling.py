@@ -38,8 +38,9 @@ from ..records.limits import noise_sigma
 from ..records.record import Record
 from .record import RigRecord
 
-#: a coupling whose part of a force swings less than this many times the reading's noise moves
-#: nothing a window could fit (the excess force a 2 kgf-noise reading shows over a window)
+#: a run where the coupling's part of a channel's force swings less than this many times the
+#: reading's noise (σ from its second differences), its own valve still, gives that channel's
+#: windows nothing to fit (an uncoupled neighbour's 1e-5 estimate swings it by 0.05 kgf)
 MOVES_SIGMAS = 10.0
 
 
