@@ -44,10 +44,17 @@ class PhysicalCheck:
     scales: np.ndarray = field(repr=False)
     #: ``G·diag(scales)``, symmetrised: the stiffness up to each group's unknown scale
     stiffness: np.ndarray = field(repr=False)
-    #: largest |(G·D)_ij − (G·D)_ji| / max |G·D|: 0 for an exact structure
+    #: largest |(G·D)_ij − (G·D)_ji| / max |G·D|: 0 for an exact structure (judged within
+    #: bounds: what is left beyond them, ``t`` of :func:`_physical_within`)
     asymmetry: float
     #: smallest eigenvalue of the symmetrised ``G·D`` over the largest (> 0: positive definite)
     min_eigenvalue_ratio: float
+    #: judged within bounds: the off-diagonal entries (row, column; 0-based) taken as zero,
+    #: each pair whose two intervals both hold zero
+    zeroed: tuple[tuple[int, int], ...] = ()
+    #: judged within bounds: the asymmetry they allow the stiffness as a whole, a share of
+    #: ``max |G·D|`` (NaN: judged exactly)
+    allowed: float = math.nan
 
     def text(self) -> str:
         head = "physical" if self.physical else f"not physical: {self.reason}"
@@ -55,14 +62,19 @@ class PhysicalCheck:
                 f"eigenvalue {self.min_eigenvalue_ratio:.3g} of the largest)")
 
 
-def physical_check(G: np.ndarray, asymmetry_tol: float = 1e-6) -> PhysicalCheck:
+def physical_check(G: np.ndarray, asymmetry_tol: float = 1e-6, lo: np.ndarray | None = None,
+                   hi: np.ndarray | None = None) -> PhysicalCheck:
     """Is there a symmetric positive definite ``K`` and positive ``c/A`` with ``G = K·diag(c/A)``?
     (see :class:`PhysicalCheck`). ``asymmetry_tol``: how far from symmetric ``G·D`` may be
-    (an emulated structure: numerical; an identified G: its uncertainty, the caller's)."""
+    (an emulated structure: numerical). An identified G carries intervals: with ``lo`` and
+    ``hi`` (N×N, each entry's bounds) the question is whether some G within them is physical
+    (:func:`_physical_within`), and ``asymmetry_tol`` is not used."""
     G = np.asarray(G, float)
     n = G.shape[0]
     if G.shape != (n, n) or not np.all(np.isfinite(G)):
         raise ModelError(f"G must be a square matrix of finite numbers, got shape {G.shape}")
+    if lo is not None or hi is not None:
+        return _physical_within(G, lo, hi)
     scales = np.ones(n)
     reasons: list[str] = []
     if np.any(np.diag(G) <= 0):
@@ -96,6 +108,161 @@ def physical_check(G: np.ndarray, asymmetry_tol: float = 1e-6) -> PhysicalCheck:
                        f"{ratio:.3g} of the largest): a load pattern would move the structure "
                        "with no force")
     return PhysicalCheck(not reasons, "; ".join(reasons), scales, K, asymmetry, ratio)
+
+
+def _physical_within(G: np.ndarray, lo: np.ndarray | None, hi: np.ndarray | None) -> PhysicalCheck:
+    r"""Is some G with ``lo ≤ G ≤ hi`` (entry by entry; a bound not given or not finite: none)
+    physical? Every condition of :func:`physical_check`, each within the bounds:
+
+    * a pair whose two intervals both hold zero is uncoupled: both are taken as zero (one taken
+      as zero and the other not would be a structure that couples one way only);
+    * any other pair couples both ways with one sign both intervals allow (its entry whose
+      interval holds zero, weakly); a pair whose intervals reach no common sign cannot;
+    * the flow-gain ratios ``d = A/c`` must make ``G'·diag(d)`` symmetric for some ``G'``
+      within the bounds: pair (i, j) needs ``[lo_ij·d_j, hi_ij·d_j]`` and
+      ``[lo_ji·d_i, hi_ji·d_i]`` (magnitudes, of the pair's sign) to meet, two inequalities
+      linear in ``d``. A linear programme finds the ``d`` (each group of coupled channels'
+      first at 1) that keeps the largest shortfall ``t`` smallest; ``t`` over the stiffness's
+      scale ``max |G·D|`` is the asymmetry the intervals cannot absorb (the products of the
+      entries around a loop of channels that differ, or a pair so lopsided that no flow gains
+      of the other channels suit it). It must stay within what the intervals allow the
+      stiffness as a whole, ``max (h_ij·d_j + h_ji·d_i) / max |G·D|`` (``h`` the half-widths:
+      a pair off by less than the least precisely known pair is no sign of another structure);
+      ``d`` is then the one nearest the estimate's own symmetry;
+    * the stiffness ``K' = G'·diag(d)`` (each pair's entry within both intervals, nearest the
+      estimate's mean) must be positive definite.
+    """
+    from scipy.optimize import linprog
+    n = G.shape[0]
+
+    def bound(b, fill):
+        if b is None:
+            return np.full((n, n), fill)
+        b = np.asarray(b, float)
+        if b.shape != (n, n):
+            raise ModelError(f"bounds of G must be {n}x{n}, got shape {b.shape}")
+        return np.where(np.isnan(b), fill, b)
+
+    lo = np.minimum(bound(lo, -math.inf), G)
+    hi = np.maximum(bound(hi, math.inf), G)
+    reasons: list[str] = []
+    bad = [i for i in range(n) if hi[i, i] <= 0]
+    if bad:
+        reasons.append(f"G_ii <= 0 within its interval for channel(s) "
+                       f"{', '.join(str(i + 1) for i in bad)}: a channel's own flow must raise "
+                       "its own force")
+    G0 = G.copy()
+    zeroed: list[tuple[int, int]] = []
+    pairs = []          # (i, j, sign, |G'_ij| range, |G'_ji| range)
+    for i in range(n):
+        for j in range(i + 1, n):
+            if lo[i, j] <= 0 <= hi[i, j] and lo[j, i] <= 0 <= hi[j, i]:
+                G0[i, j] = G0[j, i] = 0.0
+                zeroed += [(i, j), (j, i)]
+                continue
+            if hi[i, j] > 0 and hi[j, i] > 0:
+                sign = 1.0
+            elif lo[i, j] < 0 and lo[j, i] < 0:
+                sign = -1.0
+            else:
+                reasons.append(f"G[{i + 1},{j + 1}] = {G[i, j]:.3g} and G[{j + 1},{i + 1}] = "
+                               f"{G[j, i]:.3g} have opposite signs even within their intervals: "
+                               "a stiffness is symmetric, so they cannot")
+                continue
+            mag = [(max(0.0, min(sign * lo[a, b], sign * hi[a, b])),
+                    max(sign * lo[a, b], sign * hi[a, b])) for a, b in ((i, j), (j, i))]
+            pairs.append((i, j, sign, mag[0], mag[1]))
+    half = np.where(np.isfinite(hi - lo), 0.5 * (hi - lo), 0.0)
+    if reasons:
+        return _within_result(G, G0, np.ones(n), half, reasons, zeroed, pairs, 0.0)
+    # each pair's two inequalities: ij_lo·d_j − ji_hi·d_i ≤ t, ji_lo·d_i − ij_hi·d_j ≤ t
+    rows: list[np.ndarray] = []
+    for i, j, _, (ij_lo, ij_hi), (ji_lo, ji_hi) in pairs:
+        for a, b, a_lo, b_hi in ((j, i, ij_lo, ji_hi), (i, j, ji_lo, ij_hi)):
+            if a_lo > 0 and math.isfinite(b_hi):
+                r = np.zeros(n)
+                r[a], r[b] = a_lo, -b_hi
+                rows.append(r)
+    bounds: list[tuple[float | None, float | None]] = [(1e-9, None)] * n
+    for g in _groups(n, [p[:2] for p in pairs]):
+        bounds[min(g)] = (1.0, 1.0)
+    A = np.array(rows).reshape(len(rows), n)
+    d, shortfall = np.ones(n), 0.0
+    if rows:
+        first = linprog(np.append(np.zeros(n), 1.0), A_ub=np.hstack([A, -np.ones((len(rows), 1))]),
+                        b_ub=np.zeros(len(rows)), bounds=bounds + [(0.0, None)], method="highs")
+        if first.status != 0:
+            raise ModelError(f"the physical check's linear programme failed: {first.message}")
+        d, shortfall = first.x[:n], float(first.x[n])
+    # nearest the estimate's symmetry: minimise Σ |G_ij·d_j − G_ji·d_i| over the pairs whose
+    # entries both have the pair's sign, the shortfall kept
+    near = [(i, j) for i, j, sign, *_ in pairs if sign * G[i, j] > 0 and sign * G[j, i] > 0]
+    if near:
+        q = len(near)
+        T = np.zeros((q, n))
+        for k, (i, j) in enumerate(near):
+            T[k, j], T[k, i] = G[i, j], -G[j, i]
+        A2 = np.vstack([np.hstack([A, np.zeros((len(rows), q))]),
+                        np.hstack([T, -np.eye(q)]), np.hstack([-T, -np.eye(q)])])
+        b2 = np.concatenate([np.full(len(rows), shortfall * (1 + 1e-9) + 1e-12), np.zeros(2 * q)])
+        second = linprog(np.concatenate([np.zeros(n), np.ones(q)]), A_ub=A2, b_ub=b2,
+                         bounds=bounds + [(0.0, None)] * q, method="highs")
+        if second.status == 0:
+            d = second.x[:n]
+    return _within_result(G, G0, d, half, reasons, zeroed, pairs, shortfall)
+
+
+def _within_result(G: np.ndarray, G0: np.ndarray, d: np.ndarray, half: np.ndarray,
+                   reasons: list[str], zeroed: list[tuple[int, int]], pairs: list,
+                   shortfall: float) -> PhysicalCheck:
+    """:func:`_physical_within`'s verdict: the shortfall against what the intervals allow, the
+    stiffness within the bounds nearest the estimate (each pair's ``|K_ij|`` the mean of the
+    two scaled entries, clipped into both intervals) and its smallest eigenvalue, the
+    estimate's asymmetry after scaling."""
+    n = G.shape[0]
+    K = np.diag(np.maximum(np.diag(G), 0.0) * d)
+    for i, j, sign, (ij_lo, ij_hi), (ji_lo, ji_hi) in pairs:
+        a, b = max(ij_lo * d[j], ji_lo * d[i]), min(ij_hi * d[j], ji_hi * d[i])
+        want = 0.5 * (max(sign * G[i, j], 0.0) * d[j] + max(sign * G[j, i], 0.0) * d[i])
+        k = min(max(want, a), b) if a <= b else 0.5 * (a + b)
+        K[i, j] = K[j, i] = sign * k
+    norm = float(np.max(np.abs(G0 * d[None, :]))) or 1.0
+    asymmetry = shortfall / norm
+    hd = half * d[None, :]
+    off = ~np.eye(n, dtype=bool)
+    allowed = float(np.max((hd + hd.T)[off], initial=0.0)) / norm
+    if not reasons and asymmetry > allowed:
+        reasons.append(f"no flow gains make G·diag(A/c) symmetric within the intervals: "
+                       f"{100 * asymmetry:.2g} % asymmetric at best beyond them, more than the "
+                       f"{100 * allowed:.2g} % they allow (the products of the entries around a "
+                       "loop of channels differ, or a pair couples one way far more than the "
+                       "other channels' flow gains let it)")
+    eig = np.linalg.eigvalsh(K) if n else np.zeros(1)
+    ratio = float(eig[0] / eig[-1]) if eig[-1] > 0 else -math.inf
+    if not reasons and eig[0] <= 0:
+        reasons.append(f"the stiffness behind G is not positive definite within the intervals "
+                       f"(smallest eigenvalue {ratio:.3g} of the largest): a load pattern would "
+                       "move the structure with no force")
+    return PhysicalCheck(not reasons, "; ".join(reasons), d, K, asymmetry, ratio,
+                         tuple(zeroed), allowed)
+
+
+def _groups(n: int, links: list[tuple[int, int]]) -> list[list[int]]:
+    """The channels in groups joined by ``links`` (each channel alone when in none)."""
+    parent = list(range(n))
+
+    def find(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for i, j in links:
+        parent[find(i)] = find(j)
+    out: dict[int, list[int]] = {}
+    for i in range(n):
+        out.setdefault(find(i), []).append(i)
+    return list(out.values())
 
 
 def _flow_gain_ratios(G: np.ndarray, tiny: float) -> np.ndarray:

@@ -27,7 +27,7 @@ def stand(*args, timeout: float = 600) -> subprocess.CompletedProcess:
 def test_a_per_column_rig_campaign_gives_every_column_of_G(tmp_path, start_rig_emulator):
     rig = start_rig_emulator()
     out = tmp_path / "campaign"
-    done = stand("campaign", "--rig", rig, "--lockstep", "--meander-period-s", 3, "--cycles", 2,
+    done = stand("campaign", "--rig", rig, "--lockstep", "--meander-period-s", 4, "--cycles", 2,
                  "--emulated", "--no-progress", "--out", out)
     assert done.returncode == 0, done.stderr + done.stdout
     doc = json.loads((out / "rig-campaign.json").read_text())
@@ -48,7 +48,7 @@ def test_a_per_column_rig_campaign_gives_every_column_of_G(tmp_path, start_rig_e
 def test_a_rig_campaign_with_its_own_emulator_runs_on_private_buses_and_stops_it(tmp_path):
     from tests.support.rig_channels import sniff
     out = tmp_path / "campaign"
-    done = stand("campaign", "--rig", EXAMPLE_RIG, "--with-emulator", "--meander-period-s", 3,
+    done = stand("campaign", "--rig", EXAMPLE_RIG, "--with-emulator", "--meander-period-s", 4,
                  "--cycles", 2, "--no-progress", "--out", out)
     assert done.returncode == 0, done.stderr + done.stdout
     ran = load_rig_file(out / "rig.toml")          # the rig as run: the example on private buses

@@ -39,6 +39,24 @@ def test_a_channel_with_its_coupling_as_known_input_follows_the_rig_exactly():
         assert np.max(np.abs(alone - y[i])) > 100.0          # the coupling is no small part
 
 
+def test_pieces_with_and_without_a_known_rate_simulate_together_as_each_alone():
+    """A per-column campaign gives a channel a coupling only in the runs where another valve
+    moves: pieces with and without a known rate are integrated side by side, in either order."""
+    m = PlantModel.from_spec("base+reversal", {"tau": 0.05, "delta": 3.0})
+    n = 3000
+    t = np.arange(n) * DT
+    u = np.where((t // 1.5) % 2 == 0, 5.0, -5.0)
+    known = 150.0 * np.where((t // 2.0) % 2 == 0, 1.0, -1.0)
+    with_known = Piece(u, np.zeros(n), DT, 500, 100, known=known)
+    without = Piece(u, np.zeros(n), DT, 500, 100)
+    alone = [simulate_pieces(m, [p])[0] for p in (with_known, without)]
+    assert np.max(np.abs(alone[0] - alone[1])) > 100.0
+    for order in ([with_known, without], [without, with_known]):
+        together = simulate_pieces(m, order)
+        for p, y in zip(order, together):
+            assert np.array_equal(y, alone[0 if p is with_known else 1])
+
+
 def test_the_fit_of_a_channel_with_its_coupling_finds_its_own_parameters():
     a = PlantModel.from_spec("base+reversal", {"tau": 0.04, "delta": 5.0, "reversal.boost": 2.5})
     b = PlantModel.from_spec("base+reversal", {"tau": 0.06, "delta": -3.0, "reversal.boost": 1.5})

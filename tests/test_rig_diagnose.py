@@ -8,13 +8,15 @@ import pytest
 
 from analysis.diagnosis.rig import diagnose_rig, same_results
 from analysis.executors import InlineExecutor, local_executor, rig_executor
-from analysis.rig.synthetic import rig_meander
-from core.errors import ParameterError
+from analysis.rig.estimate import estimate_rig
+from analysis.rig.result import starting_models
+from analysis.rig.synthetic import per_column_meanders, rig_meander
+from core.errors import DataError, ParameterError
 from plant import PlantModel, plugins
 from plant.catalogue import CATALOGUE
 from plant.rig import RigModel
 from tests.support.plugins import RIPPLE, isolated_catalogue
-from tests.support.rig_models import two_channel_rig
+from tests.support.rig_models import chain_rig, two_channel_rig
 
 CANDIDATES = ["reversal", "lag"]
 
@@ -44,6 +46,38 @@ def test_each_channel_is_found_with_its_own_effect_when_the_coupling_is_in_its_m
     # the rig model arrived at: each channel's g on G's diagonal, the coupling as given
     assert d.rig.G[0, 0] == a.params["g"] and d.rig.G[0, 1] == rig.G[0, 1]
     assert [m.spec for m in d.rig.channels] == ["base+lag", "base+reversal"]
+
+
+@pytest.fixture(scope="module")
+def per_column():
+    """The 3-channel chain (left and right uncoupled, mid coupled to both), one run per
+    column, and the rig model its estimate saves (G and base+reversal starting models)."""
+    rig = chain_rig()
+    runs = per_column_meanders(rig, 5.0, 4.0, 4, seed=4)
+    return rig, runs, starting_models(estimate_rig(runs))
+
+
+def test_a_per_column_campaign_diagnoses_each_channel_from_the_runs_that_move_its_force(per_column):
+    rig, runs, model = per_column
+    d = diagnose_rig(runs, model, effects=CANDIDATES)
+    for c, truth in zip(d.channels, rig.channels):
+        assert (c.verdict, c.spec) == ("adequate", "base+reversal"), (c.name, c.summary)
+        assert c.params["g"] == pytest.approx(truth.g, rel=0.001), c.name
+        assert c.params["tau"] == pytest.approx(truth.params()["tau"], abs=0.001), c.name
+    # left and right are not coupled: each other's column run moves nothing of theirs
+    assert len(d.notes) == 2 and all("neither its valve nor the coupling" in n for n in d.notes)
+    assert d.notes[0].startswith("left: left out") and "right moving" in d.notes[0]
+
+
+def test_a_channel_whose_valve_moves_in_no_run_is_not_diagnosed_and_is_said(per_column):
+    rig, runs, model = per_column
+    # mid's column run moves every force, but only mid's valve
+    with pytest.raises(DataError, match="the valves of left, right do not move in"):
+        diagnose_rig(runs[1:2], model, ["left", "right"], effects=CANDIDATES)
+    d = diagnose_rig(runs[1:2], model, ["left", "mid"], effects=CANDIDATES, build_up=False)
+    assert [c.name for c in d.channels] == ["mid"]
+    assert d.notes[0].startswith("left: not diagnosed: its valve moves in none of the runs")
+    assert d.rig.channels[0].params() == model.channels[0].params()       # left as it was
 
 
 @pytest.mark.slow

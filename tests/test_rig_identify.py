@@ -16,6 +16,8 @@ from analysis.rig.record import make_rig_record
 from analysis.rig.result import physical_note, starting_models
 from analysis.rig.synthetic import per_column_meanders, rig_meander, rig_truth, write_rig_run
 from core.errors import DataError, ParameterError
+from rig.config import load_rig_file
+from tests.support.rig import EXAMPLE_RIG
 from tests.support.rig_models import CHANNELS3, chain_rig, within
 
 
@@ -92,6 +94,28 @@ def test_a_channel_that_never_moves_leaves_its_column_unknown_and_says_so(rig, c
     assert est.to_dict()["G"][0][2] is None
 
 
+def test_a_run_that_starts_with_the_valves_held_the_other_way_guards_the_reversal_at_its_start(rig):
+    """After a trip the valves were held (the rod moving the other way): each meander reverses
+    the rod at its first sample, and the boost after it is no steady stretch. Unguarded, the
+    start's long first stretch (a quarter period, weighted by its length cubed) put G 14 % off
+    here (60 % through the emulator at 3 s periods)."""
+    held = per_column_meanders(rig, 5.0, 4.0, 3, seed=5, u_before_pct=-1.0, y0_kgf=1500.0)
+    est = estimate_rig(held)
+    err = np.abs(est.G - rig.G) / np.diag(rig.G)[None, :]
+    assert err.max() < 0.002, est.G
+    assert within(est, rig.G, widen=1.5).all(), (est.G, est.G_ci)
+
+
+def test_meanders_too_short_for_the_guard_after_their_reversals_are_refused_saying_what_to_do(rig):
+    """At 2.5 s a half period (1.25 s) is shorter than the guard after a reversal (4 × the 0.3 s
+    transitional window) and a stretch: no steady stretch moves a column of a coupled row."""
+    short = per_column_meanders(rig, 5.0, 2.5, 3, seed=5, u_before_pct=-1.0)
+    with pytest.raises(DataError, match=r"no steady stretch where channel \w+'s valve moves") as err:
+        estimate_rig(short)
+    assert "reverses every 1.25 s" in str(err.value)
+    assert "--meander-period-s" in str(err.value) and "--guard-ms" in str(err.value)
+
+
 def test_a_closed_loop_command_is_refused(rig):
     n = 5000
     rng = np.random.default_rng(0)
@@ -106,12 +130,50 @@ def test_the_physical_check_of_an_estimate_is_noted_with_its_figures(rig, simult
     assert est.physical.physical, est.physical.text
     assert ("right", "left") in est.physical.zeroed and ("left", "right") in est.physical.zeroed
     assert "asymmetry" in est.physical.text and "smallest eigenvalue" in est.physical.text
-    # a G that couples one way only is noted as not physical, not refused
+    # a G that couples one way only (20 against 0 ± 0.1) is noted as not physical, not refused
     G = rig.G.copy()
     G[0, 2] = 20.0
     ci = np.stack([G - 0.1, G + 0.1], axis=-1)
     note = physical_note(G, ci, rig.names)
-    assert note.checked and not note.physical and "both ways or neither" in note.reason
+    assert note.checked and not note.physical and "couples one way far more" in note.reason
+
+
+def _ci(G, half):
+    return np.stack([G - half, G + half], axis=-1)
+
+
+def test_an_entry_whose_interval_holds_zero_is_judged_with_its_pair():
+    """A short campaign: G[inner,tip] = 0 ± 0.006 beside G[tip,inner] = 0.0164 ± 0.006 (true 0
+    both): taking the first as zero and not the second called the rig not physical (a
+    structure that couples one way only). Within the intervals the pair couples weakly both
+    ways; a pair whose intervals both hold zero is taken as zero on both sides."""
+    rig = load_rig_file(EXAMPLE_RIG)
+    G, half = rig.G.copy(), np.full((4, 4), 0.006)
+    G[1, 3], G[3, 1] = 0.0, 0.0164
+    note = physical_note(G, _ci(G, half), rig.names)
+    assert note.physical, note.text
+    assert ("inner", "tip") not in note.zeroed and ("tip", "inner") not in note.zeroed
+    assert {("root", "outer"), ("outer", "root"), ("root", "tip"), ("tip", "root")} == set(note.zeroed)
+    # signs within the intervals: -0.004 ± 0.006 may be as positive as its pair
+    G[1, 3] = -0.004
+    assert physical_note(G, _ci(G, half), rig.names).physical
+    # ... but a pair of opposite signs beyond their intervals cannot be
+    G[1, 3] = -0.02
+    note = physical_note(G, _ci(G, half), rig.names)
+    assert not note.physical and "opposite signs even within their intervals" in note.reason
+
+
+def test_a_loop_of_channels_is_judged_within_the_intervals():
+    """Three channels all coupled: the products of the entries one way round and the other
+    (20·20·40 against 10·10·20) differ by 8×: not physical with tight intervals, physical when
+    the intervals hold a symmetric G."""
+    G = np.array([[100.0, 20.0, 10.0], [20.0, 100.0, 20.0], [40.0, 10.0, 100.0]])
+    names = ["a", "b", "c"]
+    tight = physical_note(G, _ci(G, 0.1), names)
+    assert not tight.physical and "loop of channels" in tight.reason
+    assert tight.asymmetry > tight.asymmetry_allowed
+    loose = physical_note(G, _ci(G, 20.0), names)
+    assert loose.physical, loose.text
 
 
 def test_separating_periods_are_pairwise_orthogonal_within_a_factor_of_two():

@@ -17,10 +17,16 @@ now from the others' models of the round before and its start its own (the other
 boosts, absent from their base models, reach its force through G: a first round with base
 models leaves them in its residual). The result is a rig model again: G with each channel's
 fitted g on the diagonal, each channel's model.
+
+Each channel is diagnosed from the runs that give it something to fit: where its own valve
+moves, and where the coupling moves its force (a per-column campaign's other columns); a run
+where neither does is left out, and a channel whose valve moves in no run is not diagnosed, its
+model kept: both said in :attr:`RigDiagnosis.notes` (:func:`analysis.rig.coupling.diagnosable_records`).
 """
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from concurrent.futures import Executor, as_completed
 from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
@@ -35,7 +41,7 @@ from plant.rig import RigModel
 from ..executors import InlineExecutor
 from ..identification.windows import WINDOW_S
 from ..records.record import Record
-from ..rig.coupling import aligned, channel_records
+from ..rig.coupling import aligned, diagnosable_records
 from ..rig.record import RigRecord
 from .stepwise import MAX_EFFECTS, stepwise
 from .verdict import diagnose
@@ -100,10 +106,12 @@ class RigDiagnosis:
     rig: RigModel                       #: G (diagonal: the channels' fitted g) and models
     rounds: int
     seconds: float                      #: wall time of all rounds
+    #: runs left out of a channel's diagnosis, channels not diagnosed, and why
+    notes: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         return {"schema": "hydrostand-rig-diagnosis/1", "rounds": self.rounds,
-                "seconds": self.seconds, "channels": [
+                "seconds": self.seconds, "notes": list(self.notes), "channels": [
                     {"channel": c.name, "verdict": c.verdict, "summary": c.summary,
                      "model": c.spec, "params": c.params, "seconds": c.seconds,
                      "diagnosis": c.detail} for c in self.channels],
@@ -142,24 +150,40 @@ def diagnose_rig(records: Sequence[RigRecord], rig: RigModel,
     t0 = time.perf_counter()
     current = rig
     results: dict[str, ChannelResult] = {}
+    notes: list[str] = []
     for r in range(rounds):
         tasks = []
         for name in names:
+            recs, why = diagnosable_records(current, records, name)
+            if r == 0:
+                notes += why
+            if not recs:
+                continue
             if r == 0 and start is not None:
                 first = PlantModel.from_spec(start) if isinstance(start, str) else start
             else:
                 first = current.channels[current.names.index(name)]
-            tasks.append(ChannelTask(name, channel_records(current, records, name), first.spec,
-                                     first.params(), build_up, window_s, max_effects,
+            tasks.append(ChannelTask(name, recs, first.spec, first.params(), build_up,
+                                     window_s, max_effects,
                                      None if effects is None else list(effects), plugins))
+        if not tasks:
+            runs = ", ".join(Path(rec.source).name or rec.source for rec in records)
+            one = len(names) == 1
+            raise DataError(f"no channel can be diagnosed: the valve{'' if one else 's'} of "
+                            f"{', '.join(names)} {'does' if one else 'do'} not move in {runs}, "
+                            f"so {'its' if one else 'their'} own g, τ and effects are not in "
+                            f"the data; give the runs where {'it moves' if one else 'they move'}"
+                            " (each channel's column run, or a simultaneous run)")
         futures = {executor.submit(diagnose_channel, t): t.name for t in tasks}
         for fut in as_completed(futures):
             res = fut.result()
             results[res.name] = res
             say(f"round {r + 1} of {rounds}: {res.name}: {res.verdict} ({res.spec}, "
                 f"{res.seconds:.1f} s)")
-        current = updated(current, [results[n] for n in names])
-    return RigDiagnosis([results[n] for n in names], current, rounds, time.perf_counter() - t0)
+        current = updated(current, [results[t.name] for t in tasks])
+    done = [n for n in names if n in results]
+    return RigDiagnosis([results[n] for n in done], current, rounds, time.perf_counter() - t0,
+                        notes)
 
 
 def updated(rig: RigModel, results: Sequence[ChannelResult]) -> RigModel:

@@ -243,9 +243,14 @@ def simulate_pieces(model: PlantModel, pieces: Sequence[Piece]) -> list[np.ndarr
         else:
             def cat(arrs):
                 return None if arrs[0] is None else np.concatenate(arrs, axis=0)
+            # a disturbance some pieces have and others not (a rig channel's coupling is a
+            # known rate only in the runs where another channel moves): zero in the others
+            dists = [c[0].dist for c in cuts]
+            dist = None if all(d is None for d in dists) else np.concatenate(
+                [np.zeros_like(c[0].q) if d is None else d for c, d in zip(cuts, dists)], axis=0)
             drv = Drive(q=np.concatenate([c[0].q for c in cuts], axis=0),
                         aux=[cat([c[0].aux[j] for c in cuts]) for j in range(len(cuts[0][0].aux))],
-                        dist=cat([c[0].dist for c in cuts]))
+                        dist=dist)
             starts = np.concatenate([c[1] for c in cuts])
             sensor = None if cuts[0][2] is None else [
                 {k: np.concatenate([c[2][j][k] for c in cuts]) for k in cuts[0][2][j]}

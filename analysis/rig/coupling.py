@@ -14,10 +14,19 @@ along the run, and channel i is a one-channel record that carries it
 (:attr:`~analysis.records.record.Record.known_rate_kgf_s`): the one-channel fit, comparison and
 diagnosis add it to the model's rate as they add a disturbance, and find channel i's own
 effects (:mod:`analysis.diagnosis.rig`).
+
+Not every run tells something of channel i. A per-column campaign moves one valve per run:
+channel i's own valve moves in its own column's run, its force moves through the coupling in
+the runs of the channels coupled to it, and in the others it only drifts with its trend. A run
+where neither its valve nor its coupling moves its force gives its windows nothing to fit (a
+one-channel fit would still return a g and call the base model adequate): it is left out, with
+a note (:func:`diagnosable_records`). A channel whose own valve moves in none of the runs
+cannot be diagnosed at all: its g, τ and effects are not in the data.
 """
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -25,8 +34,14 @@ import numpy as np
 from core.errors import DataError
 from plant.rig import RigModel
 
+from ..records.limits import noise_sigma
 from ..records.record import Record
 from .record import RigRecord
+
+#: a run where the coupling's part of a channel's force swings less than this many times the
+#: reading's noise (σ from its second differences), its own valve still, gives that channel's
+#: windows nothing to fit (an uncoupled neighbour's 1e-5 estimate swings it by 0.05 kgf)
+MOVES_SIGMAS = 10.0
 
 
 def aligned(rig: RigModel, rec: RigRecord) -> list[int]:
@@ -74,3 +89,44 @@ def channel_records(rig: RigModel, records: Sequence[RigRecord], name: str) -> l
         ch = rec.channels[i]
         out.append(replace(ch, known_rate_kgf_s=c if np.any(c) else None, notes=list(ch.notes)))
     return out
+
+
+def own_valve_moves(rec: RigRecord, name: str) -> bool:
+    """Channel ``name``'s command changes in the run (its own valve moves)."""
+    u = rec.channel(name).u
+    return bool(len(u)) and bool(np.any(u != u[0]))
+
+
+def diagnosable_records(rig: RigModel, records: Sequence[RigRecord], name: str
+                        ) -> tuple[list[Record], list[str]]:
+    """Channel ``name`` of the runs that give its windows something to fit (module docstring):
+    those where its own valve moves, and those where its coupling moves its force by at least
+    :data:`MOVES_SIGMAS` times the reading's noise (the coupling then a known input); the
+    others are left out, said in the notes. No records (and a note) when its own valve moves
+    in none of the runs."""
+    kept, notes, left = [], [], []
+    own = [own_valve_moves(rec, name) for rec in records]
+    if not any(own):
+        return [], [f"{name}: not diagnosed: its valve moves in none of the runs given "
+                    f"({', '.join(_short(r.source) for r in records)}), so its own g, τ and "
+                    "effects are not in them (give the run where its valve moves: its column's, "
+                    "or a simultaneous one); its model stays as the rig model gives it"]
+    for rec, moves, ch in zip(records, own, channel_records(rig, records, name)):
+        if moves:
+            kept.append(ch)
+            continue
+        c = ch.known_rate_kgf_s
+        swing = 0.0 if c is None else float(np.ptp(np.cumsum(c) * rec.dt))
+        if swing >= MOVES_SIGMAS * max(noise_sigma(ch.y), 0.1):
+            kept.append(ch)
+        else:
+            left.append(_short(rec.source))
+    if left:
+        notes.append(f"{name}: left out {', '.join(left)}: neither its valve nor the coupling "
+                     "moves its force there (nothing for its windows to fit)")
+    return kept, notes
+
+
+def _short(source: str) -> str:
+    """A run's name as a note gives it (the directory, not its whole path)."""
+    return Path(source).name or source

@@ -225,6 +225,9 @@ def _fit(records: list[RigRecord], timing: dict[int, ChannelTiming], guard_s: fl
                             "limit: too few for its row of G (longer runs, longer periods, or a "
                             "shorter guard after the reversals)")
         X = np.array(X)
+        bare = [j for j in range(N) if fitted[j] and not np.any(X[:, j] != 0)]
+        if bare:
+            raise DataError(_no_stretch(records, names, i, bare[0], guards, margin_s))
         vif, corr = collinearity(X, sl.weight, fitted)
         worst = int(np.nanargmax(np.where(fitted[:N], vif[:N], -1.0))) if fitted[:N].any() else 0
         if vif[worst] > VIF_REFUSE:
@@ -239,6 +242,28 @@ def _guard(timing: ChannelTiming) -> float:
     """The time left out after a reversal of a channel: :data:`GUARD_FACTOR` times its
     transitional window, or :data:`FIRST_GUARD_S` when no boost was found."""
     return GUARD_FACTOR * timing.transitional_s if timing.transitional_detected else FIRST_GUARD_S
+
+
+def _no_stretch(records: list[RigRecord], names: list[str], i: int, j: int,
+                guards: np.ndarray, margin_s: float) -> str:
+    """Why row ``i`` has no steady stretch where channel ``j``'s valve moves: its meander's
+    half periods leave nothing after the guard, and what to do."""
+    halves = []
+    for rec in records:
+        e, rev = command_events(rec.u[j])
+        e = e[rev]
+        if len(e) > 1:
+            halves.append(float(np.median(np.diff(e))) * rec.dt)
+    half = min(halves) if halves else math.nan
+    need = guards[j] + 2 * margin_s + MIN_STRETCH_S
+    # half periods of twice what is left out after each reversal: most of each is steady
+    period = math.ceil(4 * need)
+    return (f"channel {names[i]}: no steady stretch where channel {names[j]}'s valve moves, so "
+            f"G[{names[i]},{names[j]}] cannot be estimated: {names[j]}'s meander reverses every "
+            f"{half:.3g} s, and after each reversal {guards[j]:.3g} s are left out (its reversal "
+            f"boost dies out there) and {MIN_STRETCH_S:g} s more are needed. Give longer meander "
+            f"periods (stand campaign --rig ... --meander-period-s {period:d} or more), or a "
+            "shorter guard with --guard-ms (the boost left in the stretches then biases G up)")
 
 
 def _inseparable(names: list[str], j: int, vif: np.ndarray, corr: np.ndarray,

@@ -1,15 +1,18 @@
 """The rig estimate as a result: G with its intervals, each channel's τ and Δ, and the physical
 check noted with its figures (never a refusal: an identified G carries its uncertainty).
 
-Physical check of an identified G (:func:`plant.rig.physical_check`): an off-diagonal entry
-whose interval holds zero is taken as zero (the structure does not couple those channels as far
-as the data tell). As all ``N(N−1)`` off-diagonal entries are asked at once, the intervals are
-widened to the Bonferroni level ``1 − α/(N(N−1))`` for this question (with 95 % intervals one
-of twelve uncoupled entries of a 4-channel rig would otherwise look coupled about every other
-time, and the check call G unphysical by chance). Then the flow-gain ratios are fitted and the asymmetry left after scaling,
-``max |(G·D)_ij − (G·D)_ji| / max |G·D|``, is compared with what the intervals allow, the same
-expression with the entries' half-widths, ``max (h_ij·d_j + h_ji·d_i) / max |G·D|``: an
-asymmetry within it is the estimate's noise, not a sign that no structure is behind G.
+Physical check of an identified G (:func:`plant.rig.physical_check` with the intervals as
+bounds): is there a physical G within the entries' intervals? As all the entries are asked at
+once, the intervals are widened to the Bonferroni level ``1 − α/(N(N−1))`` for this question
+(with 95 % intervals one of twelve uncoupled entries of a 4-channel rig would otherwise look
+coupled about every other time, and the check call G unphysical by chance). Within them a pair
+whose two intervals hold zero is uncoupled (both taken as zero); a pair where only one holds
+zero is coupled weakly both ways, with the other's sign (taking that one as zero alone made a
+structure that couples one way only: a short campaign's G[inner,tip] = 0 ± 0.006 beside
+G[tip,inner] = 0.016 was called unphysical so); the signs of each pair, the flow-gain ratios
+that make ``G·diag(A/c)`` symmetric (so the products around every loop of channels) and the
+stiffness's positive definiteness are all asked within the intervals, and the asymmetry left
+beyond them is compared with what they allow the stiffness as a whole.
 """
 from __future__ import annotations
 
@@ -54,31 +57,23 @@ def physical_note(G: np.ndarray, G_ci: np.ndarray, names: list[str],
     if not np.all(np.isfinite(G)):
         missing = [names[j] for j in range(N) if not np.all(np.isfinite(G[:, j]))]
         return PhysicalNote(False, False, f"not checked: column(s) {', '.join(missing)} unknown")
-    G0 = G.copy()
-    zeroed = []
     alpha = 1.0 - level
     widen = stats.norm.ppf(1 - alpha / (2 * max(1, N * (N - 1)))) / stats.norm.ppf(1 - alpha / 2)
-    for i in range(N):
-        for j in range(N):
-            lo, hi = G[i, j] + widen * (np.asarray(G_ci[i, j]) - G[i, j])
-            if i != j and math.isfinite(lo) and lo <= 0 <= hi:
-                G0[i, j] = 0.0
-                zeroed.append((names[i], names[j]))
-    first = physical_check(G0, asymmetry_tol=math.inf)
-    half = 0.5 * np.abs(G_ci[..., 1] - G_ci[..., 0])
-    half = np.where(np.isfinite(half), half, 0.0)
-    d = first.scales
-    GD = np.abs(G0 * d[None, :])
-    norm = float(GD.max()) or 1.0
-    allowed = float(np.max(half * d[None, :] + (half * d[None, :]).T)) / norm
-    check = physical_check(G0, asymmetry_tol=allowed)
+    ci = np.asarray(G_ci, float)
+    lo = G + widen * (ci[..., 0] - G)
+    hi = G + widen * (ci[..., 1] - G)
+    check = physical_check(G, lo=lo, hi=hi)
+    zeroed = [(names[i], names[j]) for i, j in check.zeroed]
+    allowed = check.allowed
+    level_all = 100 * (1 - alpha / max(1, N * (N - 1)))
     head = "physical" if check.physical else f"not physical: {check.reason}"
-    text = (f"{head} (asymmetry {100 * check.asymmetry:.2g} % after scaling, the intervals allow "
-            f"{100 * allowed:.2g} %; smallest eigenvalue of the stiffness {check.min_eigenvalue_ratio:.3g} "
-            "of the largest)")
+    text = (f"{head} (entries judged within their intervals at the {level_all:.3g} % level: "
+            f"asymmetry {100 * check.asymmetry:.2g} % after scaling beyond them, "
+            f"{100 * allowed:.2g} % allowed; smallest eigenvalue of the stiffness "
+            f"{check.min_eigenvalue_ratio:.3g} of the largest)")
     if zeroed:
-        text += (f"; {len(zeroed)} entr{'y' if len(zeroed) == 1 else 'ies'} taken as zero (interval "
-                 f"at the {100 * (1 - alpha / max(1, N * (N - 1))):.3g} % level holds 0)")
+        text += (f"; {len(zeroed)} entr{'y' if len(zeroed) == 1 else 'ies'} taken as zero (both "
+                 "intervals of the pair hold 0)")
     return PhysicalNote(True, check.physical, text, check.asymmetry, allowed,
                         check.min_eigenvalue_ratio, zeroed, check.reason, check)
 

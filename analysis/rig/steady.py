@@ -34,13 +34,15 @@ def command_events(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The samples where the command changes, and whether each change is a reversal (the sign
     turns against the last non-zero command's; a change from zero after a long hold in the same
     direction is not; the first non-zero command of a record counts as one: the rod's direction
-    before it is unknown)."""
+    before it is unknown). A record that starts at a non-zero command starts with such an
+    event at sample 0: a meander started from a valve held the other way (after a trip, or
+    a load's hold) reverses the rod there, and its boost would bias the slopes after it."""
     u = np.asarray(u, float)
     change = np.flatnonzero(np.diff(u) != 0) + 1
+    if len(u) and u[0] != 0:
+        change = np.concatenate([[0], change])
     reversal = np.zeros(len(change), bool)
     last = 0.0
-    if u[0] != 0:
-        last = np.sign(u[0])
     for k, e in enumerate(change):
         s = np.sign(u[e])
         if s != 0:

@@ -31,16 +31,18 @@ def square(amplitude_pct: float, period_s: float, n: int, dt: float) -> np.ndarr
 def rig_meander(rig: RigModel, amplitudes_pct: Sequence[float], periods_s: Sequence[float],
                 duration_s: float, dt: float = 0.002, noise_kgf: float = 2.0,
                 resolution_kgf: float = 0.5, range_kgf: float = 10000.0, seed: int = 0,
-                y0_kgf: float | Sequence[float] = 0.0, source: str | None = None) -> RigRecord:
+                y0_kgf: float | Sequence[float] = 0.0, source: str | None = None,
+                u_before_pct: float | Sequence[float] = 0.0) -> RigRecord:
     """Every channel a meander of its own amplitude and period at once (an amplitude of 0: the
     channel's valve held at a zero command), for ``duration_s``; the commands before the run at
-    zero. Channel i's dynamometer has the seed ``seed + i``."""
+    ``u_before_pct`` (0: from rest; the other way than the meander's first: a valve held so,
+    its rod reverses at the run's start). Channel i's dynamometer has the seed ``seed + i``."""
     n = int(round(duration_s / dt))
     u = np.vstack([square(a, p, n, dt) if a else np.zeros(n)
                    for a, p in zip(amplitudes_pct, periods_s)])
     if u.shape[0] != rig.n:
         raise ValueError(f"{u.shape[0]} amplitudes/periods for a rig of {rig.n} channels")
-    y = rig.simulate(u, dt, y0=y0_kgf, u_before=0.0)
+    y = rig.simulate(u, dt, y0=y0_kgf, u_before=u_before_pct)
     readings = np.vstack([
         Dynamometer(noise_kgf=noise_kgf, resolution_kgf=resolution_kgf, range_kgf=range_kgf,
                     seed=seed + i).measure(y[i])[0] for i in range(rig.n)])

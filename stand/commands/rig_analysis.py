@@ -242,4 +242,5 @@ def describe_diagnosis(d: "RigDiagnosis") -> str:
             nxt = f"+{s['added']}: {s['why']}" if s.get("added") else s.get("why", "")
             lines.append(f"  {i:2d}  {s['model']:36s} RMSE {s['rmse']:8.4g} kgf  "
                          f"×floor {s['over_floor']:5.2f}  {nxt}")
+    lines += [f"note: {n}" for n in d.notes]
     return "\n".join(lines)
