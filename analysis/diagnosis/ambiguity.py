@@ -3,7 +3,8 @@
 Two explanations of the same error are *ambiguous* when these records cannot separate them:
 look-alikes at a single command amplitude (a dead zone lowers the slope like another gain), under
 a smooth command (a valve lag shifts it like more delay), candidates that leave about as little
-error as the best (within :data:`AMBIGUITY_RATIO`), a parameter the data do not determine, or a
+error as the best (within :data:`AMBIGUITY_RATIO`; a richer one tied with it is its equivalent,
+:func:`.candidates.rank_candidates`), a parameter the data do not determine, or a
 gain that changed between the runs where the runs' order and command levels rise together. Each
 :class:`~plant.evidence.Ambiguity` names the experiment that separates them. What an effect looks
 like and what tells it apart lives on its class (:meth:`plant.Effect.ambiguities`,
@@ -42,19 +43,25 @@ def ambiguities(records: Sequence[Record], base_fit: FitResult, cands: Sequence[
     out: list[Ambiguity] = []
     for cls in CATALOGUE.values():          # each effect knows its look-alikes
         out += [a for a in cls.ambiguities(ev) if a not in out]
-    # candidates the data do not separate (comparable error reductions)
+    # candidates the data do not separate (comparable error reductions); a richer one tied
+    # with the best is its equivalent (ranked after it: ties go to the simpler law)
     if best is not None:
         for c in cands:
-            if c is best or not c.earns:
+            equivalent = c.effect in best.equivalents
+            if c is best or not (c.earns or equivalent):
                 continue
-            if c.objective_rmse <= AMBIGUITY_RATIO * best.objective_rmse:
+            if equivalent or c.objective_rmse <= AMBIGUITY_RATIO * best.objective_rmse:
                 pair = [best.effect, c.effect]
                 if any(set(a.effects) == set(pair) for a in out):
                     continue
-                out.append(Ambiguity(pair, f"+{c.effect} leaves about as little error as "
-                                           f"+{best.effect} ({c.objective_rmse:.3g} vs "
-                                           f"{best.objective_rmse:.3g} kgf).",
-                                     separating_experiment(*pair)))
+                errors = f"({c.objective_rmse:.3g} vs {best.objective_rmse:.3g} kgf)"
+                extra = c.free_params - best.free_params
+                reason = (f"+{c.effect} is the equivalent of +{best.effect}: it leaves as little "
+                          f"error {errors} with {extra} more parameter{'s' if extra > 1 else ''}, "
+                          f"which these data do not pay for, so the simpler law is named first."
+                          if equivalent else
+                          f"+{c.effect} leaves about as little error as +{best.effect} {errors}.")
+                out.append(Ambiguity(pair, reason, separating_experiment(*pair)))
         # parameters of the best candidate the data do not determine
         if best.fit is not None:
             for name in best.fit.non_identifiable():

@@ -3,7 +3,9 @@
 Which effects are candidates (:func:`diagnosable_effects`: the catalogue's diagnosable effects
 not yet in the model), how one is judged against its reference fit of the starting model on the
 same windows (:func:`judge`, by the criteria of :mod:`.significance`), and how the candidates
-are ranked (:func:`rank_candidates`: BIC on the fit's objective, ties in catalogue order).
+are ranked (:func:`rank_candidates`: BIC on the fit's objective; a law with more parameters that
+does not help over a simpler one, by the same criteria, is its equivalent and ranked after it;
+ties of equal parameter counts in catalogue order).
 """
 from __future__ import annotations
 
@@ -43,11 +45,17 @@ class Candidate:
                                   #: part of it (``earns`` without the excess-share criterion)
     refit_on: str                 #: "final" (refitted on all windows, tight tolerance, intervals)
                                   #: or "screening" (screening fit only)
+    free_params: int = 0          #: parameters fitted (the starting model's and the effect's)
+    #: candidates with more parameters that leave no less error than this one without helping
+    #: over it (:func:`rank_candidates`): its equivalents, ranked after it
+    equivalents: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     fit: FitResult | None = field(default=None, repr=False)
+    #: the objective's squared error per window on all windows (what ties are judged on)
+    window_sse: np.ndarray | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict:
-        d = {k: v for k, v in asdict(self).items() if k != "fit"}
+        d = {k: v for k, v in asdict(self).items() if k not in ("fit", "window_sse")}
         d["improvement_percent"] = 100.0 * self.improvement
         if self.fit is not None:
             d["intervals"] = {k: e.to_dict() for k, e in self.fit.estimates.items()}
@@ -68,24 +76,57 @@ def judge(name: str, f: FitResult, w: np.ndarray, rmse: float, base_w: np.ndarra
                      rmse_reduction=1.0 - rmse / base_rmse if base_rmse > 0 else 0.0,
                      excess_share=c.excess_share, z=c.z, lr=c.lr, earns=c.earns, helps=c.helps,
                      bic=n * math.log(max(c.objective_rmse, 1e-300) ** 2) + len(f.free) * math.log(n),
-                     refit_on=refit, warnings=list(f.warnings), fit=f)
+                     refit_on=refit, free_params=len(f.free), warnings=list(f.warnings), fit=f,
+                     window_sse=w)
 
 
-def rank_candidates(cands: Sequence[Candidate]) -> list[Candidate]:
-    """Rank by the error penalized for the parameters it costs (BIC on the objective): among
-    candidates that remove the same error within the noise, the simpler one comes first. Runs
-    of candidates within :data:`BIC_TIE` of the first of the run are the data's tie (a dead zone
-    and a play under square waves are the same model): they keep the catalogue's order, which
-    lists the common valve effects first."""
+def tied(a: Candidate, b: Candidate, floor: float, n: int) -> bool:
+    """Neither candidate lowers the error the other leaves by more than its extra parameters
+    can: both ways judged by :func:`.significance.error_cut` (the criteria a candidate is
+    judged by against the starting model; k = the difference in parameters, at least one) on
+    their window errors, ``n`` samples at the objective's noise floor ``floor``."""
+    k = max(1, abs(a.free_params - b.free_params))
+    return not (error_cut(a.window_sse, b.window_sse, floor, n, k).helps
+                or error_cut(b.window_sse, a.window_sse, floor, n, k).helps)
+
+
+def rank_candidates(cands: Sequence[Candidate], floor: float, n: int) -> list[Candidate]:
+    """Rank by the error penalized for the parameters it costs (BIC on the objective), and let
+    ties go to the simpler law.
+
+    BIC charges a parameter ``ln N`` against ``N·ln MSE`` over all ``N`` samples: at 0.25 %
+    less error a law with a spare parameter gains about ``N/200``, far more than ``ln N`` on
+    long records, though the data cannot tell the two apart (an overdamped resonance is a lag
+    with a spare parameter). So a candidate with fewer parameters comes before the best-ranked
+    one whenever the two are :func:`tied` (the criteria of :mod:`.significance`, ``n`` samples
+    at the objective's noise floor ``floor``): the richer one does not help over it. Richer
+    candidates tied with a candidate are its :attr:`Candidate.equivalents`. Runs of candidates within
+    :data:`BIC_TIE` of the first of the run are the data's tie (a dead zone and a play under
+    square waves are the same model): they keep the catalogue's order, which lists the common
+    valve effects first."""
     order = list(CATALOGUE)
     ranked = sorted(cands, key=lambda c: c.bic)
-    out: list[Candidate] = []
+    by_bic: list[Candidate] = []
     i = 0
     while i < len(ranked):
         j = i + 1
         while j < len(ranked) and ranked[j].bic - ranked[i].bic < BIC_TIE:
             j += 1
-        out += sorted(ranked[i:j], key=lambda c: order.index(c.effect) if c.effect in order
-                      else len(order))
+        by_bic += sorted(ranked[i:j], key=lambda c: order.index(c.effect) if c.effect in order
+                         else len(order))
         i = j
+    out: list[Candidate] = []
+    rest = by_bic
+    while rest:
+        first = rest[0]
+        while True:
+            simpler = next((c for c in rest if c.free_params < first.free_params
+                            and tied(first, c, floor, n)), None)
+            if simpler is None:
+                break
+            first = simpler
+        first.equivalents = [c.effect for c in rest if c.free_params > first.free_params
+                             and tied(c, first, floor, n)]
+        out.append(first)
+        rest = [c for c in rest if c is not first]
     return out

@@ -99,11 +99,13 @@ class Stepwise:
 
 
 def pick(d: Diagnosis) -> tuple[Candidate | None, str]:
-    """The candidate to add after diagnosis ``d``, and why (or why none)."""
+    """The candidate to add after diagnosis ``d``, and why (or why none). Its equivalents (laws
+    with more parameters that leave as little error: ties go to the simpler law) are named."""
     if d.best_candidate is not None:
         c = d.best_candidate
         return c, (f"earns its parameters: lowers the error by {100 * c.rmse_reduction:.0f} %, "
-                   f"{100 * max(c.excess_share, 0):.0f} % of the excess over the noise")
+                   f"{100 * max(c.excess_share, 0):.0f} % of the excess over the noise"
+                   + equivalents_text(c))
     if d.verdict == "adequate":
         return None, "adequate: the error is within the noise"
     if d.verdict == "varies_between_records":
@@ -115,7 +117,15 @@ def pick(d: Diagnosis) -> tuple[Candidate | None, str]:
     c = helping[0]
     return c, (f"part of the missing behaviour: lowers the error by {100 * c.rmse_reduction:.0f} % "
                f"({100 * max(c.excess_share, 0):.0f} % of the excess), significant and "
-               f"consistent over the windows")
+               f"consistent over the windows" + equivalents_text(c))
+
+
+def equivalents_text(c: Candidate) -> str:
+    """``c``'s equivalents in words (empty if it has none)."""
+    if not c.equivalents:
+        return ""
+    return (f"; {', '.join('+' + e for e in c.equivalents)} leave{'s' if len(c.equivalents) == 1 else ''}"
+            f" as little error with more parameters (equivalent, ranked after it)")
 
 
 #: evaluations of the model a refit without one effect takes, about (from fitted values)

@@ -8,8 +8,9 @@ r"""Find what the model is missing: fit it, add each catalogue effect in turn, r
 2. for every *diagnosable* effect of the catalogue not yet in the model, fits ``model + effect``
    (start grids for the new effect, warm start for the rest) on the screening windows, evaluates
    it on all windows, and refits the best :data:`REFIT_TOP` on all data;
-3. ranks the candidates by their error, penalized for their parameters (BIC: among effects that
-   remove the same error within the noise, the simpler comes first), and judges each against
+3. ranks the candidates by their error, penalized for their parameters (BIC; ties go to the
+   simpler law: a richer candidate that does not help over a simpler one is ranked after it,
+   as its equivalent, :func:`.candidates.rank_candidates`), and judges each against
    the noise, on the objective of the fit (windowed error, window
    starts re-estimated; its noise floor is ``σ²·(1 − 1/W)``, σ from the force's second
    differences):
@@ -238,7 +239,7 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
     workers = workers_for(len(effects), screening_seconds(base.model, windows, len(effects)), jobs)
     screening["workers"] = workers
     fitted = refit_best(screen_candidates(base.model, effects, windows, workers, say), windows,
-                        refit_top, say)
+                        refit_top, say, base)
     screening["refit_on_all"] += [c.effect for c in fitted if c.refit_on == "final"]
     cands = judge_all(fitted, base, base.floor)
     floor = judging_floor(cands, base, records, window_s)
@@ -332,32 +333,28 @@ def screen_candidates(base_model: PlantModel, effects: Sequence[str], windows: W
 
 
 def refit_best(fits: dict[str, FitResult], windows: Windows, refit_top: int,
-               say: Callable[[str], None]) -> list[Fitted]:
-    """Step 3: the screened candidates ranked on all windows with their screening parameters,
-    the best ``refit_top`` (two at least when the screening windows are all of them) refitted
-    on all data. In the order of that ranking."""
-    scored = []
-    for name, f in fits.items():
-        w, rmse = errors(f.model, windows.full)
-        scored.append((float(w.sum()), name, w, rmse))
-    scored.sort(key=lambda x: x[0])
+               say: Callable[[str], None], base: StartFit) -> list[Fitted]:
+    """Step 3: the screened candidates judged and ranked on all windows with their screening
+    parameters (:func:`.candidates.rank_candidates`, as the final ranking: a law tied with a
+    richer one comes first), the best ``refit_top`` (two at least when the screening windows
+    are all of them) refitted on all data. In the order of that ranking."""
+    screened = [Fitted(name, f, Errors(*errors(f.model, windows.full)), "screening")
+                for name, f in fits.items()]
     out = []
-    for rank, (_, name, w, rmse) in enumerate(scored):
-        f = fits[name]
-        refit = "screening"
+    for rank, c in enumerate(judge_all(screened, base, base.floor)):
+        fitted = next(s for s in screened if s.effect == c.effect)
         if rank < (refit_top if windows.subset else max(refit_top, 2)):
-            say(f"refitting +{name} on all windows")
-            f = fit_model(windows.full, f.model,
+            say(f"refitting +{c.effect} on all windows")
+            f = fit_model(windows.full, fitted.fit.model,
                           options=FitOptions.refit(tol=FTOL if not windows.subset else REFIT_TOL))
-            w, rmse = errors(f.model, windows.full)
-            refit = "final"
-        out.append(Fitted(name, f, Errors(w, rmse), refit))
+            fitted = Fitted(c.effect, f, Errors(*errors(f.model, windows.full)), "final")
+        out.append(fitted)
     return out
 
 
 def judge_all(fitted: Sequence[Fitted], base: StartFit, floor: float) -> list[Candidate]:
     """Step 4: every candidate judged against the starting model fitted on the same windows,
-    at the noise floor ``floor``, and ranked."""
+    at the noise floor ``floor``, and ranked (:func:`.candidates.rank_candidates`)."""
     out = []
     for c in fitted:
         if c.refit_on == "screening" and base.screen_errors is not None:
@@ -366,7 +363,7 @@ def judge_all(fitted: Sequence[Fitted], base: StartFit, floor: float) -> list[Ca
             ref = base.errors
         out.append(judge(c.effect, c.fit, c.errors.window_sse, c.errors.rmse, ref.window_sse,
                          ref.rmse, floor, base.evaluation.n, c.refit_on))
-    return rank_candidates(out)
+    return rank_candidates(out, floor, base.evaluation.n)
 
 
 def judging_floor(cands: Sequence[Candidate], base: StartFit, records: Sequence[Record],
@@ -410,7 +407,10 @@ def conclude(best: Candidate | None, between: BetweenRecords | None, base: Start
         end = Conclusion("missing_effect",
                          f"missing effect: {best.effect} — adding it lowers the windowed RMSE from "
                          f"{base.evaluation.rmse:.3g} to {best.rmse:.3g} kgf "
-                         f"({100 * best.rmse_reduction:.0f} %)", best)
+                         f"({100 * best.rmse_reduction:.0f} %)"
+                         + (f"; as little error with more parameters: "
+                            f"{', '.join('+' + e for e in best.equivalents)} (its equivalent)"
+                            if best.equivalents else ""), best)
         if after > UNEXPLAINED_RATIO:
             end.warnings.append(f"with {best.effect} the error is still {after:.2f}× the noise "
                                 f"floor: diagnose again with --model {best.spec}")
