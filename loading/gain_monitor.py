@@ -8,7 +8,7 @@ During a loading run the force and the commands say how strongly the stand answe
 
 with ``q̃_k = (1 − f)·u_{k−m} + f·u_{k−m−1}`` the commands actually sent, delayed by
 ``τ = (m + f)·T``, ``G_k`` the model's FLOW factor on the planned flow there (the reversal
-boost, an asymmetry: :attr:`loading.feedforward.Feedforward.flow_factor`) and ``κ`` the stand's
+boost, an asymmetry: :attr:`loading.feedforward.ChannelFeedforward.flow_factor`) and ``κ`` the stand's
 gain over the model's. Only chunks where the model says the stand is steady count: ``G`` within
 :data:`MonitorOptions.steady_factor` along the whole chunk (away from a reversal's boost) and
 the flow one way, at least ``min_flow_pct``. A block lasts ``block_s`` of stand time, or
@@ -185,9 +185,9 @@ class ChannelGainMonitor:
     """One channel's block-by-block estimate of g, the feedforward's gain, the alarm (module
     docstring).
 
-    One monitor lives through a whole test (every pass): :meth:`begin_pass` at each pass's main
-    phase, :meth:`add` every cycle, :attr:`ff_scale` for the feedforward, :attr:`alarm` once
-    the alarm fired (``(kind, message)``)."""
+    It lives through a whole test (every pass) inside the station's :class:`GainMonitor`:
+    :meth:`begin_pass` at each pass's main phase, :meth:`add_flow` every cycle, :attr:`ff_scale`
+    for the feedforward, :attr:`alarm` once the alarm fired (``(kind, message)``)."""
 
     def __init__(self, g_kgf_pct_s: float, tau_s: float, delta_kgf_s: float, period_s: float,
                  options: MonitorOptions, margins: MarginTable | None = None) -> None:
@@ -223,9 +223,6 @@ class ChannelGainMonitor:
     def begin_pass(self) -> None:
         self.pass_index += 1
         self._in_pass = True
-        self._u = [0.0] * (self.m + 2)     # the last commands, newest last
-        self._g = [1.0] * (self.m + 2)     # their FLOW factors
-        self._steady = [False] * (self.m + 2)
         self._cycle = 0
         self._block_start = 0
         self._reset_chunk(math.nan)
@@ -250,24 +247,12 @@ class ChannelGainMonitor:
         self._ok = True                # steady, one way, enough flow throughout
         self._sign = 0.0
 
-    def add(self, y: float, u_pct: float, flow_factor: float) -> None:
-        """One cycle of the main phase: the force read now, the command sent now and the
-        model's FLOW factor where it will act (a delay later)."""
-        o = self.options
-        u, g, st = self._u, self._g, self._steady
-        u.pop(0); g.pop(0); st.pop(0)                        # noqa: E702
-        u.append(u_pct); g.append(flow_factor)               # noqa: E702
-        st.append(abs(flow_factor - 1.0) <= o.steady_factor - 1.0)
-        # the flow acting until the next reading: the commands sent a delay ago
-        q = (1 - self.f) * u[-1 - self.m] + self.f * u[-2 - self.m]
-        self.add_flow(y, g[-1 - self.m] * q, q, st[-1 - self.m])
-
     def add_flow(self, y: float, flow: float, q: float, steady: bool) -> None:
         """One cycle, the flow already known: the force read now, the model's flow ``G·q̃``
         acting until the next reading (in the command's units, what ``g`` multiplies), the
         flow whose size and way qualify the chunk (at least ``min_flow_pct``, one way) and
-        whether the model's FLOW factor is steady there. :meth:`add` for one channel; a rig's
-        channel gets its flow through the structure (:class:`GainMonitor`)."""
+        whether the model's FLOW factor is steady there: each channel's flow through the
+        structure, from the commands sent (:meth:`GainMonitor.add`)."""
         o = self.options
         self._cycle += 1
         if self._k == self.chunk_cycles:                     # y is the chunk's last reading
@@ -422,7 +407,7 @@ class GainMonitor:
     def ff_scales(self) -> np.ndarray:
         """Each channel's factor on its own feedforward, ``G_ii/ĝ_i`` (a feedforward from each
         channel's own model follows its own gain)."""
-        return np.array([c.g_ref / c.g_follow for c in self.channels])
+        return np.array([c.ff_scale for c in self.channels])
 
     @property
     def ff_matrix(self) -> np.ndarray:

@@ -190,6 +190,22 @@ def _haversine(levels: np.ndarray, durations: np.ndarray, period_s: float) -> tu
     return np.arange(n) * period_s, r, rate, idx
 
 
+def _segment_durations(spans_kgf: np.ndarray, rate_kgf_s: float | None, frequency_hz: float | None,
+                       between: str) -> tuple[np.ndarray, str]:
+    """Each segment's duration (s) as a haversine over ``spans_kgf`` at a peak rate, or half a
+    cycle at a frequency, and how it was timed (for the programme's name)."""
+    if (rate_kgf_s is None) == (frequency_hz is None):
+        raise ParameterError("give either a rate (kgf/s) or a frequency (Hz) for the haversines "
+                             f"between {between}, not both or neither")
+    if rate_kgf_s is not None:
+        if not (math.isfinite(rate_kgf_s) and rate_kgf_s > 0):
+            raise ParameterError(f"rate = {rate_kgf_s} kgf/s: it must be a positive number")
+        return np.pi * spans_kgf / (2 * rate_kgf_s), f"{rate_kgf_s:g} kgf/s"
+    if not (math.isfinite(frequency_hz) and frequency_hz > 0):
+        raise ParameterError(f"frequency = {frequency_hz} Hz: it must be a positive number")
+    return np.full(len(spans_kgf), 1 / (2 * frequency_hz)), f"{frequency_hz:g} Hz"
+
+
 def from_levels(levels_kgf, period_s: float, rate_kgf_s: float | None = None,
                 frequency_hz: float | None = None, source: str = "levels") -> ChannelProgramme:
     """A turning-point sequence: haversines between ``levels_kgf`` at a peak rate or frequency."""
@@ -203,19 +219,7 @@ def from_levels(levels_kgf, period_s: float, rate_kgf_s: float | None = None,
     if len(same):
         raise DataError(f"{source}: turning points {same[0] + 1} and {same[0] + 2} are both "
                         f"{levels[same[0]]:g} kgf; a turning point must differ from the one before")
-    if (rate_kgf_s is None) == (frequency_hz is None):
-        raise ParameterError("give either a rate (kgf/s) or a frequency (Hz) for the haversines "
-                             "between turning points, not both or neither")
-    if rate_kgf_s is not None:
-        if not (math.isfinite(rate_kgf_s) and rate_kgf_s > 0):
-            raise ParameterError(f"rate = {rate_kgf_s} kgf/s: it must be a positive number")
-        durations = np.pi * np.abs(np.diff(levels)) / (2 * rate_kgf_s)
-        how = f"{rate_kgf_s:g} kgf/s"
-    else:
-        if not (math.isfinite(frequency_hz) and frequency_hz > 0):
-            raise ParameterError(f"frequency = {frequency_hz} Hz: it must be a positive number")
-        durations = np.full(len(levels) - 1, 1 / (2 * frequency_hz))
-        how = f"{frequency_hz:g} Hz"
+    durations, how = _segment_durations(np.abs(np.diff(levels)), rate_kgf_s, frequency_hz, "turning points")
     t, r, rate, idx = _haversine(levels, durations, period_s)
     return ChannelProgramme(t, r, idx, period_s, f"{source}, {how}", rate, True)
 
@@ -554,19 +558,7 @@ def from_load_cases(levels_kgf, names: Sequence[str], period_s: float,
         k = int(still[0])
         raise DataError(f"{source}: load cases {_label(labels, k)} and {_label(labels, k + 1)} are "
                         "the same for every channel; a load case must differ from the one before")
-    if (rate_kgf_s is None) == (frequency_hz is None):
-        raise ParameterError("give either a rate (kgf/s) or a frequency (Hz) for the haversines "
-                             "between load cases, not both or neither")
-    if rate_kgf_s is not None:
-        if not (math.isfinite(rate_kgf_s) and rate_kgf_s > 0):
-            raise ParameterError(f"rate = {rate_kgf_s} kgf/s: it must be a positive number")
-        durations = np.pi * span / (2 * rate_kgf_s)
-        how = f"{rate_kgf_s:g} kgf/s"
-    else:
-        if not (math.isfinite(frequency_hz) and frequency_hz > 0):
-            raise ParameterError(f"frequency = {frequency_hz} Hz: it must be a positive number")
-        durations = np.full(L.shape[1] - 1, 1 / (2 * frequency_hz))
-        how = f"{frequency_hz:g} Hz"
+    durations, how = _segment_durations(span, rate_kgf_s, frequency_hz, "load cases")
     label = f"{source}, {how}"
     programmes = []
     for row in L:

@@ -219,3 +219,30 @@ def sigterm_as_interrupt() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def rig_inputs(paths: list[str]) -> bool:
+    """True if the inputs are rig runs (all of them); a mix with one-channel inputs is refused."""
+    from analysis.rig.load import is_rig_input
+    from core.errors import ParameterError
+    flags = [is_rig_input(p) for p in paths]
+    if any(flags) and not all(flags):
+        rig = [p for p, f in zip(paths, flags) if f]
+        one = [p for p, f in zip(paths, flags) if not f]
+        raise ParameterError(f"{', '.join(rig)} {'is a rig run' if len(rig) == 1 else 'are rig runs'}"
+                             f" but {', '.join(one)} {'is' if len(one) == 1 else 'are'} not: give "
+                             "the runs of one rig together, one-channel data apart")
+    return bool(flags) and all(flags)
+
+
+def load_rig_records(paths: list[str]) -> list:
+    """The rig records of ``paths``, what loading changed said on stderr."""
+    from analysis.rig.load import load_rig_inputs
+    records = load_rig_inputs(paths)
+    for rec in records:
+        for note in rec.notes:
+            print(f"note: {rec.source}: {note}", file=sys.stderr)
+        for name, ch in zip(rec.names, rec.channels):
+            for note in ch.notes:
+                print(f"note: {rec.source} [{name}]: {note}", file=sys.stderr)
+    return records

@@ -5,13 +5,14 @@ import argparse
 import contextlib
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-
-
-
-from .common import load_records
+from .common import load_records, load_rig_records, rig_inputs
 from .compare import default_out
 from .fit import add_data_args, check_window, print_json
+
+if TYPE_CHECKING:
+    from analysis.diagnosis.rig import RigDiagnosis
 
 
 def register(sub) -> None:
@@ -93,13 +94,12 @@ def main(args: argparse.Namespace) -> int:
     if args.jobs is not None and args.jobs < 1:
         from gateway.errors import ParameterError
         raise ParameterError(f"--jobs {args.jobs} is out of range: give 1 or more")
-    from .rig_analysis import main_diagnose, rig_inputs
     if args.rig_model:
         if not rig_inputs(args.data):
             from gateway.errors import ParameterError
             raise ParameterError(f"--rig-model needs rig runs; {', '.join(args.data)} "
                                  f"{'is' if len(args.data) == 1 else 'are'} one-channel data")
-        return main_diagnose(args)
+        return main_rig(args)
     if args.scheduler:
         from gateway.errors import ParameterError
         raise ParameterError("--scheduler goes with --rig-model (the rig's G and channel models)")
@@ -296,3 +296,85 @@ def main_stepwise(args: argparse.Namespace, records, model, effects) -> int:
     if report:
         print(f"report: {report}")
     return 0
+
+
+# -- a rig: --rig-model --------------------------------------------------------------------------
+def main_rig(args: argparse.Namespace) -> int:
+    """``--rig-model``: every channel (or those of --channel) with the others' coupling as a known input."""
+    from analysis.diagnosis.rig import diagnose_rig
+    from analysis.executors import rig_executor
+    from core.errors import ParameterError
+    from plant.config import load_rig_model, rig_model_to_toml
+    for opt in ("plots", "report"):
+        if getattr(args, opt, None) is not None:
+            raise ParameterError(f"--{opt} is for one channel's data; with --rig-model use --json "
+                                 "or diagnose a channel's one-channel view")
+    if args.rounds < 1 or args.rounds > 10:
+        raise ParameterError(f"--rounds {args.rounds} is out of range: give 1 to 10")
+    rig = load_rig_model(args.rig_model)
+    records = load_rig_records(args.data)
+    channels = None
+    if args.channel:
+        channels = [c.strip() for item in args.channel for c in item.split(",") if c.strip()]
+        missing = [c for c in channels if c not in rig.names]
+        if missing:
+            raise ParameterError(f"--channel {', '.join(missing)}: the rig model {args.rig_model} "
+                                 f"has channels {', '.join(rig.names)}")
+    effects = ([e.strip() for e in args.candidates.split(",") if e.strip()]
+               if args.candidates else None)
+    names = channels or rig.names
+    start = None
+    if args.model != "rig":
+        from analysis import resolve_model
+        start, _ = resolve_model(args.model)
+
+    def progress(msg: str) -> None:
+        if not args.no_progress:
+            print(f"diagnose: {msg}", file=sys.stderr, flush=True)
+
+    with rig_executor(args.jobs, args.scheduler, tasks=len(names)) as ex:
+        d = diagnose_rig(records, rig, channels, build_up=args.stepwise, start=start,
+                         window_s=args.window_s, max_effects=args.max_effects, effects=effects,
+                         executor=ex, rounds=args.rounds, progress=progress)
+    saved = None
+    if args.save:
+        path = Path(args.save)
+        verdicts = "; ".join(f"{c.name}: {c.verdict} ({c.spec})" for c in d.channels)
+        header = (f"from {', '.join(Path(x).name for x in args.data)}: stand diagnose --rig-model "
+                  f"{Path(args.rig_model).name}{' --stepwise' if args.stepwise else ''}, "
+                  f"{d.rounds} round(s)\n{verdicts}")
+        path.write_text(rig_model_to_toml(d.rig, header, path))
+        saved = path
+    if args.json:
+        doc = d.to_dict()
+        doc["saved"] = str(saved) if saved else None
+        print_json(doc)
+        return 0
+    print(describe_diagnosis(d))
+    if saved:
+        print(f"rig model saved: {saved}")
+    return 0
+
+
+def describe_diagnosis(d: "RigDiagnosis") -> str:
+    lines = [f"{len(d.channels)} channel(s) diagnosed with the coupling from the others in the "
+             f"model, {d.rounds} round(s), {d.seconds:.1f} s"]
+    lines.append(f"  {'channel':10s} {'verdict':24s} {'model':34s} {'g':>8s} {'τ ms':>7s} "
+                 f"{'Δ kgf/s':>8s}  task s")
+    for c in d.channels:
+        p = c.params
+        lines.append(f"  {c.name:10s} {c.verdict:24s} {c.spec:34s} {p['g']:8.4g} "
+                     f"{p['tau'] * 1e3:7.3g} {p['delta']:8.3g}  {c.seconds:6.1f}")
+    for c in d.channels:
+        own = {k: v for k, v in c.params.items() if "." in k}
+        lines.append("")
+        lines.append(f"{c.name}: {c.summary}")
+        if own:
+            lines.append("  " + ", ".join(f"{k} = {v:.4g}" for k, v in own.items()))
+        steps = c.detail.get("steps") if isinstance(c.detail, dict) else None
+        for i, s in enumerate(steps or []):
+            nxt = f"+{s['added']}: {s['why']}" if s.get("added") else s.get("why", "")
+            lines.append(f"  {i:2d}  {s['model']:36s} RMSE {s['rmse']:8.4g} kgf  "
+                         f"×floor {s['over_floor']:5.2f}  {nxt}")
+    lines += [f"note: {n}" for n in d.notes]
+    return "\n".join(lines)

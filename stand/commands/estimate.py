@@ -1,16 +1,19 @@
 """``stand estimate DATA...``: the paper's estimates of g and τ from recorded runs or CSV files;
-on rig runs G, each channel's τ and Δ (:mod:`stand.commands.rig_analysis`)."""
+on rig runs G, each channel's τ and Δ (a thin wrapper over :mod:`analysis.rig`)."""
 from __future__ import annotations
 
 import argparse
 import json
 import math
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING
+
+from .common import load_rig_records, rig_inputs
 
 if TYPE_CHECKING:
     from analysis.reports.campaign import ReportInput
-
+    from analysis.rig.result import RigEstimate
 
 
 def register(sub) -> None:
@@ -54,9 +57,8 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from .rig_analysis import main_estimate, rig_inputs
     if args.channel is None and rig_inputs(args.data):
-        return main_estimate(args)
+        return main_rig(args)
     if args.save or args.guard_ms is not None:
         from core.errors import ParameterError
         raise ParameterError("--save and --guard-ms are for G from rig runs (a run directory with "
@@ -131,4 +133,123 @@ def describe(item: "ReportInput") -> str:
             lines.append(f"    u0 {p.amplitude_pct:5.3g} %  {p.portion:18s} g = {p.g:7.4g} {_ci((p.ci_low, p.ci_high))}")
     lines += [f"  warning: {w}" for w in r.warnings]
     lines += [f"  note: {n}" for n in est.notes]
+    return "\n".join(lines)
+
+
+# -- rig runs -----------------------------------------------------------------------------------
+def main_rig(args: argparse.Namespace) -> int:
+    """Rig runs, all of them one data set: G, each channel's τ and Δ, the physical check."""
+    from analysis.rig.estimate import estimate_rig
+    from core.errors import ParameterError
+    if args.out or args.experiment not in (None, "meander"):
+        raise ParameterError("rig runs are estimated from meanders, as one data set: --out and "
+                             "--experiment other than meander are for one-channel inputs")
+    guard = None
+    if args.guard_ms is not None:
+        if not 0 <= args.guard_ms <= 10_000:
+            raise ParameterError(f"--guard-ms {args.guard_ms:g} is out of range: give 0 to 10000")
+        guard = args.guard_ms / 1000.0
+    records = load_rig_records(args.data)
+    est = estimate_rig(records, guard_s=guard)
+    saved = save_estimate(args, est) if args.save else None
+    if args.json:
+        doc = est.to_dict()
+        doc["saved"] = str(saved) if saved else None
+        print(json.dumps(doc, indent=2, allow_nan=False))
+    else:
+        print(describe_estimate(est, _truth(args.data)))
+        if saved:
+            print(f"rig model saved: {saved} (G, and per channel the base model with τ, Δ and "
+                  "the reversal boost found; refine with stand diagnose --rig-model)")
+    return 0
+
+
+def save_estimate(args: argparse.Namespace, est: "RigEstimate") -> Path:
+    from analysis.rig.result import starting_models
+    from core.errors import DataError
+    from plant.config import rig_model_to_toml
+    unknown = [n for n, col in zip(est.names, est.G.T) if not all(map(math.isfinite, col))]
+    if unknown:
+        raise DataError(f"--save: the columns of {', '.join(unknown)} are unknown (no run moved "
+                        "them): a rig model needs all of G; run a meander on each first")
+    path = Path(args.save)
+    header = (f"from {', '.join(Path(d).name for d in args.data)}: stand estimate ({est.design} "
+              f"meanders)\nG's 95 % intervals: ±{_largest_half(est):.3g} kgf/(%·s) at most; "
+              f"physical check: {est.physical.text}")
+    path.write_text(rig_model_to_toml(starting_models(est), header, path))
+    return path
+
+
+def _largest_half(est: "RigEstimate") -> float:
+    import numpy as np
+    half = 0.5 * np.abs(est.G_ci[..., 1] - est.G_ci[..., 0])
+    return float(np.nanmax(half)) if np.isfinite(half).any() else math.nan
+
+
+def _truth(paths: list[str]) -> dict | None:
+    """An emulated or synthetic run's truth.json (printed beside, never used)."""
+    for p in paths:
+        for f in [Path(p) / "truth.json", *sorted(Path(p).glob("*/truth.json"))] \
+                if Path(p).is_dir() else []:
+            try:
+                doc = json.loads(f.read_text())
+            except (OSError, ValueError):
+                continue
+            if isinstance(doc, dict) and "G" in doc:
+                return doc
+    return None
+
+
+def _pm(value: float, ci) -> str:
+    """``value ±half`` to the half-width's second significant digit."""
+    lo, hi = ci
+    if not math.isfinite(value):
+        return "unknown"
+    if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
+        return f"{value:.4g}"
+    half = 0.5 * (hi - lo)
+    decimals = max(0, 1 - math.floor(math.log10(half)))
+    return f"{value:.{decimals}f} ±{half:.{decimals}f}"
+
+
+def describe_estimate(est: "RigEstimate", truth: dict | None = None) -> str:
+    import numpy as np
+    names = est.names
+    width = max(18, max(len(n) for n in names) + 2)
+    moving = ", ".join(f"{Path(src).name}: {', '.join(m) or 'none'}" for src, m in est.moving.items())
+    lines = [f"rig estimate: {est.n} channels, {est.design} meanders ({moving})",
+             f"G, kgf/(%·s), ±{100 * est.level:.0f} % intervals (row: the force's channel, "
+             "column: the moving valve's; the diagonal is each channel's g):",
+             " " * 12 + "".join(f"{n:>{width}s}" for n in names)]
+    for i, n in enumerate(names):
+        lines.append(f"  {n:10s}" + "".join(f"{_pm(est.G[i, j], est.G_ci[i, j]):>{width}s}"
+                                            for j in range(est.n)))
+    lines.append("")
+    lines.append(f"  {'channel':10s} {'τ ms':>8s} {'[95 %]':>16s} {'Δ kgf/s':>18s} "
+                 f"{'transitional':>13s} {'reversals':>9s} {'stretches':>9s} {'resid kgf':>9s}")
+    for j, n in enumerate(names):
+        tau = est.tau_s[j] * 1e3
+        lo, hi = est.tau_ci_s[j] * 1e3
+        tau_s = f"{tau:8.4g}" if math.isfinite(tau) else f"{'-':>8s}"
+        ci = f"[{lo:.4g}, {hi:.4g}]" if math.isfinite(lo) else ""
+        trans = (f"{est.transitional_s[j] * 1e3:.0f} ms" if est.transitional_detected[j]
+                 else "none found" if math.isfinite(est.tau_s[j]) else "-")
+        lines.append(f"  {n:10s} {tau_s} {ci:>16s} {_pm(est.delta_kgf_s[j], est.delta_ci[j]):>18s} "
+                     f"{trans:>13s} {est.reversals[j]:9d} {est.stretches[j]:9d} "
+                     f"{est.residual_kgf[j]:9.3g}")
+    lines.append("")
+    lines.append(f"physical check: {est.physical.text}")
+    if truth is not None:
+        try:
+            order = [truth["channels"].index(n) for n in names]
+            Gt = np.array(truth["G"], float)[np.ix_(order, order)]
+            diag = np.minimum.outer(np.diag(Gt), np.diag(Gt))
+            rel = np.abs(est.G - Gt) / diag
+            worst = np.unravel_index(int(np.nanargmax(rel)), rel.shape)
+            lines.append(f"truth (truth.json, not used): largest |G − G_true| is "
+                         f"{100 * rel[worst]:.2g} % of the diagonal (G[{names[worst[0]]},"
+                         f"{names[worst[1]]}] {est.G[worst]:.4g} for {Gt[worst]:.4g})")
+        except (KeyError, ValueError, TypeError, IndexError):
+            pass
+    lines += [f"note: {n}" for n in est.notes]
     return "\n".join(lines)
