@@ -486,6 +486,9 @@ class Journal:
         with self._mutex:
             self._need_writer("commit a load case")
             s = self._state()
+            if s["state"] != "running":
+                raise JournalError(f"load case {index + 1} of flight {flight}: the test is "
+                                   f"{s['state']}; start it first")
             if s["flight"] != flight:
                 raise JournalError(f"load case {index + 1} of flight {flight}: the flight in progress "
                                    f"is {s['flight'] or 'none'} ({s['flights_done']} done)")
@@ -642,6 +645,19 @@ class Journal:
             with self._tx("pruning end points"):
                 cur = self._db.execute("DELETE FROM end_points WHERE flight <= ?", (through_flight,))
                 return cur.rowcount
+
+    def checkpoint(self, vacuum: bool = False) -> None:
+        """Move the write-ahead log into the database and truncate it (SQLite does this by
+        itself every 1,000 pages); ``vacuum``: also give the pages of pruned rows back to the
+        file system (rewrites the database: minutes for a large one, the test stopped)."""
+        with self._mutex:
+            self._need_writer("checkpoint the journal")
+            try:
+                if vacuum:
+                    self._db.execute("VACUUM")
+                self._db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+            except sqlite3.Error as exc:
+                raise _journal_error(exc, f"checkpointing {self.path}") from None
 
     # -- status and checks -----------------------------------------------------------------------------
     def status(self, now: float | None = None, events: int = 10) -> dict[str, Any]:

@@ -371,3 +371,17 @@ def test_a_full_disk_raises_a_clear_error_and_the_journal_reopens_consistent(tin
         again.commit_load_case(p.flight, k, points)
     assert again.flights_done == done + 1 and again.integrity_check() == []
     again.close()
+
+
+def test_a_stopped_test_takes_no_load_case_until_it_starts_again(tmp_path):
+    j = new(tmp_path / "t")
+    j.begin_flight(1, "A", 1, 1, 3)
+    j.commit_load_case(1, 0)
+    j.stop("inspection")
+    with pytest.raises(JournalError, match="the test is stopped; start it first"):
+        j.commit_load_case(1, 1)
+    assert j.status()["reason"] == "inspection" and j.events()[-1]["kind"] == "stopped"
+    j.start()
+    assert j.events()[-1]["message"] == "resumed at flight 1 load case 2"
+    j.commit_load_case(1, 1)
+    assert j.position() == Position(1, 1, 2)
