@@ -120,11 +120,6 @@ class Station:
     def n(self) -> int:
         return len(self.names)
 
-    @property
-    def what(self) -> str:
-        """How a message names it: "the rig file" or "the stand"."""
-        return "the rig file" if self.kind == "rig" else "the stand"
-
 
 @dataclass(frozen=True)
 class FlightType:

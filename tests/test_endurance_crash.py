@@ -7,7 +7,6 @@ than it acknowledged), the reopened journal continues from the right load case, 
 turning-point log reads whole with each end point once."""
 from __future__ import annotations
 
-import os
 import random
 import signal
 import sqlite3
