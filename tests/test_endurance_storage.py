@@ -1,0 +1,261 @@
+"""An endurance test's data, bounded (endurance.storage): the turning-point log holds every end
+point once, partitioned by block and read whole by pyarrow.dataset, a finished block compacted
+and its end points pruned from the journal; what a kill leaves is never read twice; a failed
+write leaves no file; the rolling window keeps its length; an event window is a run directory
+the analysis reads (rig and stand); the estimate's figures are measured ones."""
+from __future__ import annotations
+
+import dataclasses
+import errno
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.dataset as ds
+import pyarrow.parquet as pq
+import pytest
+
+from core.errors import DataError
+from endurance.journal import EndPoint, Journal
+from endurance.storage import (CALIBRATION, TURNING_POINT_SCHEMA, Calibration, SignalWindow,
+                               TurningPointLog, calibrate, continuous_time, read_turning_points,
+                               rig_meta, storage_estimate, turning_point_files,
+                               write_parquet_atomic)
+from endurance.testfile import load_test_file
+
+from tests.support.endurance import EXAMPLE_TEST, write_stand_test
+
+CHANNELS = ["root", "inner", "outer", "tip"]
+BLOCK = 5
+
+
+def journal_with_flights(testdir, flights: int, load_cases: int = 4) -> Journal:
+    j = Journal.create(testdir, "t", 1000, CHANNELS, "fp")
+    j.start()
+    for n in range(1, flights + 1):
+        fly(j, n, load_cases)
+    return j
+
+
+def fly(j: Journal, n: int, load_cases: int = 4, first: int = 0) -> None:
+    if first == 0:
+        j.begin_flight(n, "AB"[n % 2], (n - 1) // BLOCK + 1, (n - 1) % BLOCK + 1, load_cases)
+    for k in range(first, load_cases):
+        j.commit_load_case(n, k, [EndPoint(c, 1000.0 * i + 10 * k, 1000.0 * i + 10 * k + 0.25 * i,
+                                           5.0 + i, time_s=1.8e9 + 100 * n + k)
+                                  for i, c in enumerate(CHANNELS)])
+
+
+def test_the_log_holds_every_end_point_once_partitioned_by_block(tmp_path):
+    j = journal_with_flights(tmp_path, 7)
+    log = TurningPointLog(tmp_path, BLOCK)
+    assert log.export(j) == 7 and log.exported_through == 7
+    fly(j, 8)
+    assert log.export(j) == 1 and log.export(j) == 0
+    names = sorted(p.relative_to(tmp_path / "turning_points").as_posix() for p in turning_point_files(tmp_path))
+    assert names == ["block=000001/part-000000001-000000005.parquet",
+                     "block=000002/part-000000006-000000007.parquet",
+                     "block=000002/part-000000008-000000008.parquet"]
+    whole = ds.dataset(tmp_path / "turning_points", partitioning="hive").to_table()
+    assert whole.num_rows == 8 * 4 * 4
+    assert sorted(set(whole.column("block").to_pylist())) == [1, 2]
+    t = read_turning_points(tmp_path).sort_by([("flight", "ascending"), ("load_case", "ascending"),
+                                               ("channel", "ascending")])
+    assert t.schema == TURNING_POINT_SCHEMA
+    row = t.filter(pa.compute.equal(t["channel"], "outer")).slice(0, 1).to_pylist()[0]
+    assert row["flight"] == 1 and row["flight_type"] == "B" and row["level_kgf"] == 2000.0
+    assert row["reached_kgf"] == 2000.5 and row["error_kgf"] == pytest.approx(0.5)
+    assert row["flow_pct"] == 7.0 and row["time"] == 1.8e9 + 100 and row["rerun"] is False
+    # the finished block's end points left the journal; the others stay until their block ends
+    assert j.end_points(1, 5) == [] and len(j.end_points(6, 8)) == 3 * 4 * 4
+    fly(j, 9)
+    fly(j, 10)
+    log.export(j)
+    assert [p.name for p in turning_point_files(tmp_path)] == [
+        "part-000000001-000000005.parquet", "part-000000006-000000010.parquet"]
+    assert read_turning_points(tmp_path).num_rows == 10 * 4 * 4 and j.end_points(1, 10) == []
+
+
+def test_a_rerun_flight_keeps_both_attempts_the_second_marked(tmp_path):
+    j = journal_with_flights(tmp_path, 1)
+    j.begin_flight(2, "A", 1, 2, 4)
+    j.commit_load_case(2, 0, [EndPoint("root", 1.0, 2.0)])
+    j.begin_flight(2, "A", 1, 2, 4)                  # interrupted: run again from the first
+    for k in range(4):
+        j.commit_load_case(2, k, [EndPoint("root", 1.0 + k, 2.0 + k)])
+    TurningPointLog(tmp_path, BLOCK).export(j)
+    t = read_turning_points(tmp_path, filter=ds.field("flight") == 2).to_pylist()
+    assert [(r["attempt"], r["load_case"], r["rerun"]) for r in t] == \
+        [(1, 0, False), (2, 0, True), (2, 1, True), (2, 2, True), (2, 3, True)]
+
+
+def test_what_a_kill_leaves_is_never_read_twice_and_is_cleaned_on_open(tmp_path):
+    j = journal_with_flights(tmp_path, 3)
+    log = TurningPointLog(tmp_path, BLOCK)
+    log.export(j)
+    fly(j, 4)
+    fly(j, 5)
+    compact, log.compact = log.compact, lambda block: None
+    log.export(j, prune=False)
+    block = tmp_path / "turning_points" / "block=000001"
+    small = {p.name: p.read_bytes() for p in block.iterdir()}
+    assert sorted(small) == ["part-000000001-000000003.parquet", "part-000000004-000000005.parquet"]
+    compact(1)
+    # a kill between the compaction's rename and its removals, and one inside a write
+    for name, data in small.items():
+        (block / name).write_bytes(data)
+    (block / ".part-000000006-000000006.parquet.123.tmp").write_bytes(b"PAR1 torn")
+    assert len(list(block.iterdir())) == 4
+    assert read_turning_points(tmp_path).num_rows == 5 * 4 * 4
+    assert ds.dataset(tmp_path / "turning_points", partitioning="hive").count_rows() == 5 * 4 * 4 * 2
+    again = TurningPointLog(tmp_path, BLOCK)
+    assert sorted(p.name for p in block.iterdir()) == ["part-000000001-000000005.parquet"]
+    assert again.exported_through == 5
+    assert ds.dataset(tmp_path / "turning_points", partitioning="hive").count_rows() == 5 * 4 * 4
+
+
+def test_a_block_left_uncompacted_by_a_kill_is_compacted_on_open(tmp_path):
+    j = journal_with_flights(tmp_path, 3)
+    log = TurningPointLog(tmp_path, BLOCK)
+    log.export(j)
+    fly(j, 4)
+    fly(j, 5)
+    log.compact = lambda block: None                 # killed before it compacted
+    log.export(j, prune=False)
+    assert len(turning_point_files(tmp_path)) == 2
+    TurningPointLog(tmp_path, BLOCK).export(j)
+    assert [p.name for p in turning_point_files(tmp_path)] == ["part-000000001-000000005.parquet"]
+    assert j.end_points(1, 5) == []                  # and the journal pruned at the next export
+
+
+def test_a_failed_write_leaves_no_file_and_says_so(tmp_path, monkeypatch):
+    table = pa.table({"x": [1.0, 2.0]})
+    path = write_parquet_atomic(table, tmp_path / "a.parquet")
+
+    def full(*args, **kwargs):
+        with open(args[1], "wb") as fh:
+            fh.write(b"PAR1 half")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(pq, "write_table", full)
+    with pytest.raises(DataError, match=r"cannot write .*a.parquet: .*No space left on device; "
+                                        r"nothing of it was written"):
+        write_parquet_atomic(pa.table({"x": [3.0]}), path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.parquet"]
+    assert pq.read_table(path).column("x").to_pylist() == [1.0, 2.0]
+
+
+def rows(channels, first_s: float, seconds: float, period_s: float = 0.002, t0: float = 0.0):
+    n = int(round(seconds / period_s))
+    t = t0 + np.arange(n) * period_s
+    out = {"t": t, "cycle": np.arange(n), "sync_time": 1.8e9 + first_s + np.arange(n) * period_s}
+    rng = np.random.default_rng(int(first_s))
+    names = channels or [None]
+    for i, c in enumerate(names):
+        sfx = f".{c}" if c else ""
+        r = 2000.0 + 1000.0 * np.sin(2 * np.pi * 0.5 * t + i)
+        y = r + rng.normal(0, 2.0, n)
+        out.update({f"r{sfx}": r, f"y{sfx}": y, f"u{sfx}": np.gradient(r, period_s) / 120.0,
+                    f"y_counts{sfx}": np.round(y * 98.0665).astype(np.int32),
+                    f"spool{sfx}": np.gradient(r, period_s) / 120.0,
+                    f"valve_status{sfx}": np.full(n, 0x27, np.uint16), f"stale{sfx}": np.zeros(n, bool)})
+    return out
+
+
+def test_the_rolling_window_keeps_its_length_and_an_event_window_is_a_run(tmp_path):
+    from analysis import load_all
+    from gateway.runs import load_run
+    test = load_test_file(EXAMPLE_TEST, check_controller=False)
+    w = SignalWindow(tmp_path, CHANNELS, 0.002, rolling_window_s=20.0, event_window_s=3.0,
+                     chunk_s=5.0, meta=rig_meta(test.station))
+    for k in range(12):                                  # 60 s in 5-s appends
+        w.append_rows(rows(CHANNELS, 5.0 * k, 5.0, t0=5.0 * k))
+        if k == 2:
+            event = w.mark_event("limit", "force limit indicated", time_s=1.8e9 + 12.0,
+                                 channel="tip", flight=42)
+        w.sync()
+        chunks = w.chunks()
+        assert len(chunks) == min(k, 5)                # the chunk being filled is in memory
+        if chunks:
+            assert (chunks[-1][1] - chunks[0][0]) / 1000.0 <= 20.0 + 5.0
+            assert all((b - a) / 1000.0 < 5.0 for a, b, _ in chunks)
+    assert w.close() == [event]
+    assert event.path.parent == tmp_path / "events" and event.path.name.endswith("-limit-tip-f42")
+    run = load_run(event.path)
+    assert run.channels == CHANNELS and len(run) == 3001
+    assert run.meta["event"]["kind"] == "limit" and run.meta["event"]["truncated"] is False
+    assert run.sync_time[0] == pytest.approx(1.8e9 + 9.0) and run.sync_time[-1] == pytest.approx(1.8e9 + 15.0)
+    tip = load_run(event.path, channel="tip")
+    assert tip.meta["channel"] == "tip" and np.isfinite(tip.y).all()
+    records = load_all([event.path], channel="tip")
+    assert len(records) == 1 and len(records[0].t) == 3001 and records[0].notes == []
+
+
+def test_a_stands_event_window_is_a_one_channel_run_and_an_event_at_the_end_is_kept(tmp_path):
+    from analysis import load_all
+    from gateway.runs import load_run
+    w = SignalWindow(tmp_path, None, 0.002, rolling_window_s=10.0, event_window_s=2.0, chunk_s=2.0)
+    # two passes, each with t from 0 (a flight each), a second apart on the wall clock
+    w.append_rows(rows(None, 0.0, 4.0))
+    w.append_rows(rows(None, 5.0, 4.0))
+    between = w.mark_event("note", "between two flights", time_s=1.8e9 + 5.0)
+    end = w.mark_event("interlock", "hydraulic pressure low")     # at the last row
+    assert w.close() == [between, end]
+    run = load_run(between.path)
+    assert run.channels == [] and run.meta["event"]["truncated"] is False
+    assert np.all(np.diff(run.t) > 0)                    # t made to increase over the restart
+    records = load_all([between.path])
+    assert len(records) == 2 and len(records[0].t) == 500 and len(records[1].t) >= 1000   # split at the gap
+    run = load_run(end.path)
+    assert run.meta["event"]["truncated"] is True and len(run) == 1001       # 2 s before it, none after
+    assert run.sync_time[-1] == pytest.approx(1.8e9 + 9.0 - 0.002)
+
+
+def test_continuous_time_keeps_the_gap_between_passes():
+    t = np.r_[np.arange(5) * 0.002, np.arange(3) * 0.002]
+    wall = np.r_[10 + np.arange(5) * 0.002, 11 + np.arange(3) * 0.002]
+    out = continuous_time(t, wall, 0.002)
+    assert np.allclose(out[:5], t[:5]) and np.allclose(np.diff(out[5:]), 0.002)
+    assert out[5] - out[4] == pytest.approx(11 - (10 + 0.008))
+
+
+def test_a_write_error_of_the_window_is_heard_at_the_next_flush(tmp_path, monkeypatch):
+    w = SignalWindow(tmp_path, CHANNELS, 0.002, rolling_window_s=4.0, event_window_s=1.0, chunk_s=1.0)
+    import endurance.storage as storage
+
+    def full(table, path):
+        raise DataError(f"cannot write {path}: No space left on device; nothing of it was written")
+
+    monkeypatch.setattr(storage, "write_parquet_atomic", full)
+    w.append_rows(rows(CHANNELS, 0.0, 3.0))
+    with pytest.raises(DataError, match="the signal window cannot write: cannot write .*No space left"):
+        w.sync()
+    with pytest.raises(DataError, match="No space left"):
+        w.close()
+
+
+def test_the_estimate_counts_end_points_per_channel_and_the_fixed_windows(tmp_path):
+    test = load_test_file(EXAMPLE_TEST, check_controller=False)
+    unit = Calibration(turning_point_b=10.0, journal_load_case_b=20.0, journal_end_point_b=50.0,
+                       sample_channel_b=30.0, sample_row_b=4.0)
+    e = storage_estimate(test, unit)
+    block = test.block
+    lc = sum(block.counts[t] * test.flight_types[t].load_cases for t in block.counts) / block.size
+    assert e.turning_points_per_1000_flights == pytest.approx(1000 * lc * 4)
+    assert e.per_1000_flights == pytest.approx(1000 * lc * (4 * 10.0 + 20.0))
+    assert e.per_1000_flights_per_channel == pytest.approx(1000 * lc * 10.0)
+    assert e.rolling_window == pytest.approx((600 + 60) * 500 * (4 * 30.0 + 4.0))
+    assert e.event_window == pytest.approx(60 * 500 * (4 * 30.0 + 4.0))
+    assert e.total == pytest.approx(100 * e.per_1000_flights + e.rolling_window + e.journal_block_end_points)
+    assert "MB per 1,000 flights" in e.text()
+    # N channels: a stand is N = 1
+    stand = load_test_file(write_stand_test(tmp_path, flights=1000), check_controller=False)
+    one = storage_estimate(stand, unit)
+    assert one.channels == 1 and one.rolling_window == pytest.approx((600 + 60) * 500 * 34.0)
+
+
+@pytest.mark.slow
+def test_the_calibration_is_what_writing_real_data_measures(tmp_path):
+    measured = calibrate(tmp_path)
+    for field in dataclasses.fields(Calibration):
+        stated, now = getattr(CALIBRATION, field.name), getattr(measured, field.name)
+        assert now == pytest.approx(stated, rel=0.2), f"{field.name}: measured {now:.2f}, stated {stated}"
