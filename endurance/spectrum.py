@@ -225,10 +225,10 @@ def write_twist_like(directory: str | Path, names: Sequence[str], limits_kgf: Se
                      counts: Mapping[str, int] | None = None, seed: int = 1,
                      rate_kgf_s: float = 2500.0, name: str = "TWIST-like endurance test") -> Path:
     """Write a TWIST-like test into ``directory``: ``flights/A.csv`` ... (load-case CSVs,
-    ``case`` and a column per channel of ``names``; for a stand, ``names = ["level"]``) and
+    ``case`` and a column per channel of ``names``; for a stand, ``names = ["level"]``: its one column) and
     ``test.toml`` naming ``station`` and ``controller`` (paths as the test file should hold
     them, relative to ``directory``). Returns the test file's path."""
-    from loading.rig_programme import write_load_cases
+    from loading.programme_files import write_load_cases
     directory = Path(directory)
     (directory / "flights").mkdir(parents=True, exist_ok=True)
     levels = twist_like_levels(limits_kgf, n_types, seed=seed)

@@ -74,8 +74,10 @@ from core.errors import DataError, ParameterError
 from .spectrum import Block, FlightSequence
 
 #: a one-channel stand's channel: the column of its turning-point CSVs
-STAND_CHANNEL = "level"
 STAND = "stand"
+#: a stand's one channel: the station's (loading.programme.STAND); its load-case CSVs name it
+#: ``level``, as a one-channel turning-point CSV does
+STAND_CHANNEL = STAND
 #: the one-channel stand's defaults (gateway.config.GatewayConfig, gateway.supervisor.SafetyLimits)
 STAND_PERIOD_MS = 2.0
 STAND_RANGE_KGF = 10_000.0
@@ -101,7 +103,7 @@ class Station:
     Attributes
     ----------
     kind : "rig" or "stand"
-    names : the channels, in the rig's order (a stand: ``["level"]``)
+    names : the channels, in the rig's order (a stand: ``["stand"]``)
     ranges_kgf, force_limits_kgf : per channel
     period_s : the control period
     path : the rig file (None for a stand)
@@ -132,7 +134,7 @@ class FlightType:
     levels_kgf : (N channels, M load cases)
     labels : the load cases' labels (the CSV's ``case`` column, or 1, 2, ...)
     rate_kgf_s, frequency_hz : one of them (the other None)
-    programme : the load cases as :class:`loading.rig_programme.RigProgramme` at the station's
+    programme : the load cases as :class:`loading.programme.Programme` at the station's
         period
     """
 
@@ -461,11 +463,8 @@ class _Reader:
 
     def controller(self, path: Path, station: Station) -> Any:
         try:
-            if station.kind == STAND:
-                from loading.design import load_controller
-                return load_controller(path, station.period_s)
-            from loading.rig_design import load_rig_controller
-            return load_rig_controller(path, station.period_s, station.names)
+            from loading.controller_files import load_controller
+            return load_controller(path, station.period_s, station.names)
         except ParameterError as exc:
             self.fail("", f"controller = {_show(path.name)}: {exc}")
 
@@ -478,7 +477,7 @@ class _Reader:
 
     def flight_types(self, data: Mapping[str, Any], station: Station, rate: float | None,
                      freq: float | None) -> dict[str, FlightType]:
-        from loading.rig_programme import load_rig_programme
+        from loading.programme_files import load_programme
         tables = self.table(data, "flight", "flight.NAME")
         if not tables:
             self.fail("", "no flight type: give a [flight.NAME] table per flight type with "
@@ -504,7 +503,7 @@ class _Reader:
                 self.fail(name, "needs rate_kgf_s or frequency_hz (or give one at the top of the "
                                 "file for every flight type)")
             try:
-                prog = load_rig_programme(str(path), station.names, station.period_s, own_rate, own_freq)
+                prog = load_programme(str(path), station.names, station.period_s, own_rate, own_freq)
                 prog.check(station.force_limits_kgf)
             except (DataError, ParameterError) as exc:
                 self.fail(name, f"load_cases = {_show(table['load_cases'])}: {exc}",

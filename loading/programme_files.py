@@ -187,8 +187,9 @@ def load_programme(spec: str, names: Sequence[str], period_s: float, rate_kgf_s:
     if header is None:
         raise DataError(f"{path}: a load-case CSV needs a header naming the channels, e.g. "
                         f"{CASE_COLUMN},{','.join(names)}")
-    # the header is read in lower case: channels are matched regardless of case
-    by_lower = {n.lower(): n for n in names}
+    # the header is read in lower case: channels are matched regardless of case; one channel's
+    # column may be called level, as a one-channel turning-point CSV's
+    by_lower = {n.lower(): n for n in names} | ({"level": names[0]} if len(names) == 1 else {})
     columns = [by_lower.get(c, c) for c in header]
     label_col = columns.index(CASE_COLUMN) if CASE_COLUMN in columns else None
     named = [c for c in columns if c != CASE_COLUMN]
@@ -270,7 +271,7 @@ def _names_channels(path: Path, names: list[str]) -> bool:
         except ModelError:
             return False
     header, _ = _read_rows(path)
-    return header is not None and bool({CASE_COLUMN, *(n.lower() for n in names)} & set(header))
+    return header is not None and CASE_COLUMN in header or bool(header and {n.lower() for n in names} & set(header))
 
 
 def needs_rate(spec: str) -> bool:

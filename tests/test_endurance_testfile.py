@@ -37,13 +37,13 @@ def test_the_example_test_reads_with_its_rig_flight_types_block_and_policies():
     assert t.controller.names == t.station.names           # the rig controller, checked
 
 
-def test_a_stand_is_a_station_of_one_channel_named_level(tmp_path):
+def test_a_stand_is_a_station_of_one_channel_its_csv_column_named_level(tmp_path):
     path = write_stand_test(tmp_path / "stand", flights=500)
     t = load_test_file(path)
-    assert t.station.kind == "stand" and t.station.names == ["level"] and t.station.n == 1
+    assert t.station.kind == "stand" and t.station.names == ["stand"] and t.station.n == 1
     assert t.station.force_limits_kgf == [9500.0] and t.station.period_s == 0.002
     assert t.flight_types["A"].levels_kgf.shape[0] == 1
-    assert t.controller.kp_pct_per_kgf > 0                   # a one-channel controller
+    assert t.controller.stand and t.controller.channels[0].kp_pct_per_kgf > 0   # a one-channel controller
     # a plain turning-point CSV (header `level` only) is a stand's flight type too
     (tmp_path / "stand" / "flights" / "B.csv").write_text("level\n0\n3000\n1000\n3000\n0\n")
     assert load_test_file(path).flight_types["B"].levels_kgf.tolist() == [[0, 3000, 1000, 3000, 0]]
