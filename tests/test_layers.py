@@ -21,6 +21,7 @@ LEVELS = [
     {"gateway"},
     {"captures"},
     {"analysis"},
+    {"endurance"},
     {"stand"},
     {"benchmarks"},
 ]

@@ -1,0 +1,1 @@
+"""The endurance test: a flight-by-flight fatigue test run for months, and what watches it."""
