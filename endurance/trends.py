@@ -15,7 +15,8 @@ end point ``E_ij`` (kgf: the force at the load case's moment, a short mean,
 command over the segment into the load case, shifted by its delay so that it is the flow that
 moved the force over the segment; the planned flow ``P_ij`` is the feedforward's integral over
 the same cycles). Flights repeat by type, so each type has its own **baseline**: the mean end
-points ``Ē`` and flows ``F̄`` over its first ``learn_flights`` flights.
+points ``Ē`` and flows ``F̄`` over its first ``learn_flights`` flights (its flights are not
+tested before), then over every quiet one too.
 
 **The per-flight statistic**, channel i's flow excess over its baseline, in its own share of the
 steps, with what the achieved end points needed taken off:
