@@ -1,5 +1,5 @@
-"""The endurance test's foundation: a flight-by-flight fatigue test of many flights, unattended
-for months, on a station of N channels (a stand is N = 1) (docs/endurance.md).
+"""The endurance test: a flight-by-flight fatigue test of many flights, unattended for months,
+on a station of N channels (a stand is N = 1), and what watches it (docs/endurance.md).
 
 ``testfile``  the test file (test.toml): station, controller, flight types, block, target,
               inspections, monitors, storage; its fingerprint
@@ -8,4 +8,6 @@ for months, on a station of N channels (a stand is N = 1) (docs/endurance.md).
               what was learnt per flight type, the end points; the test directory's lock
 ``storage``   the turning-point log (Parquet by block), the rolling window of full-rate
               signals and the event windows (run directories), the storage estimate
+``trends``    the end-point trends: a crack at an attachment seen from the flows the valves
+              need to reach their end points, flight by flight
 """

@@ -6,7 +6,11 @@ apart from the CANopen gateway; a pass on the station (``stand load``) is
 :func:`gateway.load.run_load`.
 
 At cycle k the plant has advanced to t_k under the commands of cycle k-1; the experiment reads
-every force and returns every command, which acts over [t_k, t_k + T)."""
+every force and returns every command, which acts over [t_k, t_k + T).
+
+Passes one after the other on one plant (an endurance test's flights) give each pass the stand
+time it starts at (``start_s``: the previous pass's :attr:`OfflinePass.end_s`), which a
+structure's scheduled change (:class:`plant.rig.StructureChange`) counts on."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -30,6 +34,8 @@ class OfflinePass:
     y: np.ndarray                  #: (N, K) forces read
     u: np.ndarray                  #: (N, K) commands sent
     abort: tuple[str, str] | None
+    #: the plant's stand time at the pass's end (the next pass's ``start_s``)
+    end_s: float = 0.0
 
 
 def emulated_truth(rig_file: str | Path) -> tuple[RigModel, list[float]]:
@@ -43,12 +49,13 @@ def emulated_truth(rig_file: str | Path) -> tuple[RigModel, list[float]]:
 def run_offline_pass(experiment: LoadProgramme, truth: RigModel, y0: float | Sequence[float] = 0.0,
                  seed: int = 0, noise_kgf: float | Sequence[float] = 2.0,
                  force_limits: Sequence[float] | None = None, period_s: float = 0.002,
-                 max_s: float = 5000.0) -> OfflinePass:
-    """One pass of ``experiment`` on ``truth`` (module docstring)."""
+                 max_s: float = 5000.0, start_s: float = 0.0) -> OfflinePass:
+    """One pass of ``experiment`` on ``truth`` (module docstring), from the stand time
+    ``start_s``."""
     n = truth.n
     T = period_s
     noise = np.broadcast_to(np.asarray(noise_kgf, float), (n,))
-    plant = LockstepRig(truth, y0, 0.0005)
+    plant = LockstepRig(truth, y0, 0.0005, start_s=start_s)
     rng = np.random.default_rng(seed)
     experiment.configure_rig(T, force_limits if force_limits is not None else [1e5] * n)
     y = np.array(plant.forces) + rng.normal(0.0, 1.0, n) * noise
@@ -70,7 +77,8 @@ def run_offline_pass(experiment: LoadProgramme, truth: RigModel, y0: float | Seq
     if abort is not None and experiment.abort_channel is not None:
         abort = (abort[0], f"channel {experiment.names[experiment.abort_channel]}: {abort[1]}")
     start = experiment.programme_start_s
+    end_s = plant.stand_time_s
     if start is None or abort is not None:
-        return OfflinePass(None, np.array(ts), Y, U, abort)
+        return OfflinePass(None, np.array(ts), Y, U, abort, end_s)
     tp = experiment.programme_times(np.array(ts))
-    return OfflinePass(tracking_report(experiment.programme, tp, Y), tp, Y, U, None)
+    return OfflinePass(tracking_report(experiment.programme, tp, Y), tp, Y, U, None, end_s)

@@ -13,6 +13,32 @@ Each channel is a :class:`~plant.model.PlantModel` of its own (delay, valve and 
 trend, force terms, sensor) whose ``g`` is ``G_ii``. An uncoupled rig (G diagonal) simulates each
 channel exactly as the one-channel model does, bit for bit; a coupled one steps the channels
 together (:meth:`RigModel.advance`).
+
+**A change of the structure** (:class:`StructureChange`: a crack at one attachment point from a
+stand time on, at once or over a ramp) is a compliance in series with the structure at that
+point, so the structure's flexibility ``C = K⁻¹`` gains ``δ_i`` on its diagonal:
+
+.. math::  K' = (K^{-1} + \delta_i\,e_i e_i^T)^{-1},\qquad
+           G' = K'\,\mathrm{diag}(c/A) = \Big(G^{-1} + \mathrm{diag}\big(\tfrac{1/f_i - 1}{G_{ii}}\big)\Big)^{-1}
+
+with ``f_i = K'_ii/K_ii`` the change's ``stiffness_factor`` (``δ_i K_ii = 1/f_i − 1``). By
+Sherman-Morrison ``K'_ij = f_i·K_ij`` for every j (the attachment's row and column, its own
+stiffness included, times ``f_i``) and ``K'_jk = K_jk − (1 − f_i)·K_ji·K_ik/K_ii`` elsewhere (the
+neighbours lose a little of their stiffness through the point: ``(1 − f)·0.09·K_jj`` at 30 %
+coupling). In G the same: channel i's row and column times ``f_i``, ``G'_jk = G_jk − (1 −
+f_i)·G_ji·G_ik/G_ii`` elsewhere. It needs no flow gains (``c/A`` drop out), so a rig given by G
+alone takes it as well as one given by K; it stays symmetric positive definite (a compliance
+added to a flexibility). Its consequence for a test: the flows that make a force change ``Δy``
+are ``G'^{-1}Δy = G^{-1}Δy + (1/f_i − 1)·Δy_i/G_ii·e_i``, so *only channel i's valve* needs
+more flow, ``(1/f_i − 1)`` of its own share, whatever the coupling (the end-point trends of
+:mod:`endurance.trends` read it so). Several changes: each attachment's own stiffness is the
+product of its changes' factors at that time (two of 0.97 make 0.9409), the attachments' added
+compliances add.
+
+The schedule counts on the **stand time**: the time the plant has advanced since it was made
+(the emulator's since it started), not a run's clock, which restarts with each run
+(:meth:`RigModel.advance`'s ``t_s``: the time of the block's first step; a step uses G at its
+start, so a change at ``from_s`` acts from the first step that starts at ``from_s``).
 """
 from __future__ import annotations
 
@@ -301,13 +327,87 @@ def _flow_gain_ratios(G: np.ndarray, tiny: float) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------
+# a change of the structure
+# ------------------------------------------------------------------------------------------
+#: a step starting this close before a change's ``from_s`` (s) counts as starting at it (stand
+#: times are sums of steps: their rounding must not move a change by a step)
+TIME_TOL_S = 1e-7
+
+
+@dataclass(frozen=True)
+class StructureChange:
+    """The structure at channel ``channel``'s attachment point (G's row and column ``channel``)
+    softens (``stiffness_factor`` < 1: a crack) or stiffens (> 1) to ``stiffness_factor`` of
+    its own stiffness ``K_ii``: from the stand time ``from_s`` (s) at once (``ramp_s`` 0), or
+    linearly in the factor over ``ramp_s`` (s) from then (the module docstring: what it does
+    to K and G)."""
+
+    channel: int
+    stiffness_factor: float
+    from_s: float
+    ramp_s: float = 0.0
+
+    def check(self, n: int) -> None:
+        """:class:`ModelError` if the change cannot be made to a rig of ``n`` channels."""
+        if not (isinstance(self.channel, (int, np.integer)) and 0 <= self.channel < n):
+            raise ModelError(f"a structure change at channel index {self.channel!r}: the rig has "
+                             f"{n} channel(s), 0 to {n - 1}")
+        f = self.stiffness_factor
+        if not (isinstance(f, (int, float)) and math.isfinite(f) and f > 0):
+            raise ModelError(f"a structure change's stiffness_factor = {f!r} must be a finite "
+                             "number > 0 (below 1 the attachment softens)")
+        for name, v in (("from_s", self.from_s), ("ramp_s", self.ramp_s)):
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ModelError(f"a structure change's {name} = {v!r} must be a finite number "
+                                 ">= 0 (s of stand time)")
+
+    def share(self, t_s: np.ndarray) -> np.ndarray:
+        """How much of the change is done at the stand times ``t_s`` (0 to 1)."""
+        t = np.asarray(t_s, float)
+        if self.ramp_s > 0:
+            return np.clip((t - self.from_s) / self.ramp_s, 0.0, 1.0)
+        return (t >= self.from_s - TIME_TOL_S).astype(float)
+
+    def factor(self, t_s: np.ndarray) -> np.ndarray:
+        """The attachment's stiffness over its intact one at the stand times ``t_s``."""
+        return 1.0 - (1.0 - self.stiffness_factor) * self.share(t_s)
+
+    @property
+    def end_s(self) -> float:
+        """When the change is complete (s of stand time)."""
+        return self.from_s + self.ramp_s
+
+
+def changed_structure(G: np.ndarray, factors: np.ndarray) -> np.ndarray:
+    """``G`` with each attachment's own stiffness times ``factors[..., i]`` by a compliance in
+    series there (module docstring): ``(G⁻¹ + diag((1/f − 1)/G_ii))⁻¹``, as one rank-one
+    update per changed attachment (Sherman-Morrison: no inverse taken, the row and column of a
+    single change exactly ``f`` times theirs); ``G`` itself where every factor is 1.
+    ``factors``: (N,) gives (N, N); (K, N) gives (K, N, N)."""
+    G = np.asarray(G, float)
+    f = np.asarray(factors, float)
+    if np.all(f == 1.0):
+        return G if f.ndim == 1 else np.broadcast_to(G, f.shape[:1] + G.shape).copy()
+    added = (1.0 / f - 1.0) / np.diag(G)           # δ_i·(c_i/A_i): the compliance, in G's units
+    out = np.broadcast_to(G, f.shape[:-1] + G.shape).copy()
+    for i in np.flatnonzero(np.any(f != 1.0, axis=tuple(range(f.ndim - 1)))):
+        a = added[..., i, None, None]
+        col, row = out[..., :, i:i + 1], out[..., i:i + 1, :]
+        out = out - a * col * row / (1.0 + a * out[..., i:i + 1, i:i + 1])
+    return out
+
+
+# ------------------------------------------------------------------------------------------
 # the rig's plant
 # ------------------------------------------------------------------------------------------
 class RigModel:
-    """N channels' :class:`PlantModel`\\ s coupled by ``G`` (see the module docstring)."""
+    """N channels' :class:`PlantModel`\\ s coupled by ``G`` (see the module docstring);
+    ``changes``: the structure's scheduled changes (:class:`StructureChange`), on the stand
+    time :meth:`advance` is given."""
 
     def __init__(self, channels: Sequence[PlantModel], G: np.ndarray | None = None,
-                 names: Sequence[str] | None = None) -> None:
+                 names: Sequence[str] | None = None,
+                 changes: Sequence[StructureChange] = ()) -> None:
         channels = list(channels)
         n = len(channels)
         if n == 0:
@@ -327,6 +427,12 @@ class RigModel:
             raise ModelError(f"{len(self.names)} names for {n} channels")
         self.coupling = G - np.diag(np.diag(G))
         self.coupled = bool(np.any(self.coupling != 0.0))
+        self.changes = tuple(changes)
+        for c in self.changes:
+            c.check(n)
+        if self.changes and np.any(np.diag(G) <= 0):
+            raise ModelError("a structure change needs every G_ii > 0 (a channel's own flow "
+                             "raises its own force)")
 
     @property
     def n(self) -> int:
@@ -334,6 +440,41 @@ class RigModel:
 
     def __repr__(self) -> str:
         return f"RigModel({', '.join(f'{n}: {m.spec}' for n, m in zip(self.names, self.channels))})"
+
+    # -- the structure's schedule ----------------------------------------------------------------
+    def factors(self, t_s: np.ndarray | float) -> np.ndarray:
+        """Each attachment's stiffness over its intact one at the stand time(s) ``t_s``: (N,)
+        for one time, (K, N) for K."""
+        t = np.asarray(t_s, float)
+        out = np.ones(t.shape + (self.n,))
+        for c in self.changes:
+            out[..., c.channel] *= c.factor(t)
+        return out
+
+    def structure_at(self, t_s: float) -> np.ndarray:
+        """G at the stand time ``t_s`` (the intact :attr:`G` before any change)."""
+        return changed_structure(self.G, self.factors(float(t_s)))
+
+    @property
+    def G_changed(self) -> np.ndarray:
+        """G once every scheduled change is complete (:attr:`G` without changes)."""
+        return self.structure_at(math.inf)
+
+    def _gains_along(self, t_s: float | None, dt: float, K: int) -> np.ndarray | None:
+        """G over a block of ``K`` steps from the stand time ``t_s``: None where every step has
+        the intact G, (N, N) where all share one changed G, else (K, N, N) (a ramp or a change
+        inside the block)."""
+        if not self.changes:
+            return None
+        if t_s is None:
+            raise ModelError("this rig's structure changes on a schedule: advancing it needs the "
+                             "stand time of the block's first step (t_s)")
+        f = self.factors(t_s + dt * np.arange(K))
+        if np.all(f == 1.0):
+            return None
+        if np.all(f == f[:1]):
+            return changed_structure(self.G, f[0])
+        return changed_structure(self.G, f)
 
     def new_state(self, dt: float, y0: Sequence[float] | float = 0.0,
                   u0: Sequence[float] | float = 0.0, t0: float = 0.0) -> list[PlantState]:
@@ -343,18 +484,22 @@ class RigModel:
         u0 = np.broadcast_to(np.asarray(u0, float), (self.n,))
         return [m.new_state(1, dt, y0[i], u0[i], t0) for i, m in enumerate(self.channels)]
 
-    def advance(self, states: list[PlantState], u: np.ndarray, dt: float) -> np.ndarray:
+    def advance(self, states: list[PlantState], u: np.ndarray, dt: float,
+                t_s: float | None = None) -> np.ndarray:
         """Advance every channel by the command block ``u`` (N, K); returns the dynamometers'
-        readings after each step (N, K). This is what the rig's emulator calls."""
+        readings after each step (N, K). This is what the rig's emulator calls. ``t_s``: the
+        stand time of the block's first step (needed only with scheduled :attr:`changes`)."""
         u = np.asarray(u, float)
         if u.shape[0] != self.n:
             raise ModelError(f"commands for {u.shape[0]} channels, the rig has {self.n}")
-        if not self.coupled:
+        gains = self._gains_along(t_s, dt, u.shape[1])
+        if not self.coupled and gains is None:
             return np.concatenate([m.advance(st, u[i:i + 1], dt)
                                    for i, (m, st) in enumerate(zip(self.channels, states))])
         drives = [m.drive(u[i:i + 1], dt, st)
                   for i, (m, st) in enumerate(zip(self.channels, states))]
-        y = self._integrate(drives, np.array([st.y[0] for st in states]), dt)
+        y = self._integrate(drives, np.array([st.y[0] for st in states]), dt,
+                            self.G if gains is None else gains)
         out = np.empty((self.n, u.shape[1]))
         for i, (m, st) in enumerate(zip(self.channels, states)):
             traj = y[i:i + 1]
@@ -366,27 +511,34 @@ class RigModel:
         return out
 
     def simulate(self, u: np.ndarray, dt: float, y0: Sequence[float] | float = 0.0,
-                 u_before: Sequence[float] | float | None = None) -> np.ndarray:
+                 u_before: Sequence[float] | float | None = None, t_s: float = 0.0) -> np.ndarray:
         """Free-run simulation of one run of the rig: readings (N, K) for commands ``u`` (N, K),
-        the commands before the run held at ``u_before`` (default: the first ones)."""
+        the commands before the run held at ``u_before`` (default: the first ones), from the
+        stand time ``t_s``."""
         u = np.asarray(u, float)
         states = self.new_state(dt, y0, u[:, 0] if u_before is None else u_before)
         y0 = np.broadcast_to(np.asarray(y0, float), (self.n,))
-        readings = self.advance(states, u, dt)
+        readings = self.advance(states, u, dt, t_s)
         return np.concatenate([y0[:, None], readings[:, :-1]], axis=1)
 
-    def _integrate(self, drives: list, y0: np.ndarray, dt: float) -> np.ndarray:
+    def _integrate(self, drives: list, y0: np.ndarray, dt: float,
+                   G: np.ndarray | None = None) -> np.ndarray:
         """The forces (N, K+1) from ``y0`` under the channels' drives, coupled: step by step,
-        ``y[k+1] = y[k] + dt·(G·w(y[k]) + a(y[k]))`` with each channel's flow ``w`` and its own
+        ``y[k+1] = y[k] + dt·(G_k·w(y[k]) + a(y[k]))`` with each channel's flow ``w`` and its own
         terms ``a`` (Δ, disturbances, force terms) from its own model; all steps at once when
-        no channel's rate depends on its force but through a decay (:meth:`_integrate_linear`)."""
+        no channel's rate depends on its force but through a decay (:meth:`_integrate_linear`).
+        ``G``: (N, N) for every step (default :attr:`G`), or (K, N, N) one per step (a changing
+        structure)."""
+        G = self.G if G is None else G
         decays = [m.force_decay() for m in self.channels]
         if all(lam is not None for lam in decays):
-            return self._integrate_linear(drives, y0, dt, decays)
-        return self._integrate_stepwise(drives, y0, dt)
+            return self._integrate_linear(drives, y0, dt, decays, G)
+        return self._integrate_stepwise(drives, y0, dt, G)
 
-    def _integrate_stepwise(self, drives: list, y0: np.ndarray, dt: float) -> np.ndarray:
+    def _integrate_stepwise(self, drives: list, y0: np.ndarray, dt: float,
+                            G: np.ndarray | None = None) -> np.ndarray:
         """:meth:`_integrate` one step at a time (any channel's laws)."""
+        G = self.G if G is None else G
         n, K = self.n, drives[0].q.shape[1]
         out = np.empty((n, K + 1))
         out[:, 0] = y = y0.copy()
@@ -397,20 +549,19 @@ class RigModel:
                 yi = y[i:i + 1]
                 w[i] = m.flow(drv.q[:, k], [None if x is None else x[:, k] for x in drv.aux], yi)[0]
                 a[i] = m.rate_terms(None if drv.dist is None else drv.dist[:, k], yi)[0]
-            y = y + dt * (self.G @ w + a)
+            y = y + dt * ((G if G.ndim == 2 else G[k]) @ w + a)
             out[:, k + 1] = y
         return out
 
-
     def _integrate_linear(self, drives: list, y0: np.ndarray, dt: float,
-                          decays: list[float]) -> np.ndarray:
+                          decays: list[float], G: np.ndarray) -> np.ndarray:
         """The coupled forces when each channel's rate is linear in its own force:
         ``y_i[k+1] = (1 − λ_i·dt)·y_i[k] + dt·((G·w[k])_i + Δ_i + d_i[k])`` with the flows
         ``w`` (N, K) known in advance (no flow reads a force): one cumulative sum, or one
         first-order filter pass, per channel, as :meth:`PlantModel.integrate` does for one."""
         n, K = self.n, drives[0].q.shape[1]
         w = np.concatenate([m.flow(drv.q, drv.aux, None) for m, drv in zip(self.channels, drives)])
-        rate = self.G @ w
+        rate = G @ w if G.ndim == 2 else np.einsum("kij,jk->ik", G, w)
         for i, (m, drv) in enumerate(zip(self.channels, drives)):
             rate[i] += m.delta
             if drv.dist is not None:

@@ -18,6 +18,12 @@ case.
 If the period changes while periods are computed ahead, the block is undone: the state is
 restored from the block's start and the periods that have ended are replayed with their real
 commands.
+
+**Stand time.** The plant keeps its own clock, the time it has advanced since it was made (plus
+``start_s``), as a count of steps so that a block computed ahead and the same periods computed
+one by one see the same times: a structure's scheduled change (:class:`plant.rig.StructureChange`)
+acts from the same step either way, so a lockstep run is the same bit for bit with it. The
+channels' own clocks (``restart_clock``: a run's effects of time) are apart from it.
 """
 from __future__ import annotations
 
@@ -36,11 +42,15 @@ class LockstepRig:
     """``step(period_s, commands)``: the period that just ended ran with ``commands`` (one per
     channel, %); returns the forces at its end (kgf, one per channel)."""
 
-    def __init__(self, model: RigModel, y0: Sequence[float] | float, step_s: float) -> None:
+    def __init__(self, model: RigModel, y0: Sequence[float] | float, step_s: float,
+                 start_s: float = 0.0) -> None:
         self.model = model
         self.step_s = step_s
         self.dt = step_s
         self.states = model.new_state(step_s, y0)
+        #: the states' stand time: ``_base_s + _steps·dt`` (``_base_s`` moves on when dt does)
+        self._base_s = float(start_s)
+        self._steps = 0
         self.period: float | None = None
         self.sub = 1
         self.forces: list[float] = [float(st.y[0]) for st in self.states]
@@ -49,6 +59,22 @@ class LockstepRig:
         self._commands: list[list[float]] = []  # real commands of the block's ended periods
         self._block_periods = 0
         self._blocks = self._periods = 0
+
+    @property
+    def stand_time_s(self) -> float:
+        """The stand time of the forces last returned (the end of the period that just ended;
+        the periods computed ahead are not counted)."""
+        return self._clock_s() - len(self._ahead) * self.sub * self.dt
+
+    def _clock_s(self) -> float:
+        """The states' stand time (ahead of :attr:`stand_time_s` inside a block)."""
+        return self._base_s + self._steps * self.dt
+
+    def _advance(self, u: np.ndarray) -> np.ndarray:
+        """The model advanced by ``u`` (N, K) from the states' stand time, the clock with it."""
+        y = self.model.advance(self.states, u, self.dt, self._clock_s())
+        self._steps += u.shape[1]
+        return y
 
     @property
     def periods_per_block(self) -> float:
@@ -81,7 +107,7 @@ class LockstepRig:
         if periods > self._block_periods_now():
             self._undo()                      # nothing ahead: the states are at the present
             u = np.repeat(np.asarray(commands, float)[:, None], (periods - 1) * self.sub, axis=1)
-            self.model.advance(self.states, u, self.dt)
+            self._advance(u)
             periods = 1
         for _ in range(periods):
             LockstepRig.step(self, period_s, commands)
@@ -102,6 +128,7 @@ class LockstepRig:
         if dt != self.dt:   # keep the forces and time, re-grid the delay lines on the commands
             self.states = [m.new_state(1, dt, y0=st.y, u0=c, t0=st.t)
                            for m, st, c in zip(self.model.channels, self.states, commands)]
+            self._base_s, self._steps = self._clock_s(), 0
             self.dt = dt
         self.period, self.sub = period_s, sub
 
@@ -112,11 +139,11 @@ class LockstepRig:
     def _block(self, commands: list[float]) -> list[float]:
         sub = self.sub
         periods = self._block_periods_now()
-        self._start = copy.deepcopy(self.states) if periods > 1 else None
+        self._start = (copy.deepcopy(self.states), self._steps) if periods > 1 else None
         self._commands = [commands]
         self._block_periods = periods
         u = np.repeat(np.asarray(commands, float)[:, None], periods * sub, axis=1)
-        y = self.model.advance(self.states, u, self.dt)
+        y = self._advance(u)
         ends = y[:, sub - 1::sub].T.tolist()
         self._ahead.extend(ends[1:])
         self._blocks += 1
@@ -142,11 +169,11 @@ class LockstepRig:
     def _undo(self) -> None:
         """Forget the periods computed ahead: back to the block's start, replay the ended ones."""
         if self._ahead and self._start is not None:
-            self.states = self._start
+            self.states, self._steps = self._start
             # the ended periods in one call (one per period cost ~0.1 ms per channel each: a
             # real-time block of 100 steps took 90 ms to undo for 8 channels)
             u = np.repeat(np.asarray(self._commands, float).T, self.sub, axis=1)
-            self.model.advance(self.states, u, self.dt)
+            self._advance(u)
         self._ahead.clear()
         self._start = None
         self._commands = []

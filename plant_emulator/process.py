@@ -149,10 +149,13 @@ class RigEmulatorProcess(EmulatorProcess):
     served (every node booted on its bus)."""
 
     def __init__(self, rig: str | Path, lockstep: bool = True, seed: int | None = 1,
-                 extra_args: list[str] | None = None, ready_timeout_s: float = 30.0) -> None:
+                 extra_args: list[str] | None = None, ready_timeout_s: float = 30.0,
+                 changes: list[str] | tuple[str, ...] = ()) -> None:
         super().__init__("", None, lockstep=lockstep, seed=seed, extra_args=extra_args,
                          ready_timeout_s=ready_timeout_s)
         self.rig = Path(rig)
+        #: the structure's changes on the command line (``--change``, e.g. "inner:0.97@600")
+        self.changes = list(changes)
 
     def command(self) -> list[str]:
         cmd = [sys.executable, "-m", "stand", "emulate", "--rig", str(self.rig)]
@@ -160,11 +163,14 @@ class RigEmulatorProcess(EmulatorProcess):
             cmd.append("--lockstep")
         if self.seed is not None:
             cmd += ["--seed", str(self.seed)]
+        for change in self.changes:
+            cmd += ["--change", change]
         return cmd + self.extra_args
 
     def truth(self) -> dict[str, Any]:
         """The emulated rig's truth, as a run's ``truth.json`` holds it
-        (:func:`rig.emulated.rig_truth`)."""
-        from rig.config import load_rig_file
+        (:func:`rig.emulated.rig_truth`), the changes given on its command line included."""
+        from rig.config import load_rig_file, parse_change, with_changes
         from rig.emulated import rig_truth
-        return rig_truth(load_rig_file(self.rig))
+        rig = load_rig_file(self.rig)
+        return rig_truth(with_changes(rig, [parse_change(c, rig) for c in self.changes]))

@@ -29,7 +29,7 @@ from standbus.spec import BusSpec, known_interfaces
 
 from .budget import BusBudget, bus_budgets
 from .config import RigConfig
-from .emulated import sensor_range_conflict
+from .emulated import change_dict, sensor_range_conflict
 from .structure import StructureVerdict, judge_structure
 
 
@@ -58,7 +58,9 @@ class RigCheck:
                          "K": rig.K.tolist() if rig.K is not None else None,
                          "physical": self.structure.physical, "reason": self.structure.reason,
                          "asymmetry": check.asymmetry,
-                         "min_eigenvalue_ratio": check.min_eigenvalue_ratio}
+                         "min_eigenvalue_ratio": check.min_eigenvalue_ratio,
+                         "changes": [change_dict(rig, c) for c in rig.changes],
+                         "G_changed": rig.G_changed.tolist()}
         return {
             "rig": rig.name,
             "path": str(rig.path) if rig.path is not None else None,
@@ -118,6 +120,17 @@ class RigCheck:
             out.append(f"  {check.text()}")
             if check.physical and self.structure.reason:
                 out.append(f"  but {self.structure.reason}")
+            if rig.changes:
+                out.append("")
+                out.append("structure changes (stand emulate --rig; stand time since the "
+                           "emulator started)")
+                out += [f"  {rig.change_text(c)}" for c in rig.changes]
+                out.append("G once every change is complete, kgf/(%·s) (a compliance at each "
+                           "changed point: its row and column times its factor)")
+                rows = [("",) + tuple(rig.names)]
+                rows += [(name,) + tuple(f"{v:.4g}" for v in row)
+                         for name, row in zip(rig.names, rig.G_changed)]
+                out += _table(rows, right=set(range(1, len(rig.names) + 1)))
         out.append("")
         if self.problems:
             out.append(f"problems ({len(self.problems)})")

@@ -33,7 +33,16 @@ gain ``c_i/A_i`` (mm/(%·s)), ``G = K·diag(c/A)`` (../shared/notes/rig.md)::
     [structure]
     G = [[120, 36, 0, 0], [36, 120, 36, 0], [0, 36, 120, 36], [0, 0, 36, 120]]
 
-Only the emulator reads the plants; a rig file for a bench needs none (the structure is then
+    [[structure.change]]             # the emulated structure changes (a crack), optional:
+    channel = "root_left"            # at this channel's attachment point
+    stiffness_factor = 0.97          # its own stiffness K_ii times this (< 1: softer)
+    from_s = 600.0                   # from this stand time (s)
+    ramp_s = 0.0                     # at once (0), or linearly over this long (s)
+
+Only the emulator reads the plants and the structure's changes
+(:class:`plant.rig.StructureChange`: a compliance in series at the attachment point, so its
+row and column of K and of G fall by the factor; ``stand emulate --rig --change`` adds
+more); a rig file for a bench needs none (the structure is then
 what the user believes, and ``stand rig check`` checks it). Everything is checked on load: a
 mistake is one :class:`RigError` naming the file, the table and what to do.
 """
@@ -41,7 +50,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -50,6 +59,7 @@ import numpy as np
 from core.errors import ParameterError
 from plant.config import PlantConfig, plant_config_from_mapping, read_toml
 from plant.params import ModelError
+from plant.rig import StructureChange, changed_structure
 from standbus.spec import BusSpec, BusSpecError
 
 #: what a bus may be loaded to, by default (CiA and bus vendors advise 60-80 % for cyclic traffic)
@@ -118,10 +128,30 @@ class RigConfig:
     bus_load_limit: float = DEFAULT_LOAD_LIMIT
     heartbeat_ms: int = 100
     path: Path | None = None
+    #: the emulated structure's scheduled changes (``[[structure.change]]``, ``stand emulate
+    #: --change``), in the order given; each names its channel by index
+    changes: list[StructureChange] = field(default_factory=list)
 
     @property
     def names(self) -> list[str]:
         return [c.name for c in self.channels]
+
+    @property
+    def G_changed(self) -> np.ndarray | None:
+        """G once every scheduled change is complete (:attr:`G` without changes)."""
+        if self.G is None or not self.changes:
+            return self.G
+        factors = np.ones(len(self.channels))
+        for c in self.changes:
+            factors[c.channel] *= c.stiffness_factor
+        return changed_structure(self.G, factors)
+
+    def change_text(self, change: StructureChange) -> str:
+        """A change as ``stand rig check`` says it."""
+        how = (f"over {change.ramp_s:g} s (complete at {change.end_s:g} s)" if change.ramp_s
+               else "at once")
+        return (f"{self.channels[change.channel].name}: stiffness × {change.stiffness_factor:g} "
+                f"from {change.from_s:g} s of stand time, {how}")
 
     def channel(self, name: str) -> ChannelConfig:
         for c in self.channels:
@@ -187,9 +217,12 @@ def rig_from_mapping(data: Mapping[str, Any], where: str = "rig", base_dir: Path
         if dupes:
             raise RigError(f"{where}: bus {b.name!r}: node id(s) {', '.join(map(str, dupes))} "
                            "used twice: every valve and dynamometer on one bus needs its own id")
-    G, source, K = _structure(data.get("structure"), channels, f"{where}: [structure]")
+    structure = data.get("structure")
+    G, source, K = _structure(structure, channels, f"{where}: [structure]")
+    changes = _changes(structure, channels, G, f"{where}: [[structure.change]]")
     return RigConfig(name=name, buses=buses, channels=channels, G=G, structure_from=source, K=K,
-                     period_s=period_s, bus_load_limit=limit, heartbeat_ms=heartbeat_ms, path=path)
+                     period_s=period_s, bus_load_limit=limit, heartbeat_ms=heartbeat_ms, path=path,
+                     changes=changes)
 
 
 def _tables(data: Mapping[str, Any], key: str, where: str) -> list[Mapping[str, Any]]:
@@ -327,7 +360,7 @@ def _structure(value: Any, channels: list[ChannelConfig],
         value = {}
     if not isinstance(value, Mapping):
         raise RigError(f"{where} must be a table")
-    _keys(value, {"G", "K", "flow_gain_mm_per_pct_s"}, where)
+    _keys(value, {"G", "K", "flow_gain_mm_per_pct_s", "change"}, where)
     if "G" in value and "K" in value:
         raise RigError(f"{where}: give G or K (with flow_gain_mm_per_pct_s), not both")
     G: np.ndarray | None = None
@@ -362,3 +395,74 @@ def _structure(value: Any, channels: list[ChannelConfig],
                                "own gain is the structure's diagonal; leave g out of the plant")
             c.plant.model = c.plant.model.with_params({"g": float(G[i, i])})
     return G, source, K
+
+
+# ------------------------------------------------------------------------------------------
+# the structure's scheduled changes
+# ------------------------------------------------------------------------------------------
+#: how far a change may stiffen a point (a jammed part); softening goes down to 1 %
+CHANGE_FACTOR_RANGE = (0.01, 10.0)
+#: the latest stand time a change may begin (s): ten years
+CHANGE_LATEST_S = 3.2e8
+
+
+def _changes(structure: Any, channels: list[ChannelConfig], G: np.ndarray | None,
+             where: str) -> list[StructureChange]:
+    """The ``[[structure.change]]`` tables of ``[structure]`` (none: an empty list)."""
+    if not isinstance(structure, Mapping) or "change" not in structure:
+        return []
+    tables = structure["change"]
+    if not isinstance(tables, list) or not all(isinstance(t, Mapping) for t in tables):
+        raise RigError(f"{where}: 'change' must be an array of tables ([[structure.change]] with "
+                       "channel, stiffness_factor, from_s, ramp_s)")
+    names = [c.name for c in channels]
+    out = [_change(t, names, f"{where} #{i + 1}") for i, t in enumerate(tables)]
+    if out and G is None:
+        raise RigError(f"{where}: a change of the structure needs the structure: give [structure] "
+                       "G, or K with flow_gain_mm_per_pct_s (or a plant for every channel)")
+    return out
+
+
+def _change(table: Mapping[str, Any], names: list[str], where: str) -> StructureChange:
+    _keys(table, {"channel", "stiffness_factor", "from_s", "ramp_s"}, where)
+    channel = table.get("channel")
+    if channel not in names:
+        raise RigError(f"{where}: channel = {channel!r} is not a channel of the rig; it has "
+                       f"{', '.join(names)}")
+    where = f"{where} ({channel})"
+    factor = _number(table, "stiffness_factor", where, None, *CHANGE_FACTOR_RANGE)
+    from_s = _number(table, "from_s", where, None, 0.0, CHANGE_LATEST_S)
+    ramp_s = _number(table, "ramp_s", where, 0.0, 0.0, CHANGE_LATEST_S)
+    return StructureChange(names.index(channel), factor, from_s, ramp_s)
+
+
+#: ``CHANNEL:FACTOR@FROM_S`` or ``CHANNEL:FACTOR@FROM_S+RAMP_S`` (``stand emulate --change``)
+CHANGE_RE = re.compile(r"^(?P<channel>[^:@+\s]+):(?P<factor>[^@]+)@(?P<from_s>[^+]+)"
+                       r"(?:\+(?P<ramp_s>.+))?$")
+CHANGE_FORM = "CHANNEL:FACTOR@FROM_S[+RAMP_S], e.g. inner:0.97@600 or inner:0.97@600+60"
+
+
+def parse_change(text: str, rig: RigConfig) -> StructureChange:
+    """A change as the command line gives it (:data:`CHANGE_FORM`): at ``CHANNEL``'s attachment
+    its stiffness times ``FACTOR`` from the stand time ``FROM_S`` (s), at once or over
+    ``RAMP_S`` (s); :class:`RigError` naming what is wrong."""
+    m = CHANGE_RE.match(text.strip())
+    if not m:
+        raise RigError(f"--change {text!r}: give it as {CHANGE_FORM}")
+    table: dict[str, Any] = {"channel": m["channel"]}
+    for key in ("factor", "from_s", "ramp_s"):
+        if m[key] is None:
+            continue
+        try:
+            table["stiffness_factor" if key == "factor" else key] = float(m[key])
+        except ValueError:
+            raise RigError(f"--change {text!r}: {m[key]!r} is not a number ({CHANGE_FORM})") from None
+    if rig.G is None:
+        raise RigError(f"--change {text!r}: {rig.where} gives no structure to change: give "
+                       "[structure] G, or K with flow_gain_mm_per_pct_s")
+    return _change(table, rig.names, f"--change {text!r}")
+
+
+def with_changes(rig: RigConfig, changes: list[StructureChange]) -> RigConfig:
+    """``rig`` with ``changes`` scheduled after its own."""
+    return replace(rig, changes=list(rig.changes) + list(changes))

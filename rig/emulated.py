@@ -17,7 +17,7 @@ import numpy as np
 
 from plant.config import PlantConfig
 from plant.params import ModelError
-from plant.rig import PhysicalCheck, RigModel, physical_check
+from plant.rig import PhysicalCheck, RigModel, StructureChange, physical_check
 
 from .config import ChannelConfig, RigConfig, RigError
 from .structure import judge_structure
@@ -77,7 +77,7 @@ def emulated_plant(rig: RigConfig) -> EmulatedRigPlant:
     G = rig.G if rig.G is not None else np.diag([p.model.g for p in plants])
     check = verdict.check or physical_check(G)
     try:
-        model = RigModel([p.model for p in plants], G, rig.names)
+        model = RigModel([p.model for p in plants], G, rig.names, rig.changes)
     except ModelError as exc:
         raise RigError(f"{rig.where}: {exc}") from None
     return EmulatedRigPlant(model, plants, check)
@@ -93,8 +93,11 @@ def channel_seed(seed: int | None, index: int) -> int | None:
 
 def rig_truth(rig: RigConfig, plant: EmulatedRigPlant | None = None) -> dict[str, Any]:
     """The emulated rig's truth, as a run's ``truth.json`` holds it (never read by the
-    analysis): the structure G (kgf/(%·s), rows and columns in the channels' order), where it
-    came from, and each channel's plant (:meth:`PlantConfig.to_dict`) by name."""
+    analysis): the structure G (kgf/(%·s), rows and columns in the channels' order; the intact
+    one), where it came from, each channel's plant (:meth:`PlantConfig.to_dict`) by name, and
+    the structure's scheduled changes (``changes``: channel, stiffness_factor, from_s, ramp_s,
+    on the emulator's stand time) with ``G_changed``, G once every change is complete (G
+    itself without changes)."""
     plant = plant or emulated_plant(rig)
     return {
         "rig": rig.name,
@@ -102,4 +105,12 @@ def rig_truth(rig: RigConfig, plant: EmulatedRigPlant | None = None) -> dict[str
         "G": plant.model.G.tolist(),
         "structure_from": rig.structure_from,
         "plants": {name: p.to_dict() for name, p in zip(rig.names, plant.plants)},
+        "changes": [change_dict(rig, c) for c in rig.changes],
+        "G_changed": plant.model.G_changed.tolist(),
     }
+
+
+def change_dict(rig: RigConfig, change: StructureChange) -> dict[str, Any]:
+    """A scheduled change as the truth and ``stand rig check --json`` give it."""
+    return {"channel": rig.names[change.channel], "stiffness_factor": change.stiffness_factor,
+            "from_s": change.from_s, "ramp_s": change.ramp_s}

@@ -40,7 +40,7 @@ def rig_to_toml(rig: RigConfig, header: str = "", path: str | Path | None = None
     """A rig file for ``rig`` (round-trips through :func:`rig.config.rig_from_mapping`);
     ``path``: where it will be written (a plant's plug-in files are named relative to it).
     The structure is written as the file gave it: K with the flow gains, or G (none when the
-    channels' plants gave it)."""
+    channels' plants gave it), with its scheduled changes."""
     lines = [f"# {line}" for line in header.splitlines()]
     lines += [f"name = {json.dumps(rig.name)}", f"period_ms = {_num(rig.period_s * 1e3)}",
               f"bus_load_limit_pct = {_num(rig.bus_load_limit * 100)}",
@@ -59,14 +59,18 @@ def rig_to_toml(rig: RigConfig, header: str = "", path: str | Path | None = None
             lines.append(f"force_limit_kgf = {_num(c.force_limit_kgf)}")
         if c.plant is not None:
             lines += _plant_lines(c.plant, path, with_g=not structure)
-    if structure:
+    if structure or rig.changes:
         lines += ["", "[structure]"]
         if rig.structure_from == "K" and rig.K is not None:
             gains = np.diag(rig.G) / np.diag(rig.K)
             lines.append("K = " + _matrix(rig.K))
             lines.append("flow_gain_mm_per_pct_s = [" + ", ".join(_num(v) for v in gains) + "]")
-        else:
+        elif structure:
             lines.append("G = " + _matrix(rig.G))
+    for c in rig.changes:
+        lines += ["", "[[structure.change]]", f"channel = {json.dumps(rig.names[c.channel])}",
+                  f"stiffness_factor = {_num(c.stiffness_factor)}", f"from_s = {_num(c.from_s)}",
+                  f"ramp_s = {_num(c.ramp_s)}"]
     return "\n".join(lines) + "\n"
 
 

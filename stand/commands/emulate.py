@@ -31,6 +31,12 @@ def register(sub) -> None:
                    help="emulate a rig: its buses, node ids, plants and structure from the rig "
                         "file (then leave out --bus, --valve-id, --dynamometer-id, --config, "
                         "--model and --set)")
+    p.add_argument("--change", action="append", metavar="CHANNEL:FACTOR@FROM_S[+RAMP_S]",
+                   help="with --rig: the structure at CHANNEL's attachment softens to FACTOR of "
+                        "its stiffness from the stand time FROM_S (s since the emulator started; "
+                        "in lockstep the run's own time for a first run), at once or linearly "
+                        "over RAMP_S; e.g. inner:0.97@600 (a crack). Repeatable, after the rig "
+                        "file's [[structure.change]] (docs/rig.md)")
     p.add_argument("--lockstep", action="store_true",
                    help="advance the plant one communication period (0x1006) per SYNC instead of "
                         "on the wall clock (a rig: per cycle, once every bus's SYNC came)")
@@ -58,10 +64,13 @@ def main(args: argparse.Namespace) -> int:
         if given:
             raise ModelError(f"--rig takes the buses, node ids and plants from the rig file: "
                              f"leave out {', '.join(given)}")
-        from rig.config import load_rig_file
+        from rig.config import load_rig_file, parse_change, with_changes
         rig = load_rig_file(args.rig)
+        rig = with_changes(rig, [parse_change(text, rig) for text in args.change or ()])
         run = lambda clock: _serve_rig(rig, options, clock)        # noqa: E731
     else:
+        if args.change:
+            raise ModelError("--change changes a rig's structure: give it with --rig RIG.toml")
         from plant.config import load_plant_config
         config = load_plant_config(args.config, args.model, parse_assignments(args.set))
         run = lambda clock: _serve_stand(args, config, options, clock)   # noqa: E731
@@ -114,4 +123,5 @@ def _serve_rig(rig, options, clock: str):
         {b.name: b.spec for b in rig.buses},
         lambda stand: f"rig {rig.name!r}, {len(rig.channels)} channel(s) on {len(rig.buses)} "
                       f"bus(es): {buses} ({clock}); structure from "
-                      f"{rig.structure_from}")
+                      f"{rig.structure_from}" + "".join(f"; change {rig.change_text(c)}"
+                                                        for c in rig.changes))
