@@ -58,9 +58,9 @@ def start_rig_emulator(tmp_path, channel):
     started: list[RigEmulatorProcess] = []
 
     def start(text: str | None = None, lockstep: bool = True, quiet: bool = False,
-              seed: int | None = 3):
+              seed: int | None = 3, extra_args: list[str] | None = None):
         path = write_rig(tmp_path / f"rig{len(started)}.toml", text or example_rig_text(channel, quiet))
-        started.append(RigEmulatorProcess(path, lockstep=lockstep, seed=seed).start())
+        started.append(RigEmulatorProcess(path, lockstep=lockstep, seed=seed, extra_args=extra_args).start())
         return path
 
     yield start
