@@ -400,28 +400,34 @@ class LoadProgramme(RigExperiment):
         return self.main_start_s + self.lead * self.period_s
 
     def params(self) -> dict[str, Any]:
+        """The run's experiment parameters (run.json): per channel, in the station's order; a
+        one-channel stand's as one channel's values."""
         c = self.controller
         ff = self.ff[1.0]
-        out = {"programme": self.programme.source, "channels": self.names,
-               "load_cases": int(len(self.programme.turning_idx)) if self.programme.load_cases else None,
-               "ranges_kgf": self.programme.ranges_kgf.tolist(), "feedback": c.feedback,
-               "feedforward": c.feedforward, "detuning": c.detuning,
-               "kp_pct_per_kgf": [ch.kp_pct_per_kgf for ch in c.channels],
-               "ti_s": [ch.ti_s for ch in c.channels],
-               "models": [ch.model_spec for ch in c.channels],
-               "feedforward_inverts": [f.inverted for f in ff.channels],
-               "feedforward_does_not_invert": [f.not_inverted for f in ff.channels],
-               "feedback_scale_min": [float(p.scale.min()) for p in self.plans[1.0]],
-               "sign_held_share": [float(np.mean(p.way != 0)) for p in self.plans[1.0]],
-               "pre_roll_from_kgf": self.reference[:, 0].tolist(),
-               "compensated": self.compensation is not None, "unload_kgf": self.unload_kgf,
-               "settle_tolerance_kgf": self.approach.tolerance, "settle_max_s": self.approach.max_s,
-               "guard_fraction": self.guard_fraction, "pacing": self.pacing.mode,
-               **({"pacing_tolerance_kgf": self.pacing_tolerances_kgf.tolist(),
-                   "pacing_min_speed": self.pacing.min_speed,
-                   "pacing_timeout_s": self.pacing.timeout_s} if self.pacing.on else {}),
-               **({"gain_monitor": dict(vars(self.monitor.options))} if self.monitor is not None else {})}
-        return out
+        per_channel = {
+            "kp_pct_per_kgf": [ch.kp_pct_per_kgf for ch in c.channels], "ti_s": [ch.ti_s for ch in c.channels],
+            "feedforward_inverts": [f.inverted for f in ff.channels],
+            "feedforward_does_not_invert": [f.not_inverted for f in ff.channels],
+            "feedback_scale_min": [float(p.scale.min()) for p in self.plans[1.0]],
+            "sign_held_share": [float(np.mean(p.way != 0)) for p in self.plans[1.0]],
+            "pre_roll_from_kgf": self.reference[:, 0].tolist(),
+            **({"pacing_tolerance_kgf": self.pacing_tolerances_kgf.tolist()} if self.pacing.on else {})}
+        if self.programme.stand:
+            out = {"programme": self.programme.source, "turning_points": int(len(self.programme.turning_idx)),
+                   "range_kgf": float(self.programme.ranges_kgf[0]), "controller_model": c.channels[0].model_spec,
+                   **{k: v[0] for k, v in per_channel.items()}}
+        else:
+            out = {"programme": self.programme.source, "channels": self.names,
+                   "load_cases": int(len(self.programme.turning_idx)) if self.programme.load_cases else None,
+                   "ranges_kgf": self.programme.ranges_kgf.tolist(), "feedback": c.feedback,
+                   "feedforward": c.feedforward, "detuning": c.detuning,
+                   "models": [ch.model_spec for ch in c.channels], **per_channel}
+        return {**out, "compensated": self.compensation is not None, "unload_kgf": self.unload_kgf,
+                "settle_tolerance_kgf": self.approach.tolerance, "settle_max_s": self.approach.max_s,
+                "guard_fraction": self.guard_fraction, "pacing": self.pacing.mode,
+                **({"pacing_min_speed": self.pacing.min_speed, "pacing_timeout_s": self.pacing.timeout_s}
+                   if self.pacing.on else {}),
+                **({"gain_monitor": dict(vars(self.monitor.options))} if self.monitor is not None else {})}
 
     @property
     def pacing_tolerances_kgf(self) -> np.ndarray:
