@@ -157,9 +157,9 @@ def test_a_controller_designed_from_a_plugin_model_loads_on_its_own(tmp_path):
     design = json.loads(res.stdout)
     assert design["boost"] == pytest.approx(1.1)        # G = 1 + k·|q|/100 at |q| = 10 %
     assert 'plugins = ["gainy.py"]' in (tmp_path / "c.toml").read_text()
-    code = ("from loading.design import load_controller\n"
+    code = ("from loading.controller_files import load_controller\n"
             f"c = load_controller({str(tmp_path / 'c.toml')!r})\n"
-            "print(c.model.spec)")
+            "print(c.channels[0].model.spec)")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0 and res.stdout.strip() == "base+gainy", res.stderr
 
