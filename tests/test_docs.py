@@ -100,12 +100,23 @@ def run_page(page: str, directory: Path, outcomes: list[Outcome]) -> None:
             if block.marks.xfail:
                 raise BlockFailed(f"{block.where}: XPASS(strict): marked xfail "
                                   f"({block.marks.xfail}) but it ran: remove the marker")
-            notes = [f"lines skipped: {r}" for r in sorted(set(block.marks.skip_lines.values()))]
+            notes = [f"skipped {lines}: {why}" for lines, why in _line_ranges(block.marks.skip_lines)]
             if block.marks.skip:
                 notes.append(f"ran {' && '.join(block.marks.run)} instead: {block.marks.skip}")
             outcomes.append(Outcome(block.where, "passed", time.monotonic() - start, "; ".join(notes)))
     finally:
         run.stop()
+
+
+def _line_ranges(skipped: dict[int, str]) -> list[tuple[str, str]]:
+    """``{3: a, 4: a, 6: b}`` as ``[("lines 3-4", a), ("line 6", b)]``."""
+    runs: list[list] = []
+    for line, why in sorted(skipped.items()):
+        if runs and runs[-1][1] == line - 1 and runs[-1][2] == why:
+            runs[-1][1] = line
+        else:
+            runs.append([line, line, why])
+    return [(f"line {a}" if a == b else f"lines {a}-{b}", why) for a, b, why in runs]
 
 
 @pytest.mark.parametrize("page", list(_params()))

@@ -27,7 +27,8 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-MARKER = re.compile(r"<!--\s*docs-test:(.*?)-->", re.S)
+#: a marker is a line of its own (the same text quoted inside a line is prose)
+MARKER = re.compile(r"^\s*<!--\s*docs-test:(.*?)-->\s*$")
 FENCE = re.compile(r"^(`{3,})\s*([\w+-]*)\s*$")
 #: the fences whose block is shown output
 OUTPUT_LANGS = {"", "text", "console", "output"}
@@ -43,16 +44,21 @@ class MarkerError(ValueError):
 
 @dataclass(frozen=True)
 class Tolerance:
-    """How near a printed number must be to the one shown: within ``rel`` of it or ``abs``."""
+    """How near a printed number must be to the one shown: within ``rel`` of it, or ``abs``, or
+    ``last_digits`` in the last decimal shown (0.07 % printed with two decimals: ±0.02; an
+    integer, 0 extra cycles, exactly)."""
 
     rel: float = 0.05
     abs: float = 0.0
+    last_digits: int = 2
 
-    def allows(self, shown: float, printed: float) -> bool:
-        return abs(printed - shown) <= max(self.rel * abs(shown), self.abs)
+    def allows(self, shown: float, printed: float, decimals: int = 0) -> bool:
+        rounding = self.last_digits * 10.0 ** -decimals if decimals else 0.0
+        return abs(printed - shown) <= max(self.rel * abs(shown), self.abs, rounding)
 
     def __str__(self) -> str:
-        return f"{self.rel * 100:g} %" + (f" or {self.abs:g}" if self.abs else "")
+        return (f"{self.rel * 100:g} %" + (f" or {self.abs:g}" if self.abs else "")
+                + f" or {self.last_digits} in the last decimal shown")
 
 
 @dataclass
@@ -184,8 +190,10 @@ def parse_page(path: Path, name: str) -> list[Block]:
     while i < len(lines):
         fence = FENCE.match(lines[i])
         if not fence:
-            pending += [(m[1], i + 1) for m in MARKER.finditer(lines[i])]
-            if pending and lines[i].strip() and not MARKER.search(lines[i]):
+            marker = MARKER.match(lines[i])
+            if marker:
+                pending.append((marker[1], i + 1))
+            elif pending and lines[i].strip():
                 raise MarkerError(f"{name}:{pending[0][1]}: a docs-test marker goes right "
                                   "before its block (only blank lines or markers between)")
             i += 1

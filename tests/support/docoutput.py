@@ -4,7 +4,8 @@ The shown lines must be printed in that order, one after the other, anywhere in 
 printed (other lines may come before and after). A line ``...`` stands for any number of printed
 lines, ``...`` inside a line for any text. Whitespace runs are one space and blank lines are
 left out. Each number must be within the tolerance of the one shown (a figure comes from one
-run: seeds and hosts differ); the text around the numbers must be the same.
+run: seeds and hosts differ; :class:`~tests.support.docblocks.Tolerance`); the text around the
+numbers must be the same.
 """
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ class ShownLine:
 
     text: str
     pattern: re.Pattern
-    numbers: tuple[float, ...]
+    numbers: tuple[tuple[float, int], ...]     # (value, decimals shown)
 
     @classmethod
     def parse(cls, line: str) -> "ShownLine":
@@ -43,7 +44,7 @@ class ShownLine:
                 regex.append(".*?")
             else:
                 regex.append(f"({NUMBER})")
-                numbers.append(_value(m["number"]))
+                numbers.append((_value(m["number"]), _decimals(m["number"])))
             pos = m.end()
         regex.append(_literal(text[pos:]))
         return cls(text, re.compile("".join(regex)), tuple(numbers))
@@ -53,9 +54,9 @@ class ShownLine:
         m = self.pattern.fullmatch(normalize(printed))
         if m is None:
             return "the text differs"
-        for shown, got in zip(self.numbers, (_value(g) for g in m.groups())):
-            if not tolerance.allows(shown, got):
-                return f"{got:g} is not within {tolerance} of the shown {shown:g}"
+        for (shown, decimals), got in zip(self.numbers, (_value(g) for g in m.groups())):
+            if not tolerance.allows(shown, got, decimals):
+                return f"{got:g} is off the shown {shown:g} by more than {tolerance}"
         return None
 
 
@@ -65,6 +66,11 @@ def _literal(text: str) -> str:
 
 def _value(number: str) -> float:
     return float(number.replace(",", ""))
+
+
+def _decimals(number: str) -> int:
+    mantissa = re.split("[eE]", number)[0]
+    return len(mantissa.partition(".")[2])
 
 
 def compare(shown: str, printed: str, tolerance: Tolerance) -> str | None:
