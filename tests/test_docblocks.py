@@ -10,6 +10,7 @@ import pytest
 
 from tests.support.docblocks import MarkerError, Tolerance, parse_page
 from tests.support.docoutput import compare
+from tests.support.docpage import BlockFailed, Outcome, run_page
 from tests.support.docshell import CommandFailed, PageRun
 
 
@@ -141,3 +142,55 @@ def test_a_page_runs_in_its_own_directory_and_bus_namespace_and_stops_its_backgr
     assert proc.poll() is not None and not run.background
     with pytest.raises(ProcessLookupError):
         os.killpg(proc.pid, 0)
+
+
+def run(tmp_path, text: str, directory: str = "run") -> list[Outcome]:
+    path = tmp_path / "page.md"
+    path.write_text(textwrap.dedent(text))
+    outcomes: list[Outcome] = []
+    run_page(path, "page.md", tmp_path / directory, outcomes)
+    return outcomes
+
+
+def test_a_page_runs_its_blocks_in_order_in_one_directory_with_its_files(tmp_path):
+    outcomes = run(tmp_path, """\
+        <!-- docs-test: file: hello.py -->
+        ```python
+        print("hello", 2 * 21)
+        ```
+        <!-- docs-test: given: rig.toml from examples/rig.toml -->
+        ```sh
+        python hello.py > said.txt
+        grep -c channel rig.toml > /dev/null
+        ```
+        ```sh
+        cat said.txt
+        ```
+        ```
+        hello 42
+        ```
+        """)
+    assert [(o.where, o.status) for o in outcomes] == [("page.md:6", "passed"), ("page.md:10", "passed")]
+
+
+def test_a_failing_block_stops_the_page_naming_the_command_and_the_blocks_before(tmp_path):
+    with pytest.raises(BlockFailed, match=r"(?s)page.md:7: `false` exited with 1.*page.md:1 +passed"):
+        run(tmp_path, "```sh\ntrue\n```\n\n```sh\ntrue\nfalse\n```\n```sh\ntouch never\n```\n")
+    assert not (tmp_path / "run" / "never").exists()
+    with pytest.raises(BlockFailed, match=r"page.md:1: the printed output does not show"):
+        run(tmp_path, "```sh\necho 'p95 0.50 %'\n```\n```\np95 0.07 %\n```\n", "run2")
+
+
+def test_an_xfail_block_that_fails_lets_the_page_go_on_and_one_that_passes_fails_it(tmp_path):
+    outcomes = run(tmp_path, """\
+        <!-- docs-test: xfail: the estimate raises (bug 7) -->
+        ```sh
+        exit 2
+        ```
+        ```sh
+        true
+        ```
+        """)
+    assert [o.status for o in outcomes] == ["xfailed", "passed"] and "bug 7" in outcomes[0].why
+    with pytest.raises(BlockFailed, match="XPASS.*bug 7.*remove the marker"):
+        run(tmp_path, "<!-- docs-test: xfail: bug 7 -->\n```sh\ntrue\n```\n", "run2")
