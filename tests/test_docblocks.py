@@ -132,7 +132,7 @@ def test_a_page_runs_in_its_own_directory_and_bus_namespace_and_stops_its_backgr
         assert (run.directory / "examples" / "rig.toml").exists()
         assert run.run("stand --help >/dev/null && pwd", "x:1").strip() == str(run.directory)
         server = f"{sys.executable} -c \"print('ready', flush=True); import time; time.sleep(60)\""
-        assert run.run(f"{server} &  # a stand", "x:2") == ""
+        assert run.run(f"cd examples && {server} &  # a stand", "x:2") == ""
         proc = run.background[0].proc
         assert proc.poll() is None and "ready" in run.background[0].tail()
         with pytest.raises(CommandFailed, match=r"exited with 3:\nnot found"):

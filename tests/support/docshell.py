@@ -114,7 +114,7 @@ class PageRun:
     def _start_background(self, command: str, where: str) -> None:
         log = self.directory / ".docs-test" / f"background-{len(self.background) + 1}.log"
         with log.open("w") as out:
-            proc = subprocess.Popen(["bash", "-c", f"exec {command}"], cwd=self.directory,
+            proc = subprocess.Popen(["bash", "-c", command], cwd=self.directory,
                                     env=self.env, stdin=subprocess.DEVNULL, stdout=out,
                                     stderr=subprocess.STDOUT, start_new_session=True)
         started = Background(command, proc, log)
