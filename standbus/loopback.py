@@ -23,6 +23,13 @@ Usage from any python-can tool::
 The channel is a name (``stand0``, ``bench-B``), which is hashed to a group and a port, or an
 explicit ``239.x.y.z:port``.
 
+Namespaces: with the environment variable ``HYDROSTAND_LOOPBACK_NAMESPACE=NAME`` every channel
+*name* a process opens (and its child processes, which inherit it) is a bus of that namespace
+only: ``stand0`` in namespace ``ci-7`` is another bus than ``stand0`` without one or in ``ci-8``.
+The commands, their options and what they print stay the same, so a test can run the
+documented ``stand emulate &`` / ``stand run`` on the default bus without meeting anyone else's
+(the documentation tests do: docs/testing.md). An explicit ``GROUP:PORT`` is never namespaced.
+
 Fault injection (tests, drills; see :mod:`standbus.faults`): the options ``drop`` (probability
 that a received frame is lost), ``delay_ms`` (every received frame arrives that much later),
 ``fault_ids`` (id range they apply to, e.g. ``0x080-0x4FF``; default all) and ``seed`` make
@@ -62,6 +69,8 @@ log = logging.getLogger(__name__)
 
 LOOPBACK = "127.0.0.1"
 DEFAULT_CHANNEL = "stand0"
+#: environment variable: the namespace of every channel name this process opens (module doc)
+NAMESPACE_VARIABLE = "HYDROSTAND_LOOPBACK_NAMESPACE"
 #: Organization-local multicast scope (RFC 2365); combined with the loopback pinning
 #: this never reaches a network.
 _GROUP_PREFIX = "239.255"
@@ -94,6 +103,15 @@ def resolve_channel(channel: str) -> tuple[str, int]:
             f"channel {channel!r} is not a usable bus name; use e.g. 'stand0'")
     h = zlib.crc32(channel.encode("utf-8"))
     return f"{_GROUP_PREFIX}.{(h >> 8) & 0xFF}.{h & 0xFF or 1}", _PORT_BASE + (h >> 16) % _PORT_SPAN
+
+
+def namespaced(channel: str) -> str:
+    """The channel as it is hashed: ``NAMESPACE/channel`` when ``HYDROSTAND_LOOPBACK_NAMESPACE``
+    is set and the channel is a name (an explicit ``GROUP:PORT`` is taken as it is)."""
+    namespace = os.environ.get(NAMESPACE_VARIABLE, "").strip()
+    if not namespace or ":" in channel:
+        return channel
+    return f"{namespace}/{channel}"
 
 
 def _open_socket(group: str, port: int) -> socket.socket:
@@ -222,7 +240,7 @@ class LoopbackBus(BusABC):
             raise can.CanInitializationError(f"udp_loopback fault injection: {exc}") from None
         #: fault injection on reception (None: a perfect bus)
         self.faults: FaultInjector | None = FaultInjector(spec) if spec is not None else None
-        self.group, self.port = resolve_channel(channel)
+        self.group, self.port = resolve_channel(namespaced(channel))
         self._socket = _open_socket(self.group, self.port)
         self._destination = (self.group, self.port)
         self._sender_id = int.from_bytes(os.urandom(8), "big")
@@ -231,7 +249,10 @@ class LoopbackBus(BusABC):
         self.kernel_self_filter = not self._receive_own and _drop_own_frames_in_kernel(
             self._socket, self._sender_id)
         self._can_protocol = CanProtocol.CAN_FD if fd else CanProtocol.CAN_20
-        self.channel_info = f"udp_loopback {channel} ({self.group}:{self.port} on {LOOPBACK})"
+        where = namespaced(channel)
+        self.channel_info = (f"udp_loopback {channel}" + (f" in namespace {where.partition('/')[0]}"
+                                                           if where != channel else "")
+                             + f" ({self.group}:{self.port} on {LOOPBACK})")
         self.channel = channel
         #: Datagrams on the group that were not frames of this bus (counted, then dropped).
         self.malformed_datagrams = 0

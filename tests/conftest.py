@@ -74,3 +74,16 @@ def isolated_catalogue():
     from tests.support.plugins import isolated_catalogue as isolated
     with isolated():
         yield
+
+
+def pytest_terminal_summary(terminalreporter):
+    """Each documentation block's outcome and time (tests/test_docs.py records them)."""
+    rows = []
+    for reports in terminalreporter.stats.values():
+        for report in reports:
+            if getattr(report, "when", None) == "call":
+                rows += dict(getattr(report, "user_properties", ())).get("doc_blocks", [])
+    if rows:
+        terminalreporter.write_sep("-", "documentation blocks (tests/test_docs.py)")
+        for row in rows:
+            terminalreporter.write_line(row)

@@ -78,6 +78,25 @@ def test_channels_are_independent_buses(channel):
         a.shutdown(); other.shutdown()
 
 
+def test_a_namespace_makes_the_same_channel_name_another_bus(channel, monkeypatch):
+    """HYDROSTAND_LOOPBACK_NAMESPACE: one name, a bus per namespace (the documentation tests run
+    the docs' default bus so); within a namespace the name is one bus as ever."""
+    monkeypatch.setenv("HYDROSTAND_LOOPBACK_NAMESPACE", f"{channel}-ns1")
+    a, b = LoopbackBus(channel), LoopbackBus(channel)
+    monkeypatch.setenv("HYDROSTAND_LOOPBACK_NAMESPACE", f"{channel}-ns2")
+    other = LoopbackBus(channel)
+    monkeypatch.delenv("HYDROSTAND_LOOPBACK_NAMESPACE")
+    plain = LoopbackBus(channel)
+    try:
+        assert "namespace" in a.channel_info and a.channel == channel
+        a.send(can.Message(arbitration_id=0x181, data=b"\x01", is_extended_id=False))
+        assert len(recv_frames(b, 1)) == 1
+        assert other.recv(0.3) is None and plain.recv(0.1) is None
+    finally:
+        for bus in (a, b, other, plain):
+            bus.shutdown()
+
+
 def test_frames_from_one_sender_arrive_in_order(channel):
     a, b = LoopbackBus(channel), LoopbackBus(channel)
     try:
