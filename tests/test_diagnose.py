@@ -69,7 +69,14 @@ def test_relay_feedback_names_the_hidden_effect(effect):
         # one relay amplitude: the two are alike to first order, and the diagnosis says so
         assert d.best in ("leakage", "load_pressure") and d.best_candidate.rmse_reduction >= 0.7
         assert any({"leakage", "load_pressure"} == set(a.effects) for a in d.ambiguities)
-        assert d.best == effect      # the exact form still fits best
+        exact = min(d.candidates, key=lambda c: c.objective_rmse)
+        assert exact.effect == effect      # the exact form still fits best
+        if effect == "load_pressure":
+            # ... by 4 % of the error (2.01 vs 2.10 kgf), less than a law must cut to help (5 %):
+            # a tie, which goes to the one-parameter leak, the orifice law its equivalent
+            assert d.best == "leakage" and d.best_candidate.equivalents == ["load_pressure"]
+        else:
+            assert d.best == effect
     else:
         assert_found(d, effect)
 

@@ -100,7 +100,7 @@ def rank_candidates(cands: Sequence[Candidate], floor: float, n: int) -> list[Ca
     with a spare parameter). So a candidate with fewer parameters comes before the best-ranked
     one whenever the two are :func:`tied` (the criteria of :mod:`.significance`, ``n`` samples
     at the objective's noise floor ``floor``): the richer one does not help over it. Richer
-    candidates tied with a candidate are its :attr:`Candidate.equivalents`. Runs of candidates within
+    candidates tied with a candidate that helps are its :attr:`Candidate.equivalents`. Runs of candidates within
     :data:`BIC_TIE` of the first of the run are the data's tie (a dead zone and a play under
     square waves are the same model): they keep the catalogue's order, which lists the common
     valve effects first."""
@@ -126,7 +126,7 @@ def rank_candidates(cands: Sequence[Candidate], floor: float, n: int) -> list[Ca
                 break
             first = simpler
         first.equivalents = [c.effect for c in rest if c.free_params > first.free_params
-                             and tied(c, first, floor, n)]
+                             and tied(c, first, floor, n)] if first.helps else []
         out.append(first)
         rest = [c for c in rest if c is not first]
     return out

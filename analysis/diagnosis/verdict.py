@@ -370,9 +370,12 @@ def judging_floor(cands: Sequence[Candidate], base: StartFit, records: Sequence[
                   window_s: float) -> NoiseFloor:
     """Step 5: the noise floor to judge by. With correlated (coloured) measurement noise the
     white-noise floor from second differences is too low: if what the best model leaves is
-    noise-like — unrelated to the command, no periodic component — its level is the floor."""
+    noise-like — unrelated to the command, no periodic component — its level is the floor.
+    The best model is the one that leaves the least error, not the first ranked: a tie goes to
+    the simpler law, whose excess an equivalent may still remove."""
     floor = base.floor
-    top = cands[0] if cands and cands[0].improvement >= MIN_IMPROVEMENT else None
+    top = min((c for c in cands if c.improvement >= MIN_IMPROVEMENT),
+              key=lambda c: c.objective_rmse, default=None)
     ref_model = top.fit.model if top is not None else base.model
     ref_obj = top.objective_rmse if top is not None else base.objective_rmse
     if ref_obj > COLOURED_RATIO * floor and residual_is_noise(ref_model, records, window_s, floor):

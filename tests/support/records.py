@@ -6,6 +6,7 @@ import numpy as np
 
 from analysis.records import synthetic as S
 from analysis import make_record
+from plant import Dynamometer
 from tests.support import independent_stand as sim
 
 
@@ -22,6 +23,28 @@ def relay(model, seed=1, **kw):
 def pfeedback(model, seed=1, omegas=(0.6283, 1.5), **kw):
     """P feedback (gain 0.005) on a 2000 kgf sinusoidal reference at each of ``omegas`` rad/s."""
     return S.pfeedback(model, gain=0.005, amplitude_kgf=2000.0, omegas_rad_s=omegas, seed=seed, **kw)
+
+
+def held_at_limit(model, amplitudes_pct, limit_kgf: float, cycles: int, seed: int = 1,
+                  period_s: float = 4.0, dt: float = 0.002, noise_kgf: float = 2.0) -> list:
+    """Open-loop meanders (one record per amplitude, from zero force) on a stand whose force
+    cannot rise above ``limit_kgf`` (a relief valve): it stays there, the dynamometer's noise on
+    top, while the flow pushes, and leaves as the flow turns. For a ``model`` whose force rate
+    does not depend on the force (checked): the free run's increments, held at the limit."""
+    out = []
+    for i, a in enumerate(amplitudes_pct):
+        u = S.square_wave(a, period_s, cycles, dt)
+        step = np.diff(model.simulate(u, dt, u_before=0.0))
+        if not np.allclose(step, np.diff(model.simulate(u, dt, y0=limit_kgf, u_before=0.0))):
+            raise ValueError(f"{model.spec}: the force rate depends on the force")
+        y = np.empty(len(u))
+        y[0] = 0.0
+        for k, dy in enumerate(step):
+            y[k + 1] = min(y[k] + dy, limit_kgf)
+        reading, _ = Dynamometer(noise_kgf=noise_kgf, seed=1000 * seed + i).measure(y)
+        out.append(make_record(np.arange(len(u)) * dt, u, reading,
+                               source=f"meander {a:g} % held at {limit_kgf:g} kgf"))
+    return out
 
 
 def independent_records(effects: str, seed: int, fixed_phase: float | None = None) -> list:
