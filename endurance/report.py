@@ -24,6 +24,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from core.errors import StandError
+
 from .journal import Journal
 from .storage import read_turning_points, storage_estimate
 
@@ -113,6 +115,25 @@ def _duration(s: float) -> str:
 
 
 # -- status ------------------------------------------------------------------------------------------
+def status(journal: Journal, events: int = 10) -> dict:
+    """:meth:`Journal.status`, the next flight's type, block and position filled in from the
+    test file the journal keeps when that flight is not begun yet (the journal knows a flight
+    once begun; the sequence is the block's)."""
+    import tomllib
+
+    from .spectrum import Block, FlightSequence
+    s = journal.status(events=events)
+    f = s.get("flight")
+    if f and f.get("type") is None:
+        try:
+            block = tomllib.loads(journal.test_file or "")["block"]
+            slot = FlightSequence(Block(block["flights"], block.get("seed", 0))).slot(f["number"])
+            f.update(type=slot.flight_type, block=slot.block, position=slot.position)
+        except (tomllib.TOMLDecodeError, KeyError, TypeError, ValueError, StandError):
+            pass
+    return s
+
+
 def status_text(s: dict) -> str:
     """:meth:`Journal.status` in a few lines."""
     lines = [f"{s['name']}: {s['state']}" + (f" ({s['reason']})" if s.get("reason") else ""),

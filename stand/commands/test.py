@@ -173,9 +173,9 @@ def resume_main(args: argparse.Namespace) -> int:
 
 def status_main(args: argparse.Namespace) -> int:
     from endurance.journal import Journal
-    from endurance.report import status_text
+    from endurance.report import status, status_text
     with Journal.open(args.testdir) as journal:
-        s = journal.status(events=args.events)
+        s = status(journal, args.events)
     if args.json:
         json.dump(s, sys.stdout, indent=2)
         sys.stdout.write("\n")
