@@ -183,6 +183,25 @@ def test_a_stop_at_the_end_of_a_flight_an_inspection_and_an_alarm_end_the_sessio
 
 
 @pytest.mark.slow
+def test_a_stand_is_a_station_of_one_channel_its_flights_flown_the_same_way(tmp_path):
+    from tests.support.endurance import write_stand_test
+    test_file = write_stand_test(tmp_path / "t", flights=4, counts={"A": 1, "B": 1, "C": 2})
+    test_file.write_text(test_file.read_text().replace("rate_kgf_s = 2500.0", "rate_kgf_s = 6000.0"))
+    test = load_test_file(test_file)
+    result = fly(tmp_path / "T", test_file, OfflineStand(stand=True))
+    assert result.state == "finished" and result.flights_done == 4
+    assert "approach_deviation" not in result.loading            # one channel: no ratios
+    log = log_of(tmp_path / "T")
+    assert set(log["channel"]) == {"stand"}
+    cases = {t: ft.load_cases for t, ft in test.flight_types.items()}
+    for f in range(1, 5):
+        got = sorted(k for ff, k in zip(log["flight"], log["load_case"]) if ff == f)
+        assert got == list(range(cases[test.sequence.slot(f).flight_type])), f
+    with Journal.open(tmp_path / "T") as journal:
+        assert journal.integrity_check() == [] and set(journal.compensation("C")) == {"stand"}
+
+
+@pytest.mark.slow
 def test_what_is_refused_before_anything_moves(tmp_path):
     test_file = copy_short_test(tmp_path / "t")
     testdir = tmp_path / "T"

@@ -1,7 +1,7 @@
 """Endurance sessions offline: the flights of ``examples/test.toml`` played by the session's own
 player, planner and journal writer (endurance.run) on the emulator's coupled lockstep plant of
-the example rig (gateway.offline: the same plant, law and noise, no bus), and the test's copy
-where a test may edit it."""
+the example rig, or a stand's on the emulator's default stand (gateway.offline: the same plant,
+law and noise, no bus), and the test's copy where a test may edit it."""
 from __future__ import annotations
 
 import shutil
@@ -35,8 +35,14 @@ class OfflineStand:
     """The example rig's plant across sessions: each session starts from the forces the one
     before left (its commands in flight and the rods' state are not kept)."""
 
-    def __init__(self, seed: int = 1) -> None:
-        self.truth, self.noise = emulated_truth(ROOT / "examples" / "rig.toml")
+    def __init__(self, seed: int = 1, stand: bool = False) -> None:
+        if stand:                               # the emulator's default stand, 2 kgf noise
+            from plant import PlantModel
+            from plant.rig import RigModel
+            self.truth, self.noise = RigModel([PlantModel.from_spec("base+reversal")], np.array([[120.0]]),
+                                              ["stand"]), 2.0
+        else:
+            self.truth, self.noise = emulated_truth(ROOT / "examples" / "rig.toml")
         self.forces = np.zeros(self.truth.n)
         self.seed = seed
         self.runs: list = []
