@@ -361,6 +361,12 @@ class Journal:
             return int(self._db.execute("SELECT flights_done FROM state").fetchone()[0])
 
     @property
+    def test_file(self) -> str | None:
+        """The test file's text as the test was created with it."""
+        with self._mutex:
+            return self._db.execute("SELECT test_file FROM test").fetchone()[0]
+
+    @property
     def flights_target(self) -> int:
         with self._mutex:
             return int(self._db.execute("SELECT flights_target FROM test").fetchone()[0])

@@ -388,6 +388,12 @@ class SignalWindow:
             self.last_time_s = float(np.asarray(columns["sync_time"])[-1])
             self._queue.put(batch)
 
+    def poll(self) -> None:
+        """Hand the buffered rows over if they are due (a control loop calls this while it
+        waits for the stand, as :meth:`gateway.recorder.RunRecorder.poll`)."""
+        if time.monotonic() - self._last_flush >= self._flush_s:
+            self.flush()
+
     def flush(self) -> None:
         """Hand the buffered rows to the writer thread."""
         self._last_flush = time.monotonic()
@@ -657,7 +663,8 @@ class StorageEstimate:
             f"(+ {self.journal_block_end_points / mb:.1f} MB of a block's end points until compacted)",
             f"  rolling window  {self.rolling_window / mb:9.1f} MB (fixed)",
             f"  each event      {self.event_window / mb:9.1f} MB",
-            f"  the target      {self.total / 1e9:9.2f} GB without events",
+            f"  the target      {self.total / 1e9:9.2f} GB without events" if self.total >= 1e8 else
+            f"  the target      {self.total / 1e6:9.1f} MB without events",
         ])
 
 

@@ -46,6 +46,13 @@ Without trends the pre-roll comes from behind the first motion. The programme's 
 due a delay before it starts, go out during the pre-roll: a programme that starts at full rate
 (a sine) starts on time.
 
+**Passes back to back** (an endurance test's flights, :mod:`endurance.flights`): a pass made
+with ``unload=False`` ends at its programme's last sample, and one made with ``lead_in`` (the
+last samples of the pass before, in its place of the pre-roll) takes over from it without an
+approach (:meth:`LoadProgramme.begin_handover`: the way every rod last moved and the feedback's
+integral carried on). The lead-in covers the next programme's first commands, due a delay
+before it starts, as the pre-roll does.
+
 **The gain monitor** (``monitor``, :mod:`loading.gain_monitor`): every cycle of the programme
 feeds it every force and command; following, the feedforward is scaled by its factors; its
 alarm holds every valve (``hold``) or unloads every channel keeping the load ratios (``unload``:
@@ -63,6 +70,7 @@ and the time).
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 from typing import Any, Sequence
@@ -299,7 +307,8 @@ class LoadProgramme(RigExperiment):
                  settle_gain: float = 0.02, settle_limit_pct: float = 20.0,
                  settle_tolerance_kgf: float = 20.0, settle_max_s: float = 20.0,
                  guard_fraction: float = 0.95, monitor: GainMonitor | None = None,
-                 pacing: PacingOptions | None = None) -> None:
+                 pacing: PacingOptions | None = None, lead_in: np.ndarray | None = None,
+                 unload: bool = True) -> None:
         programme = as_programme(programme)
         if list(programme.names) != list(controller.names):
             raise ParameterError(f"the programme is for the channels {', '.join(programme.names)}, the "
@@ -319,11 +328,23 @@ class LoadProgramme(RigExperiment):
                           if compensation is not None else programme)
         model = controller.model
         self.trends = np.array([m.delta for m in model.channels])
-        pre = pre_roll(self.commanded, self.trends, settle_tolerance_kgf)
         R = self.commanded.r_kgf
-        peak = float(np.abs(np.array([p.rate_kgf_s() for p in programme.channels])).max()) or 1000.0
-        tail = haversine_line(R[:, -1], np.full(self.n, float(unload_kgf)), min(peak, 2500.0), T, False)
-        #: cycles of the main phase before the programme's start (the pre-roll)
+        if lead_in is None:
+            pre = pre_roll(self.commanded, self.trends, settle_tolerance_kgf)
+        else:
+            pre = np.asarray(lead_in, float)
+            if pre.ndim != 2 or pre.shape[0] != self.n or pre.shape[1] < 1 or not np.isfinite(pre).all():
+                raise ParameterError(f"lead_in: {self.n} channels of finite forces expected, got shape "
+                                     f"{pre.shape}")
+        if unload:
+            peak = float(np.abs(np.array([p.rate_kgf_s() for p in programme.channels])).max()) or 1000.0
+            tail = haversine_line(R[:, -1], np.full(self.n, float(unload_kgf)), min(peak, 2500.0), T, False)
+        else:
+            tail = np.zeros((self.n, 0))
+        #: with a lead-in: the pass takes over from one that ran to its first sample
+        #: (:meth:`begin_handover`), no approach and no pre-roll of its own
+        self.handover = lead_in is not None
+        #: cycles of the main phase before the programme's start (the pre-roll or the lead-in)
         self.lead = pre.shape[1]
         self.reference = np.concatenate([pre, R, tail], axis=1)
         self.unload_kgf = unload_kgf
@@ -491,10 +512,34 @@ class LoadProgramme(RigExperiment):
         if self.approach.done_at is not None:
             self._begin_main(0.0)
 
-    def _begin_main(self, t: float) -> None:
+    def fresh(self) -> "LoadProgramme":
+        """Another pass of the same programme with its own state, sharing what was computed
+        for it (the feedforward and the plans, read only): the same flight flown again."""
+        new = copy.copy(self)
+        new.law = copy.copy(self.law)
+        new.approach = copy.copy(self.approach)
+        new.main_start_s = None
+        new.abort, new.abort_channel = None, None
+        new.positions, new.clock = [], None
+        return new
+
+    def begin_handover(self, ways: Sequence[float], integral_pct: Sequence[float]) -> None:
+        """Begin at once, instead of :meth:`begin_rig`, where the pass before left off (this
+        one made with its last samples as ``lead_in``): every rod last moved ``ways`` (±1 per
+        channel: the plan of that way is taken) and the feedback's integral is ``integral_pct``
+        (carried on, so the hand-over is bumpless). No approach, no pre-roll."""
+        if not self.handover:
+            raise ParameterError("begin_handover: this pass has no lead_in to take over on")
+        self.abort = None
+        self.abort_channel = None
+        self.abort_action = "hold"
+        self._begin_main(0.0, np.where(np.asarray(ways, float) < 0, -1.0, 1.0))
+        self.law.reset(integral_pct)
+
+    def _begin_main(self, t: float, way: np.ndarray | None = None) -> None:
         self.main_start_s = t
         self.law.reset()
-        self.way = self.approach.way.copy()
+        self.way = (self.approach.way if way is None else way).copy()
         plans = [self.plans[float(w)][i] for i, w in enumerate(self.way)]
         self._u = np.array([p.u for p in plans])
         self._scale = np.array([p.scale for p in plans])

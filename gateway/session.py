@@ -284,9 +284,10 @@ class Gateway:
                                  f"{', '.join(self.rig.names)} (in that order)")
         return None
 
-    def run(self, experiment: Experiment | RigExperiment, out: str | Path, progress: bool | None = None,
-            on_progress: Callable[[float], None] | None = None,
-            reset_faults: bool = False, channels: Sequence[str] | None = None) -> RunResult:
+    def run(self, experiment: Experiment | RigExperiment, out: str | Path | None,
+            progress: bool | None = None, on_progress: Callable[[float], None] | None = None,
+            reset_faults: bool = False, channels: Sequence[str] | None = None,
+            recorder=None) -> RunResult:
         """Run one experiment and record it in the run directory ``out``.
 
         ``progress``: True/False forces the progress bar on/off; None shows it for runs of more
@@ -294,7 +295,11 @@ class Gateway:
         reset a fault the valve latched (:meth:`reset_faults`; run.json ``fault_reset``).
         ``channels``: a rig's channels the experiment drives (each its own copy of it); every
         other channel holds a zero command. A :class:`~gateway.experiments.rig.RigExperiment`
-        (N forces in, N commands out) drives every channel at once: no ``channels``."""
+        (N forces in, N commands out) drives every channel at once: no ``channels``.
+        ``recorder``: record the run with this object instead of a run directory (one with
+        :class:`RunRecorder`'s ``append_cycle``, ``poll``, ``close(**meta)`` and ``dir``: an
+        endurance test's rolling window, :mod:`endurance.run`); ``out`` is then not used and
+        no bus capture is written."""
         if self.loop is None:
             raise StandError("the gateway is not connected; use it as a context manager")
         if is_rig_experiment(experiment):
@@ -305,7 +310,9 @@ class Gateway:
             driven = [self.rig.names[i] for i in sorted(drivers)] if self.rig is not None else []
         fault_reset = self.reset_faults() if reset_faults else None
         batch_s = BATCH_LOCKSTEP_S if self.config.lockstep else BATCH_REALTIME_S
-        if self.rig is None:
+        if recorder is not None:
+            captures = []
+        elif self.rig is None:
             recorder = RunRecorder(out, self.metadata(experiment))
             captures = [BusCapture(recorder.capture_path, batch_s=batch_s)]
         else:
@@ -398,7 +405,7 @@ class Gateway:
         stats_dict = _stats_dict(stats)
         if self.rig is None:
             sup = loop.supervisor
-            frames: Any = captures[0].frames
+            frames: Any = captures[0].frames if captures else None
             emcy, events = list(sup.emcy_log), list(sup.events)
         else:
             frames = {b.name: c.frames for b, c in zip(self.rig.buses, captures)}

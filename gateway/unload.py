@@ -25,6 +25,14 @@ The deviation from the ratios is measured against the common scale the forces ac
 ``d_i(t) = y_i(t) − σ(t)·y_i(t0)``, zero while the forces keep the distribution of ``t0``,
 whatever their common lag. The largest ``|d_i|``, where and when, goes into run.json.
 
+**No reversal during the ramp.** Where the feedforward plans a flow, the feedback may slow the
+valve to a hold (0) but not turn it the other way: a channel ahead of its reference waits for it.
+A valve reversing at a small command meets the reversal boost of its plant (many times the
+steady gain): on the coupled example rig a channel with small planned flows (outer, tip) turned
+back and forth every 0.2 s, ±50-130 kgf, and the deviation from the ratios reached 1.2-2.6 % of a
+range from a stop in the middle of a flight (``tests/test_endurance_e2e.py``). After the ramp,
+and without G (no feedforward), the loop is free as before.
+
 Channels whose valve is already in its own safe state (or that cannot be read) are excluded:
 they hold, the others unload. For one channel this is the supervisor's unload
 (:class:`gateway.supervisor.Unloader`): the same reference, gain and ends, and the same record.
@@ -176,6 +184,8 @@ class RatioUnloader:
                 lim = self.limits[i]
                 ff = 0.0 if ramp_over else self.feedforward[i] * self._rate_share(self.t - self.period_s)
                 u = ff + self.gains[i] * (rs[i] - ys[i])
+                if not ramp_over and self.feedforward[i] * u < 0:
+                    u = 0.0            # the feedback slows the rod, never reverses it (docstring)
                 us[i] = max(-lim.unload_max_pct, min(lim.unload_max_pct, u))
         return us, rs
 

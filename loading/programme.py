@@ -508,6 +508,22 @@ class Programme:
         return Programme(self.names, [p.with_durations(durations_s, label) for p in self.channels],
                          True, label, self.case_labels)
 
+    def from_case(self, k: int) -> "Programme":
+        """The programme from load case ``k`` (0-based) on: its samples from there, on a clock
+        from 0 (an interrupted programme taken up again at a load case; load cases only)."""
+        self._load_cases_only()
+        idx = self.turning_idx
+        if not 0 <= k <= len(idx) - 2:
+            raise ParameterError(f"{self.source}: load case {k + 1}: a programme from there needs it "
+                                 f"and one more of its {len(idx)} load cases")
+        a = int(idx[k])
+        out = []
+        for p in self.channels:
+            out.append(ChannelProgramme(p.t_s[a:] - p.t_s[a], p.r_kgf[a:], idx[k:] - a, p.period_s, p.source,
+                                        p.rate_kgf_s()[a:], p.haversine))
+        labels = self.case_labels[k:] if self.case_labels is not None else None
+        return Programme(self.names, out, True, f"{self.source}, from load case {k + 1}", labels)
+
     def channel(self, name: str) -> ChannelProgramme:
         try:
             return self.channels[self.names.index(name)]
