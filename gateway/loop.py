@@ -422,6 +422,8 @@ class ControlLoop:
         one_driver = drive_list[0] if len(drive_list) == 1 else None
         final_action = "hold"
         all_channels = range(n)
+        #: a recorder that wants to hear of a trip as it happens (an endurance session's)
+        on_trip = getattr(recorder, "trip", None)
         self._drain()
         stats.late_frames = 0
         # Enable the valves with a zero command before the first SYNC.
@@ -614,6 +616,8 @@ class ControlLoop:
                     log.warning("cycle %d (t = %.3f s): %s%s: %s -> %s", cycle, t,
                                 f"channel {trip.channel}: " if trip.channel else "", trip.reason,
                                 trip.message, trip.action)
+                    if on_trip is not None:
+                        on_trip(trip)
                     excluded = self._excluded(trip)
                     action = self._rig_action(trip, excluded)
                     active = [i not in excluded for i in all_channels]
