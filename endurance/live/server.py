@@ -161,6 +161,10 @@ class Hub:
         return list(journal.channels) if journal is not None else []
 
     def greeting(self) -> list[bytes]:
+        """What a viewer gets first (module docstring); call it right before :meth:`join`."""
+        new = self.view.new_trends()                  # the flights done before it, at first
+        if new:
+            self.send(sse("trend", new))
         n = len(self.channels())
         ring = self.source.ring
         window = int(WINDOW_S * (self.source.hello or {}).get("sample_hz", 50.0))
@@ -303,10 +307,10 @@ class StreamHandler(_Handler):
         self.set_header("Content-Type", "text/event-stream")
         self.set_header("X-Accel-Buffering", "no")
         hub = self.hub
+        for message in hub.greeting():
+            self.write(message)
         q = self._queue = hub.join()
         try:
-            for message in hub.greeting():
-                self.write(message)
             await self.flush()
             while True:
                 message = await q.get()
