@@ -27,6 +27,7 @@ FIGURES = {
     "stepwise": ("one fit of",),
     "bus": ("frames/s", "round trips/s"),
     "bus_budget": ("% bus load",),
+    "live": ("live page: loop cycle, no page", "viewers against none", "stream updates a viewer got"),
     "crack": ("crack: intact", "runs with an alarm", "false alarms, thresholds for 1 in",
               "3 % at inner from flight 120", "name inner first"),
 }

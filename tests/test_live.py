@@ -21,6 +21,7 @@ from endurance.live.feed import LIVE_FILE, FeedClient, LiveFeed
 from endurance.live.operator import REFUSALS_PER_MINUTE, Operator, read_token_file, resume_command
 from endurance.live.ring import MARGIN, SampleRing
 from endurance.live.server import Address, LiveServer, serve_address
+from endurance.live.viewer import StreamViewer
 from endurance.report import status_json, status_of
 from tests.support.live import TOKEN, journal_of_flights, request, stand, token_file, wait_for
 
@@ -44,18 +45,21 @@ def test_a_ring_gives_each_reader_what_came_since_it_looked_and_the_newest_when_
 
 def test_a_session_feed_decimates_the_loop_and_serves_watchers_with_its_key_only(tmp_path):
     feed = LiveFeed(sample_hz=50.0)
-    feed.open(tmp_path, ["a", "b"], 0.002)             # every 10th cycle
+    feed.open(tmp_path, ["a", "b"], 0.002)
     info = json.loads((tmp_path / LIVE_FILE).read_text())
-    assert (tmp_path / LIVE_FILE).stat().st_mode & 0o777 == 0o600 and feed.every == 10
+    assert (tmp_path / LIVE_FILE).stat().st_mode & 0o777 == 0o600
     assert feed.hello == {"channels": ["a", "b"], "period_s": 0.002, "sample_hz": 50.0, "pid": info["pid"]}
     client = FeedClient(tmp_path).start()
     try:
         wait_for(lambda: client.hello, 10, "the watcher connected")
-        for k in range(200):                           # 200 cycles: 20 rows
+        for k in range(200):                           # 0.4 s of 2 ms cycles: a row every 20 ms
             feed.cycle(1000.0 + k * 0.002, [k, -k], [k + 1, -k - 1], [0.5, -0.5])
-        wait_for(lambda: client.ring.count >= 20, 10, "the rows at the watcher")
+        for k in range(20):                            # slow lockstep cycles of 7 ms: every 3rd
+            feed.cycle(1000.4 + k * 0.007, [k, -k], [k + 1, -k - 1], [0.5, -0.5])
+        wait_for(lambda: client.ring.count >= 27, 10, "the rows at the watcher")
         _, rows = client.ring.since(0)
-        assert rows[0] == (1000.0 + 9 * 0.002, 9, -9, 10, -10, 0.5, -0.5) and len(rows) == 20
+        assert rows[0] == (1000.0, 0, 0, 1, -1, 0.5, -0.5) and rows[1][1] == 10 and len(rows) == 20 + 7
+        assert [r[1] for r in rows[20:]] == [0, 3, 6, 9, 12, 15, 18]
         # a connection without the key gets nothing and is closed
         with socket.create_connection(("127.0.0.1", info["port"]), timeout=5) as sock:
             sock.sendall(b"not-the-key\n")
@@ -227,9 +231,8 @@ def test_the_page_and_its_assets_come_from_the_server_alone(page):
 
 
 def test_the_stream_greets_a_viewer_with_the_page_status_events_and_trends(page):
-    from tests.support.live import StreamReader
     url, testdir = page(TOKEN)
-    reader = StreamReader(url)
+    reader = StreamViewer(url)
     try:
         wait_for(lambda: reader.of("trend"), 10, "the greeting")
         (_, info), = reader.of("page")
@@ -267,3 +270,15 @@ def test_the_command_line_says_what_is_wrong_with_a_live_option(tmp_path):
         res = stand("test", "watch", testdir, "--serve", f"127.0.0.1:{port}")
     assert res.returncode == 2 and f"--serve 127.0.0.1:{port}: cannot listen there" in res.stderr
     assert not (tmp_path / "X").exists()
+
+
+def test_every_file_the_page_loads_ships_in_the_package():
+    """pyproject's package-data for endurance.live covers every file under static/ (an asset of a
+    new kind would be left out of an install, and the page would break only there)."""
+    import tomllib
+    from pathlib import PurePosixPath
+    root = Path(__file__).resolve().parents[1]
+    globs = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["endurance.live"]
+    static = root / "endurance" / "live"
+    files = [str(p.relative_to(static)) for p in (static / "static").rglob("*") if p.is_file()]
+    assert files and all(any(PurePosixPath(f).match(g) for g in globs) for f in files), files

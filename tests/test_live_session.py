@@ -15,8 +15,8 @@ import pytest
 
 from endurance.journal import Journal, lock_holder
 from tests.support.endurance_run import copy_short_test
-from tests.support.live import (GATEWAY, TOKEN, StreamReader, flights_done, request, serving, stand, token_file,
-                                wait_for)
+from endurance.live.viewer import StreamViewer
+from tests.support.live import GATEWAY, TOKEN, flights_done, request, serving, stand, token_file, wait_for
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -32,12 +32,10 @@ def test_a_page_served_by_the_running_session(tmp_path, start_rig_emulator):
     try:
         assert url.startswith("http://127.0.0.1:")
         wait_for(lambda: flights_done(testdir) >= 1, 120, "a flight counted")
-        reader = StreamReader(url)
+        reader = StreamViewer(url)
         time.sleep(4.0)
         samples = reader.of("samples")[1:]                     # the first: the window so far
-        arrivals = np.array([t for t, _ in samples])
-        recent = arrivals[arrivals >= arrivals[-1] - 3.0]
-        rate = (len(recent) - 1) / (recent[-1] - recent[0])
+        rate = reader.updates_per_s(last_s=3.0)
         assert rate >= 10.0, rate
         (_, page), = reader.of("page")
         assert page["channels"] == ["root", "inner", "outer", "tip"] and page["kind"] == "session"

@@ -11,6 +11,7 @@ watch``; docs/endurance.md, the live page).
     operator.py  the token, and the operator's actions (pause, stop, resume) as the CLI takes them
     server.py    the HTTP server (tornado, on a thread of its own): the page, /status.json, the
                  stream (server-sent events), the actions
+    viewer.py    a viewer of the stream without a browser (scripts, the benchmark, the tests)
     static/      the page, its script and style, and uPlot (vendored: the page loads nothing
                  from elsewhere)
 

@@ -2,7 +2,7 @@ r"""The live stream a running session publishes, and the watcher's end of it.
 
 Test process::
 
-    control loop ──cycle()──▶ LiveFeed: every k-th cycle (SAMPLE_HZ) a row into a SampleRing
+    control loop ──cycle()──▶ LiveFeed: a cycle every 1/SAMPLE_HZ s a row into a SampleRing
                                  │ (a store and a count: never a wait)
                                  ├──▶ the page's server in this process (``--serve``) reads the ring
                                  └──▶ feed thread: TCP on 127.0.0.1, port and key in TESTDIR/live.json
@@ -37,8 +37,11 @@ from typing import Any
 from .ring import SampleRing
 
 LIVE_FILE = "live.json"
-#: rows per second the live view gets (the loop's cycles decimated to it)
+#: rows per second the live view gets (the loop's cycles decimated to it on the wall clock: in
+#: lockstep a cycle may take longer than its period)
 SAMPLE_HZ = 50.0
+#: a cycle this share of a row's interval after the last row makes the next (float round-off)
+_EARLY = 0.95
 #: seconds of rows the rings keep (the page shows 30)
 RING_S = 64.0
 #: how often the feed thread sends what came
@@ -62,19 +65,18 @@ class LiveFeed:
         self.ring = ring_for(sample_hz)
         self.channels: list[str] = []
         self.period_s: float | None = None
-        self.every = 1
-        self._left = 1
+        self._next = -float("inf")
+        self._interval_s = _EARLY / self.sample_hz
         self._thread: _FeedThread | None = None
         #: the session's channels, sample rate and pid while it runs, else None
         self.hello: dict | None = None
 
     # -- the control loop's --------------------------------------------------------------------------
     def cycle(self, sync_time: float, forces, references, commands) -> None:
-        """One cycle: every ``every``-th goes into the ring (module docstring)."""
-        self._left -= 1
-        if self._left:
+        """One cycle: a row into the ring if it is due (module docstring)."""
+        if sync_time < self._next:
             return
-        self._left = self.every
+        self._next = sync_time + self._interval_s
         self.ring.put((sync_time, *forces, *references, *commands))
 
     # -- the session's --------------------------------------------------------------------------------
@@ -83,8 +85,7 @@ class LiveFeed:
         ``TESTDIR/live.json`` names its port and key."""
         self.channels = list(channels)
         self.period_s = float(period_s)
-        self.every = self._left = max(1, round(1.0 / (self.sample_hz * period_s)))
-        hello = {"channels": self.channels, "period_s": self.period_s, "sample_hz": 1.0 / (self.every * period_s),
+        hello = {"channels": self.channels, "period_s": self.period_s, "sample_hz": self.sample_hz,
                  "pid": os.getpid()}
         self._thread = _FeedThread(Path(testdir), self.ring, hello)
         self._thread.start()

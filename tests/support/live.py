@@ -6,10 +6,8 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import threading
 import time
 import urllib.error
-import urllib.parse
 import urllib.request
 from pathlib import Path
 
@@ -87,45 +85,6 @@ def request(url: str, method: str = "GET", headers: dict | None = None,
     except urllib.error.HTTPError as exc:
         return exc.code, dict(exc.headers), exc.read()
 
-
-class StreamReader:
-    """The page's stream (``GET /live``) read on a thread, as a browser would: every message
-    with its arrival time, ``(time, event, data)``. HTTP/1.0, so the body is the stream itself
-    (no chunks), read off a plain socket that :meth:`close` shuts down under the reader."""
-
-    def __init__(self, url: str) -> None:
-        import socket
-        self.messages: list[tuple[float, str, object]] = []
-        host, port = urllib.parse.urlsplit(url).hostname, urllib.parse.urlsplit(url).port
-        self._sock = socket.create_connection((host, port), timeout=30)
-        self._sock.sendall(f"GET /live HTTP/1.0\r\nHost: {host}:{port}\r\n\r\n".encode())
-        self._thread = threading.Thread(target=self._read, daemon=True)
-        self._thread.start()
-
-    def _read(self) -> None:
-        event = None
-        try:
-            with self._sock.makefile("rb") as stream:
-                for raw in stream:
-                    line = raw.decode().rstrip("\r\n")
-                    if line.startswith("event: "):
-                        event = line[7:]
-                    elif line.startswith("data: "):
-                        self.messages.append((time.time(), event, json.loads(line[6:])))
-        except (OSError, ValueError):
-            pass
-
-    def of(self, event: str) -> list[tuple[float, object]]:
-        return [(t, d) for t, e, d in list(self.messages) if e == event]
-
-    def close(self) -> None:
-        import socket
-        try:
-            self._sock.shutdown(socket.SHUT_RDWR)
-        except OSError:
-            pass
-        self._thread.join(timeout=10)
-        self._sock.close()
 
 def journal_of_flights(testdir: Path, flights: int = 3, target: int = 10, channels=("root", "inner")) -> Path:
     """A test directory whose journal holds ``flights`` flights of three load cases (ground,
