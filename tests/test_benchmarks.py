@@ -5,7 +5,9 @@ figures that do not depend on the host's speed (accuracies, lockstep runs, ident
 plausible."""
 from __future__ import annotations
 
+import os
 import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -202,13 +204,29 @@ def test_every_benchmark_has_its_smoke_run():
     assert set(ROWS) == set(PLAUSIBLE) == set(discover())
 
 
+def run_quick(name: str, timeout_s: float) -> subprocess.CompletedProcess:
+    """``scripts/bench --quick NAME`` in a session of its own: past ``timeout_s`` the whole
+    session is killed (a benchmark's emulator and ``stand`` processes too, which a killed
+    runner left running: one stayed 34 minutes in a CI run, taking a core from the suite)."""
+    proc = subprocess.Popen([sys.executable, "-m", "benchmarks.runner", "--quick", name], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        out, err = proc.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        out, err = proc.communicate()
+        pytest.fail(f"scripts/bench --quick {name} still running after {timeout_s:g} s: "
+                    f"{out[-2000:]}{err[-2000:]}")
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+
+
 # one test per benchmark, so the test processes share them out (together they took 14 min in
 # one process of a CI run)
 @pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(discover()))
 def test_the_benchmark_runs_in_quick_mode_and_prints_its_rows(name):
-    res = subprocess.run([sys.executable, "-m", "benchmarks.runner", "--quick", name], cwd=ROOT,
-                         capture_output=True, text=True, timeout=850)
+    res = run_quick(name, timeout_s=850)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     table = res.stdout
     assert f"running {name}" in res.stderr
