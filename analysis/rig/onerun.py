@@ -276,3 +276,75 @@ def _too_short(names: list[str], i: int, coupled: np.ndarray, taus: np.ndarray,
             f"--transitional-ms {math.ceil((w[0] if w is not None else guards[j] / GUARD_FACTOR) * 1e3):d}"
             f" gives slots of at least {need:.3g} s), or shorten the guard with --guard-ms (the "
             "boost left in the stretches then biases G up)")
+
+
+# ------------------------------------------------------------------------------------------
+# the plan
+# ------------------------------------------------------------------------------------------
+#: the transitional window the plan assumes when not told, s (the paper's: the emulator's
+#: default boost, decaying in 0.15 s, adds 90 % of its force within 0.345 s)
+TRANSITIONAL_S = 0.35
+
+
+def left_out_s(transitional_s: float) -> float:
+    """What this estimate leaves out of every slot (s): the guard after the reversals
+    (:data:`.estimate.GUARD_FACTOR` windows), the delays' spread the plan allows
+    (:data:`rig.excitation.DELAY_SPREAD_S`) and the margins either side."""
+    from rig.excitation import DELAY_SPREAD_S
+    return GUARD_FACTOR * transitional_s + DELAY_SPREAD_S + 2 * MARGIN_S
+
+
+def plan_for_rig(rig, amplitude_pct: float, accuracy_pct: float | None,
+                 transitional_s: float = TRANSITIONAL_S, noise_kgf: float = 2.0,
+                 duration_s: float | None = None, level: float = 0.95):
+    """The one-run design for a rig file (:func:`rig.excitation.plan_one_run`): its channels,
+    the smallest diagonal entry of its G (None without G: the accuracy is not planned, and a
+    ``duration_s`` is then needed), the slot that leaves a steady stretch after this
+    estimate's guard. :class:`ParameterError` with what to do when it does not fit."""
+    from core.errors import ParameterError
+    from rig.excitation import plan_one_run
+    for what, value, lo, hi in (("--accuracy-pct", accuracy_pct, 1e-3, 100.0),
+                                ("--transitional-ms", transitional_s * 1e3, 0.0, 5000.0),
+                                ("--noise-kgf", noise_kgf, 0.0, 1e4),
+                                ("--amplitude-pct", amplitude_pct, 1e-3, 100.0)):
+        if value is not None and not (lo < value <= hi if what != "--transitional-ms"
+                                      else lo <= value <= hi):
+            raise ParameterError(f"{what} {value:g} is out of range: give more than {lo:g}, up "
+                                 f"to {hi:g}")
+    if duration_s is not None and not (0 < duration_s <= 36000):
+        raise ParameterError(f"--duration-s {duration_s:g} is out of range: give more than 0, up to 36000")
+    g = None
+    if rig.G is not None:
+        g = float(np.min(np.diag(np.asarray(rig.G, float))))
+    elif duration_s is None:
+        raise ParameterError(f"{rig.where}: the rig file gives no G ([structure]), so the plan "
+                             "cannot say how long the run must be for an accuracy (it needs each "
+                             "channel's g): give --duration-s S (the run is then as long, its "
+                             "accuracy unplanned), or G in the rig file")
+    try:
+        return plan_one_run(len(rig.names), amplitude_pct, rig.period_s, left_out_s(transitional_s),
+                            noise_kgf, g, accuracy_pct, duration_s, level)
+    except ValueError as exc:
+        raise ParameterError(str(exc)) from None
+
+
+def describe_design(design, transitional_s: float) -> str:
+    """The plan in words, before anything moves."""
+    d = design
+    amps = (f"±{d.amplitude_pct[0]:g} %" if len(set(d.amplitude_pct)) == 1
+            else f"±{min(d.amplitude_pct):g} to {max(d.amplitude_pct):g} %")
+    head = (f"one run of Hadamard meanders: {d.channels} channel(s) on {d.slots} slots of "
+            f"{d.slot_s:.4g} s (order {d.order} as doublets"
+            f"{f', {d.repeats} times' if d.repeats > 1 else ''}) = {d.duration_s:.4g} s of stand "
+            f"time at {amps}")
+    if math.isfinite(d.planned_pct):
+        what = (f"planned: every entry of G within ±{d.planned_pct:.2g} % of the smallest "
+                f"diagonal ({d.smallest_g:.4g} kgf/(%·s)), all {d.channels ** 2} at once at "
+                f"{100 * d.level:.0f} %")
+        if d.requested_pct is not None:
+            what += f" (asked: ±{d.requested_pct:g} %)"
+    else:
+        what = "accuracy not planned (the rig file gives no G)"
+    return (f"{head}\n  {what}; for {d.noise_kgf:g} kgf of noise and transitional windows up to "
+            f"{transitional_s * 1e3:.0f} ms ({d.left_out_s:.3g} s left out after each slot's "
+            f"reversals, {d.steady_s:.3g} s steady)")
