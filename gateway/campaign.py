@@ -313,7 +313,7 @@ class GPlan:
         if self.one_run is not None:      # JSON has no NaN (an accuracy not planned)
             out["one_run"] = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                               for k, v in out["one_run"].items()}
-            out["one_run"]["duration_s"] = self.one_run.duration_s
+            out["one_run"].update(slots=self.one_run.slots, duration_s=self.one_run.duration_s)
         return out
 
 

@@ -171,16 +171,22 @@ class OneRunDesign:
         return hadamard_signs(self.channels, self.repeats)
 
 
-def _half_width_pct(steady_s: float, slots: int, unknowns: int, amplitude_pct: float,
-                    noise_kgf: float, smallest_g: float, dt: float, level: float) -> float:
-    """The planned half-width (% of ``smallest_g``) of every entry at once: each entry's
-    standard error ``σ / (u0·√(Σ_p Σ_k (t_k − t̄_p)²))`` with one stretch of ``steady_s`` per
-    slot (the orthogonal design: as if the channel had moved alone), Student t with ``slots −
-    unknowns`` degrees of freedom at the Bonferroni level over the ``(unknowns − 1)²``
-    entries."""
+def standard_error(steady_s: float, slots: int, amplitude_pct: float, noise_kgf: float,
+                   dt: float) -> float:
+    """Each entry of G's standard error (kgf/(%·s)) from one steady stretch of ``steady_s`` per
+    slot with white noise ``noise_kgf``: ``σ / (u0·√(Σ_p Σ_k (t_k − t̄_p)²))`` (the orthogonal
+    design: as if the channel had moved alone for every slot)."""
     n = max(2, int(steady_s / dt))
     weight = dt * dt * n * (n * n - 1) / 12.0
-    se = noise_kgf / (amplitude_pct * math.sqrt(slots * weight))
+    return noise_kgf / (amplitude_pct * math.sqrt(slots * weight))
+
+
+def _half_width_pct(steady_s: float, slots: int, unknowns: int, amplitude_pct: float,
+                    noise_kgf: float, smallest_g: float, dt: float, level: float) -> float:
+    """The planned half-width (% of ``smallest_g``) of every entry at once: the
+    :func:`standard_error` times Student t with ``slots − unknowns`` degrees of freedom at the
+    Bonferroni level over the ``(unknowns − 1)²`` entries."""
+    se = standard_error(steady_s, slots, amplitude_pct, noise_kgf, dt)
     entries = (unknowns - 1) ** 2
     t = stats.t.ppf(1 - (1 - level) / (2 * entries), slots - unknowns)
     return 100.0 * t * se / smallest_g
