@@ -21,7 +21,7 @@ Rows, each structure:
 * **one run over seeds** (synthetic runs of the same plant, :mod:`analysis.rig.synthetic`, the
   design the plan gives): the share of all entries inside their 95 % intervals, the largest
   error over the seeds;
-* **multisine** (the last structure): random-phase multisines on interleaved frequency grids,
+* **multisine**: random-phase multisines on interleaved frequency grids,
   G by least squares with τ known, with and without the reversal boosts: why the one-run
   excitation is a meander;
 * **per column** (16 runs, each a ±5 % meander of 8 s, 4 periods: 512 s) and **simultaneous**
@@ -138,7 +138,8 @@ def through_gateway(rig, root: Path) -> dict:
                        "--out", out)
     camp = json.loads((out / "rig-campaign.json").read_text())
     doc, est_s = stand("estimate", out, "--json")
-    return {"plan": text.splitlines()[1].strip(), "stand_s": camp["stand_s"],
+    plan = text.splitlines()[1].strip().rsplit(" -> ", 1)[0].removeprefix("planned: ")
+    return {"plan": plan, "stand_s": camp["stand_s"],
             "wall_s": camp["wall_s"], "campaign_s": wall, "estimate": json.loads(doc),
             "estimate_s": est_s}
 
@@ -220,7 +221,7 @@ def run(quick: bool) -> list[Row]:
                 f"τ within {tau:.2g} ms; physical check: "
                 f"{'physical' if doc['physical']['physical'] else 'not physical'}; campaign "
                 f"{g['wall_s']:.0f} s wall (lockstep, {g['stand_s'] / g['wall_s']:.1f}x real time), "
-                f"estimate {g['estimate_s']:.1f} s; plan: {g['plan']}"))
+                f"estimate {g['estimate_s']:.1f} s; planned: {g['plan']}"))
         seeds = [1] if quick else list(range(1, 13))
         one = over_seeds(lambda s: [rig_one_run(model, AMPLITUDE_PCT, design.slot_s,
                                                 design.repeats, seed=1000 * s)], rig, seeds)
@@ -232,6 +233,17 @@ def run(quick: bool) -> list[Row]:
                                                            seed=100 * s), rig, cols)
             rows.append(_seeds_row(f"per column ({n} runs of {cycles} × {period:g} s)", label,
                                    n * period * cycles, res))
+        rel = {b: multisine_errors(model, 60.0, AMPLITUDE_PCT, b) for b in (True, False)}
+        off = ~np.eye(n, dtype=bool)
+        rows.append(Row(f"rig G, {label}, multisine (60 s, interleaved grids below 1 Hz), synthetic",
+                        f"diagonal {100 * np.mean(np.diag(rel[True])):+.3g} % on average, up to "
+                        f"{100 * np.max(np.abs(np.diag(rel[True]))):.3g} %",
+                        "without the reversal boost: "
+                        f"{100 * np.max(np.abs(rel[False])):.2g} %", "",
+                        f"off-diagonal up to {100 * np.max(np.abs(rel[True][off])):.3g} % of the "
+                        "diagonal; least squares of each force on the integrated commands delayed "
+                        "by their true τ: each zero crossing of a command reverses its valve, and "
+                        "its boost counts as gain"))
         shortest = 12.0 if quick else 131.072
         periods = separating_periods(n, shortest)
         duration = (90.0 if quick else 8 * shortest)
@@ -244,17 +256,6 @@ def run(quick: bool) -> list[Row]:
                          rig, [1])
         rows.append(_seeds_row(f"simultaneous ({periods[0]:g}-{periods[-1]:g} s, ±{amp:g} %, "
                                f"planned VIF {vif:.2g})", label, duration, res))
-    rel = {b: multisine_errors(model, 60.0, AMPLITUDE_PCT, b) for b in (True, False)}
-    off = ~np.eye(n, dtype=bool)
-    rows.append(Row(f"rig G, {label}, multisine (60 s, interleaved grids below 1 Hz), synthetic",
-                    f"diagonal {100 * np.mean(np.diag(rel[True])):+.3g} % on average, up to "
-                    f"{100 * np.max(np.abs(np.diag(rel[True]))):.3g} %",
-                    "without the reversal boost: "
-                    f"{100 * np.max(np.abs(rel[False])):.2g} %", "",
-                    f"off-diagonal up to {100 * np.max(np.abs(rel[True][off])):.3g} % of the "
-                    "diagonal; least squares of each force on the integrated commands delayed "
-                    "by their true τ: each zero crossing of a command reverses its valve, and "
-                    "its boost counts as gain"))
     rows.append(Row("rig G from one run: the plan", describe_design(design, TRANSITIONAL_S)
                     .splitlines()[0], "", "", describe_design(design, TRANSITIONAL_S)
                     .splitlines()[1].strip()))

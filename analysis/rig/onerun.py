@@ -171,9 +171,10 @@ def _fit(records: list[RigRecord], grids: list[np.ndarray], taus: np.ndarray,
     N = len(names)
     fitted = np.ones(N + 1, bool)
     fits, inflation = [], np.full(N + 1, np.nan)
+    uds = [np.vstack([delayed(rec.u[j], rec.dt, taus[j]) for j in range(N)]) for rec in records]
     for i in range(N):
         X, parts = [], []
-        for rec, grid in zip(records, grids):
+        for rec, grid, ud in zip(records, grids, uds):
             dt, K = rec.dt, len(rec)
             y = rec.y[i]
             ok = open_loop(rec) & ~clipped_mask(y) & ~held_mask(rec.u[i], y, dt)
@@ -183,7 +184,6 @@ def _fit(records: list[RigRecord], grids: list[np.ndarray], taus: np.ndarray,
                 window[min(K, b + int(np.ceil(starts[i] / dt))):min(K, e)] = True
             spans = stretches(ok & window, max(3, int(round(MIN_STRETCH_S / dt))))
             parts.append(stretch_slopes(rec.t, y, spans))
-            ud = np.vstack([delayed(rec.u[j], dt, taus[j]) for j in range(N)])
             X += [np.append(ud[:, (a + b) // 2], 1.0) for a, b in spans]
         sl = Slopes(*(np.concatenate([getattr(p, f) for p in parts])
                       for f in ("slope", "weight", "sse", "samples")))
