@@ -240,6 +240,9 @@ def test_the_one_run_campaign_is_refused_before_anything_opens(tmp_path, capsys)
     rc = main(["campaign", "--one-run", "--out", str(out)])
     assert rc == 2 and "give --rig RIG.toml too" in capsys.readouterr().err
     assert not out.exists()
+    from rig.excitation import EXCITATIONS
+    from stand.commands import campaign
+    assert campaign.EXCITATIONS == EXCITATIONS        # --help names them without the numerics
 
 
 @pytest.mark.e2e

@@ -66,8 +66,9 @@ def register(sub) -> None:
                    help="run the rig's identification through the rig gateway against the rig "
                         "on the file's buses (e.g. stand emulate --rig RIG.toml --lockstep): one "
                         "meander run per channel, the others at a zero command (a column of G "
-                        "each), or with --simultaneous one run, every channel a meander of its "
-                        "own period; the runs go to OUT/NN-LABEL for stand estimate OUT --save")
+                        "each), with --simultaneous one run, every channel a meander of its "
+                        "own period, or with --one-run one short run of Hadamard meanders; the "
+                        "runs go to OUT/NN-LABEL for stand estimate OUT --save")
     g.add_argument("--simultaneous", action="store_true",
                    help="with --rig: every channel at once, the periods from --meander-period-s "
                         "up (analysis.rig.periods.separating_periods)")
