@@ -41,9 +41,6 @@ from scipy import stats
 
 #: the excitations the one-run design offers (docs/rig.md, "G from one short run")
 EXCITATIONS = ("hadamard",)
-#: the name a one-run campaign's run gives its experiment (run.json), by which the estimate
-#: knows it
-EXPERIMENT = "one-run"
 #: the largest Hadamard order built (a rig of more channels than this is refused)
 MAX_ORDER = 256
 

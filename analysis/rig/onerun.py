@@ -3,8 +3,8 @@ r"""G from one short run: every channel's valve a Hadamard meander on one switch
 The experiment (:mod:`rig.excitation`; ``stand campaign --rig RIG --one-run``): channel j's
 command is ``±u0_j`` with the signs of row j of a Hadamard matrix played as doublets, every
 channel switching at the same instants ``b_k``, one slot ``L`` apart. Its run names the
-experiment :data:`rig.excitation.EXPERIMENT` in ``run.json``; :func:`.estimate.estimate_rig`
-hands such runs here. The model and the regression are the other designs' (eq. (2'),
+experiment (:attr:`gateway.experiments.one_run.OneRun.name`) in ``run.json``;
+:func:`.estimate.estimate_rig` hands such runs here. The model and the regression are the other designs' (eq. (2'),
 :mod:`.steady`, :mod:`.regression`); what the common grid changes is where the steady
 stretches are and how the reversal boosts are told apart:
 
@@ -43,7 +43,7 @@ from typing import Sequence
 import numpy as np
 
 from core.errors import DataError
-from rig.excitation import EXPERIMENT
+from gateway.experiments.one_run import OneRun
 
 from ..records.limits import clipped_mask, held_mask
 from .delays import ChannelTiming, channel_timing
@@ -61,7 +61,7 @@ FIRST_SHARE = 0.6
 
 def is_one_run(rec: RigRecord) -> bool:
     """Whether a rig record is a one-run campaign's run (its run.json names the experiment)."""
-    return (rec.meta.get("experiment") or {}).get("name") == EXPERIMENT
+    return (rec.meta.get("experiment") or {}).get("name") == OneRun.name
 
 
 def slot_grid(rec: RigRecord) -> np.ndarray:

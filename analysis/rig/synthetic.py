@@ -16,7 +16,7 @@ import numpy as np
 
 from plant import Dynamometer
 from plant.rig import RigModel
-from rig.excitation import EXPERIMENT, hadamard_order, hadamard_signs
+from rig.excitation import hadamard_order, hadamard_signs
 
 from .record import RigRecord, make_rig_record
 
@@ -82,7 +82,8 @@ def rig_one_run(rig: RigModel, amplitude_pct: float | Sequence[float], slot_s: f
               "order": hadamard_order(rig.n), "slots": int(signs.shape[1]),
               "amplitude_pct": dict(zip(rig.names, map(float, amps)))}
     label = source or f"synthetic one-run rig excitation ({rig.n} channels, slots of {slot_s:g} s)"
-    return _measured(rig, u, dt, EXPERIMENT, params, label, noise_kgf, resolution_kgf,
+    from gateway.experiments.one_run import OneRun
+    return _measured(rig, u, dt, OneRun.name, params, label, noise_kgf, resolution_kgf,
                      range_kgf, seed, y0_kgf, u_before_pct)
 
 

@@ -13,8 +13,6 @@ from __future__ import annotations
 import math
 from typing import Any, Sequence
 
-from rig.excitation import EXPERIMENT, hadamard_order, hadamard_signs
-
 from .base import check_range
 from .phases import ForceGuard
 from .rig import RigExperiment
@@ -24,10 +22,12 @@ class OneRun(RigExperiment):
     """The Hadamard meanders of ``names`` (module docstring): channel i at ``±amplitudes_pct[i]``
     (one number: every channel), slots of ``slot_s``, the pattern ``repeats`` times."""
 
-    name = EXPERIMENT
+    #: run.json's experiment name, by which the estimate knows the run (analysis.rig.onerun)
+    name = "one-run"
 
     def __init__(self, names: Sequence[str], amplitudes_pct: float | Sequence[float],
                  slot_s: float, repeats: int = 1, guard_fraction: float = 0.9) -> None:
+        from rig.excitation import hadamard_order, hadamard_signs   # numerics: not for --help
         self.names = list(names)
         n = len(self.names)
         if n < 1:
@@ -39,6 +39,7 @@ class OneRun(RigExperiment):
         self.slot_s = check_range("slot_s", slot_s, 0.02, 600.0, "s")
         self.repeats = check_range("repeats", repeats, 1, 1000, integer=True)
         self.signs = hadamard_signs(n, self.repeats)
+        self.order = hadamard_order(n)
         self.max_command_pct = max(self.amplitudes_pct)
         self.guards = [ForceGuard(guard_fraction) for _ in range(n)]
         self._per_slot = 1
@@ -49,7 +50,7 @@ class OneRun(RigExperiment):
         return self.signs.shape[1] * self.slot_s
 
     def params(self) -> dict[str, Any]:
-        return {"excitation": "hadamard", "order": hadamard_order(len(self.names)),
+        return {"excitation": "hadamard", "order": self.order,
                 "slot_s": self.slot_s, "repeats": self.repeats, "slots": int(self.signs.shape[1]),
                 "amplitude_pct": dict(zip(self.names, self.amplitudes_pct)),
                 "guard_fraction": self.guards[0].fraction}
