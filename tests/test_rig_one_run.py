@@ -15,6 +15,7 @@ import pytest
 from analysis.rig.estimate import GUARD_FACTOR, estimate_rig
 from analysis.rig.load import load_rig_inputs
 from analysis.rig.onerun import left_out_s, plan_for_rig
+from analysis.rig.result import starting_models
 from analysis.rig.synthetic import per_column_meanders, rig_one_run, rig_truth, write_rig_run
 from benchmarks.rig_one_run import rig_config, truth_model
 from core.errors import DataError, ParameterError
@@ -143,6 +144,9 @@ def test_one_run_recovers_G_with_intervals_holding_the_truth_over_seeds(four, ki
         np.testing.assert_allclose(est.tau_s, taus_of(rig), atol=0.0015)
         np.testing.assert_allclose(est.transitional_s, windows_of(rig), atol=0.03)
         assert all(est.transitional_detected)
+        start = starting_models(est)             # the boosts, for stand estimate --save
+        np.testing.assert_allclose([m.params()["reversal.boost"] for m in start.channels],
+                                   [m.params()["reversal.boost"] for m in rig.channels], rtol=0.1)
     assert worst < 0.01                               # 1 % of the diagonal (0.3-0.4 % measured)
     # 128 entries at 95 %: 121.6 expected, fewer than 113 happens once in 500
     assert inside >= 113, inside

@@ -32,6 +32,9 @@ stretches are and how the reversal boosts are told apart:
    instant gives every ``β_j(θ)`` (the reversal patterns are the Hadamard rows: orthogonal);
    channel j's transitional window is where ``β_j`` reaches 90 % of its final value, counted
    from its rod's reversal (``τ_j`` after the command's), its boost's extra that final value.
+   The run's first instant is left out: whether the rods reversed there depends on the way they
+   moved before (the stretches treat it as a reversal, to be safe; counted here it put the
+   boosts 10 % low).
    The guard after channel j's reversals is :data:`.estimate.GUARD_FACTOR` windows, as in the
    other designs.
 """
@@ -226,7 +229,7 @@ def boost_curves(records: list[RigRecord], grids: list[np.ndarray], G: np.ndarra
             e, rev = command_events(u[j])
             reversed_at[j, e[rev]] = True
         bad = ~open_loop(rec)[None, :] | np.vstack([clipped_mask(y[i]) for i in range(N)])
-        for b in grid:
+        for b in grid[1:]:      # the first: the rods' way before the run is unknown
             if b + slot > K or not reversed_at[:, b].any():
                 continue
             rev = reversed_at[:, b]
