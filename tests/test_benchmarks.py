@@ -34,6 +34,8 @@ FIGURES = {
     "bus": ("frames/s", "round trips/s"),
     "bus_budget": ("% bus load",),
     "live": ("live page: loop cycle, no page", "viewers against none", "stream updates a viewer got"),
+    "rig_one_run": ("one run", "per column", "simultaneous", "multisine", "inside their 95 % intervals",
+                    "the plan"),
     "crack": ("crack: intact", "runs with an alarm", "false alarms, thresholds for 1 in",
               "3 % at inner from flight 120", "name inner first"),
 }
