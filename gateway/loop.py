@@ -207,6 +207,9 @@ class ControlLoop:
             self._status_pos.append(m.valve_tpdo.position(P.STATUS_WORD, 0))
             self._spool_pos.append(m.valve_tpdo.position(*P.ACTUAL_VALUE))
         self._callbacks = [self._tpdo_callback(b) for b in range(len(self.networks))]
+        #: per bus, the TPDOs' own handlers for the bus's notifier (raw frames, no Message)
+        self._fast = [{cob: self._fast_tpdo(b, cob, layout) for cob, layout in layouts.items()}
+                      for b, layouts in enumerate(self._layouts)]
         self.stats = LoopStats()
         self._subscribed = False
         #: lockstep: receives one frame on the loop's own thread (the reader threads parked)
@@ -227,18 +230,43 @@ class ControlLoop:
             put((can_id + offset, values, timestamp))
         return on_tpdo
 
+    def _fast_tpdo(self, bus: int, cob: int, layout):
+        """A TPDO's handler in its bus's notifier: decoded from the raw frame, no Message and
+        no canopen dispatch; a frame of another length is left to the acceptance filter
+        (counted there as a wrong DLC, as before)."""
+        size, unpack = layout.size, layout.codec.unpack
+        key = cob + bus * KEY_STRIDE
+        put = self._arrivals.put
+
+        def on_tpdo(data: bytes, stamp: float) -> bool:
+            if len(data) != size:
+                return False
+            put((key, unpack(data), stamp))
+            return True
+        return on_tpdo
+
     def _subscribe(self) -> None:
         if not self._subscribed:
-            for net, layouts, callback in zip(self.networks, self._layouts, self._callbacks):
+            for net, layouts, callback, fast in zip(self.networks, self._layouts, self._callbacks,
+                                                    self._fast):
                 for cob in layouts:
                     net.subscribe(cob, callback)
+                notifier = getattr(net, "notifier", None)
+                if isinstance(getattr(notifier, "fast", None), dict):
+                    notifier.fast.update(fast)
+                    notifier.fast_fd = bool(getattr(net, "cyclic_flags", 0))
             self._subscribed = True
 
     def close(self) -> None:
         if self._subscribed:
-            for net, layouts, callback in zip(self.networks, self._layouts, self._callbacks):
+            for net, layouts, callback, fast in zip(self.networks, self._layouts, self._callbacks,
+                                                    self._fast):
                 for cob in layouts:
                     net.unsubscribe(cob, callback)
+                notifier = getattr(net, "notifier", None)
+                if isinstance(getattr(notifier, "fast", None), dict):
+                    for cob in fast:
+                        notifier.fast.pop(cob, None)
             self._subscribed = False
 
     # -- helpers ---------------------------------------------------------------------------------
@@ -393,6 +421,9 @@ class ControlLoop:
         masters = [c.master for c in chans]
         networks = self.networks
         one_bus = len(networks) == 1
+        sync_flags = getattr(networks[0], "cyclic_flags", 0)
+        bus_of = [c.bus for c in chans]
+        out_frames: list[list] = [[] for _ in networks]
         next_arrival = self._next_arrival
         overrun_limit = sups[0].limits.overrun_limit_s
         percent_to_counts, counts_to_percent = P.percent_to_counts, P.counts_to_percent
@@ -475,7 +506,7 @@ class ControlLoop:
                     fresh_from = sync_wall + window
                 sync_wall = now_wall
                 if one_bus:
-                    networks[0].send_message(SYNC_COB_ID, bytes((counter,)))
+                    networks[0].send_frames([(sync_flags, SYNC_COB_ID, 1, bytes((counter,)))])
                 else:                         # every bus's SYNC, back to back
                     send_together(networks, SYNC_COB_ID, bytes((counter,)))
                 got_force = [False] * n
@@ -605,10 +636,15 @@ class ControlLoop:
                                 break
                     if new is None:
                         us = [0.0] * n
+                        for frames in out_frames:
+                            frames.clear()
                         for i in all_channels:
                             counts = percent_to_counts(sups[i].shape_command(us_req[i]))
-                            masters[i].send_valve_command(CW_ACTIVE, counts)
+                            out_frames[bus_of[i]].append(masters[i].valve_frame(CW_ACTIVE, counts))
                             us[i] = counts_to_percent(counts)
+                        for net, frames in zip(networks, out_frames):   # a bus's in one batch
+                            if frames:
+                                net.send_frames(frames)
                 if trip is None and new is not None:
                     trip = new
                     log.warning("cycle %d (t = %.3f s): %s%s: %s -> %s", cycle, t,

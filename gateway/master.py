@@ -227,6 +227,17 @@ class StandMaster:
         values[self._rpdo_sp] = setpoint_counts
         self.network.send_message(rpdo.cob_id, rpdo.encode(*values))
 
+    def valve_frame(self, control_word: int, setpoint_counts: int) -> tuple[int, int, int, bytes]:
+        """One valve RPDO as a raw frame (:mod:`standbus.wire`) for
+        :meth:`~gateway.capture.TappedNetwork.send_frames`: the bytes of
+        :meth:`send_valve_command`, an FD frame on a CAN FD bus."""
+        rpdo = self.valve_rpdo
+        values = [0] * len(rpdo.keys)
+        values[self._rpdo_cw] = int(control_word)
+        values[self._rpdo_sp] = setpoint_counts
+        data = rpdo.encode(*values)
+        return getattr(self.network, "cyclic_flags", 0), rpdo.cob_id, len(data), data
+
     def hold_command(self) -> None:
         """One valve RPDO: control word HOLD, setpoint 0 (zero flow)."""
         self.send_valve_command(P.CW_HOLD, 0)

@@ -77,10 +77,11 @@ def read_pdo_config(node: canopen.LocalNode, com_index: int, map_index: int) -> 
     return PdoConfig(PdoLayout.from_entries(cob & 0x7FF, entries), trans, timer)
 
 
-def slave_frame_filter(network: canopen.Network, node_ids) -> FrameFilter:
+def slave_frame_filter(network: canopen.Network, node_ids, fd: bool = False) -> FrameFilter:
     """Put an acceptance filter in front of ``network``'s canopen stack (before ``connect`` or
-    before the Notifier is made from ``network.listeners``) and return it."""
-    flt = FrameFilter(MessageListener(network).on_message_received)
+    before the Notifier is made from ``network.listeners``) and return it. On a CAN FD bus
+    (``fd``) FD data frames pass too."""
+    flt = FrameFilter(MessageListener(network).on_message_received, fd=fd)
     flt.expect(P.NMT_COB_ID, 2)     # NMT: command, node id
     flt.expect(P.SYNC_COB_ID, (0, 1))   # SYNC, with or without counter
     for nid in node_ids:
@@ -121,6 +122,12 @@ class EmulatedNode:
         #: own time, which only SYNCs advance (set by the stand)
         self.clock = time.monotonic
         self.lock = threading.RLock()
+        #: the bus notifier's own handlers by arbitration id (``HandoverNotifier.fast``, set by
+        #: the emulator once it listens): an RPDO is taken there, raw, without a Message and the
+        #: canopen dispatch; None: through canopen only
+        self.fast_rx: dict | None = None
+        #: the wire flags of the synchronous TPDOs (an FD frame on a CAN FD bus)
+        self.cyclic_flags = 0
 
     # -- NMT ----------------------------------------------------------------------------------
     @property
@@ -190,6 +197,8 @@ class EmulatedNode:
             if cfg is not None:
                 self.rpdos[cfg.layout.cob_id] = cfg
                 self.network.subscribe(cfg.layout.cob_id, self._on_rpdo)
+                if self.fast_rx is not None:
+                    self.fast_rx[cfg.layout.cob_id] = self._fast_rpdo(cfg.layout.cob_id)
         self._sync_count = 0
         # The RPDO timeout runs from the start: a master that dies before its first command
         # is caught too.
@@ -206,19 +215,30 @@ class EmulatedNode:
             self.local.emcy.send(0x8200, 0x10)  # protocol error
             return None
 
+    def _fast_rpdo(self, cob: int):
+        def on_rpdo(data: bytes, stamp: float) -> bool:
+            self._on_rpdo(cob, data, stamp)
+            return True
+        return on_rpdo
+
     def _stop_pdos(self) -> None:
         for cob in list(self.rpdos):
             try:
                 self.network.unsubscribe(cob, self._on_rpdo)
             except (KeyError, ValueError):
                 pass
+            if self.fast_rx is not None:
+                self.fast_rx.pop(cob, None)
         self.rpdos = {}
         self.tpdos = []
         self.last_rpdo_time = None
 
     # -- PDO traffic --------------------------------------------------------------------------
-    def on_sync(self, counter: int | None, sync_stamp: float | None = None) -> None:
-        """Send the synchronous TPDOs due at this SYNC (the device refreshed ``live`` before).
+    def on_sync(self, counter: int | None, sync_stamp: float | None = None,
+                out: list | None = None) -> None:
+        """Send the synchronous TPDOs due at this SYNC (the device refreshed ``live`` before);
+        with ``out``, append them there as raw frames instead (the emulator sends a bus's
+        answers to one SYNC together).
         With a synchronous window (0x1007, CiA 301) and the SYNC's wall-clock ``sync_stamp``, a
         device that got to this SYNC later than the window after it (a lagging node, a slow
         bus) discards its TPDOs instead of sending them: sent after the master's next SYNC, they
@@ -236,11 +256,15 @@ class EmulatedNode:
             self.sync_window_discards += len(due)
             return
         for cfg in due:
-            self.transmit(cfg)
+            self.transmit(cfg, out)
 
-    def transmit(self, cfg: PdoConfig) -> None:
+    def transmit(self, cfg: PdoConfig, out: list | None = None) -> None:
         values = [self.value(index, sub) for index, sub in cfg.layout.keys]
-        self.network.send_message(cfg.layout.cob_id, cfg.layout.encode(*values))
+        data = cfg.layout.encode(*values)
+        if out is None:
+            self.network.send_message(cfg.layout.cob_id, data)
+        else:
+            out.append((self.cyclic_flags, cfg.layout.cob_id, len(data), data))
 
     def _on_rpdo(self, can_id: int, data: bytes, timestamp: float) -> None:
         with self.lock:
