@@ -119,6 +119,9 @@ class LoopStats:
     behind_s: list = field(default_factory=list)
     #: real time only: the shortest time after a SYNC the loop waited for its answers, s
     answer_window_min_s: float = math.inf
+    #: the loop thread's own CPU time over the run, s (its share of the cores: per cycle over
+    #: the period)
+    loop_cpu_s: float = 0.0
 
 
 @dataclass
@@ -459,6 +462,7 @@ class ControlLoop:
         for i in all_channels:
             self.send_command(CW_ACTIVE, 0.0, i)
         wall0 = time.monotonic()
+        cpu0 = time.thread_time()
         t_start = time.perf_counter()
         # real time: the SYNCs' grid, slot k at t_start + k·T; a row's t is k·T exactly (a
         # sum of periods in floats drifts off it by ns when perf_counter is large: long uptimes)
@@ -693,6 +697,7 @@ class ControlLoop:
             raise
         self.safe_state(final_action)
         stats.wall_s = time.monotonic() - wall0
+        stats.loop_cpu_s = time.thread_time() - cpu0
         if stats.sync_jitter_s:
             stats.max_lateness_s = max(stats.sync_jitter_s)
         stats.shaped_commands = sum(s.clamped for s in sups)

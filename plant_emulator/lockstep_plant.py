@@ -139,7 +139,7 @@ class LockstepRig:
     def _block(self, commands: list[float]) -> list[float]:
         sub = self.sub
         periods = self._block_periods_now()
-        self._start = (copy.deepcopy(self.states), self._steps) if periods > 1 else None
+        self._start = (_copy_states(self.states), self._steps) if periods > 1 else None
         self._commands = [commands]
         self._block_periods = periods
         u = np.repeat(np.asarray(commands, float)[:, None], periods * sub, axis=1)
@@ -177,6 +177,21 @@ class LockstepRig:
         self._ahead.clear()
         self._start = None
         self._commands = []
+
+
+def _copy_states(states):
+    """The states, every array copied (what ``copy.deepcopy`` gives, at a fraction of its
+    cost: 16 channels' states took ~0.1 ms to deep-copy at every block)."""
+    out = []
+    for st in states:
+        c = copy.copy(st)
+        c.y, c.t, c.history = st.y.copy(), st.t.copy(), st.history.copy()
+        c.reading = None if st.reading is None else st.reading.copy()
+        c.valve_last = None if st.valve_last is None else st.valve_last.copy()
+        c.effects = [{k: (v.copy() if isinstance(v, np.ndarray) else copy.deepcopy(v))
+                      for k, v in eff.items()} for eff in st.effects]
+        out.append(c)
+    return out
 
 
 class LockstepPlant(LockstepRig):
