@@ -69,7 +69,7 @@ from .experiments import Experiment
 from .experiments.rig import RigExperiment, is_rig_experiment
 from .master import StandMaster
 from .recorder import RunRecorder
-from .supervisor import Supervisor, Trip
+from .supervisor import Supervisor, SupervisorBank, Trip
 from .unload import RatioUnloader
 
 if TYPE_CHECKING:
@@ -425,6 +425,8 @@ class ControlLoop:
         networks = self.networks
         one_bus = len(networks) == 1
         sync_flags = getattr(networks[0], "cyclic_flags", 0)
+        # a rig's supervisors asked together in a quiet cycle (a stand's one as it always was)
+        bank = SupervisorBank(sups) if n > 1 else None
         bus_of = [c.bus for c in chans]
         out_frames: list[list] = [[] for _ in networks]
         next_arrival = self._next_arrival
@@ -562,7 +564,8 @@ class ControlLoop:
                     stale = fresh_row
                 rs = [math.nan] * n
                 new = late_trip or wait_trip
-                if new is None:
+                if new is None and not (bank is not None and stale is fresh_row and unloader is None
+                                        and len(watched_idx) == n and bank.quiet(ys, statuses)):
                     for i in watched_idx:
                         new = sups[i].check(ys[i], stale[i], statuses[i], sync_wall,
                                             force=unloader is None)

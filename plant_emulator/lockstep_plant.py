@@ -133,8 +133,14 @@ class LockstepRig:
         self.period, self.sub = period_s, sub
 
     def _block_periods_now(self) -> int:
-        """Periods a block computes ahead: as many as the shortest delay allows."""
-        return min(m.delay_steps(self.dt) for m in self.model.channels) // self.sub + 1
+        """Periods a block computes ahead: as many as the shortest delay allows (asked at every
+        real-time catch-up: kept per step and sub-steps)."""
+        key = (self.dt, self.sub)
+        cached = self.__dict__.get("_block_cache")
+        if cached is None or cached[0] != key:
+            periods = min(m.delay_steps(self.dt) for m in self.model.channels) // self.sub + 1
+            cached = self._block_cache = (key, periods)
+        return cached[1]
 
     def _block(self, commands: list[float]) -> list[float]:
         sub = self.sub
