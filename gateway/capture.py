@@ -59,8 +59,8 @@ _FD_BRS, _FD_ESI = 0x01, 0x02
 
 class CandumpLines:
     """candump ``-L`` lines of frames, exactly as python-can's ``CanutilsLogWriter`` writes
-    them (its rules: a stamp earlier than the last written is written as the last, a numeric
-    channel as ``canN``), but from raw frames (:mod:`standbus.wire`) sent at one instant, so a
+    them (its rules: a missing stamp, or one earlier than the first frame's, is written as the
+    first frame's; a numeric channel as ``canN``), but from raw frames (:mod:`standbus.wire`) sent at one instant, so a
     batch's stamp and channel are formatted once (a rig's bus: ~0.4 µs a frame against 1.3)."""
 
     def __init__(self) -> None:
@@ -71,8 +71,6 @@ class CandumpLines:
             self.last = stamp or 0.0
         if stamp is None or stamp < self.last:
             stamp = self.last
-        else:
-            self.last = stamp
         if channel is None:
             channel = "vcan0"                      # CanutilsLogWriter's default channel
         if isinstance(channel, int) or (isinstance(channel, str) and channel.isdigit()):

@@ -176,6 +176,7 @@ class StandMaster:
         self._rpdo_sp = self.valve_rpdo.position(*P.SETPOINT)
         self._rpdo_two = self.valve_rpdo.keys == ((P.CONTROL_WORD, 0), tuple(P.SETPOINT))
         self._cyclic_flags = getattr(self.network, "cyclic_flags", 0)
+        self._last_command = self._last_frame = None
         self.force_tpdo = self._layout(self.dynamometer, self.dynamometer.node.tpdo[1], [P.PV_INT32],
                                        synchronous=True)
         if hasattr(self.network, "expect"):
@@ -238,6 +239,9 @@ class StandMaster:
         """One valve RPDO as a raw frame (:mod:`standbus.wire`) for
         :meth:`~gateway.capture.TappedNetwork.send_frames`: the bytes of
         :meth:`send_valve_command`, an FD frame on a CAN FD bus."""
+        key = (control_word, setpoint_counts)
+        if key == self._last_command:    # a held command: the same frame again
+            return self._last_frame
         rpdo = self.valve_rpdo
         if self._rpdo_two:               # the default mapping: control word, setpoint
             data = rpdo.codec.pack(control_word, setpoint_counts)
@@ -246,7 +250,9 @@ class StandMaster:
             values[self._rpdo_cw] = int(control_word)
             values[self._rpdo_sp] = setpoint_counts
             data = rpdo.encode(*values)
-        return self._cyclic_flags, rpdo.cob_id, len(data), data
+        self._last_command = key
+        self._last_frame = frame = (self._cyclic_flags, rpdo.cob_id, len(data), data)
+        return frame
 
     def hold_command(self) -> None:
         """One valve RPDO: control word HOLD, setpoint 0 (zero flow)."""

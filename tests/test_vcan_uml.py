@@ -155,9 +155,11 @@ def test_a_can_fd_rig_over_vcan_sends_its_cyclic_frames_as_fd_and_finds_the_colu
         assert len(pdo) >= 7 * n // 2 and all(f.is_fd and f.bitrate_switch for f in pdo)
         # NMT, SDO and heartbeats stay classic frames (a CAN FD bus carries both)
         assert any(not f.is_fd for f in frames if f.arbitration_id >= 0x580)
+    # candump -L writes an FD frame as ID##F<data>, F its flags nibble (bit 0: the bit-rate switch)
     lines = [line.split() for line in Path(info["candump"]).read_text().splitlines() if line]
     dumped = [frame for _, _, frame in lines if cyclic(int(frame.split("#")[0], 16))]
-    assert len(dumped) >= 7 * n and all("##1" in frame for frame in dumped)
+    assert len(dumped) >= 7 * n
+    assert all("##" in frame and int(frame.split("##")[1][0], 16) & 1 for frame in dumped)
     j = rig.names.index(info["driven"])
     est = estimate_rig([read_rig_run(info["run"])])
     column = est.G[:, est.names.index(info["driven"])]
