@@ -22,6 +22,7 @@ Device behaviour (valve, dynamometer) lives in subclasses.
 from __future__ import annotations
 
 import logging
+import operator
 import struct
 import threading
 import time
@@ -53,6 +54,12 @@ class PdoConfig:
     layout: PdoLayout
     trans_type: int
     event_timer_ms: int
+
+    def __post_init__(self) -> None:
+        keys = self.layout.keys
+        getter = operator.itemgetter(*keys) if keys else (lambda live: ())
+        #: the mapped objects' values from a node's ``live`` (KeyError if one is not live)
+        self.live_values = getter if len(keys) != 1 else (lambda live: (getter(live),))
 
 
 def read_pdo_config(node: canopen.LocalNode, com_index: int, map_index: int) -> PdoConfig | None:
@@ -118,6 +125,8 @@ class EmulatedNode:
         self.tpdos: list[PdoConfig] = []
         self._every_sync = False
         self.rpdos: dict[int, PdoConfig] = {}
+        #: (the RPDO configs it was computed from, the shortest event timer in s or None)
+        self._rpdo_timers: tuple | None = None
         self._sync_count = 0
         #: synchronous TPDOs discarded because their SYNC's window (0x1007) had passed
         self.sync_window_discards = 0
@@ -273,9 +282,13 @@ class EmulatedNode:
             self.transmit(cfg, out)
 
     def transmit(self, cfg: PdoConfig, out: list | None = None) -> None:
-        live, value = self.live, self.value
-        values = [live[key] if key in live else value(*key) for key in cfg.layout.keys]
-        data = cfg.layout.encode(*values)
+        live = self.live
+        try:                 # a PDO of live values only (the stand's): one C call reads them
+            values = cfg.live_values(live)
+        except KeyError:
+            value = self.value
+            values = [live[key] if key in live else value(*key) for key in cfg.layout.keys]
+        data = cfg.layout.codec.pack(*values)
         if out is None:
             self.network.send_message(cfg.layout.cob_id, data)
         else:
@@ -301,9 +314,12 @@ class EmulatedNode:
         with self.lock:
             if not self.operational or self.last_rpdo_time is None:
                 return False
-            timers = [c.event_timer_ms for c in self.rpdos.values() if c.event_timer_ms]
+            timers = self._rpdo_timers
+            if timers is None or timers[0] is not self.rpdos:    # the RPDOs as configured now
+                ms = [c.event_timer_ms for c in self.rpdos.values() if c.event_timer_ms]
+                timers = self._rpdo_timers = (self.rpdos, min(ms) / 1000.0 if ms else None)
             # (1 ns of slack: the stand's time in lockstep is a sum of periods in floats)
-            return bool(timers) and now - self.last_rpdo_time > min(timers) / 1000.0 + 1e-9
+            return timers[1] is not None and now - self.last_rpdo_time > timers[1] + 1e-9
 
     def check_rpdo_timeout(self, now: float) -> bool:
         """True once if an RPDO with an event timer has not arrived within it."""
