@@ -41,9 +41,7 @@ def main(out: Path, fd: bool = False) -> int:
     capture = out / "candump.log"
     with RigEmulatorProcess(path, lockstep=True, seed=5, ready_timeout_s=180):
         with capture.open("w") as fh:
-            # -r: an 8 MB socket buffer (at the default ~200 KB candump dropped 17 % of the
-            # frames of a lockstep run in UML on a busy host, before this work too)
-            dump = subprocess.Popen(["candump", "-L", "-r", "8388608", "vcan0", "vcan1"], stdout=fh)
+            dump = subprocess.Popen(["candump", "-L", "vcan0", "vcan1"], stdout=fh)
             time.sleep(0.5)        # candump is listening
             # heartbeats and SDO answers are wall-clock; inside UML (one slow CPU) allow them
             # more slack

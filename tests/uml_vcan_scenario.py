@@ -40,9 +40,7 @@ def main(out: Path) -> int:
             for name, experiment in experiments().items():
                 capture = out / f"candump-{name}.log"
                 with capture.open("w") as fh:
-                    # -r: an 8 MB socket buffer (at the default ~200 KB candump dropped 17 % of the
-                    # frames of a lockstep run in UML on a busy host, before this work too)
-                    dump = subprocess.Popen(["candump", "-L", "-r", "8388608", "vcan0"], stdout=fh)
+                    dump = subprocess.Popen(["candump", "-L", "vcan0"], stdout=fh)
                     time.sleep(0.5)  # candump is listening
                     result = gw.run(experiment, out / name, progress=False)
                     time.sleep(0.5)
