@@ -110,7 +110,8 @@ def lockstep_rate(channels: int, buses: int, stand_s: float, data_bitrate: int |
         result, rig = drive(chain_file(Path(tmp), channels, buses, data_bitrate), Path(tmp) / "run",
                             True, stand_s, cpu=cpu)
     s = result.outcome.stats
-    return {"rate": s.cycles / s.wall_s, "cycles": s.cycles, "status": result.status,
+    status = result.status if result.reason is None else f"{result.status}: {result.outcome.message}"
+    return {"rate": s.cycles / s.wall_s, "cycles": s.cycles, "status": status,
             "frames": len(rig.buses) + 3 * channels, "loop_cpu_us": 1e6 * s.loop_cpu_s / max(s.cycles, 1),
             "emulator_cpu_us": 1e6 * cpu["emulator_s"] / max(s.cycles, 1)}
 
@@ -434,6 +435,6 @@ def run(quick: bool) -> list[Row]:
     else:
         rows += realtime_rows(16, 4, 30.0, load_before)
         rows += realtime_rows(32, 8, 30.0, os.getloadavg()[0])
-        for dead in (False, True):
-            rows.append(unload_row(unload_case(dead), dead))
+    for dead in (False, True):
+        rows.append(unload_row(unload_case(dead), dead))
     return rows

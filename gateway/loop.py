@@ -36,8 +36,11 @@ its channels one by one (per-channel drivers, each its own copy; the others hold
 or all at once (a :class:`~gateway.experiments.rig.RigExperiment`: N forces in, N commands and
 N references out per cycle, each channel's supervisor and the rig's safety the same).
 
-The TPDO callbacks decode with the precompiled PDO layouts and hand the values over through a
-queue. In lockstep, and in real time on a rig, the loop takes its buses over for the run
+The TPDOs are taken raw by their own handlers in each bus's notifier, before canopen (no
+python-can Message, no dispatch), decoded with the precompiled PDO layouts and handed over
+through a queue; a cycle's commands go out as one send per bus (on udp_loopback one datagram:
+:mod:`standbus.wire`), FD frames on a CAN FD bus. A rig's supervisors are asked together in a
+quiet cycle (:class:`~gateway.supervisor.SupervisorBank`), one by one in any other. In lockstep, and in real time on a rig, the loop takes its buses over for the run
 (:class:`standbus.HandoverNotifier`) and receives on its own thread: no thread hand-off, no
 wake-up of a reader thread and no GIL hand-off per frame (a rig's 16 answers a cycle on 2
 buses made the reader threads compete with the loop for the GIL). In lockstep it polls briefly
