@@ -42,9 +42,9 @@ FIGURES = {
 
 
 #: the rows of each benchmark's quick table
-ROWS = {"control_loop": 6, "wakeup": 1, "rig": 6, "campaign": 1, "decode": 6, "loading": 8,
+ROWS = {"control_loop": 6, "wakeup": 1, "rig": 9, "campaign": 1, "decode": 6, "loading": 8,
         "faster": 9, "diagnosis": 2, "stepwise": 1, "rig_identify": 4, "rig_load": 11, "bus": 2,
-        "bus_budget": 2}
+        "bus_budget": 2, "crack": 6, "live": 4, "rig_one_run": 11}
 
 _NUMBER = r"[-+]?(?:\d{1,3}(?:,\d{3})+|\d+)(?:\.\d+)?(?:e[-+]?\d+)?"
 
@@ -93,8 +93,12 @@ def _wakeup(rows):
 def _rig(rows):
     assert figures(row(rows, "rig lockstep, 1 channel")[1], r"{n} cycles/s")[0] > 0
     for what in ("SYNC jitter", "skew"):
-        assert ordered(0, *figures(row(rows, f"rig real time, 8 channels on 2 buses at 2 ms: {what}")[1],
+        assert ordered(0, *figures(row(rows, f"rig real time, 4 channels on 2 buses at 2 ms: {what}")[1],
                                    r"p50 {n} / p99 {n} / max {n} ms"))
+    missed, stale = figures(row(rows, "rig real time, 4 channels on 2 buses at 2 ms: missed")[1],
+                            r"{n} missed, {n} % stale")
+    assert missed >= 0 and 0 <= stale <= 100
+    assert figures(row(rows, "stand demo --rig, 4 channel(s)")[1], r"{n}x real time")[0] > 0
     for case in ("all valves alive", "one valve dead"):     # lockstep: as in the full run
         r = row(rows, f"rig unload keeping the ratios, 6000/4000/5000/3000 kgf, {case}")
         assert 0 <= figures(r[1], r"largest deviation {n} %")[0] <= 2.0, r   # the goal
@@ -197,11 +201,35 @@ def _bus_budget(rows):
     assert figures(many[1], r"= {n} % bus load")[0] > 100 and many[4].startswith("does not fit")
 
 
+def _crack(rows):
+    alarmed, runs = figures(row(rows, "crack: intact")[1], r"{n} of {n} runs with an alarm")
+    assert alarmed == 0 and runs > 0
+    r = row(rows, "crack: 3 % at inner from flight 120")
+    named, seeds = figures(r[1], r"{n} of {n} name inner first")
+    assert named == seeds > 0, r
+
+
+def _live(rows):
+    low, high = figures(row(rows, "live page: stream updates")[1], r"{n}-{n} per s")
+    assert 10 <= low <= high, (low, high)                # the 10 updates a second
+    assert figures(row(rows, "live page: 3 viewers against none")[1], r"{n}x")[0] > 0
+
+
+def _rig_one_run(rows):
+    for structure in ("chain", "plate"):
+        r = row(rows, f"rig G, 4-channel {structure}, one run")
+        assert figures(r[1], r"largest error {n} %")[0] < 1, r
+        assert figures(row(rows, f"rig G, 4-channel {structure}, multisine")[1],
+                       r"diagonal {n} % on average")[0] > 1          # why not a multisine
+    assert "one run of Hadamard meanders" in row(rows, "rig G from one run: the plan")[1]
+
+
 #: what each benchmark's quick table must say, beyond its figures being numbers
 PLAUSIBLE = {"control_loop": _control_loop, "wakeup": _wakeup, "rig": _rig, "campaign": _campaign,
              "decode": _decode, "loading": _loading, "faster": _faster, "diagnosis": _diagnosis,
              "stepwise": _stepwise, "rig_identify": _rig_identify, "rig_load": _rig_load,
-             "bus": _bus, "bus_budget": _bus_budget}
+             "bus": _bus, "bus_budget": _bus_budget, "crack": _crack, "live": _live,
+             "rig_one_run": _rig_one_run}
 
 
 def test_every_benchmark_has_its_smoke_run():
