@@ -60,6 +60,8 @@ class ChannelTask:
     max_effects: int
     effects: list[str] | None
     plugins: list[ShippedPlugin] = field(default_factory=list)
+    #: effects of the starting model a round before picked: checked again like added ones
+    carried: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -85,7 +87,7 @@ def diagnose_channel(task: ChannelTask) -> ChannelResult:
     start = PlantModel.from_spec(task.spec, task.params)
     if task.build_up:
         r = stepwise(task.records, start, window_s=task.window_s, max_effects=task.max_effects,
-                     effects=task.effects, jobs=1)
+                     effects=task.effects, jobs=1, carried=task.carried)
         model = r.model
         verdict, summary, detail = r.verdict, r.summary, r.to_dict()
     else:
@@ -131,7 +133,8 @@ def diagnose_rig(records: Sequence[RigRecord], rig: RigModel,
     model in ``rig``); ``build_up``: :func:`.stepwise.stepwise` (True) or one
     :func:`.verdict.diagnose`; ``executor``: where the channels run (default: in this
     process, in order); ``rounds``: how many times (each after the first starts every channel
-    from its model of the round before, its coupling from the others')."""
+    from its model of the round before, its coupling from the others'; a build-up checks the
+    effects the rounds before added again at its end, as it checks its own)."""
     records = list(records)
     if not records:
         raise DataError("no rig runs given")
@@ -163,9 +166,15 @@ def diagnose_rig(records: Sequence[RigRecord], rig: RigModel,
                 first = PlantModel.from_spec(start) if isinstance(start, str) else start
             else:
                 first = current.channels[current.names.index(name)]
+            # what a round before added was picked against the couplings of its time: checked
+            # again with the others in place, so an effect standing in for a neighbour's goes
+            origin = (PlantModel.from_spec(start) if isinstance(start, str) else start) \
+                if start is not None else rig.channels[rig.names.index(name)]
+            carried = [e.name for e in first.effects if origin.effect(e.name) is None] if r else []
             tasks.append(ChannelTask(name, recs, first.spec, first.params(), build_up,
                                      window_s, max_effects,
-                                     None if effects is None else list(effects), plugins))
+                                     None if effects is None else list(effects), plugins,
+                                     carried))
         if not tasks:
             runs = ", ".join(Path(rec.source).name or rec.source for rec in records)
             one = len(names) == 1

@@ -141,8 +141,11 @@ ALTERNATIVE_RATIO = 0.8
 def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
              window_s: float = WINDOW_S, max_effects: int = MAX_EFFECTS,
              effects: Sequence[str] | None = None,
-             progress: Callable[[str], None] | None = None, jobs: int | None = None) -> Stepwise:
+             progress: Callable[[str], None] | None = None, jobs: int | None = None,
+             carried: Sequence[str] = ()) -> Stepwise:
     """Add effects to ``model`` one at a time until it explains ``records`` (module docstring).
+    ``carried``: effects of ``model`` an earlier build-up added (a rig's round before), checked
+    again at the end with the ones this one adds.
     If the build-up does not end adequate and one of its partial picks had a close runner-up,
     the build-up is run once more from there with the runner-up, and the better end is kept.
     ``jobs``: worker processes for each diagnosis (see :func:`.verdict.diagnose`)."""
@@ -173,10 +176,11 @@ def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
     needed: list[Needed] = []
     # with several effects, or with one when the build-up did not end adequate (what was added
     # on the way to "unexplained" must still earn its place, or it is not kept)
-    if len(added) >= 2 or (added and verdict != "adequate"):
+    checked = [e for e in carried if e not in added] + list(added)
+    if len(checked) >= 2 or (checked and verdict != "adequate"):
         say("checking each added effect with the others in place")
-        final_fit, needed = backward_check(records, final_fit, added, last.objective_floor, window_s,
-                                           jobs)
+        final_fit, needed = backward_check(records, final_fit, checked, last.objective_floor,
+                                           window_s, jobs)
     summary = _summary(steps, verdict, final_fit, needed, last) + tried
     return Stepwise(steps=steps, model=final_fit.model, fit=final_fit, verdict=verdict,
                     needed=needed, summary=summary)
