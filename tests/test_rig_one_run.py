@@ -12,13 +12,14 @@ import sys
 import numpy as np
 import pytest
 
-from analysis.rig.estimate import GUARD_FACTOR, estimate_rig
+from analysis.rig.estimate import estimate_rig
+from analysis.rig.steady import GUARD_FACTOR
 from analysis.rig.load import load_rig_inputs
 from analysis.rig.onerun import left_out_s, plan_for_rig
 from analysis.rig.result import starting_models
 from analysis.rig.synthetic import per_column_meanders, rig_one_run, rig_truth, write_rig_run
 from benchmarks.rig_one_run import rig_config, truth_model
-from core.errors import DataError, ParameterError
+from core.errors import DataError
 from gateway.campaign import GPlan
 from gateway.experiments.one_run import OneRun
 from rig.config import load_rig_file

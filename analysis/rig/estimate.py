@@ -37,56 +37,14 @@ from core.errors import DataError
 from ..records.limits import clipped_mask, held_mask
 from .delays import ChannelTiming, channel_timing
 from .record import RigRecord
-from .regression import RowFit, Slopes, collinearity, fit_row, stretch_slopes
+from .regression import VIF_NOTE, VIF_REFUSE, RowFit, Slopes, collinearity, fit_row, stretch_slopes
 from .result import RigEstimate, physical_note
-from .steady import command_events, delayed, steady_mask, stretches
+from .steady import (FIRST_GUARD_S, GUARD_FACTOR, MARGIN_S, MIN_STRETCH_S, command_events, delayed,
+                     moving_channels, open_loop, others_off, steady_mask, stretches)
 
-#: samples left out around the time each command change reaches the forces, s
-MARGIN_S = 0.02
-#: the guard after a reversal is this many times the channel's transitional window (the time
-#: its boost takes to add 90 % of its extra force, 2.3 decay times for an exponential one): the
-#: boost is down to 1e-4 of itself there (factor 2: G 0.1-0.3 % high on a 2 kgf-noise rig, 10
-#: times its interval; 3: 0.03-0.05 %; 4: within the intervals)
-GUARD_FACTOR = 4.0
-#: the guard of the first look (before the others' part is taken off each force and the
-#: channels' own transitional windows can be read), and where no boost is found, s
-FIRST_GUARD_S = 0.5
-#: shortest steady stretch used, s
-MIN_STRETCH_S = 0.1
-#: a column whose variance inflation exceeds this cannot be told apart from the others: refused
-#: (its interval would be over 4.5 times as wide as with orthogonal commands)
-VIF_REFUSE = 20.0
-#: above this the estimate notes the inflation
-VIF_NOTE = 2.0
 #: another channel whose part of a force is above this share of the channel's own gain ends
 #: that channel's excess-force curves at its reversals (its boost arrives through G)
 COUPLED_SHARE = 0.01
-#: a command that changes on more than this share of samples is not a meander (a closed loop)
-MAX_CHANGE_SHARE = 0.05
-
-
-def moving_channels(rec: RigRecord) -> list[int]:
-    """The channels whose command reverses at least twice (a meander) where the run is open
-    loop; :class:`DataError` for a command that is not piecewise constant there."""
-    usable = open_loop(rec)
-    out = []
-    for j, u in enumerate(rec.u):
-        changes = np.flatnonzero(np.diff(u) != 0) + 1
-        changes = changes[usable[changes]]
-        if len(changes) > MAX_CHANGE_SHARE * max(1, usable.sum()):
-            raise DataError(f"{rec.source}: channel {rec.names[j]}'s command changes on "
-                            f"{len(changes)} of {int(usable.sum())} open-loop samples: the rig "
-                            "estimate needs open-loop meanders (commands held between reversals)")
-        _, rev = command_events(np.where(usable, u, 0.0))
-        if rev.sum() >= 3:        # the first non-zero command counts as one
-            out.append(j)
-    return out
-
-
-def open_loop(rec: RigRecord) -> np.ndarray:
-    """Samples where no channel has a reference (a set-point approach is a closed loop)."""
-    return ~np.any(np.isfinite(rec.r), axis=0)
-
 
 def estimate_rig(records: Sequence[RigRecord], guard_s: float | None = None,
                  margin_s: float = MARGIN_S, level: float = 0.95) -> RigEstimate:
@@ -193,16 +151,6 @@ def _timing(records: list[RigRecord], moving: list[list[int]], names: list[str],
     return out
 
 
-def others_off(rec: RigRecord, j: int, G: np.ndarray, taus: Sequence[float],
-               moving: Sequence[int]) -> np.ndarray:
-    """Channel ``j``'s force with the other moving channels' part taken off,
-    ``y_j − Σ_{k≠j} G_jk ∫u_k(t − τ_k) dt``: its own turns and boost are left."""
-    y = rec.y[j].copy()
-    for k in moving:
-        if k != j and np.isfinite(G[j, k]):
-            uk = delayed(rec.u[k], rec.dt, taus[k])
-            y -= G[j, k] * np.concatenate([[0.0], np.cumsum(uk[:-1])]) * rec.dt
-    return y
 
 
 def _fit(records: list[RigRecord], timing: dict[int, ChannelTiming], guard_s: float | None,

@@ -50,12 +50,11 @@ from gateway.experiments.one_run import OneRun
 
 from ..records.limits import clipped_mask, held_mask
 from .delays import ChannelTiming, channel_timing
-from .estimate import (FIRST_GUARD_S, GUARD_FACTOR, MARGIN_S, MIN_STRETCH_S, VIF_NOTE,
-                       VIF_REFUSE, moving_channels, open_loop, others_off)
 from .record import RigRecord
-from .regression import RowFit, Slopes, collinearity, fit_row, stretch_slopes
+from .regression import VIF_NOTE, VIF_REFUSE, RowFit, Slopes, collinearity, fit_row, stretch_slopes
 from .result import RigEstimate, physical_note
-from .steady import command_events, delayed, stretches
+from .steady import (FIRST_GUARD_S, GUARD_FACTOR, MARGIN_S, MIN_STRETCH_S, command_events, delayed,
+                     moving_channels, open_loop, others_off, stretches)
 
 #: the first look leaves this share of every slot out after its grid instant (the boosts' tails
 #: then bias G by about 0.1 %: enough to read the boosts against)

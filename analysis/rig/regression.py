@@ -31,6 +31,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+#: a column whose variance inflation exceeds this cannot be told apart from the others: refused
+#: (its interval would be over 4.5 times as wide as with orthogonal commands)
+VIF_REFUSE = 20.0
+#: above this the estimate notes the inflation
+VIF_NOTE = 2.0
+
 
 @dataclass
 class Slopes:

@@ -20,6 +20,27 @@ from typing import Sequence
 
 import numpy as np
 
+from core.errors import DataError
+
+from .record import RigRecord
+
+#: samples left out around the time each command change reaches the forces, s
+MARGIN_S = 0.02
+#: the guard after a reversal is this many times the channel's transitional window (the time
+#: its boost takes to add 90 % of its extra force, 2.3 decay times for an exponential one): the
+#: boost is down to 1e-4 of itself there (factor 2: G 0.1-0.3 % high on a 2 kgf-noise rig, 10
+#: times its interval; 3: 0.03-0.05 %; 4: within the intervals)
+GUARD_FACTOR = 4.0
+#: the guard of the first look (before the others' part is taken off each force and the
+#: channels' own transitional windows can be read), and where no boost is found, s
+FIRST_GUARD_S = 0.5
+#: shortest steady stretch used, s
+MIN_STRETCH_S = 0.1
+#: a command that changes on more than this share of samples is not a meander (a closed loop)
+MAX_CHANGE_SHARE = 0.05
+
+
+
 
 def delayed(u: np.ndarray, dt: float, tau_s: float) -> np.ndarray:
     """``u(t − τ)`` at the samples (the command held before the record at its first value),
@@ -77,3 +98,38 @@ def stretches(mask: np.ndarray, min_samples: int) -> list[tuple[int, int]]:
     z = np.concatenate([[0], np.asarray(mask, np.int8), [0]])
     edges = np.flatnonzero(np.diff(z))
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2]) if b - a >= min_samples]
+
+
+def moving_channels(rec: RigRecord) -> list[int]:
+    """The channels whose command reverses at least twice (a meander) where the run is open
+    loop; :class:`DataError` for a command that is not piecewise constant there."""
+    usable = open_loop(rec)
+    out = []
+    for j, u in enumerate(rec.u):
+        changes = np.flatnonzero(np.diff(u) != 0) + 1
+        changes = changes[usable[changes]]
+        if len(changes) > MAX_CHANGE_SHARE * max(1, usable.sum()):
+            raise DataError(f"{rec.source}: channel {rec.names[j]}'s command changes on "
+                            f"{len(changes)} of {int(usable.sum())} open-loop samples: the rig "
+                            "estimate needs open-loop meanders (commands held between reversals)")
+        _, rev = command_events(np.where(usable, u, 0.0))
+        if rev.sum() >= 3:        # the first non-zero command counts as one
+            out.append(j)
+    return out
+
+
+def open_loop(rec: RigRecord) -> np.ndarray:
+    """Samples where no channel has a reference (a set-point approach is a closed loop)."""
+    return ~np.any(np.isfinite(rec.r), axis=0)
+
+
+def others_off(rec: RigRecord, j: int, G: np.ndarray, taus: Sequence[float],
+               moving: Sequence[int]) -> np.ndarray:
+    """Channel ``j``'s force with the other moving channels' part taken off,
+    ``y_j − Σ_{k≠j} G_jk ∫u_k(t − τ_k) dt``: its own turns and boost are left."""
+    y = rec.y[j].copy()
+    for k in moving:
+        if k != j and np.isfinite(G[j, k]):
+            uk = delayed(rec.u[k], rec.dt, taus[k])
+            y -= G[j, k] * np.concatenate([[0.0], np.cumsum(uk[:-1])]) * rec.dt
+    return y
