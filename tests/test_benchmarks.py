@@ -43,7 +43,7 @@ FIGURES = {
 
 #: the rows of each benchmark's quick table
 ROWS = {"control_loop": 6, "wakeup": 1, "rig": 9, "campaign": 1, "decode": 6, "loading": 8,
-        "faster": 9, "diagnosis": 2, "stepwise": 1, "rig_identify": 4, "rig_load": 11, "bus": 2,
+        "faster": 9, "diagnosis": 2, "stepwise": 2, "rig_identify": 4, "rig_load": 11, "bus": 2,
         "bus_budget": 2, "crack": 6, "live": 4, "rig_one_run": 11}
 
 _NUMBER = r"[-+]?(?:\d{1,3}(?:,\d{3})+|\d+)(?:\.\d+)?(?:e[-+]?\d+)?"
@@ -164,6 +164,9 @@ def _diagnosis(rows):
 def _stepwise(rows):
     assert figures(rows[0][3], r"{n}x faster")[0] > 1, rows[0]     # CPU times: not the host's
     assert figures(rows[0][4], r"within {n} relative")[0] < 1e-3, rows[0]
+    r = row(rows, "rig diagnose --rig-model, 4 channels, stepwise")
+    right, total = figures(r[4], r"{n} of {n} channels base\+reversal \(right\)")
+    assert right == total == 4, r
 
 
 def _rig_identify(rows):
