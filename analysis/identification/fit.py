@@ -41,14 +41,13 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 from scipy import optimize, stats
-from scipy.optimize._numdiff import approx_derivative   # the steps of jac="2-point", exactly
 
 from plant import PlantModel
 from plant.params import ModelError, Param
 
 from ..parallel import one_blas_thread
 from ..records.record import Record
-from .projection import GainTrendColumns, project_gain_trend
+from .projection import project_gain_trend
 from .starts import DataSummary, effect_starts, initial_delay, without
 from .windows import (WINDOW_S, Piece, pieces_from_records, residual, subset_pieces, window_labels,
                       window_sse)
@@ -209,67 +208,15 @@ def _polish(par: Parameterization, pieces: Sequence[Piece], values: Mapping[str,
     eps = 1e-9 * np.maximum(1.0, np.abs(hi - lo))
     x0 = np.clip(x0, lo + eps, hi - eps)
 
-    last: list = [None, None]     # the last (x, residual): scipy asks the Jacobian there
-
     def fun(x):
-        r = residual(par.model(x), pieces)
-        last[:] = [x.copy(), r]
-        return r
+        return residual(par.model(x), pieces)
 
     if max_nfev is None:
         max_nfev = 40 * (len(x0) + 1)
-    jac = _jacobian_with_gain_trend(par, pieces, fun, last, (lo, hi)) or "2-point"
-    res = optimize.least_squares(fun, x0, jac=jac, bounds=(lo, hi), method="trf", x_scale="jac",
+    res = optimize.least_squares(fun, x0, bounds=(lo, hi), method="trf", x_scale="jac",
                                  tr_solver="lsmr" if len(x0) and _n_eval(pieces) > 400_000 else "exact",
                                  diff_step=DIFF_STEP, max_nfev=max_nfev, ftol=tol, xtol=tol)
     return res.x, res
-
-
-def _jacobian_with_gain_trend(par: Parameterization, pieces: Sequence[Piece], fun, last: list,
-                              bounds: tuple[np.ndarray, np.ndarray]):
-    """The polish's Jacobian with the g and Δ columns from the objective's affine form
-    (:class:`.projection.GainTrendColumns`: no simulation) and the others by scipy's forward
-    differences, the same steps as ``jac="2-point"``; None (use ``"2-point"``) when the model is
-    not affine in g and Δ or neither is free. ``fun`` records its last ``(x, residual)`` in
-    ``last``, where scipy asks for the Jacobian."""
-    idx = {n: i for i, n in enumerate(par.free) if n in ("g", "delta")}
-    if not idx:
-        return None
-    cols = GainTrendColumns.of(par.spec, pieces)
-    if cols is None:
-        return None
-    n = len(par.free)
-    lo, hi = bounds
-
-    def jac(x):
-        if last[0] is not None and np.array_equal(last[0], x):
-            r = last[1]
-        else:
-            r = fun(x)
-        vals = par.to_values(x)
-        J = np.empty((len(r), n))
-        done = []
-        for name, i in idx.items():
-            if name == "delta":
-                c = cols.delta()
-            else:
-                c = cols.gain(r, vals["g"], vals["delta"])
-                if c is not None and par.specs["g"].log:    # x is log g: ∂r/∂x = g·∂r/∂g
-                    c = c * vals["g"]
-            if c is not None:
-                J[:, i] = c
-                done.append(i)
-        rest = [i for i in range(n) if i not in done]
-        if rest:
-            def sub(xs):
-                xx = x.copy()
-                xx[rest] = xs
-                return fun(xx)
-            J[:, rest] = approx_derivative(sub, x[rest], method="2-point", rel_step=DIFF_STEP,
-                                           f0=r, bounds=(lo[rest], hi[rest]))
-        return J
-
-    return jac
 
 
 def _n_eval(pieces: Sequence[Piece]) -> int:

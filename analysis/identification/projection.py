@@ -73,43 +73,6 @@ def gain_trend_columns(spec: str, values: Mapping[str, float], pieces: Sequence[
     return s1, np.column_stack(cols), beta0
 
 
-class GainTrendColumns:
-    r"""The objective's derivatives in g and Δ from its affine form, without a simulation:
-    when ŷ is exactly affine in them (:func:`_linear_in_gain_and_trend`: no force-dependent
-    effect, no play, no disturbance), the residual is ``r = demean(g·A + Δ·B + C − y)``, so
-
-    .. math::  ∂r/∂Δ = \operatorname{demean}(B), \qquad
-               ∂r/∂g = \operatorname{demean}(A) = (r + \operatorname{demean}(y − C) − Δ·\operatorname{demean}(B))/g
-
-    from the residual ``r`` at the current values (B: time since the window start, C: the
-    response to the pieces' known rate). The fit's Jacobian takes these two columns from here
-    instead of two simulations each (:func:`analysis.identification.fit._polish`); built once
-    per fit, as ``demean(y − C)`` and ``demean(B)`` depend on the pieces only. Use
-    :meth:`of`, which says None for a model that is not affine in g and Δ."""
-
-    def __init__(self, pieces: Sequence[Piece]) -> None:
-        dy = np.concatenate([demean_windows(p.y[p.warmup:], p.window) for p in pieces])
-        if any(p.known is not None for p in pieces):
-            dy = dy - _demeaned(known_response(pieces), pieces)
-        self.dy = dy                           # demean(y − C)
-        self.trend = _trend_basis(pieces)      # demean(B)
-
-    @classmethod
-    def of(cls, spec: str, pieces: Sequence[Piece]) -> "GainTrendColumns | None":
-        return cls(pieces) if _linear_in_gain_and_trend(spec) else None
-
-    def gain(self, r: np.ndarray, g: float, delta: float) -> np.ndarray | None:
-        """∂r/∂g at ``(g, Δ)`` given the residual ``r`` there (None for |g| < 1e-6: the
-        division would lose the column)."""
-        if not abs(g) >= 1e-6:
-            return None
-        return (r + self.dy - delta * self.trend) / g
-
-    def delta(self) -> np.ndarray:
-        """∂r/∂Δ (the same everywhere)."""
-        return self.trend
-
-
 def project_gain_trend(spec: str, values: Mapping[str, float], pieces: Sequence[Piece],
                        fit_g: bool = True, fit_delta: bool = True) -> tuple[dict[str, float], float]:
     """Solve g and Δ by linear least squares for the other parameters fixed (see
