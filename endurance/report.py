@@ -249,6 +249,34 @@ def report(testdir: str | Path) -> dict:
             "events": events}
 
 
+# -- what the stops did to the ratios --------------------------------------------------------------------
+def ratio_deviation_pct(Y: np.ndarray, y0: np.ndarray, ranges_kgf) -> float:
+    """The largest deviation of the forces ``Y`` (K, N) from the load ratios of ``y0`` (each
+    row's nearest multiple of ``y0``, safety.md's σ), % of each channel's range."""
+    Y, y0 = np.atleast_2d(np.asarray(Y, float)), np.asarray(y0, float)
+    if not len(Y) or not float(y0 @ y0):
+        return 0.0
+    sigma = (Y @ y0) / float(y0 @ y0)
+    return float(np.max(np.abs(Y - sigma[:, None] * y0[None, :]) / np.asarray(ranges_kgf, float)[None, :]) * 100)
+
+
+def stop_deviation(window: str | Path, names: list[str], ranges_kgf) -> dict:
+    """What a stop or a trip did to the load ratios, from its event window (the recorded
+    signals, :class:`endurance.storage.SignalWindow`): the largest deviation of the forces after
+    the event from the ratios of the last reading before it (the reading at the event is left
+    out: a spike is a reading, not a force), % of a channel's range."""
+    from gateway.runs import load_run
+    run = load_run(window)
+    meta = json.loads((Path(window) / "run.json").read_text())["event"]
+    t = np.asarray(run.signals["sync_time"], float)
+    Y = np.array([run.signals[f"y.{n}"] for n in names], float).T
+    before, after = t < meta["time"] - 1e-6, t > meta["time"] + 1e-6
+    y0 = Y[before][-1] if before.any() else Y[after][0]
+    return {"kind": meta["kind"], "message": meta.get("message", ""), "channel": meta.get("channel"),
+            "pct_of_range": ratio_deviation_pct(Y[after], y0, ranges_kgf), "rows_after": int(after.sum()),
+            "forces_at_kgf": y0.tolist()}
+
+
 def _block_size(journal: Journal) -> int | None:
     """The block's size from the test file the journal keeps (None if it cannot be read)."""
     import tomllib

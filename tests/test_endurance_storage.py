@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import errno
+import json
 
 import numpy as np
 import pyarrow as pa
@@ -259,3 +260,38 @@ def test_the_calibration_is_what_writing_real_data_measures(tmp_path):
     for field in dataclasses.fields(Calibration):
         stated, now = getattr(CALIBRATION, field.name), getattr(measured, field.name)
         assert now == pytest.approx(stated, rel=0.2), f"{field.name}: measured {now:.2f}, stated {stated}"
+
+
+@pytest.mark.slow
+def test_an_event_window_is_read_by_compare_diagnose_and_report_as_any_run(tmp_path):
+    """stand compare, diagnose and report take an event window as a run directory: a rig's with
+    --channel, a stand's as it is (the signals a plant g = 120 kgf/(%·s) would give, 2 kgf noise)."""
+    import subprocess
+    import sys
+    test = load_test_file(EXAMPLE_TEST, check_controller=False)
+    windows = {}
+    for name, channels, meta in (("rig", CHANNELS, rig_meta(test.station)), ("stand", None, {})):
+        w = SignalWindow(tmp_path / name, channels, 0.002, rolling_window_s=20.0, event_window_s=4.0,
+                         chunk_s=5.0, meta=meta)
+        w.append_rows(rows(channels, 0.0, 10.0))
+        event = w.mark_event("force_limit", "a trip", time_s=1.8e9 + 5.0, channel="tip" if channels else None)
+        w.close()
+        windows[name] = event.path
+
+    def stand(*args):
+        res = subprocess.run([sys.executable, "-m", "stand", *map(str, args)], capture_output=True, text=True,
+                             timeout=600, cwd=tmp_path)
+        assert res.returncode == 0 and "Traceback" not in res.stderr, res.stderr[-2000:]
+        return res.stdout
+
+    for name, extra in (("rig", ["--channel", "tip"]), ("stand", [])):
+        out = json.loads(stand("compare", windows[name], "--model", "base", "--no-plots", "--json", *extra))
+        assert abs(out["params"]["g"] - 120.0) < 2.0 and out["metrics"]["n_samples"] >= 3500, out
+        assert out["metrics"]["rmse"] < 2 * out["metrics"]["noise_floor_rmse"], out["metrics"]
+        out = json.loads(stand("diagnose", windows[name], "--candidates", "reversal", "--json", *extra))
+        assert out["model"] == "base" and out["verdict"], out["verdict"]
+        stand("report", windows[name], "--model", "base", "--out", tmp_path / f"report-{name}", *extra)
+        history = json.loads((tmp_path / f"report-{name}" / "history.json").read_text())
+        assert (tmp_path / f"report-{name}" / "report.html").is_file()
+        assert history["dataset"]["samples"] >= 3500 and history["versions"][-1]["model"] == "base", history["dataset"]
+        assert abs(history["versions"][-1]["params"]["g"] - 120.0) < 2.0
