@@ -93,8 +93,8 @@ def round_trips(interface: str, channel: str, n: int, use_process: bool) -> floa
 
 
 def run(quick: bool) -> list[Row]:
-    n_frames = 20_000 if quick else 200_000
-    n_rt = 2_000 if quick else 20_000
+    n_frames = 5_000 if quick else 200_000
+    n_rt = 500 if quick else 20_000
     tag = f"bench-bus-{os.getpid()}"
     ours_fps, ours_lost = one_way("udp_loopback", tag + "-a", n_frames, use_process=True)
     virt_fps, _ = one_way("virtual", tag + "-b", n_frames, use_process=False)

@@ -181,8 +181,8 @@ def realtime_jitter(duration_s: float, experiment=None) -> dict:
 
 def run(quick: bool) -> list[Row]:
     rate, n, parts, spread = lockstep_cycles_per_s(4000 if quick else 30000)
-    floor, how = bare_round_trips(20000 if quick else 100000)   # short runs read low
-    rt = realtime_jitter(4.0 if quick else 60.0)
+    floor, how = bare_round_trips(5000 if quick else 100000)   # short runs read low
+    rt = realtime_jitter(2.0 if quick else 60.0)       # quick: one meander period
     rig_rate, rig_n = rig_lockstep_cycles_per_s(1000 if quick else 5000)
     return [
         Row("lockstep HIL loop (loopback bus, 2 processes)", f"{rate:,.0f} cycles/s",

@@ -20,8 +20,8 @@ Then null pacing on a stand whose valve is slower than the model says: the defau
 identified model on an emulated stand with a 25 % flow limit the model lacks, 101 random
 turning points at 5000 kgf/s, without pacing, static and dynamic: turning points missed (error
 beyond 0.5 % of the range), pacing time. ``--quick`` (a smoke run): the default stand with its
-own model (not identified), 16 turning points, no fixed-rate search, at most 3 passes, pacing on
-16 turning points.
+own model (not identified), 12 turning points, no fixed-rate search, at most 3 passes, pacing on
+8 turning points.
 """
 from __future__ import annotations
 
@@ -75,7 +75,7 @@ def measure(name: str, spec: str, values: dict, quick: bool) -> tuple[list[Row],
     """The rows of one stand (module docstring) and the model the controller came from."""
     bus = _bus()
     rows = []
-    levels = flight_by_flight(4 if quick else 28, seed=1)[: 16 if quick else None]
+    levels = flight_by_flight(4 if quick else 28, seed=1)[: 12 if quick else None]
     plant = load_plant_config(None, spec, values)
     with tempfile.TemporaryDirectory() as tmp, EmulatorProcess(bus, plant, lockstep=True, seed=3):
         tmp = Path(tmp)
@@ -174,7 +174,7 @@ def pacing_rows(model: PlantModel, quick: bool) -> list[Row]:
     truth = {"g": 120.0, "tau": 0.05, "delta": 8.0, "reversal.boost": 2.0, "saturation.limit": 25.0}
     rows = []
     ctl = design(model, T)
-    p = from_levels(random_sequence(16 if quick else 101, 400, 6200, seed=11), T, rate_kgf_s=5000)
+    p = from_levels(random_sequence(8 if quick else 101, 400, 6200, seed=11), T, rate_kgf_s=5000)
     with tempfile.TemporaryDirectory() as tmp, \
             EmulatorProcess(bus, load_plant_config(None, "base+reversal+saturation", truth), lockstep=True, seed=3), \
             Gateway(GatewayConfig(bus=bus, lockstep=True)) as gw:

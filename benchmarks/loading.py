@@ -14,7 +14,8 @@ pass) and with it (three passes, learning). Then a constant-amplitude sine (0.2 
 3000 kgf, 10 cycles, three passes). On the default stand, the controller's work per cycle in
 real time: SYNC jitter at 2 ms during a load pass. Goals (issue: loading): peak/valley p95 <=
 0.5 %, max <= 1 % of the range, no extra cycle; the designed RMS <= 1/5 of the best P's; SYNC
-jitter p99 < 0.5 ms. ``--quick``: 30 turning points, the default stand only.
+jitter p99 < 0.5 ms. ``--quick`` (a smoke run of seconds): the default stand only, identified
+from 2 cycles per meander among reversal and lag, 8 turning points.
 """
 from __future__ import annotations
 
@@ -50,17 +51,20 @@ STANDS = {
 }
 
 
-def identify(gw: Gateway, tmp: Path) -> Path:
-    """Meanders at 5, 10, 20 % around 3000 kgf, then ``stand diagnose --stepwise --save``."""
+def identify(gw: Gateway, tmp: Path, quick: bool = False) -> Path:
+    """Meanders at 5, 10, 20 % around 3000 kgf, then ``stand diagnose --stepwise --save``.
+    ``quick`` (a smoke run): 2 cycles each, the build-up choosing among reversal and lag only."""
     from stand.cli import main as stand
     runs = []
     for amp in (5, 10, 20):
-        res = gw.run(Meander(amplitude_pct=amp, period_s=2.0 if amp < 20 else 1.0, cycles=6,
-                             set_point_kgf=3000), tmp / f"m{amp}", progress=False)
+        res = gw.run(Meander(amplitude_pct=amp, period_s=2.0 if amp < 20 else 1.0,
+                             cycles=2 if quick else 6, set_point_kgf=3000), tmp / f"m{amp}",
+                     progress=False)
         runs.append(str(res.path))
     model = tmp / "model.toml"
     with contextlib.redirect_stdout(io.StringIO()):
-        stand(["diagnose", *runs, "--stepwise", "--save", str(model), "--jobs", "1"])
+        stand(["diagnose", *runs, "--stepwise", "--save", str(model), "--jobs", "1",
+               *(["--candidates", "reversal,lag"] if quick else [])])
     return model
 
 
@@ -88,12 +92,12 @@ def measure(name: str, spec: str, values: dict, quick: bool) -> list[Row]:
     bus = f"udp_loopback:bench-load-{os.getpid()}-{uuid.uuid4().hex[:6]}"
     config = load_plant_config(None, spec, values)
     rows = []
-    n = 30 if quick else 101
+    n = 8 if quick else 101
     seq = from_levels(random_sequence(n, 400, 6200, seed=11), T, rate_kgf_s=2500)
     with tempfile.TemporaryDirectory() as tmp, EmulatorProcess(bus, config, lockstep=True, seed=3):
         tmp = Path(tmp)
         with Gateway(GatewayConfig(bus=bus, lockstep=True)) as gw:
-            model = load_model_file(identify(gw, tmp))
+            model = load_model_file(identify(gw, tmp, quick))
             designed = design(model, T)
             rho, _ = largest_gain_factor(model)
             k_max = 0.8 * critical_p_gain(model.g * rho, model.tau, T)

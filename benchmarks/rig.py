@@ -1,4 +1,4 @@
-"""Rig scaling: the lockstep real-time factor of 1, 4, 8 and 16 channels (16 on 4 buses) and real time for 8 channels on 2 buses at 2 ms (SYNC jitter p99, the skew between the buses' SYNCs p99).
+"""Rig scaling: the lockstep real-time factor of 1, 4, 8, 16 and 32 channels (16 on 4 buses, 32 on 8, and on 4 CAN FD buses), through the benchmark's gateway and through ``stand demo --rig`` (its recording included), and real time for 16 channels on 4 buses (and 32 on 8) at 2 ms (SYNC jitter p99, the skew between the buses' SYNCs p99, missed and stale cycles, the loop's and the emulator's CPU, the host's own floor beside).
 
 The rigs are chains (:func:`rig.chain.chain_rig`): copies of the example rig's first channel
 (its base+reversal plant, 2 kgf noise), neighbours coupled 30 % through a chain stiffness,
@@ -8,10 +8,15 @@ by the worst-case budget, under the 70 % limit). Each rig is written as a rig fi
 with a meander on the first channel, the others at a zero command.
 
 * Lockstep: the cycles per second the gateway's run counted over its wall time (per cycle one
-  SYNC per bus, two TPDOs and one RPDO per channel).
-* Real time: the emulator at ordinary scheduling (a bench's nodes are not on the gateway's
-  host; at the gateway's priority they took its cores between the two sends), the gateway at
-  its own real-time priority. SYNC jitter: each cycle's SYNC send time (the run's
+  SYNC per bus, two TPDOs and one RPDO per channel); and ``stand demo --rig FILE`` as a user
+  runs it (its own emulator process, every channel recorded, a capture per bus), the factor it
+  prints. The CAN FD rig: 1 Mbit/s nominal, 5 Mbit/s data, 8 channels a bus (62 % by the
+  budget).
+* Real time: the emulator is the stand's hardware, which a bench does not share with the
+  host's other work: it runs at SCHED_FIFO one priority below the loop (at ordinary scheduling
+  on a busy host it fell seconds behind: 96 % of 16 channels' cycles stale), the gateway at
+  its own real-time priority. CPU: the loop thread's own (``stats.loop_cpu_s``), the gateway
+  process's and the emulator process's over the run, per cycle and as a share of one core. SYNC jitter: each cycle's SYNC send time (the run's
   ``sync_time``) against the ideal 2 ms grid. Skew: each cycle's SYNC on the second bus minus
   the first's, both from the runs' captures (udp_loopback stamps every frame with its send
   time), paired by cycle (the SYNC counters agree).
@@ -41,52 +46,94 @@ from .table import Row
 ORDER = 12
 PERIOD_S = 0.002
 SYNC_ID = 0x80
-#: (channels, buses) of the lockstep rows
-SIZES = ((1, 1), (4, 2), (8, 2), (16, 4))
+#: (channels, buses, CAN FD data bit rate or None) of the lockstep rows
+SIZES = ((1, 1, None), (4, 2, None), (8, 2, None), (16, 4, None), (32, 8, None), (32, 4, 5_000_000))
+#: the goals: lockstep real-time factors, the real-time rows' figures
+LOCKSTEP_GOALS = {16: 10.0, 32: 4.0}
+STALE_GOAL = 0.01
+#: the loop's real-time priority (the gateway's default) and the emulator's, one below
+LOOP_PRIORITY = 50
 COUPLING = 0.3
 JITTER_GOAL_MS = 0.5
 SKEW_GOAL_MS = 0.2
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "rig.toml"
 
 
-def chain_file(directory: Path, channels: int, buses: int) -> Path:
-    """A chain rig of ``channels`` on ``buses`` private loopback buses, written as a rig file."""
+def chain_file(directory: Path, channels: int, buses: int, data_bitrate: int | None = None) -> Path:
+    """A chain rig of ``channels`` on ``buses`` private loopback buses (CAN FD ones with
+    ``data_bitrate``), written as a rig file."""
     from rig.chain import chain_rig
     from rig.config import load_rig_file
     from rig.files import rig_to_toml
     tag = f"bench-rig{channels}-{os.getpid()}-{time.monotonic_ns() % 10**6}"
-    rig = chain_rig(load_rig_file(EXAMPLE).channels[0], channels, buses, COUPLING, PERIOD_S, tag)
-    path = directory / f"chain-{channels}-on-{buses}.toml"
+    rig = chain_rig(load_rig_file(EXAMPLE).channels[0], channels, buses, COUPLING, PERIOD_S, tag,
+                    data_bitrate=data_bitrate)
+    path = directory / f"chain-{channels}-on-{buses}{'-fd' if data_bitrate else ''}.toml"
     path.write_text(rig_to_toml(rig, header="a benchmark's chain rig (benchmarks/rig.py)", path=path))
     return path
 
 
+def process_cpu_s(pid: int) -> float:
+    """CPU time (user + system, s) a process has used, its ended threads included."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def drive(path: Path, out: Path, lockstep: bool, stand_s: float, emulator_args: list[str] | None = None,
-          limits=None, beside=None):
+          limits=None, beside=None, cpu: dict | None = None):
     """Serve the rig file with ``stand emulate --rig`` and run a meander of ``stand_s`` seconds
     on its first channel through the gateway (``limits``: its SafetyLimits); ``beside()`` is
-    called just before the run starts. The run's result and the rig."""
+    called just before the run starts. The run's result and the rig; ``cpu`` gets the gateway
+    process's and the emulator's CPU time over the run (s)."""
     from gateway import Gateway, GatewayConfig, SafetyLimits
     from gateway.experiments import Meander
     from plant_emulator.process import RigEmulatorProcess
     from rig.config import load_rig_file
     rig = load_rig_file(path)
     period = max(stand_s, 2 * PERIOD_S)
-    with RigEmulatorProcess(path, lockstep=lockstep, seed=1, extra_args=emulator_args or []), \
+    with RigEmulatorProcess(path, lockstep=lockstep, seed=1, extra_args=emulator_args or []) as emu, \
             Gateway(GatewayConfig(rig=rig, lockstep=lockstep, limits=limits or SafetyLimits())) as gw:
         if beside is not None:
             beside()
+        emu0, own0 = process_cpu_s(emu.pid), process_cpu_s(os.getpid())
         result = gw.run(Meander(5, period, 1), out, progress=False, channels=[rig.names[0]])
+        if cpu is not None:
+            cpu["emulator_s"] = process_cpu_s(emu.pid) - emu0
+            cpu["gateway_s"] = process_cpu_s(os.getpid()) - own0
     return result, rig
 
 
-def lockstep_rate(channels: int, buses: int, stand_s: float) -> dict:
+def lockstep_rate(channels: int, buses: int, stand_s: float, data_bitrate: int | None = None) -> dict:
     """Lockstep cycles per second of a chain rig (module docstring)."""
+    cpu: dict = {}
     with tempfile.TemporaryDirectory() as tmp:
-        result, rig = drive(chain_file(Path(tmp), channels, buses), Path(tmp) / "run", True, stand_s)
+        result, rig = drive(chain_file(Path(tmp), channels, buses, data_bitrate), Path(tmp) / "run",
+                            True, stand_s, cpu=cpu)
     s = result.outcome.stats
-    return {"rate": s.cycles / s.wall_s, "cycles": s.cycles, "status": result.status,
-            "frames": len(rig.buses) + 3 * channels}
+    status = result.status if result.reason is None else f"{result.status}: {result.outcome.message}"
+    return {"rate": s.cycles / s.wall_s, "cycles": s.cycles, "status": status,
+            "frames": len(rig.buses) + 3 * channels, "loop_cpu_us": 1e6 * s.loop_cpu_s / max(s.cycles, 1),
+            "emulator_cpu_us": 1e6 * cpu["emulator_s"] / max(s.cycles, 1)}
+
+
+def demo_factor(channels: int, buses: int, data_bitrate: int | None, cycles: int,
+                period_s: float = 4.0) -> dict:
+    """``stand demo --rig`` on a chain rig as a user runs it (a process of its own, its own
+    emulator, every channel recorded, a capture per bus): the real-time factor it prints."""
+    import re
+    import subprocess
+    import sys
+    with tempfile.TemporaryDirectory() as tmp:
+        path = chain_file(Path(tmp), channels, buses, data_bitrate)
+        out = subprocess.run([sys.executable, "-m", "stand", "demo", "--rig", str(path), "--cycles",
+                              str(cycles), "--period-s", str(period_s), "--out", str(Path(tmp) / "demo")],
+                             capture_output=True, text=True, timeout=1800)
+    found = re.search(r"run \S+: (\w+), ([\d,]+) cycles .*?\(([\d.]+)x real time\)", out.stdout)
+    if found is None:
+        return {"factor": float("nan"), "status": f"failed ({out.returncode}): {out.stdout[-300:]} {out.stderr[-300:]}",
+                "cycles": 0}
+    return {"factor": float(found.group(3)), "status": found.group(1),
+            "cycles": int(found.group(2).replace(",", ""))}
 
 
 def sync_stamps(capture: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -132,7 +179,8 @@ def answer_lag_ms(capture: Path) -> np.ndarray:
     return (tpdos[k[ok]] - syncs[ok]) * 1e3
 
 
-def realtime_rig(channels: int, buses: int, duration_s: float) -> dict:
+def realtime_rig(channels: int, buses: int, duration_s: float,
+                 emulator_priority: int = LOOP_PRIORITY - 1) -> dict:
     """A real-time run of a chain rig at 2 ms (module docstring): jitter and skew, ms. The
     stale readings do not stop the run (the emulator's answers are measured, not judged).
     Bare real-time threads in other processes, one pinned to each CPU
@@ -142,12 +190,14 @@ def realtime_rig(channels: int, buses: int, duration_s: float) -> dict:
 
     from . import wakeup
     floors = []
+    cpu: dict = {}
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "run"
         result, rig = drive(chain_file(Path(tmp), channels, buses), out, False, duration_s,
-                            emulator_args=["--rt-priority", "0"],
+                            emulator_args=["--rt-priority", str(emulator_priority)],
                             limits=SafetyLimits(stale_cycles=100_000),
-                            beside=lambda: floors.extend(wakeup.start_on_every_cpu(duration_s + 3.0)))
+                            beside=lambda: floors.extend(wakeup.start_on_every_cpu(duration_s + 3.0)),
+                            cpu=cpu)
         host = [wakeup.result(f) for f in floors]
         run = load_run(out)
         captures = [out / f"capture-{b.name}.log" for b in rig.buses]
@@ -172,7 +222,10 @@ def realtime_rig(channels: int, buses: int, duration_s: float) -> dict:
     skew_at_host = np.zeros(len(skew), bool)
     skew_at_host[skewed] = [wakeup.at_host_stalls([(t, d * 1e-3)], stalls) > 0
                             for t, d in zip(first_sync[skewed], skew[skewed])]
-    return {"jitter": jitter, "skew": skew, "lag": lag, "cycles": s.cycles, "overruns": s.overruns,
+    per_cycle = 1e6 / max(s.cycles, 1)
+    return {"loop_cpu_us": s.loop_cpu_s * per_cycle, "gateway_cpu_us": cpu["gateway_s"] * per_cycle,
+            "emulator_cpu_us": cpu["emulator_s"] * per_cycle,
+            "jitter": jitter, "skew": skew, "lag": lag, "cycles": s.cycles, "overruns": s.overruns,
             "stale": s.stale_cycles, "status": result.status,
             "host_p99": max((h["p99_ms"] for h in host), default=float("nan")),
             "host_stalls": len(stalls), "late": int(late.sum()),
@@ -298,49 +351,90 @@ def unload_row(case: dict, dead_valve: bool) -> Row:
                                                  for n, c in live.items()))
 
 
+def _kind(buses: int, data_bitrate: int | None) -> str:
+    return (f"{buses} CAN FD buses ({data_bitrate / 1e6:g} Mbit/s data)" if data_bitrate
+            else f"{buses} bus{'es' if buses > 1 else ''}")
+
+
+def realtime_rows(channels: int, buses: int, duration_s: float, load_before: float) -> list[Row]:
+    """The real-time rows of one rig size (module docstring)."""
+    rt = realtime_rig(channels, buses, duration_s)
+    load_after = os.getloadavg()[0]
+    j, k = rt["jitter"], rt["skew"]
+    what = f"rig real time, {channels} channels on {buses} buses at 2 ms"
+    stale_share = rt["stale"] / max(rt["cycles"], 1)
+    where = (f"{rt['cycles']:,} cycles ({rt['status']}), {rt['overruns']} missed, {rt['stale']} "
+             f"stale ({100 * stale_share:.2f} %); {rt['late']} cycles ≥ 0.5 ms late, {rt['late_at_host']} "
+             f"of them at one of the host's {rt['host_stalls']} stalls (a bare real-time thread per CPU, "
+             f"host floor p99 {rt['host_p99']:.2f} ms); off the host's stalls p99 "
+             f"{_pct(rt['jitter_off_host'], 99):.3f} ms; {rt['late_behind']} of the late cycles began "
+             f"behind (the cycle before ended after their SYNC time), {rt['late_behind_off_host']} "
+             f"of them off the host's stalls; gateway at {rt['policy']}, the emulator ({channels} "
+             f"channels, one process) at SCHED_FIFO {LOOP_PRIORITY - 1}; load average "
+             f"{load_before:.1f} before, {load_after:.1f} after, 2 cores")
+    period_us = PERIOD_S * 1e6
+    return [
+        Row(f"{what}: SYNC jitter",
+            f"p50 {_pct(j, 50):.3f} / p99 {_pct(j, 99):.3f} / max {j.max():.2f} ms",
+            f"goal p99 < {JITTER_GOAL_MS} ms", f"{_pct(j, 99) / JITTER_GOAL_MS:.2f} of goal",
+            "SYNC send time vs ideal grid; " + where),
+        Row(f"{what}: skew between the buses' SYNCs",
+            f"p50 {_pct(k, 50):.3f} / p99 {_pct(k, 99):.3f} / max {k.max():.2f} ms",
+            f"goal p99 < {SKEW_GOAL_MS} ms", f"{_pct(k, 99) / SKEW_GOAL_MS:.2f} of goal",
+            f"the last bus's SYNC minus the first's, each cycle, from the captures' send stamps; "
+            f"{rt['skewed']} cycles ≥ {SKEW_GOAL_MS} ms, {rt['skewed_at_host']} of them "
+            f"at one of the host's stalls; off the host's stalls p99 "
+            f"{_pct(rt['skew_off_host'], 99):.3f} ms"),
+        Row(f"{what}: missed and stale cycles, the emulator's answer",
+            f"{rt['overruns']} missed, {100 * stale_share:.2f} % stale; first TPDO after its SYNC "
+            f"p50 {_pct(rt['lag'], 50):.2f} / p90 {_pct(rt['lag'], 90):.2f} ms",
+            f"goal 0 missed, stale < {100 * STALE_GOAL:g} %",
+            "met" if rt["overruns"] == 0 and stale_share < STALE_GOAL else "not met",
+            f"{rt['stale']:,} of {rt['cycles']:,} cycles with a reading not in time (the run not "
+            f"stopped for them); host floor p99 {rt['host_p99']:.2f} ms"),
+        Row(f"{what}: CPU per cycle",
+            f"loop {rt['loop_cpu_us']:.0f} µs, gateway {rt['gateway_cpu_us']:.0f} µs, emulator "
+            f"{rt['emulator_cpu_us']:.0f} µs",
+            f"a period: {period_us:.0f} µs of one core",
+            f"{rt['loop_cpu_us'] / period_us:.2f} / {rt['gateway_cpu_us'] / period_us:.2f} / "
+            f"{rt['emulator_cpu_us'] / period_us:.2f} of a core",
+            "the loop thread's own CPU (run.json stats.loop_cpu_s), the gateway process's (loop, "
+            "captures, recorder, reader) and the emulator process's over the run, per cycle"),
+    ]
+
+
 def run(quick: bool) -> list[Row]:
     load_before = os.getloadavg()[0]
     rows = []
     base = None
-    for channels, buses in ((1, 1), (4, 2)) if quick else SIZES:
-        r = lockstep_rate(channels, buses, 1.0 if quick else 10.0)
+    for channels, buses, dbr in ((1, 1, None), (4, 2, None)) if quick else SIZES:
+        r = lockstep_rate(channels, buses, 1.0 if quick else 10.0, dbr)
         base = base or r["rate"]
-        rows.append(Row(f"rig lockstep, {channels} channel(s) on {buses} bus(es)",
-                        f"{r['rate']:,.0f} cycles/s", f"real time: {1 / PERIOD_S:,.0f} cycles/s",
-                        f"{r['rate'] * PERIOD_S:.2f}x real time",
+        factor = r["rate"] * PERIOD_S
+        goal = LOCKSTEP_GOALS.get(channels)
+        rows.append(Row(f"rig lockstep, {channels} channel(s) on {_kind(buses, dbr)}",
+                        f"{r['rate']:,.0f} cycles/s", f"real time: {1 / PERIOD_S:,.0f} cycles/s"
+                        + (f"; goal ≥ {goal:g}x" if goal else ""),
+                        f"{factor:.2f}x real time",
                         f"{r['cycles']:,} cycles ({r['status']}), {r['frames']} frames per cycle; "
-                        f"{r['rate'] / base:.2f} of 1 channel's rate; chain rig, neighbours "
-                        f"{COUPLING:.0%}, stand emulate --rig in its own process"))
-    rt = realtime_rig(8, 2, 3.0 if quick else 30.0)
-    load_after = os.getloadavg()[0]
-    j, k = rt["jitter"], rt["skew"]
-    where = (f"{rt['cycles']:,} cycles ({rt['status']}), {rt['overruns']} missed, {rt['stale']} "
-             f"stale; {rt['late']} cycles ≥ 0.5 ms late, {rt['late_at_host']} of them at one of "
-             f"the host's {rt['host_stalls']} stalls (a bare real-time thread per CPU, host floor "
-             f"p99 {rt['host_p99']:.2f} ms); off the host's stalls p99 "
-             f"{_pct(rt['jitter_off_host'], 99):.3f} ms; {rt['late_behind']} of the late cycles began "
-             f"behind (the cycle before ended after their SYNC time), {rt['late_behind_off_host']} "
-             f"of them off the host's stalls; gateway at {rt['policy']}, emulator "
-             f"(8 channels, one process) at ordinary scheduling; load average "
-             f"{load_before:.1f} before, {load_after:.1f} after, 2 cores")
-    rows.append(Row("rig real time, 8 channels on 2 buses at 2 ms: SYNC jitter",
-                    f"p50 {_pct(j, 50):.3f} / p99 {_pct(j, 99):.3f} / max {j.max():.2f} ms",
-                    f"goal p99 < {JITTER_GOAL_MS} ms", f"{_pct(j, 99) / JITTER_GOAL_MS:.2f} of goal",
-                    "SYNC send time vs ideal grid; " + where))
-    rows.append(Row("rig real time, 8 channels on 2 buses at 2 ms: skew between the buses' SYNCs",
-                    f"p50 {_pct(k, 50):.3f} / p99 {_pct(k, 99):.3f} / max {k.max():.2f} ms",
-                    f"goal p99 < {SKEW_GOAL_MS} ms", f"{_pct(k, 99) / SKEW_GOAL_MS:.2f} of goal",
-                    f"can1's SYNC minus can0's, each cycle, from the captures' send stamps; "
-                    f"{rt['skewed']} cycles ≥ {SKEW_GOAL_MS} ms, {rt['skewed_at_host']} of them "
-                    f"at one of the host's stalls; off the host's stalls p99 "
-                    f"{_pct(rt['skew_off_host'], 99):.3f} ms"))
-    lag = rt["lag"]
-    rows.append(Row("rig real time, 8 channels on 2 buses at 2 ms: the emulator's answer",
-                    f"first TPDO after its SYNC p50 {_pct(lag, 50):.2f} / p90 {_pct(lag, 90):.2f} ms",
-                    "a bench's nodes: well within the period", "",
-                    f"{rt['stale']:,} of {rt['cycles']:,} cycles with a reading not in time (stale, "
-                    "the run not stopped for it): stand emulate --rig serves the 16 nodes of 8 "
-                    "channels in one Python process beside the gateway on the same 2 cores"))
+                        f"{r['rate'] / base:.2f} of 1 channel's rate; CPU per cycle: loop "
+                        f"{r['loop_cpu_us']:.0f} µs, emulator {r['emulator_cpu_us']:.0f} µs (both poll "
+                        f"while they wait); chain rig, neighbours {COUPLING:.0%}, stand emulate --rig "
+                        f"in its own process; load average {os.getloadavg()[0]:.1f}"))
+    for channels, buses, dbr in ((4, 2, None),) if quick else SIZES:
+        d = demo_factor(channels, buses, dbr, 2 if quick else 3, 2.0 if quick else 4.0)
+        goal = LOCKSTEP_GOALS.get(channels)
+        rows.append(Row(f"stand demo --rig, {channels} channel(s) on {_kind(buses, dbr)}",
+                        f"{d['factor']:.1f}x real time", "the user's own path" + (f"; goal ≥ {goal:g}x" if goal else ""),
+                        f"{d['factor']:.1f}x",
+                        f"the factor the demo prints: {d['cycles']:,} cycles ({d['status']}), every "
+                        f"channel recorded, a capture per bus, its own emulator process; load "
+                        f"average {os.getloadavg()[0]:.1f}"))
+    if quick:
+        rows += realtime_rows(4, 2, 3.0, load_before)
+    else:
+        rows += realtime_rows(16, 4, 30.0, load_before)
+        rows += realtime_rows(32, 8, 30.0, os.getloadavg()[0])
     for dead in (False, True):
         rows.append(unload_row(unload_case(dead), dead))
     return rows

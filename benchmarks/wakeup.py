@@ -103,7 +103,7 @@ def at_host_stalls(stalls: list[tuple[float, float]], host: list[tuple[float, fl
 
 
 def run(quick: bool) -> list[Row]:
-    m = measure(4.0 if quick else 60.0)
+    m = measure(1.0 if quick else 60.0)
     return [Row("host floor: bare thread sleeping on a 2 ms grid",
                 f"p99 {m['p99_ms']:.3f} / max {m['max_ms']:.2f} ms",
                 "what any loop on this host gets (cyclictest-like)", "",

@@ -134,6 +134,18 @@ def status(journal: Journal, events: int = 10) -> dict:
     return s
 
 
+def status_of(testdir: str | Path, events: int = 10) -> dict:
+    """:func:`status` of the test in ``testdir``: what ``stand test status --json`` prints
+    (:func:`status_json`) and the live page's ``/status.json``."""
+    with Journal.open(testdir) as journal:
+        return status(journal, events)
+
+
+def status_json(s: dict) -> str:
+    """A status as ``stand test status --json`` prints it."""
+    return json.dumps(s, indent=2) + "\n"
+
+
 def status_text(s: dict) -> str:
     """:meth:`Journal.status` in a few lines."""
     lines = [f"{s['name']}: {s['state']}" + (f" ({s['reason']})" if s.get("reason") else ""),
@@ -162,13 +174,14 @@ def status_text(s: dict) -> str:
 def end_point_errors(table: pa.Table) -> dict[str, np.ndarray]:
     """Every peak and valley of the turning-point log (``table``: its columns flight, block,
     attempt, load_case, channel, level_kgf, reached_kgf): per row its flight, block, channel
-    and error as % of the channel's range in its flight (the range of the flight's levels).
-    A load case is a peak (valley) of a channel where its level is above (below) the ones
-    before and after it in the flight."""
+    and error as % of the channel's range in its flight (the range of the flight's levels),
+    and its flight_type and flow_pct where the table has them. A load case is a peak (valley)
+    of a channel where its level is above (below) the ones before and after it in the flight."""
+    extra = [c for c in ("flight_type", "flow_pct") if c in table.column_names]
     if table.num_rows == 0:
-        return {k: np.array([]) for k in ("flight", "block", "channel", "error_pct")}
+        return {k: np.array([]) for k in ("flight", "block", "channel", "error_pct", *extra)}
     cols = {c: table.column(c).to_numpy(zero_copy_only=False) for c in
-            ("flight", "block", "attempt", "load_case", "channel", "level_kgf", "reached_kgf")}
+            ("flight", "block", "attempt", "load_case", "channel", "level_kgf", "reached_kgf", *extra)}
     order = np.lexsort((cols["load_case"], cols["attempt"], cols["flight"], cols["channel"]))
     c = {k: v[order] for k, v in cols.items()}
     channel = c["channel"].astype(str)
@@ -188,7 +201,7 @@ def end_point_errors(table: pa.Table) -> dict[str, np.ndarray]:
     keep = peak | valley
     err = 100 * (c["reached_kgf"] - lv) / np.maximum(rng, 1e-9)
     return {"flight": c["flight"][keep], "block": c["block"][keep], "channel": channel[keep],
-            "error_pct": err[keep]}
+            "error_pct": err[keep], **{k: c[k][keep] for k in extra}}
 
 
 def accuracy(errors: dict[str, np.ndarray], mask: np.ndarray | None = None) -> dict[str, dict]:
@@ -202,12 +215,14 @@ def accuracy(errors: dict[str, np.ndarray], mask: np.ndarray | None = None) -> d
     return out
 
 
-def test_end_points(testdir: Path, journal: Journal) -> pa.Table:
+def test_end_points(testdir: Path, journal: Journal, first_flight: int = 1) -> pa.Table:
     """The turning-point log with the journal's end points it does not hold yet (a live or
-    interrupted test), done flights only."""
+    interrupted test), done flights only; from ``first_flight`` on."""
+    import pyarrow.dataset as ds
+
     from .storage import _turning_point_table
-    table = read_turning_points(testdir)
-    last = int(pc.max(table.column("flight")).as_py() or 0) if table.num_rows else 0
+    table = read_turning_points(testdir, filter=ds.field("flight") >= first_flight if first_flight > 1 else None)
+    last = int(pc.max(table.column("flight")).as_py() or 0) if table.num_rows else first_flight - 1
     done = journal.flights_done
     if done > last:
         extra = _turning_point_table(journal.end_points(last + 1, done))

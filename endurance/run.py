@@ -54,6 +54,14 @@ whole swing), with the compensation its type has; the interrupted flight is comp
 once. The time from the resume to loading again is an event (``loading``) and in the
 session's record (``TESTDIR/sessions/NNNN.json``).
 
+**The live view.** A session takes a ``publisher`` (:class:`endurance.live.feed.LiveFeed`:
+the command line always gives one): the control loop hands it every cycle's forces, references
+and commands (it keeps a decimated copy in a ring buffer, never waiting), and a trip is an
+``interlock`` event in the journal at its moment (the loop's ``trip`` hook, a queue put).
+Events from outside the session (the live page's operator actions and refusals) come through
+``TESTDIR/inbox/`` (:mod:`endurance.inbox`), taken in by the writer thread as it polls the stop
+file.
+
 **Storage.** Full-rate signals go to the rolling window (:class:`endurance.storage.SignalWindow`,
 with ±``event_window_s`` kept around each stop, resume and trip as a run directory); the
 turning-point log is exported from the journal every :data:`EXPORT_EVERY` flights and at the end
@@ -85,6 +93,7 @@ from loading.report import tracking_report
 
 from .flights import (OPERATOR_STOP, FlightPiece, FlightPlayer, FlightRecord, StopRequest, filled_forces,
                       first_ways, glide_in, lead_in_of)
+from .inbox import take_in
 from .journal import EndPoint, Journal, JournalError, MonitorStep, lock_holder
 from .monitors import MONITOR_ALARM, FlightEnd, GainWatch, MonitorAlarm, TrendWatch
 from .storage import SignalWindow, TurningPointLog
@@ -437,9 +446,15 @@ class JournalWriter:
 
     def _poll_stop(self) -> None:
         now = time.monotonic()
-        if self._stop_seen or now < self._next_poll:
+        if now < self._next_poll:
             return
         self._next_poll = now + STOP_POLL_S
+        try:                                            # events from outside (endurance.inbox)
+            take_in(self.testdir, self.journal)
+        except (JournalError, OSError):                 # they wait there; the load cases' own
+            pass                                        # commits stop the test if it cannot write
+        if self._stop_seen:
+            return
         request = read_stop_file(self.testdir)
         if request is None:
             return
@@ -481,14 +496,25 @@ def flight_line(end: FlightEnd, nominal) -> str:
 # -- the rolling window as the gateway's recorder -------------------------------------------------------
 class SessionRecorder:
     """The gateway run's recorder (``Gateway.run(recorder=...)``): every cycle to the rolling
-    window; a trip's (or a stop's) moment marked for an event window."""
+    window (and to the ``publisher``'s ``cycle(sync_time, forces, references, commands)``, which
+    must not block); a trip's (or a stop's) moment marked for an event window, and a trip the
+    session did not ask for handed to ``on_trip`` as it happens."""
 
-    def __init__(self, window: SignalWindow, testdir: Path, flight: Callable[[], int]) -> None:
+    def __init__(self, window: SignalWindow, testdir: Path, flight: Callable[[], int],
+                 publisher=None, on_trip: Callable[[Any], None] | None = None) -> None:
         self.window = window
         self.dir = testdir
-        self.append_cycle = window.append_cycle
+        self.append_cycle = window.append_cycle if publisher is None else \
+            _published(window.append_cycle, publisher.cycle)
         self.flight = flight
+        self.on_trip = on_trip
         self.meta: dict[str, Any] = {}
+
+    def trip(self, trip) -> None:
+        """The loop's hook: a supervisor tripped (:class:`gateway.supervisor.Trip`), in the
+        loop's thread."""
+        if self.on_trip is not None:
+            self.on_trip(trip)
 
     def poll(self) -> None:
         self.window.poll()
@@ -502,6 +528,13 @@ class SessionRecorder:
                                    onset if onset and math.isfinite(onset) else None,
                                    safety.get("channel"), self.flight())
         return self.dir
+
+
+def _published(append: Callable, publish: Callable) -> Callable:
+    def append_cycle(t, cycle, sync_time, u, y, r, *rest) -> None:
+        append(t, cycle, sync_time, u, y, r, *rest)
+        publish(sync_time, y, r, u)
+    return append_cycle
 
 
 # -- the files of the test directory ---------------------------------------------------------------------
@@ -543,10 +576,12 @@ def test_file_of(testdir: Path) -> Path:
 # -- sessions -------------------------------------------------------------------------------------------
 def start(test_file: "str | Path | EnduranceTest", testdir: str | Path, config, flights: int | None = None,
           progress: bool | None = False, on_flight=None, hook=None,
-          started_at: float | None = None) -> SessionResult:
+          started_at: float | None = None, publisher=None, gateway_args: list[str] | None = None) -> SessionResult:
     """A new test in ``testdir`` (refused if it holds one) from ``test_file``, then its first
     session on the gateway of ``config`` (:class:`gateway.config.GatewayConfig` for the test's
-    station: :func:`station_config`). ``flights``: the target instead of the file's."""
+    station: :func:`station_config`). ``flights``: the target instead of the file's.
+    ``publisher``: the live view's (module docstring). ``gateway_args``: the command line's
+    gateway options, kept in ``TESTDIR/test.json`` for a resume from the live page."""
     started_at = time.time() if started_at is None else started_at
     test = _read(test_file)
     config = station_config(test, config)
@@ -556,15 +591,16 @@ def start(test_file: "str | Path | EnduranceTest", testdir: str | Path, config, 
     fp = test.fingerprint()
     journal = Journal.create(testdir, test.name, target, test.station.names, fp.digest, fp.to_json(),
                              test.path.read_text())
-    _write_json(testdir / TEST_RECORD, {"test_file": str(test.path.resolve())})
+    _write_json(testdir / TEST_RECORD, {"test_file": str(test.path.resolve()),
+                                        "gateway_args": list(gateway_args or [])})
     return run_session(test, testdir, journal, "start", started_at, gateway_drive(test, config, progress),
-                       on_flight, hook, config.lockstep, config.limits.command_limit_pct)
+                       on_flight, hook, config.lockstep, config.limits.command_limit_pct, publisher)
 
 
 def resume(testdir: str | Path, config, test_file: "str | Path | EnduranceTest | None" = None,
            flights: int | None = None,
            progress: bool | None = False, on_flight=None, hook=None,
-           started_at: float | None = None) -> SessionResult:
+           started_at: float | None = None, publisher=None) -> SessionResult:
     """The session that takes the test in ``testdir`` up again (module docstring)."""
     started_at = time.time() if started_at is None else started_at
     testdir = Path(testdir)
@@ -589,7 +625,7 @@ def resume(testdir: str | Path, config, test_file: "str | Path | EnduranceTest |
         journal.close()
         raise
     return run_session(test, testdir, journal, "resume", started_at, gateway_drive(test, config, progress),
-                       on_flight, hook, config.lockstep, config.limits.command_limit_pct)
+                       on_flight, hook, config.lockstep, config.limits.command_limit_pct, publisher)
 
 
 def _read(test_file: "str | Path | EnduranceTest") -> EnduranceTest:
@@ -653,12 +689,14 @@ def gateway_drive(test: EnduranceTest, config, progress: bool | None = False) ->
 
 def run_session(test: EnduranceTest, testdir: Path, journal: Journal, kind: str, started_at: float,
                 drive: Drive, on_flight=None, hook=None, lockstep: bool = True,
-                command_limit_pct: float = 100.0) -> SessionResult:
+                command_limit_pct: float = 100.0, publisher=None) -> SessionResult:
     """One session: the flights from the journal's position on, back to back, until a stop,
     the target, an inspection or a fault (module docstring). ``journal`` is open for writing
     (the test's lock held) and is closed here. ``lockstep``: the stand waits for the loop (the
     first cycle may wait for the first flight's piece; in real time the valves hold meanwhile).
-    ``command_limit_pct``: the valves' (time scaling's minimum counts on it)."""
+    ``command_limit_pct``: the valves' (time scaling's minimum counts on it). ``publisher``: the
+    live view's, opened with ``open(testdir, channels, period_s)`` before the run and closed after
+    it."""
     try:
         (testdir / STOP_FILE).unlink(missing_ok=True)
         names = test.station.names
@@ -683,17 +721,22 @@ def run_session(test: EnduranceTest, testdir: Path, journal: Journal, kind: str,
     planner.writer = writer
     player = FlightPlayer(names, pos.flight, pos.load_case, pos.attempt is not None, planner, writer, last,
                           stop, test.station.period_s, test.controller.command_limit_pct, wait_first=lockstep)
-    recorder = SessionRecorder(window, testdir, lambda: player.number)
+    recorder = SessionRecorder(window, testdir, lambda: player.number, publisher,
+                               _interlock_event(writer, stop, lambda: player.number))
     result = SessionResult(testdir, kind, "running", None, journal.flights_done, journal.flights_target, pos.flight)
     outcome = None
     failure: BaseException | None = None
     try:
         journal.start()
+        if publisher is not None:
+            publisher.open(testdir, list(names), test.station.period_s)
         outcome = drive(player, recorder, window)
     except BaseException as exc:
         failure = exc
         raise
     finally:
+        if publisher is not None:
+            publisher.close()
         planner.close()
         writer.close()
         try:
@@ -704,6 +747,21 @@ def run_session(test: EnduranceTest, testdir: Path, journal: Journal, kind: str,
         journal.close()
         (testdir / STOP_FILE).unlink(missing_ok=True)
     return result
+
+
+def _interlock_event(writer: JournalWriter, stop: StopRequest, flight: Callable[[], int]) -> Callable:
+    """The recorder's ``on_trip``: a trip the session did not ask for (not a stop, a monitor's
+    alarm or a journal error: those have their events) is an ``interlock`` event at its onset.
+    The gain monitor's alarm trips the loop itself; its event is the monitor's (``gain_alarm``,
+    :class:`endurance.monitors.GainWatch`)."""
+    from loading.gain_monitor import GAIN_ALARM
+
+    def on_trip(trip) -> None:
+        if (stop.at_once and trip.reason == stop.reason) or trip.reason == GAIN_ALARM:
+            return
+        writer.event("interlock", f"{trip.reason}: {trip.message} -> {trip.action}", channel=trip.channel,
+                     flight=flight(), time_s=trip.onset_wall)
+    return on_trip
 
 
 def _error_limits(gw, test: EnduranceTest) -> Callable[[], None]:

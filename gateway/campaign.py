@@ -27,7 +27,12 @@ own run directory ``OUT/runs/NN-label``; the campaign writes ``OUT/campaign.json
   other valve at a zero command; run ``k`` is column ``k`` of G;
 * **simultaneous**: one run, every channel a meander of its own period (periods that tell the
   channels apart: :func:`analysis.rig.periods.separating_periods`, chosen by the caller), as
-  many whole periods as fit in the duration (:class:`~gateway.experiments.each_channel.EachChannel`).
+  many whole periods as fit in the duration (:class:`~gateway.experiments.each_channel.EachChannel`);
+* **one run**: every channel a ±u0 meander whose signs follow its row of a Hadamard matrix, all
+  switching on one grid (:class:`~gateway.experiments.one_run.OneRun`), its slot and length
+  planned for the accuracy asked before anything moves (:func:`rig.excitation.plan_one_run`,
+  :class:`rig.excitation.OneRunDesign`): the run does not grow with N beyond the 2·m slots of
+  the Hadamard pattern (m ≥ N).
 
 The runs are written as ``OUT/NN-LABEL`` (rig runs: every channel, a capture per bus) beside
 ``OUT/rig-campaign.json``, so ``stand estimate OUT --save rig.toml`` reads the directory as it is.
@@ -36,7 +41,8 @@ swing is checked: a meander that starts a quarter period in swings each force by
 
 .. math::  s_i = \sum_j |G_{ij}|\,u_{0,j}\,P_j/4
 
-about where it started (per column only the moving channel's term). Over
+about where it started (per column only the moving channel's term; one run: the largest
+excursion of ``Σ_j G_ij u_j`` integrated over the slots, :func:`rig.excitation.swings_kgf`). Over
 :data:`SWING_SHARE` of the channel's force limit (room for where the force starts and its
 trend) the plan is refused with the amplitude that would fit. Each meander still stops itself
 at 90 % of its channel's limit (the experiment's guard).
@@ -49,6 +55,7 @@ heartbeat, EMCY, ...) ends the campaign.
 from __future__ import annotations
 
 import datetime as _dt
+import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -58,9 +65,12 @@ from tqdm import tqdm
 
 import numpy as np
 
+from rig.excitation import OneRunDesign, swings_kgf
+
 from .errors import ParameterError, StandError
 from .experiments import Meander, make_experiment
 from .experiments.each_channel import EachChannel
+from .experiments.one_run import OneRun
 from .experiments.phases import FORCE_NEAR_LIMIT, SET_POINT_NOT_REACHED
 from .recorder import write_json
 from .runs import TRUTH_FILE
@@ -211,7 +221,8 @@ class CampaignPlan:
 @dataclass
 class GPlan:
     """The meanders that identify a rig's G (module docstring): ``periods_s`` one per channel
-    (simultaneous) or one for all (per column)."""
+    (simultaneous) or one for all (per column), or ``one_run``'s Hadamard meanders
+    (:meth:`one`)."""
 
     simultaneous: bool
     amplitude_pct: float = 5.0
@@ -220,13 +231,29 @@ class GPlan:
     #: periods as fit, at least 2)
     cycles: int = 4
     duration_s: float = 120.0
+    #: the one-run design (None: per column or simultaneous)
+    one_run: OneRunDesign | None = None
 
     file, format, runs_dir = G_CAMPAIGN_FILE, G_FORMAT, ""
 
+    @classmethod
+    def one(cls, design: OneRunDesign) -> "GPlan":
+        """The one-run campaign of a planned design (:func:`rig.excitation.plan_one_run`)."""
+        return cls(False, min(design.amplitude_pct), [2 * design.slot_s], 1, design.duration_s,
+                   design)
+
     def runs(self, names: Sequence[str]) -> list[PlannedRun]:
         """One run per column (the channel named drives, the others hold a zero command), or
-        one simultaneous run (every channel its own meander: a rig experiment)."""
+        one simultaneous run (every channel its own meander: a rig experiment), or the one
+        run of Hadamard meanders."""
         names = list(names)
+        if self.one_run is not None:
+            d = self.one_run
+            if d.channels != len(names):
+                raise ParameterError(f"a one-run design for {d.channels} channels, the rig has {len(names)}")
+            exp = OneRun(names, d.amplitude_pct, d.slot_s, d.repeats)
+            return [PlannedRun(1, exp.name, exp.params(), "01-one-run",
+                               exp.duration_s + APPROACH_GUESS_S, None, exp)]
         if self.simultaneous:
             if len(self.periods_s) != len(names):
                 raise ParameterError(f"{len(self.periods_s)} periods for {len(names)} channels")
@@ -244,6 +271,9 @@ class GPlan:
     def swings_kgf(self, G: np.ndarray) -> np.ndarray:
         """Each channel's largest planned swing (kgf) over the runs (module docstring)."""
         n = G.shape[0]
+        if self.one_run is not None:
+            d = self.one_run
+            return swings_kgf(G, d.amplitude_pct, d.signs(), d.slot_s)
         reach = np.abs(G) * self.amplitude_pct
         if self.simultaneous:
             return reach @ (np.asarray(self.periods_s, float) / 4)
@@ -260,11 +290,15 @@ class GPlan:
         share = swings / (SWING_SHARE * limits)
         i = int(np.argmax(share))
         if share[i] > 1:
+            how = ("the largest excursion of Σ_j G_ij·u_j over the slots" if self.one_run is not None
+                   else "Σ|G_ij|·u0·P_j/4")
+            what = ("or a shorter slot (--duration-s)" if self.one_run is not None
+                    else "or the meander period")
             raise ParameterError(
-                f"{rig.where}: channel {rig.names[i]} would swing ±{swings[i]:.0f} kgf (Σ|G_ij|·u0·P_j/4 "
+                f"{rig.where}: channel {rig.names[i]} would swing ±{swings[i]:.0f} kgf ({how} "
                 f"with the rig file's G), over {SWING_SHARE:.0%} of its force limit "
                 f"±{limits[i]:.0f} kgf; nothing was started. Lower --amplitude-pct to "
-                f"{self.amplitude_pct / share[i]:.2g} or the meander period")
+                f"{self.amplitude_pct / share[i]:.2g} {what}")
 
     def check(self, gw: Gateway) -> None:
         if gw.rig is None:
@@ -275,7 +309,12 @@ class GPlan:
         return sum(r.nominal_s for r in self.runs(names))
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        out = asdict(self)
+        if self.one_run is not None:      # JSON has no NaN (an accuracy not planned)
+            out["one_run"] = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                              for k, v in out["one_run"].items()}
+            out["one_run"].update(slots=self.one_run.slots, duration_s=self.one_run.duration_s)
+        return out
 
 
 @dataclass

@@ -36,8 +36,11 @@ its channels one by one (per-channel drivers, each its own copy; the others hold
 or all at once (a :class:`~gateway.experiments.rig.RigExperiment`: N forces in, N commands and
 N references out per cycle, each channel's supervisor and the rig's safety the same).
 
-The TPDO callbacks decode with the precompiled PDO layouts and hand the values over through a
-queue. In lockstep, and in real time on a rig, the loop takes its buses over for the run
+The TPDOs are taken raw by their own handlers in each bus's notifier, before canopen (no
+python-can Message, no dispatch), decoded with the precompiled PDO layouts and handed over
+through a queue; a cycle's commands go out as one send per bus (on udp_loopback one datagram:
+:mod:`standbus.wire`), FD frames on a CAN FD bus. A rig's supervisors are asked together in a
+quiet cycle (:class:`~gateway.supervisor.SupervisorBank`), one by one in any other. In lockstep, and in real time on a rig, the loop takes its buses over for the run
 (:class:`standbus.HandoverNotifier`) and receives on its own thread: no thread hand-off, no
 wake-up of a reader thread and no GIL hand-off per frame (a rig's 16 answers a cycle on 2
 buses made the reader threads compete with the loop for the GIL). In lockstep it polls briefly
@@ -69,7 +72,7 @@ from .experiments import Experiment
 from .experiments.rig import RigExperiment, is_rig_experiment
 from .master import StandMaster
 from .recorder import RunRecorder
-from .supervisor import Supervisor, Trip
+from .supervisor import Supervisor, SupervisorBank, Trip
 from .unload import RatioUnloader
 
 if TYPE_CHECKING:
@@ -119,6 +122,9 @@ class LoopStats:
     behind_s: list = field(default_factory=list)
     #: real time only: the shortest time after a SYNC the loop waited for its answers, s
     answer_window_min_s: float = math.inf
+    #: the loop thread's own CPU time over the run, s (its share of the cores: per cycle over
+    #: the period)
+    loop_cpu_s: float = 0.0
 
 
 @dataclass
@@ -207,6 +213,9 @@ class ControlLoop:
             self._status_pos.append(m.valve_tpdo.position(P.STATUS_WORD, 0))
             self._spool_pos.append(m.valve_tpdo.position(*P.ACTUAL_VALUE))
         self._callbacks = [self._tpdo_callback(b) for b in range(len(self.networks))]
+        #: per bus, the TPDOs' own handlers for the bus's notifier (raw frames, no Message)
+        self._fast = [{cob: self._fast_tpdo(b, cob, layout) for cob, layout in layouts.items()}
+                      for b, layouts in enumerate(self._layouts)]
         self.stats = LoopStats()
         self._subscribed = False
         #: lockstep: receives one frame on the loop's own thread (the reader threads parked)
@@ -227,18 +236,43 @@ class ControlLoop:
             put((can_id + offset, values, timestamp))
         return on_tpdo
 
+    def _fast_tpdo(self, bus: int, cob: int, layout):
+        """A TPDO's handler in its bus's notifier: decoded from the raw frame, no Message and
+        no canopen dispatch; a frame of another length is left to the acceptance filter
+        (counted there as a wrong DLC, as before)."""
+        size, unpack = layout.size, layout.codec.unpack
+        key = cob + bus * KEY_STRIDE
+        put = self._arrivals.put
+
+        def on_tpdo(data: bytes, stamp: float) -> bool:
+            if len(data) != size:
+                return False
+            put((key, unpack(data), stamp))
+            return True
+        return on_tpdo
+
     def _subscribe(self) -> None:
         if not self._subscribed:
-            for net, layouts, callback in zip(self.networks, self._layouts, self._callbacks):
+            for net, layouts, callback, fast in zip(self.networks, self._layouts, self._callbacks,
+                                                    self._fast):
                 for cob in layouts:
                     net.subscribe(cob, callback)
+                notifier = getattr(net, "notifier", None)
+                if isinstance(getattr(notifier, "fast", None), dict):
+                    notifier.fast.update(fast)
+                    notifier.fast_fd = bool(getattr(net, "cyclic_flags", 0))
             self._subscribed = True
 
     def close(self) -> None:
         if self._subscribed:
-            for net, layouts, callback in zip(self.networks, self._layouts, self._callbacks):
+            for net, layouts, callback, fast in zip(self.networks, self._layouts, self._callbacks,
+                                                    self._fast):
                 for cob in layouts:
                     net.unsubscribe(cob, callback)
+                notifier = getattr(net, "notifier", None)
+                if isinstance(getattr(notifier, "fast", None), dict):
+                    for cob in fast:
+                        notifier.fast.pop(cob, None)
             self._subscribed = False
 
     # -- helpers ---------------------------------------------------------------------------------
@@ -393,6 +427,11 @@ class ControlLoop:
         masters = [c.master for c in chans]
         networks = self.networks
         one_bus = len(networks) == 1
+        sync_flags = getattr(networks[0], "cyclic_flags", 0)
+        # a rig's supervisors asked together in a quiet cycle (a stand's one as it always was)
+        bank = SupervisorBank(sups) if n > 1 else None
+        bus_of = [c.bus for c in chans]
+        out_frames: list[list] = [[] for _ in networks]
         next_arrival = self._next_arrival
         overrun_limit = sups[0].limits.overrun_limit_s
         percent_to_counts, counts_to_percent = P.percent_to_counts, P.counts_to_percent
@@ -422,12 +461,15 @@ class ControlLoop:
         one_driver = drive_list[0] if len(drive_list) == 1 else None
         final_action = "hold"
         all_channels = range(n)
+        #: a recorder that wants to hear of a trip as it happens (an endurance session's)
+        on_trip = getattr(recorder, "trip", None)
         self._drain()
         stats.late_frames = 0
         # Enable the valves with a zero command before the first SYNC.
         for i in all_channels:
             self.send_command(CW_ACTIVE, 0.0, i)
         wall0 = time.monotonic()
+        cpu0 = time.thread_time()
         t_start = time.perf_counter()
         # real time: the SYNCs' grid, slot k at t_start + k·T; a row's t is k·T exactly (a
         # sum of periods in floats drifts off it by ns when perf_counter is large: long uptimes)
@@ -475,7 +517,7 @@ class ControlLoop:
                     fresh_from = sync_wall + window
                 sync_wall = now_wall
                 if one_bus:
-                    networks[0].send_message(SYNC_COB_ID, bytes((counter,)))
+                    networks[0].send_frames([(sync_flags, SYNC_COB_ID, 1, bytes((counter,)))])
                 else:                         # every bus's SYNC, back to back
                     send_together(networks, SYNC_COB_ID, bytes((counter,)))
                 got_force = [False] * n
@@ -527,7 +569,8 @@ class ControlLoop:
                     stale = fresh_row
                 rs = [math.nan] * n
                 new = late_trip or wait_trip
-                if new is None:
+                if new is None and not (bank is not None and stale is fresh_row and unloader is None
+                                        and len(watched_idx) == n and bank.quiet(ys, statuses)):
                     for i in watched_idx:
                         new = sups[i].check(ys[i], stale[i], statuses[i], sync_wall,
                                             force=unloader is None)
@@ -605,15 +648,22 @@ class ControlLoop:
                                 break
                     if new is None:
                         us = [0.0] * n
+                        for frames in out_frames:
+                            frames.clear()
                         for i in all_channels:
                             counts = percent_to_counts(sups[i].shape_command(us_req[i]))
-                            masters[i].send_valve_command(CW_ACTIVE, counts)
+                            out_frames[bus_of[i]].append(masters[i].valve_frame(CW_ACTIVE, counts))
                             us[i] = counts_to_percent(counts)
+                        for net, frames in zip(networks, out_frames):   # a bus's in one batch
+                            if frames:
+                                net.send_frames(frames)
                 if trip is None and new is not None:
                     trip = new
                     log.warning("cycle %d (t = %.3f s): %s%s: %s -> %s", cycle, t,
                                 f"channel {trip.channel}: " if trip.channel else "", trip.reason,
                                 trip.message, trip.action)
+                    if on_trip is not None:
+                        on_trip(trip)
                     excluded = self._excluded(trip)
                     action = self._rig_action(trip, excluded)
                     active = [i not in excluded for i in all_channels]
@@ -657,6 +707,7 @@ class ControlLoop:
             raise
         self.safe_state(final_action)
         stats.wall_s = time.monotonic() - wall0
+        stats.loop_cpu_s = time.thread_time() - cpu0
         if stats.sync_jitter_s:
             stats.max_lateness_s = max(stats.sync_jitter_s)
         stats.shaped_commands = sum(s.clamped for s in sups)

@@ -174,6 +174,9 @@ class StandMaster:
                                        [(P.CONTROL_WORD, 0), P.SETPOINT], synchronous=False)
         self._rpdo_cw = self.valve_rpdo.position(P.CONTROL_WORD, 0)
         self._rpdo_sp = self.valve_rpdo.position(*P.SETPOINT)
+        self._rpdo_two = self.valve_rpdo.keys == ((P.CONTROL_WORD, 0), tuple(P.SETPOINT))
+        self._cyclic_flags = getattr(self.network, "cyclic_flags", 0)
+        self._last_command = self._last_frame = None
         self.force_tpdo = self._layout(self.dynamometer, self.dynamometer.node.tpdo[1], [P.PV_INT32],
                                        synchronous=True)
         if hasattr(self.network, "expect"):
@@ -220,12 +223,36 @@ class StandMaster:
         start_all([self], timeout_s, keepalive_s)
 
     def send_valve_command(self, control_word: int, setpoint_counts: int) -> None:
-        """One valve RPDO: control word and setpoint (the rest of the mapping zero)."""
+        """One valve RPDO: control word and setpoint (the rest of the mapping zero); an FD frame
+        on a CAN FD bus, as every cyclic frame there."""
+        send_frames = getattr(self.network, "send_frames", None)
+        if send_frames is not None:
+            send_frames([self.valve_frame(control_word, setpoint_counts)])
+            return
         rpdo = self.valve_rpdo
         values = [0] * len(rpdo.keys)
         values[self._rpdo_cw] = int(control_word)
         values[self._rpdo_sp] = setpoint_counts
         self.network.send_message(rpdo.cob_id, rpdo.encode(*values))
+
+    def valve_frame(self, control_word: int, setpoint_counts: int) -> tuple[int, int, int, bytes]:
+        """One valve RPDO as a raw frame (:mod:`standbus.wire`) for
+        :meth:`~gateway.capture.TappedNetwork.send_frames`: the bytes of
+        :meth:`send_valve_command`, an FD frame on a CAN FD bus."""
+        key = (control_word, setpoint_counts)
+        if key == self._last_command:    # a held command: the same frame again
+            return self._last_frame
+        rpdo = self.valve_rpdo
+        if self._rpdo_two:               # the default mapping: control word, setpoint
+            data = rpdo.codec.pack(control_word, setpoint_counts)
+        else:
+            values = [0] * len(rpdo.keys)
+            values[self._rpdo_cw] = int(control_word)
+            values[self._rpdo_sp] = setpoint_counts
+            data = rpdo.encode(*values)
+        self._last_command = key
+        self._last_frame = frame = (self._cyclic_flags, rpdo.cob_id, len(data), data)
+        return frame
 
     def hold_command(self) -> None:
         """One valve RPDO: control word HOLD, setpoint 0 (zero flow)."""

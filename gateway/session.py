@@ -110,13 +110,16 @@ class Gateway:
         # the loop takes the buses from their reader threads at every run (<= one cycle: in
         # real time, on a rig, the valves' RPDO timeouts already run by then)
         notifier_cycle_s = 0.005 if takes_buses_over(self.config.lockstep, self.rig is not None) else None
+        kinds = [(False, False)] if self.rig is None else \
+            [(b.fd, b.fd and bool(b.data_bitrate) and b.data_bitrate != b.bitrate) for b in self.rig.buses]
         try:
-            for spec in self._bus_specs():
+            for spec, (fd, brs) in zip(self._bus_specs(), kinds):
                 try:
                     bus = open_bus(spec)
                 except BusSpecError as exc:
                     raise StandError(str(exc)) from None
-                network = TappedNetwork(bus, notifier_cycle_s=notifier_cycle_s)
+                network = TappedNetwork(bus, notifier_cycle_s=notifier_cycle_s, fd=fd,
+                                        bitrate_switch=brs)
                 self.networks.append(network)
                 network.connect()
             self._connect()
@@ -324,8 +327,7 @@ class Gateway:
                         for b in self.rig.buses]
         for network, capture in zip(self.networks, captures):
             # first in line, so frames reach the capture in the order they were received
-            network.notifier.listeners.insert(0, capture)
-            network.capture = capture
+            capture.attach(network)
         bar = None
         if progress or (progress is None and experiment.duration_s > 3.0):
             bar = tqdm(total=round(experiment.max_duration_s, 1), unit="s", unit_scale=False,
@@ -369,8 +371,7 @@ class Gateway:
                     master.enter_preoperational()
             finally:
                 for network, capture in zip(self.networks, captures):
-                    network.capture = None
-                    network.notifier.remove_listener(capture)
+                    capture.detach(network)
                     capture.stop()
                 self._close_run(recorder, captures, outcome, failure, fault_reset, scheduling)
         return RunResult(recorder.dir, outcome)

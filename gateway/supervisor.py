@@ -338,3 +338,35 @@ class Supervisor:
 
     def unloader(self, y0: float) -> Unloader:
         return Unloader(y0, self.limits, self.period_s)
+
+
+class SupervisorBank:
+    """A rig's supervisors asked together in the common cycle (:meth:`quiet`): every reading
+    fresh and well inside its limit, every valve ACTIVE, no EMCY, every heartbeat recent and
+    OPERATIONAL, no detector counting. Then every :meth:`Supervisor.check` would return None
+    and change nothing, and the loop skips them (16 channels: ~60 µs of Python a cycle, now one
+    pass of plain comparisons; numpy's per-call cost made a vectorised pass slower at this
+    size); any other cycle asks each supervisor as before."""
+
+    def __init__(self, supervisors: list[Supervisor]) -> None:
+        self.supervisors = supervisors
+        self.rearm = [_REARM * s.limits.force_limit_kgf for s in supervisors]
+        self.links = [link for s in supervisors for link in s.master.links]
+        self.heartbeat_timeout_s = min(s.limits.heartbeat_timeout_s for s in supervisors)
+
+    def quiet(self, ys, statuses) -> bool:
+        """True when every channel's :meth:`Supervisor.check` of a fresh reading (force
+        detector on) would return None and change none of its state."""
+        for s, y, status, rearm in zip(self.supervisors, ys, statuses, self.rearm):
+            if s._stale_run or s._inactive_run or s._indicated or s._emcy:
+                return False
+            if not abs(y) <= rearm:                                # also NaN
+                return False
+            if status and status & 0xF != _ACTIVE:
+                return False
+        oldest = time.monotonic() - self.heartbeat_timeout_s
+        for link in self.links:
+            hb = link.last_heartbeat
+            if hb is None or hb < oldest or link.nmt_state != 5:
+                return False
+        return True

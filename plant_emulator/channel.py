@@ -5,6 +5,7 @@ The plant behind them and the time (lockstep or real time) are :mod:`plant_emula
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -13,6 +14,7 @@ import canopen
 
 from dbc import DYNAMOMETER_EDS, VALVE_EDS
 from plant.sensor import Dynamometer
+from standbus import wire
 
 from .dynamometer import DynamometerNode
 from .node import slave_frame_filter
@@ -35,17 +37,36 @@ class EmulatedBus:
     """One CAN bus: its canopen network behind an acceptance filter for the nodes on it, the
     channels on it, and (lockstep) its SYNCs not yet matched by every other bus's."""
 
-    def __init__(self, name: str, bus: can.BusABC, node_ids: Sequence[int]) -> None:
+    def __init__(self, name: str, bus: can.BusABC, node_ids: Sequence[int],
+                 cyclic_flags: int = 0) -> None:
         self.name = name
         self.bus = bus
         self.network = canopen.Network(bus)
-        #: frames dropped before the stack (wrong DLC on NMT/SYNC/SDO, error/remote/ext/FD frames)
-        self.frame_filter = slave_frame_filter(self.network, tuple(node_ids))
+        #: the wire flags of the synchronous TPDOs: classic, or on a CAN FD bus FD frames
+        self.cyclic_flags = cyclic_flags
+        #: frames dropped before the stack (wrong DLC on NMT/SYNC/SDO, error/remote/ext frames,
+        #: and FD frames on a classic bus)
+        self.frame_filter = slave_frame_filter(self.network, tuple(node_ids),
+                                               fd=bool(cyclic_flags & wire.FLAG_FD))
         self.channels: list[EmulatedChannel] = []
         #: lockstep: SYNCs received on this bus whose cycle has not completed yet
         self.pending_syncs = 0
         #: the counter of the last SYNC (None: SYNC without counter)
         self.counter: int | None = None
+
+    def send_frames(self, frames: list) -> None:
+        """Raw frames (:mod:`standbus.wire`) sent at one instant (the answers to a SYNC): one
+        datagram where the bus takes a batch, else one ``send`` each."""
+        if not frames:
+            return
+        bus = self.bus
+        with self.network.send_lock:
+            if getattr(bus, "raw_frames", False):
+                bus.send_frames(frames)
+            else:
+                stamp = time.time()
+                for frame in frames:
+                    bus.send(wire.message(stamp, frame, None, False))
 
 
 class EmulatedChannel:
@@ -59,6 +80,8 @@ class EmulatedChannel:
         self.sensor = setup.sensor
         self.valve = ServoValveNode(on_bus.network, setup.valve_id, VALVE_EDS, lockstep)
         self.dynamometer = DynamometerNode(on_bus.network, setup.dynamometer_id, DYNAMOMETER_EDS)
+        for node in self.nodes:
+            node.cyclic_flags = on_bus.cyclic_flags
         #: the spool command the valve applies, % (updated after every change of the valve)
         self.command = 0.0
         on_bus.channels.append(self)
@@ -68,11 +91,12 @@ class EmulatedChannel:
         return self.valve, self.dynamometer
 
     def answer_sync(self, reading_kgf: float, over_range: bool, counter: int | None,
-                    sync_stamp: float | None = None) -> None:
+                    sync_stamp: float | None = None, out: list | None = None) -> None:
         """Publish the force reading and the valve's outputs, then send both nodes' synchronous
         TPDOs due at this SYNC (only while OPERATIONAL; in real time, with the SYNC's wall-clock
-        ``sync_stamp``, only within its synchronous window: :meth:`EmulatedNode.on_sync`)."""
+        ``sync_stamp``, only within its synchronous window: :meth:`EmulatedNode.on_sync`); with
+        ``out``, append them there as raw frames (the bus's answers go out together)."""
         self.dynamometer.publish(reading_kgf, over_range)
         self.valve.update_outputs(self.command)
-        self.valve.on_sync(counter, sync_stamp)
-        self.dynamometer.on_sync(counter, sync_stamp)
+        self.valve.on_sync(counter, sync_stamp, out)
+        self.dynamometer.on_sync(counter, sync_stamp, out)

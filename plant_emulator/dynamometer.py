@@ -48,14 +48,16 @@ class DynamometerNode(EmulatedNode):
 
     def publish(self, reading_kgf: float, over_range: bool) -> None:
         """Set the process value and status from one reading; EMCY on range transitions."""
-        counts = int(round(reading_kgf / self._scale())) if math.isfinite(reading_kgf) else 0
+        scale = self._scale_kgf or self._scale()
+        counts = int(round(reading_kgf / scale)) if math.isfinite(reading_kgf) else 0
         counts = max(-_INT32, min(_INT32, counts))
         status = 0
         if over_range:
             status = P.AI_STATUS_POSITIVE_OVERLOAD if reading_kgf > 0 else P.AI_STATUS_NEGATIVE_OVERLOAD
-        self.live[P.PV_INT32] = counts
-        self.live[P.PV_REAL32] = float(counts * self._scale() * P.N_PER_KGF)
-        self.live[P.AI_STATUS] = status
+        live = self.live
+        live[P.PV_INT32] = counts
+        live[P.PV_REAL32] = float(counts * scale * P.N_PER_KGF)
+        live[P.AI_STATUS] = status
         self.over_range = over_range
         if over_range != self._signalled and self.nmt_state in ("PRE-OPERATIONAL", "OPERATIONAL"):
             self._signalled = over_range

@@ -48,7 +48,7 @@ from dbc import profile as P
 from plant.rig import RigModel
 from rig.config import RigConfig
 from rig.emulated import channel_seed, emulated_plant
-from standbus import LOCKSTEP_BUSY_POLL_S, HandoverNotifier, prefer_busy_poll
+from standbus import LOCKSTEP_BUSY_POLL_S, HandoverNotifier, prefer_busy_poll, wire
 from standbus.handover import handover_many
 
 from .channel import ChannelSetup, EmulatedBus, EmulatedChannel
@@ -80,6 +80,17 @@ class EmulatorOptions:
     faults: tuple[ScheduledFault, ...] = ()
 
 
+def fd_flags(rig: RigConfig) -> dict[str, int]:
+    """The wire flags of each bus's cyclic frames: CAN FD buses send FD frames, with the
+    bit-rate switch where the data phase is faster (docs/rig.md, "CAN FD")."""
+    out = {}
+    for b in rig.buses:
+        if b.fd:
+            brs = bool(b.data_bitrate) and b.data_bitrate != b.bitrate
+            out[b.name] = wire.FLAG_FD | (wire.FLAG_BRS if brs else 0)
+    return out
+
+
 class EmulatedRig:
     """Owns the buses' networks, every channel's two nodes and the coupled plant. Call
     :meth:`start`, then :meth:`stop` (or use as a context manager).
@@ -88,7 +99,8 @@ class EmulatedRig:
     rows, each on one of ``buses``."""
 
     def __init__(self, buses: Mapping[str, can.BusABC], channels: Sequence[ChannelSetup],
-                 model: RigModel, options: EmulatorOptions) -> None:
+                 model: RigModel, options: EmulatorOptions,
+                 cyclic_flags: Mapping[str, int] | None = None) -> None:
         channels = list(channels)
         if len(channels) != model.n:
             raise ValueError(f"{len(channels)} channel(s) for a plant of {model.n}")
@@ -105,7 +117,9 @@ class EmulatedRig:
         self.options = options
         self.rig_model = model
         self.lock = threading.RLock()         # one lock for the whole rig
-        self.buses = [EmulatedBus(name, bus, ids[name]) for name, bus in buses.items()]
+        flags = dict(cyclic_flags or {})
+        self.buses = [EmulatedBus(name, bus, ids[name], flags.get(name, 0))
+                      for name, bus in buses.items()]
         by_name = {b.name: b for b in self.buses}
         self.channels = [EmulatedChannel(i, c, by_name[c.bus], options.lockstep)
                          for i, c in enumerate(channels)]
@@ -158,7 +172,7 @@ class EmulatedRig:
         setups = [ChannelSetup(c.name, c.bus, c.valve_id, c.dynamometer_id,
                                p.dynamometer(channel_seed(options.seed, i)), p.initial_force_kgf)
                   for i, (c, p) in enumerate(zip(rig.channels, plant.plants))]
-        return cls(buses, setups, plant.model, options)
+        return cls(buses, setups, plant.model, options, cyclic_flags=fd_flags(rig))
 
     def _stand_time(self) -> float:
         return self.stand_time_s
@@ -177,10 +191,17 @@ class EmulatedRig:
             b = self.buses[0]
             if spin:   # the next SYNC follows the answer within ~0.1 ms: poll
                 prefer_busy_poll(b.bus, spin)
-            b.network.notifier = can.Notifier(b.bus, b.network.listeners, 0.1)
+            b.network.notifier = HandoverNotifier(b.bus, b.network.listeners, 0.1)
         else:
             for b in self.buses:
                 b.network.notifier = HandoverNotifier(b.bus, b.network.listeners, 0.005)
+        for b in self.buses:      # the cyclic frames taken raw, before the canopen stack
+            notifier = b.network.notifier
+            notifier.fast_fd = bool(b.cyclic_flags & wire.FLAG_FD)
+            notifier.fast[P.SYNC_COB_ID] = functools.partial(self._fast_sync, b)
+            for ch in b.channels:
+                for node in ch.nodes:
+                    node.fast_rx = notifier.fast
             notifiers = [b.network.notifier for b in self.buses]
             self._reader = threading.Thread(target=self._read_buses, args=(notifiers, spin),
                                             name="emulator-buses", daemon=True)
@@ -258,6 +279,14 @@ class EmulatedRig:
         self.lockstep_plant.step(period, self._commands())
 
     # -- bus events ------------------------------------------------------------------------------
+    def _fast_sync(self, on_bus: EmulatedBus, data: bytes, timestamp: float) -> bool:
+        """A SYNC taken raw by the bus's notifier; one of a wrong length is left to the
+        acceptance filter (dropped and counted there, as before)."""
+        if len(data) > 1:
+            return False
+        self._on_sync(on_bus, P.SYNC_COB_ID, data, timestamp)
+        return True
+
     def _on_sync(self, on_bus: EmulatedBus, can_id: int, data: bytes, timestamp: float) -> None:
         try:
             with self.lock:
@@ -274,10 +303,12 @@ class EmulatedRig:
                     stamp = timestamp
                     self.advance_plant()
                 self._make_faults()
-                for b in answering:
+                for b in answering:          # a bus's answers in one batch
+                    frames: list = []
                     for ch in b.channels:
                         reading, over = self.measure(ch)
-                        ch.answer_sync(reading + self._spikes.pop(ch.index, 0.0), over, b.counter, stamp)
+                        ch.answer_sync(reading + self._spikes.pop(ch.index, 0.0), over, b.counter, stamp, frames)
+                    b.send_frames(frames)
         except Exception as exc:  # never let the notifier swallow it silently
             log.exception("SYNC handling failed")
             self.errors.append(repr(exc))

@@ -133,13 +133,19 @@ class LockstepRig:
         self.period, self.sub = period_s, sub
 
     def _block_periods_now(self) -> int:
-        """Periods a block computes ahead: as many as the shortest delay allows."""
-        return min(m.delay_steps(self.dt) for m in self.model.channels) // self.sub + 1
+        """Periods a block computes ahead: as many as the shortest delay allows (asked at every
+        real-time catch-up: kept per step and sub-steps)."""
+        key = (self.dt, self.sub)
+        cached = self.__dict__.get("_block_cache")
+        if cached is None or cached[0] != key:
+            periods = min(m.delay_steps(self.dt) for m in self.model.channels) // self.sub + 1
+            cached = self._block_cache = (key, periods)
+        return cached[1]
 
     def _block(self, commands: list[float]) -> list[float]:
         sub = self.sub
         periods = self._block_periods_now()
-        self._start = (copy.deepcopy(self.states), self._steps) if periods > 1 else None
+        self._start = (_copy_states(self.states), self._steps) if periods > 1 else None
         self._commands = [commands]
         self._block_periods = periods
         u = np.repeat(np.asarray(commands, float)[:, None], periods * sub, axis=1)
@@ -177,6 +183,21 @@ class LockstepRig:
         self._ahead.clear()
         self._start = None
         self._commands = []
+
+
+def _copy_states(states):
+    """The states, every array copied (what ``copy.deepcopy`` gives, at a fraction of its
+    cost: 16 channels' states took ~0.1 ms to deep-copy at every block)."""
+    out = []
+    for st in states:
+        c = copy.copy(st)
+        c.y, c.t, c.history = st.y.copy(), st.t.copy(), st.history.copy()
+        c.reading = None if st.reading is None else st.reading.copy()
+        c.valve_last = None if st.valve_last is None else st.valve_last.copy()
+        c.effects = [{k: (v.copy() if isinstance(v, np.ndarray) else copy.deepcopy(v))
+                      for k, v in eff.items()} for eff in st.effects]
+        out.append(c)
+    return out
 
 
 class LockstepPlant(LockstepRig):

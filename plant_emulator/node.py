@@ -22,6 +22,7 @@ Device behaviour (valve, dynamometer) lives in subclasses.
 from __future__ import annotations
 
 import logging
+import operator
 import struct
 import threading
 import time
@@ -54,6 +55,12 @@ class PdoConfig:
     trans_type: int
     event_timer_ms: int
 
+    def __post_init__(self) -> None:
+        keys = self.layout.keys
+        getter = operator.itemgetter(*keys) if keys else (lambda live: ())
+        #: the mapped objects' values from a node's ``live`` (KeyError if one is not live)
+        self.live_values = getter if len(keys) != 1 else (lambda live: (getter(live),))
+
 
 def read_pdo_config(node: canopen.LocalNode, com_index: int, map_index: int) -> PdoConfig | None:
     """The PDO at ``com_index``/``map_index`` as currently stored in the node (None if disabled)."""
@@ -77,10 +84,11 @@ def read_pdo_config(node: canopen.LocalNode, com_index: int, map_index: int) -> 
     return PdoConfig(PdoLayout.from_entries(cob & 0x7FF, entries), trans, timer)
 
 
-def slave_frame_filter(network: canopen.Network, node_ids) -> FrameFilter:
+def slave_frame_filter(network: canopen.Network, node_ids, fd: bool = False) -> FrameFilter:
     """Put an acceptance filter in front of ``network``'s canopen stack (before ``connect`` or
-    before the Notifier is made from ``network.listeners``) and return it."""
-    flt = FrameFilter(MessageListener(network).on_message_received)
+    before the Notifier is made from ``network.listeners``) and return it. On a CAN FD bus
+    (``fd``) FD data frames pass too."""
+    flt = FrameFilter(MessageListener(network).on_message_received, fd=fd)
     flt.expect(P.NMT_COB_ID, 2)     # NMT: command, node id
     flt.expect(P.SYNC_COB_ID, (0, 1))   # SYNC, with or without counter
     for nid in node_ids:
@@ -106,12 +114,19 @@ class EmulatedNode:
         #: canopen's SDO layer a read costs ~10 µs). Kept exact: every SDO write updates it,
         #: PDO writes and resets drop what they change.
         self._stored: dict[tuple[int, int], Any] = {}
+        #: values the RPDOs wrote last, by object: what an SDO read of the object returns (the
+        #: read callback), until an SDO write or a reset replaces it. Kept decoded: encoding
+        #: each into the object dictionary's store cost ~3 µs a value, 32 values a cycle
+        self._rpdo_values: dict[tuple[int, int], Any] = {}
         self.local.add_read_callback(self._read_live)
         self.local.add_write_callback(self._on_sdo_write)
         #: called (no arguments) each time the node enters OPERATIONAL, after its own hook
         self.started_listeners: list = []
         self.tpdos: list[PdoConfig] = []
+        self._every_sync = False
         self.rpdos: dict[int, PdoConfig] = {}
+        #: (the RPDO configs it was computed from, the shortest event timer in s or None)
+        self._rpdo_timers: tuple | None = None
         self._sync_count = 0
         #: synchronous TPDOs discarded because their SYNC's window (0x1007) had passed
         self.sync_window_discards = 0
@@ -123,6 +138,12 @@ class EmulatedNode:
         self.lock = threading.RLock()
         #: its heartbeat is silenced (a scheduled fault: :meth:`silence_heartbeat`)
         self.heartbeat_silent = False
+        #: the bus notifier's own handlers by arbitration id (``HandoverNotifier.fast``, set by
+        #: the emulator once it listens): an RPDO is taken there, raw, without a Message and the
+        #: canopen dispatch; None: through canopen only
+        self.fast_rx: dict | None = None
+        #: the wire flags of the synchronous TPDOs (an FD frame on a CAN FD bus)
+        self.cyclic_flags = 0
 
     # -- NMT ----------------------------------------------------------------------------------
     @property
@@ -131,7 +152,7 @@ class EmulatedNode:
 
     @property
     def operational(self) -> bool:
-        return self.local.nmt.state == "OPERATIONAL"
+        return self.local.nmt._state == 5       # canopen's code of OPERATIONAL (nmt.state)
 
     def boot(self) -> None:
         """Power-on / reset: send the boot-up message and enter PRE-OPERATIONAL."""
@@ -152,9 +173,12 @@ class EmulatedNode:
                 self._stored.clear()
                 if command == NMT_RESET_NODE:
                     self.local.data_store.clear()    # application parameters back to EDS values
+                    self._rpdo_values.clear()
                 else:
                     for index in [i for i in self.local.data_store if 0x1000 <= i < 0x2000]:
                         del self.local.data_store[index]
+                    for key in [k for k in self._rpdo_values if 0x1000 <= k[0] < 0x2000]:
+                        del self._rpdo_values[key]
                 self.boot()
                 return
             was_operational = self.operational
@@ -209,7 +233,11 @@ class EmulatedNode:
             if cfg is not None:
                 self.rpdos[cfg.layout.cob_id] = cfg
                 self.network.subscribe(cfg.layout.cob_id, self._on_rpdo)
+                if self.fast_rx is not None:
+                    self.fast_rx[cfg.layout.cob_id] = self._fast_rpdo(cfg.layout.cob_id)
         self._sync_count = 0
+        #: every TPDO is due at every SYNC (transmission type 0 or 1, the stand's)
+        self._every_sync = all(cfg.trans_type in (0, 1) for cfg in self.tpdos)
         # The RPDO timeout runs from the start: a master that dies before its first command
         # is caught too.
         self.last_rpdo_time = self.clock()
@@ -225,29 +253,44 @@ class EmulatedNode:
             self.local.emcy.send(0x8200, 0x10)  # protocol error
             return None
 
+    def _fast_rpdo(self, cob: int):
+        def on_rpdo(data: bytes, stamp: float) -> bool:
+            self._on_rpdo(cob, data, stamp)
+            return True
+        return on_rpdo
+
     def _stop_pdos(self) -> None:
         for cob in list(self.rpdos):
             try:
                 self.network.unsubscribe(cob, self._on_rpdo)
             except (KeyError, ValueError):
                 pass
+            if self.fast_rx is not None:
+                self.fast_rx.pop(cob, None)
         self.rpdos = {}
         self.tpdos = []
+        self._every_sync = False
         self.last_rpdo_time = None
 
     # -- PDO traffic --------------------------------------------------------------------------
-    def on_sync(self, counter: int | None, sync_stamp: float | None = None) -> None:
-        """Send the synchronous TPDOs due at this SYNC (the device refreshed ``live`` before).
+    def on_sync(self, counter: int | None, sync_stamp: float | None = None,
+                out: list | None = None) -> None:
+        """Send the synchronous TPDOs due at this SYNC (the device refreshed ``live`` before);
+        with ``out``, append them there as raw frames instead (the emulator sends a bus's
+        answers to one SYNC together).
         With a synchronous window (0x1007, CiA 301) and the SYNC's wall-clock ``sync_stamp``, a
         device that got to this SYNC later than the window after it (a lagging node, a slow
         bus) discards its TPDOs instead of sending them: sent after the master's next SYNC, they
         would pass for answers to that one."""
-        if not self.operational:
+        if self.local.nmt._state != 5:         # not OPERATIONAL
             return
         self._sync_count += 1
-        due = [cfg for cfg in self.tpdos
-               if cfg.trans_type == 0 or (1 <= cfg.trans_type <= 240
-                                          and self._sync_count % cfg.trans_type == 0)]
+        if self._every_sync:
+            due = self.tpdos
+        else:
+            due = [cfg for cfg in self.tpdos
+                   if cfg.trans_type == 0 or (1 <= cfg.trans_type <= 240
+                                              and self._sync_count % cfg.trans_type == 0)]
         if not due:
             return
         window_us = int(self.value(P.SYNC_WINDOW)) if sync_stamp is not None else 0
@@ -255,11 +298,20 @@ class EmulatedNode:
             self.sync_window_discards += len(due)
             return
         for cfg in due:
-            self.transmit(cfg)
+            self.transmit(cfg, out)
 
-    def transmit(self, cfg: PdoConfig) -> None:
-        values = [self.value(index, sub) for index, sub in cfg.layout.keys]
-        self.network.send_message(cfg.layout.cob_id, cfg.layout.encode(*values))
+    def transmit(self, cfg: PdoConfig, out: list | None = None) -> None:
+        live = self.live
+        try:                 # a PDO of live values only (the stand's): one C call reads them
+            values = cfg.live_values(live)
+        except KeyError:
+            value = self.value
+            values = [live[key] if key in live else value(*key) for key in cfg.layout.keys]
+        data = cfg.layout.codec.pack(*values)
+        if out is None:
+            self.network.send_message(cfg.layout.cob_id, data)
+        else:
+            out.append((self.cyclic_flags, cfg.layout.cob_id, len(data), data))
 
     def _on_rpdo(self, can_id: int, data: bytes, timestamp: float) -> None:
         with self.lock:
@@ -281,9 +333,12 @@ class EmulatedNode:
         with self.lock:
             if not self.operational or self.last_rpdo_time is None:
                 return False
-            timers = [c.event_timer_ms for c in self.rpdos.values() if c.event_timer_ms]
+            timers = self._rpdo_timers
+            if timers is None or timers[0] is not self.rpdos:    # the RPDOs as configured now
+                ms = [c.event_timer_ms for c in self.rpdos.values() if c.event_timer_ms]
+                timers = self._rpdo_timers = (self.rpdos, min(ms) / 1000.0 if ms else None)
             # (1 ns of slack: the stand's time in lockstep is a sum of periods in floats)
-            return bool(timers) and now - self.last_rpdo_time > min(timers) / 1000.0 + 1e-9
+            return timers[1] is not None and now - self.last_rpdo_time > timers[1] + 1e-9
 
     def check_rpdo_timeout(self, now: float) -> bool:
         """True once if an RPDO with an event timer has not arrived within it."""
@@ -310,21 +365,21 @@ class EmulatedNode:
         return value
 
     def store_object(self, index: int, sub: int, value: Any) -> None:
-        """Store a value received by PDO (the device is told by the caller)."""
-        obj = self.local.object_dictionary[index]
-        if not isinstance(obj, canopen.objectdictionary.ODVariable):
-            obj = obj[sub]
-        self.local.data_store.setdefault(index, {})[sub] = obj.encode_raw(value)
-        self._stored.pop((index, sub), None)
+        """Store a value received by PDO (the device is told by the caller): it is the object's
+        value for :meth:`value` and for an SDO read, until an SDO write or a reset."""
+        self._rpdo_values[index, sub] = self._stored[index, sub] = value
 
     def _read_live(self, index: int, subindex: int, od: Any) -> Any:
-        return self.live.get((index, subindex))
+        key = (index, subindex)
+        value = self.live.get(key)
+        return self._rpdo_values.get(key) if value is None else value
 
     def _on_sdo_write(self, index: int, subindex: int, od: Any, data: bytes) -> None:
         # canopen calls this before it stores ``data``; the cache takes the new value at once
         # (under the lock), so no reader can cache the old one in between.
         with self.lock:
             value = od.decode_raw(data)
+            self._rpdo_values.pop((index, subindex), None)
             if index >= 0x2000:
                 self.on_object_written(index, subindex, value)
             self._stored[index, subindex] = value

@@ -30,6 +30,11 @@ from .node import EmulatedNode
 
 log = logging.getLogger(__name__)
 
+#: each state's status word bits and whether it is a fault (enum properties cost ~1 µs a read)
+_STATE_BITS = {s: (int(s.value), bool(s.is_fault)) for s in P.ValveState}
+_DISABLE, _HOLD, _ACTIVE, _RESET_FAULT = (int(b) for b in (
+    P.ControlBit.DISABLE, P.ControlBit.HOLD, P.ControlBit.ACTIVE, P.ControlBit.RESET_FAULT))
+
 
 class ServoValveNode(EmulatedNode):
     def __init__(self, network, node_id: int, eds, lockstep: bool) -> None:
@@ -92,21 +97,22 @@ class ServoValveNode(EmulatedNode):
         self.after_change()
 
     def _apply_control_word(self, word: int) -> None:
-        S, C = P.ValveState, P.ControlBit
-        rising_reset = bool(word & C.RESET_FAULT) and not (self._control_word & C.RESET_FAULT)
+        S = P.ValveState
+        # the control bits as plain ints (IntFlag's operators cost ~1 µs each, 16 valves a cycle)
+        rising_reset = bool(word & _RESET_FAULT) and not (self._control_word & _RESET_FAULT)
         self._control_word = word
         if self.state.is_fault:
             if rising_reset:
                 self.state = S.DISABLED
                 self.local.emcy.reset()
             return
-        if not word & C.DISABLE:
+        if not word & _DISABLE:
             if self.state is not S.INIT:
                 self.state = S.DISABLED
             return
-        if word & C.ACTIVE and word & C.HOLD:
+        if word & _ACTIVE and word & _HOLD:
             self.state = S.ACTIVE
-        elif word & C.HOLD:
+        elif word & _HOLD:
             self.state = S.HOLD
         else:
             self.state = S.DISABLED
@@ -126,11 +132,12 @@ class ServoValveNode(EmulatedNode):
             self.local.emcy.send(emcy_code, 0x01)
 
     def _refresh(self) -> None:
-        status = self.state.value
+        status, fault = _STATE_BITS[self.state]
         if self.limit_reached:
             status |= P.STATUS_LIMIT_REACHED
-        self.live[P.STATUS_WORD, 0] = status
-        self.live[P.ERROR_REGISTER, 0] = 0x01 if self.state.is_fault else 0
+        live = self.live
+        live[P.STATUS_WORD, 0] = status
+        live[P.ERROR_REGISTER, 0] = 0x01 if fault else 0
 
     def update_outputs(self, spool_percent: float) -> None:
         """Refresh the values the TPDO carries (status word, actual spool position)."""

@@ -3,7 +3,8 @@ may (the rig's ``bus_load_limit``, 70 % by default), and what would fit when it 
 
 Per cycle on every bus: one SYNC (with its counter); per channel on it: the valve's command
 (RPDO), the valve's status (TPDO) and the force (TPDO); per heartbeat period: one heartbeat of
-each node. Frame lengths come from the EDS files' PDO mappings (:mod:`dbc.sizes`), times from
+each node. On a CAN FD bus the cyclic frames are FD frames (the gateway and the emulator send
+them so) and the heartbeats classic frames (the nodes' CANopen stack sends them so). Frame lengths come from the EDS files' PDO mappings (:mod:`dbc.sizes`), times from
 :mod:`standbus.budget` (worst-case bit stuffing; CAN FD counted as CAN FD).
 """
 from __future__ import annotations
@@ -24,7 +25,7 @@ def cycle_traffic(channels: int, period_s: float, heartbeat_s: float) -> list[Tr
     """The frames of ``channels`` loading channels on one bus."""
     out = [Traffic("SYNC", SYNC_BYTES, 1, period_s)]
     out += [Traffic(what, n, channels, period_s) for what, n in channel_pdo_bytes().items()]
-    out.append(Traffic("heartbeats", HEARTBEAT_BYTES, 2 * channels, heartbeat_s))
+    out.append(Traffic("heartbeats", HEARTBEAT_BYTES, 2 * channels, heartbeat_s, classic=True))
     return out
 
 

@@ -26,9 +26,11 @@ POINT_STIFFNESS = 10.0
 
 
 def chain_rig(template: ChannelConfig, channels: int, buses: int, coupling: float = 0.3,
-              period_s: float = 0.002, tag: str = "chain", name: str | None = None) -> RigConfig:
+              period_s: float = 0.002, tag: str = "chain", name: str | None = None,
+              data_bitrate: int | None = None) -> RigConfig:
     """``channels`` copies of ``template`` on ``buses`` loopback buses (``udp_loopback:{tag}-canK``),
-    neighbours coupled ``coupling`` through a chain stiffness (module docstring)."""
+    neighbours coupled ``coupling`` through a chain stiffness (module docstring); with
+    ``data_bitrate`` CAN FD buses (1 Mbit/s nominal, the data phase at that rate)."""
     if template.plant is None:
         raise RigError(f"channel {template.name!r} has no plant to copy: a chain rig's channels "
                        "are emulated copies of it")
@@ -44,7 +46,9 @@ def chain_rig(template: ChannelConfig, channels: int, buses: int, coupling: floa
     g = float(template.plant.model.g)
     flow = g / POINT_STIFFNESS
     K = POINT_STIFFNESS * (np.eye(channels) + coupling * (np.eye(channels, k=1) + np.eye(channels, k=-1)))
-    bus_list = [BusConfig(f"can{b}", f"udp_loopback:{tag}-can{b}") for b in range(buses)]
+    fd = data_bitrate is not None
+    bus_list = [BusConfig(f"can{b}", f"udp_loopback:{tag}-can{b}", fd=fd, data_bitrate=data_bitrate)
+                for b in range(buses)]
     width = len(str(channels))
     chans = []
     for i in range(channels):
@@ -56,6 +60,7 @@ def chain_rig(template: ChannelConfig, channels: int, buses: int, coupling: floa
         chans.append(dataclasses.replace(template, name=f"ch{i + 1:0{width}d}", bus=f"can{b}",
                                          valve_id=2 * k + 1, dynamometer_id=2 * k + 2,
                                          plant=plant, plant_g=None))
-    return RigConfig(name=name or f"chain of {channels} on {buses} bus(es), neighbours {coupling:.0%}",
+    kind = f" CAN FD {data_bitrate / 1e6:g} Mbit/s" if fd else ""
+    return RigConfig(name=name or f"chain of {channels} on {buses}{kind} bus(es), neighbours {coupling:.0%}",
                      buses=bus_list, channels=chans, G=K * flow, structure_from="K", K=K,
                      period_s=period_s)

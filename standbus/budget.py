@@ -68,6 +68,8 @@ class Traffic:
     data_bytes: int
     count: int
     every_s: float
+    #: sent as classic frames even on a CAN FD bus (a CANopen stack's heartbeats, SDO, EMCY)
+    classic: bool = False
 
 
 @dataclass(frozen=True)
@@ -94,6 +96,7 @@ def bus_load(traffic: Iterable[Traffic], bitrate: int, fd: bool = False,
     """The worst-case load of ``traffic`` on a bus of ``bitrate`` (CAN FD with ``fd``)."""
     busy = frames = 0.0
     for t in traffic:
-        busy += t.count * frame_time_s(t.data_bytes, bitrate, fd, data_bitrate) / t.every_s
+        busy += t.count * frame_time_s(t.data_bytes, bitrate, fd and not t.classic,
+                                       data_bitrate) / t.every_s
         frames += t.count / t.every_s
     return BusLoad(busy, frames, bitrate, fd)

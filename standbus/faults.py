@@ -45,9 +45,12 @@ class FrameFilter(can.Listener):
     allowed for the id, or DLC field disagreeing with the data), ``errors`` (``deliver`` raised).
     """
 
-    def __init__(self, deliver: Callable[[can.Message], None], strict: bool = False) -> None:
+    def __init__(self, deliver: Callable[[can.Message], None], strict: bool = False,
+                 fd: bool = False) -> None:
         self.deliver = deliver
         self.strict = strict
+        #: a CAN FD bus: FD data frames pass too (classic ones always do)
+        self.fd = fd
         self.rules: dict[int, frozenset[int] | None] = {}
         self.not_classic = 0
         self.unexpected_id = 0
@@ -69,7 +72,7 @@ class FrameFilter(can.Listener):
         return self.not_classic + self.unexpected_id + self.wrong_dlc
 
     def on_message_received(self, msg: can.Message) -> None:
-        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id or msg.is_fd:
+        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id or (msg.is_fd and not self.fd):
             self.not_classic += 1
             return
         rule = self.rules.get(msg.arbitration_id, _ANY)

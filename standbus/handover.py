@@ -27,7 +27,14 @@ from typing import Callable, Iterator
 
 import can
 
+from . import wire
+
 log = logging.getLogger(__name__)
+
+#: the wire flags of the frames a fast handler may take: a classic data frame, or on a CAN FD bus
+#: an FD frame with or without the bit-rate switch
+_CLASSIC = 0
+_FD_FLAGS = (wire.FLAG_FD, wire.FLAG_FD | wire.FLAG_BRS)
 
 
 class HandoverNotifier(can.Notifier):
@@ -42,7 +49,55 @@ class HandoverNotifier(can.Notifier):
         self._parked = threading.Event()       # the reader thread is off the bus
         self._resume = threading.Event()
         self._handover_lock = threading.Lock()
+        #: the cyclic frames' own handlers, by arbitration id: ``handler(data, timestamp)``
+        #: takes a frame before the listeners and returns True, or False to leave it to them
+        #: (a wrong length, a state it does not handle): only classic data frames with 11-bit
+        #: ids whose DLC is their length, and FD frames where :attr:`fast_fd`
+        self.fast: dict[int, object] = {}
+        self.fast_fd = False
+        #: ``tap(timestamp, raw frames, received, channel)`` sees every frame first (a capture);
+        #: the listeners then see only what no fast handler took
+        self.tap = None
+        #: where the bus hands over whole datagrams raw (:meth:`LoopbackBus.recv_frames`)
+        self._raw = bool(getattr(bus, "raw_frames", False))
+        self._channel = getattr(bus, "channel", None)
         super().__init__(bus, listeners, timeout)
+
+    def receive(self, bus: can.BusABC, timeout: float | None):
+        """Receive what the bus has (one datagram's frames where it hands them over raw, else
+        one frame), waiting at most ``timeout``, and deliver it: the tap, the fast handlers,
+        the listeners. Returns the last Message made, a count of frames taken raw, or None."""
+        if self._raw and bus.raw_frames:
+            got = bus.recv_frames(timeout)
+            if got is None:
+                return None
+            with self._lock:
+                return self._deliver_raw(got[0], got[1])
+        msg = bus.recv(timeout)
+        if msg is None:
+            return None
+        with self._lock:
+            if self.tap is None and not self.fast:
+                self._on_message_received(msg)
+            else:
+                self._deliver_raw(msg.timestamp, [wire.raw_of(msg)], msg)
+        return msg
+
+    def _deliver_raw(self, stamp: float, frames, msg: can.Message | None = None):
+        if self.tap is not None:
+            self.tap(stamp, frames, True, self._channel if msg is None else msg.channel)
+        fast = self.fast
+        fd_ok = _FD_FLAGS if self.fast_fd else ()
+        out = len(frames)
+        for frame in frames:
+            flags, arb_id, dlc, data = frame
+            if fast and (flags == _CLASSIC or flags in fd_ok) and dlc == len(data):
+                handler = fast.get(arb_id)
+                if handler is not None and handler(data, stamp):
+                    continue
+            out = msg or wire.message(stamp, frame, self._channel)
+            self._on_message_received(out)
+        return out
 
     def _rx_thread(self, bus: can.BusABC) -> None:
         while not self._stopped:
@@ -52,10 +107,7 @@ class HandoverNotifier(can.Notifier):
                 self._resume.wait()
                 continue
             try:
-                msg = bus.recv(self.timeout)
-                if msg is not None:
-                    with self._lock:
-                        self._on_message_received(msg)
+                self.receive(bus, self.timeout)
             except Exception as exc:  # as can.Notifier: listeners' on_error, else re-raise
                 self.exception = exc
                 if not self._on_error(exc):
@@ -70,8 +122,9 @@ class HandoverNotifier(can.Notifier):
     @contextlib.contextmanager
     def handover(self, spin_s: float = 0.0,
                  wait_s: float | None = None) -> Iterator[Callable[[float], can.Message | None]]:
-        """Park the reader thread and yield ``pump(timeout)``: receive one frame (waiting at
-        most ``timeout`` s), hand it to the listeners, return it (None on timeout). ``spin_s``:
+        """Park the reader thread and yield ``pump(timeout)``: receive one frame, or one
+        datagram's frames where the bus hands them over raw (waiting at most ``timeout`` s),
+        hand them on (:meth:`receive`), return the last (or a count; None on timeout). ``spin_s``:
         poll the bus (``recv(0)``, yielding the core between polls) up to that long before
         sleeping in ``recv``: a sleeping thread takes ~15 µs to wake, most of a lockstep round
         trip. The bus is given back when the block ends, even on an exception."""
@@ -83,27 +136,23 @@ class HandoverNotifier(can.Notifier):
                 if not self._parked.wait(wait_s if wait_s is not None else self.timeout + 1.0):
                     raise RuntimeError("the bus reader thread did not hand the bus over")
                 bus = self.bus
-                lock = self._lock
-                deliver = self._on_message_received
+                receive = self.receive
                 clock = time.perf_counter
                 yield_cpu = getattr(os, "sched_yield", lambda: None)
 
-                def pump(timeout: float) -> can.Message | None:
+                def pump(timeout: float):
                     msg = None
                     if spin_s > 0:
                         start = clock()
                         stop = start + min(spin_s, timeout)
                         while msg is None and clock() < stop:
-                            msg = bus.recv(0)
+                            msg = receive(bus, 0)
                             if msg is None:
                                 yield_cpu()     # a peer waiting for this core runs first
                         if msg is None:
-                            msg = bus.recv(max(0.0, timeout - (clock() - start)))
+                            msg = receive(bus, max(0.0, timeout - (clock() - start)))
                     else:
-                        msg = bus.recv(timeout)
-                    if msg is not None:
-                        with lock:
-                            deliver(msg)
+                        msg = receive(bus, timeout)
                     return msg
 
                 yield pump

@@ -104,20 +104,67 @@ def test_candump_capture_decodes_to_the_recorded_signals(vcan_runs, name):
     assert np.array_equal(decoded.t, run.t)
 
 
-@pytest.fixture(scope="module")
-def vcan_rig_run(tmp_path_factory):
-    """The example rig on vcan0 and vcan1 inside UML (tests/uml_rig_scenario.py)."""
+def _uml_rig(tmp_path_factory, name: str, *args: str) -> dict:
     reason = uml_unavailable()
     if reason:
         pytest.skip(reason)
-    out = tmp_path_factory.mktemp("vcan-rig")
+    out = tmp_path_factory.mktemp(name)
     res = subprocess.run([str(ROOT / "scripts" / "uml-run"), "--vcan", "2", "--timeout", "900", "--",
-                          sys.executable, str(ROOT / "tests" / "uml_rig_scenario.py"), str(out)],
+                          sys.executable, str(ROOT / "tests" / "uml_rig_scenario.py"), str(out), *args],
                          cwd=ROOT, capture_output=True, text=True, timeout=1200)
     assert res.returncode == 0, f"inside UML: exit {res.returncode}\n{res.stdout[-3000:]}\n{res.stderr[-2000:]}"
     info = json.loads((out / "result.json").read_text())
     assert info["returncode"] == 0, info["stdout"] + info["stderr"]
     return info
+
+
+@pytest.fixture(scope="module")
+def vcan_rig_run(tmp_path_factory):
+    """The example rig on vcan0 and vcan1 inside UML (tests/uml_rig_scenario.py)."""
+    return _uml_rig(tmp_path_factory, "vcan-rig")
+
+
+@pytest.fixture(scope="module")
+def vcan_fd_rig_run(tmp_path_factory):
+    """The example rig on CAN FD vcan0 and vcan1 inside UML (tests/uml_rig_scenario.py --fd)."""
+    return _uml_rig(tmp_path_factory, "vcan-fd-rig", "--fd")
+
+
+@pytest.mark.slow
+def test_a_can_fd_rig_over_vcan_sends_its_cyclic_frames_as_fd_and_finds_the_column_of_G(vcan_fd_rig_run):
+    """CAN FD buses (python-can's socketcan with fd=True, vcan at MTU 72): the SYNCs, the
+    commands and both nodes' TPDOs are FD frames with the bit-rate switch, on both sides (the
+    gateway's capture and can-utils' candump agree), every cycle fresh, and the run's column
+    of G is the rig's."""
+    from analysis.rig.estimate import estimate_rig
+    from analysis.rig.load import read_rig_run
+    from rig.config import load_rig_file
+    info = vcan_fd_rig_run
+    rig = load_rig_file(info["rig"])
+    assert all(b.fd and b.data_bitrate == 5_000_000 for b in rig.buses)
+    run = load_run(info["run"])
+    assert run.meta["status"] == "complete" and all(b["fd"] for b in run.meta["rig"]["buses"])
+    n = len(run)
+    assert n >= 6000
+    for name in rig.names:
+        assert not run.signals[f"stale.{name}"].any()
+    cyclic = lambda i: i == 0x80 or 0x180 < i < 0x200 or 0x200 < i < 0x280
+    for bus in rig.buses:
+        frames = list(can.LogReader(str(Path(info["run"]) / f"capture-{bus.name}.log")))
+        pdo = [f for f in frames if cyclic(f.arbitration_id)]
+        assert len(pdo) >= 7 * n // 2 and all(f.is_fd and f.bitrate_switch for f in pdo)
+        # NMT, SDO and heartbeats stay classic frames (a CAN FD bus carries both)
+        assert any(not f.is_fd for f in frames if f.arbitration_id >= 0x580)
+    # candump -L writes an FD frame as ID##F<data>, F its flags nibble (bit 0: the bit-rate switch)
+    lines = [line.split() for line in Path(info["candump"]).read_text().splitlines() if line]
+    dumped = [frame for _, _, frame in lines if cyclic(int(frame.split("#")[0], 16))]
+    assert len(dumped) >= 7 * n
+    assert all("##" in frame and int(frame.split("##")[1][0], 16) & 1 for frame in dumped)
+    j = rig.names.index(info["driven"])
+    est = estimate_rig([read_rig_run(info["run"])])
+    column = est.G[:, est.names.index(info["driven"])]
+    order = [est.names.index(x) for x in rig.names]
+    np.testing.assert_allclose(column[order], rig.G[:, j], atol=0.03 * rig.G[j, j])
 
 
 @pytest.mark.slow

@@ -3,7 +3,8 @@ neighbours coupled 30 %) on two real SocketCAN buses, ``vcan0`` and ``vcan1``: `
 --rig`` and ``stand run meander --rig ... --channel root --lockstep``, each its own process, as a
 user types them, while can-utils' ``candump -L vcan0 vcan1`` (a peer we did not write) captures
 both buses. Writes everything under the output directory given as argv[1]; the host-side test
-does the checking.
+does the checking. With ``--fd`` (argv[2]) both buses are CAN FD (1 Mbit/s nominal, 5 Mbit/s
+data; python-can's socketcan opened with ``fd=True``): the cyclic frames go as FD frames.
 """
 from __future__ import annotations
 
@@ -25,11 +26,15 @@ BUSES = {"can0": "socketcan:vcan0", "can1": "socketcan:vcan1"}
 DRIVEN = "root"
 
 
-def main(out: Path) -> int:
+def main(out: Path, fd: bool = False) -> int:
     out.mkdir(parents=True, exist_ok=True)
     example = load_rig_file(ROOT / "examples" / "rig.toml")
-    rig = dataclasses.replace(example, buses=[dataclasses.replace(b, spec=BUSES[b.name])
-                                              for b in example.buses])
+    if fd:
+        buses = [dataclasses.replace(b, spec=BUSES[b.name] + ",fd=True", fd=True, data_bitrate=5_000_000)
+                 for b in example.buses]
+    else:
+        buses = [dataclasses.replace(b, spec=BUSES[b.name]) for b in example.buses]
+    rig = dataclasses.replace(example, buses=buses)
     path = out / "rig.toml"
     path.write_text(rig_to_toml(rig, header="the example rig on vcan0 and vcan1 (inside UML)", path=path))
     run = out / "run"
@@ -57,4 +62,4 @@ def main(out: Path) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(Path(sys.argv[1])))
+    sys.exit(main(Path(sys.argv[1]), "--fd" in sys.argv[2:]))

@@ -11,6 +11,8 @@ sits beside the estimators and the fit (``tests/test_layers.py``):
   each channel's τ and transitional window, the meander periods that tell channels apart;
 - :mod:`.estimate`, :mod:`.result`: G with its intervals, τ and Δ per channel, the physical
   check (:func:`~.estimate.estimate_rig`);
+- :mod:`.onerun`: the same from one run of Hadamard meanders (:mod:`rig.excitation`), and its
+  plan;
 - :mod:`.coupling`: the other channels' part of one channel's force rate as a known input, so
   the one-channel fit and diagnosis find that channel's own effects
   (:mod:`analysis.diagnosis.rig` runs them, channel by channel, on an executor).

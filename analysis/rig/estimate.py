@@ -68,7 +68,7 @@ MAX_CHANGE_SHARE = 0.05
 def moving_channels(rec: RigRecord) -> list[int]:
     """The channels whose command reverses at least twice (a meander) where the run is open
     loop; :class:`DataError` for a command that is not piecewise constant there."""
-    usable = _open_loop(rec)
+    usable = open_loop(rec)
     out = []
     for j, u in enumerate(rec.u):
         changes = np.flatnonzero(np.diff(u) != 0) + 1
@@ -83,7 +83,7 @@ def moving_channels(rec: RigRecord) -> list[int]:
     return out
 
 
-def _open_loop(rec: RigRecord) -> np.ndarray:
+def open_loop(rec: RigRecord) -> np.ndarray:
     """Samples where no channel has a reference (a set-point approach is a closed loop)."""
     return ~np.any(np.isfinite(rec.r), axis=0)
 
@@ -96,6 +96,14 @@ def estimate_rig(records: Sequence[RigRecord], guard_s: float | None = None,
     records = list(records)
     if not records:
         raise DataError("no rig runs given")
+    from .onerun import estimate_one_run, is_one_run
+    one = [is_one_run(rec) for rec in records]
+    if all(one):
+        return estimate_one_run(records, guard_s, margin_s, level)
+    if any(one):
+        raise DataError(f"{records[one.index(True)].source} is a one-run campaign's run: "
+                        "estimate it alone (stand estimate RUN), not with meanders of other "
+                        "designs")
     names = records[0].names
     N = len(names)
     moving = [moving_channels(rec) for rec in records]
@@ -168,22 +176,33 @@ def _timing(records: list[RigRecord], moving: list[list[int]], names: list[str],
         for rec, m in zip(records, moving):
             if j not in m:
                 continue
-            usable = _open_loop(rec)
-            y, rate, own, cuts = rec.y[j].copy(), None, math.nan, []
+            usable = open_loop(rec)
+            y, rate, own, cuts = rec.y[j], None, math.nan, []
             if G is not None and before is not None and delta is not None:
+                taus = [before[k].tau_s if k in before else 0.0 for k in range(rec.n)]
+                y = others_off(rec, j, G, taus, m)
                 for k in m:
-                    if k != j and np.isfinite(G[j, k]):
-                        uk = delayed(rec.u[k], rec.dt, before[k].tau_s)
-                        y -= G[j, k] * np.concatenate([[0.0], np.cumsum(uk[:-1])]) * rec.dt
-                        if abs(G[j, k]) > COUPLED_SHARE * abs(G[j, j]):
-                            e, rev = command_events(rec.u[k])
-                            cuts += list(e[rev] + int(round(before[k].tau_s / rec.dt)))
+                    if k != j and np.isfinite(G[j, k]) and abs(G[j, k]) > COUPLED_SHARE * abs(G[j, j]):
+                        e, rev = command_events(rec.u[k])
+                        cuts += list(e[rev] + int(round(before[k].tau_s / rec.dt)))
                 own = float(G[j, j])
                 rate = own * delayed(rec.u[j], rec.dt, before[j].tau_s) + delta[j]
             parts.append((np.where(usable, rec.u[j], 0.0), y, rate, own, rec.dt,
                           np.array(cuts, int)))
         out[j] = channel_timing(parts, names[j], level)
     return out
+
+
+def others_off(rec: RigRecord, j: int, G: np.ndarray, taus: Sequence[float],
+               moving: Sequence[int]) -> np.ndarray:
+    """Channel ``j``'s force with the other moving channels' part taken off,
+    ``y_j − Σ_{k≠j} G_jk ∫u_k(t − τ_k) dt``: its own turns and boost are left."""
+    y = rec.y[j].copy()
+    for k in moving:
+        if k != j and np.isfinite(G[j, k]):
+            uk = delayed(rec.u[k], rec.dt, taus[k])
+            y -= G[j, k] * np.concatenate([[0.0], np.cumsum(uk[:-1])]) * rec.dt
+    return y
 
 
 def _fit(records: list[RigRecord], timing: dict[int, ChannelTiming], guard_s: float | None,
@@ -212,7 +231,7 @@ def _fit(records: list[RigRecord], timing: dict[int, ChannelTiming], guard_s: fl
         X, parts = [], []
         for rec, d, m in zip(records, ud, shortest):
             y = rec.y[i]
-            ok = steady_mask(rec.u, rec.dt, taus, row_guards, margin_s, _open_loop(rec))
+            ok = steady_mask(rec.u, rec.dt, taus, row_guards, margin_s, open_loop(rec))
             ok &= ~clipped_mask(y) & ~held_mask(rec.u[i], y, rec.dt)
             spans = stretches(ok, m)
             parts.append(stretch_slopes(rec.t, y, spans))

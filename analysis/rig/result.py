@@ -101,7 +101,7 @@ class RigEstimate:
     boost_extra_s: np.ndarray
     amplitude_pct: np.ndarray           #: (N,) the meander's |u| at the reversals, %
     reversals: list[int]                #: reversals whose turn gave τ, per channel
-    design: str                         #: "per-column" | "simultaneous" | "mixed"
+    design: str                         #: "per-column" | "simultaneous" | "mixed" | "one-run"
     moving: dict[str, list[str]]        #: per run: the channels that moved
     inflation: np.ndarray               #: (N,) each column's variance inflation
     stretches: list[int]                #: steady stretches per row

@@ -16,6 +16,7 @@ import numpy as np
 
 from plant import Dynamometer
 from plant.rig import RigModel
+from rig.excitation import hadamard_order, hadamard_signs
 
 from .record import RigRecord, make_rig_record
 
@@ -42,17 +43,48 @@ def rig_meander(rig: RigModel, amplitudes_pct: Sequence[float], periods_s: Seque
                    for a, p in zip(amplitudes_pct, periods_s)])
     if u.shape[0] != rig.n:
         raise ValueError(f"{u.shape[0]} amplitudes/periods for a rig of {rig.n} channels")
+    moving = [nm for nm, a in zip(rig.names, amplitudes_pct) if a]
+    label = source or f"synthetic rig meander ({', '.join(moving) or 'no channel'} moving)"
+    params = {"amplitude_pct": dict(zip(rig.names, map(float, amplitudes_pct))),
+              "period_s": dict(zip(rig.names, map(float, periods_s)))}
+    return _measured(rig, u, dt, "meander", params, label, noise_kgf, resolution_kgf, range_kgf,
+                     seed, y0_kgf, u_before_pct)
+
+
+def _measured(rig: RigModel, u: np.ndarray, dt: float, experiment: str, params: dict,
+              label: str, noise_kgf: float, resolution_kgf: float, range_kgf: float, seed: int,
+              y0_kgf: float | Sequence[float], u_before_pct: float | Sequence[float]) -> RigRecord:
+    """The rig driven by the commands ``u`` (N, K), each force read by its own dynamometer
+    (seed ``seed + i``), as a record of ``experiment`` with ``params``."""
     y = rig.simulate(u, dt, y0=y0_kgf, u_before=u_before_pct)
     readings = np.vstack([
         Dynamometer(noise_kgf=noise_kgf, resolution_kgf=resolution_kgf, range_kgf=range_kgf,
                     seed=seed + i).measure(y[i])[0] for i in range(rig.n)])
-    moving = [nm for nm, a in zip(rig.names, amplitudes_pct) if a]
-    label = source or f"synthetic rig meander ({', '.join(moving) or 'no channel'} moving)"
-    meta = {"experiment": {"name": "meander", "params": {
-        "amplitude_pct": dict(zip(rig.names, map(float, amplitudes_pct))),
-        "period_s": dict(zip(rig.names, map(float, periods_s)))}}}
-    return make_rig_record(np.arange(n) * dt, u, readings, rig.names, source=label, meta=meta,
-                           experiment="meander")
+    meta = {"experiment": {"name": experiment, "params": params}}
+    return make_rig_record(np.arange(u.shape[1]) * dt, u, readings, rig.names, source=label,
+                           meta=meta, experiment=experiment)
+
+
+def rig_one_run(rig: RigModel, amplitude_pct: float | Sequence[float], slot_s: float,
+                repeats: int = 1, dt: float = 0.002, noise_kgf: float = 2.0,
+                resolution_kgf: float = 0.5, range_kgf: float = 10000.0, seed: int = 0,
+                y0_kgf: float | Sequence[float] = 0.0, source: str | None = None,
+                u_before_pct: float | Sequence[float] = 0.0) -> RigRecord:
+    """The one-run experiment (:mod:`rig.excitation`): every channel a ±u0 meander whose signs
+    follow its row of a Hadamard matrix as doublets, all switching every ``slot_s``, the
+    pattern ``repeats`` times, as the gateway's :class:`~gateway.experiments.one_run.OneRun`
+    plays it."""
+    amps = np.broadcast_to(np.asarray(amplitude_pct, float), (rig.n,))
+    signs = hadamard_signs(rig.n, repeats)
+    per = int(round(slot_s / dt))
+    u = amps[:, None] * np.repeat(signs, per, axis=1)
+    params = {"excitation": "hadamard", "slot_s": per * dt, "repeats": repeats,
+              "order": hadamard_order(rig.n), "slots": int(signs.shape[1]),
+              "amplitude_pct": dict(zip(rig.names, map(float, amps)))}
+    label = source or f"synthetic one-run rig excitation ({rig.n} channels, slots of {slot_s:g} s)"
+    from gateway.experiments.one_run import OneRun
+    return _measured(rig, u, dt, OneRun.name, params, label, noise_kgf, resolution_kgf,
+                     range_kgf, seed, y0_kgf, u_before_pct)
 
 
 def per_column_meanders(rig: RigModel, amplitude_pct: float = 5.0, period_s: float = 4.0,

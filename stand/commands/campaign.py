@@ -22,6 +22,14 @@ ONE_CHANNEL_ONLY = (("bus", "--bus"), ("config", "--config"), ("model", "--model
 
 #: the one-channel campaign's force limit unless --force-limit says
 FORCE_LIMIT_KGF = 9500.0
+#: --one-run's defaults: the accuracy asked, the longest transitional window and the noise the
+#: plan assumes
+ACCURACY_PCT, TRANSITIONAL_MS, NOISE_KGF = 1.0, 350.0, 2.0
+#: the one-run excitations (rig/excitation.py; kept here so that --help needs no numerics)
+EXCITATIONS = ("hadamard",)
+#: options of --one-run only, and of the simultaneous run only
+ONE_RUN_ONLY = (("excitation", "--excitation"), ("accuracy_pct", "--accuracy-pct"),
+                ("transitional_ms", "--transitional-ms"), ("noise_kgf", "--noise-kgf"))
 
 
 def register(sub) -> None:
@@ -58,11 +66,29 @@ def register(sub) -> None:
                    help="run the rig's identification through the rig gateway against the rig "
                         "on the file's buses (e.g. stand emulate --rig RIG.toml --lockstep): one "
                         "meander run per channel, the others at a zero command (a column of G "
-                        "each), or with --simultaneous one run, every channel a meander of its "
-                        "own period; the runs go to OUT/NN-LABEL for stand estimate OUT --save")
+                        "each), with --simultaneous one run, every channel a meander of its "
+                        "own period, or with --one-run one short run of Hadamard meanders; the "
+                        "runs go to OUT/NN-LABEL for stand estimate OUT --save")
     g.add_argument("--simultaneous", action="store_true",
                    help="with --rig: every channel at once, the periods from --meander-period-s "
                         "up (analysis.rig.periods.separating_periods)")
+    g.add_argument("--one-run", action="store_true",
+                   help="with --rig: all of G from one short run: every channel a ±u0 meander "
+                        "whose signs follow its row of a Hadamard matrix, all switching on one "
+                        "grid; the plan says how long it must be for --accuracy-pct before "
+                        "anything moves (docs/rig.md, \"G from one short run\")")
+    g.add_argument("--excitation", choices=EXCITATIONS, default=None,
+                   help="with --one-run: the excitation (default hadamard)")
+    g.add_argument("--accuracy-pct", type=float, default=None, metavar="PCT",
+                   help="with --one-run: every entry of G within ±PCT %% of the smallest "
+                        f"diagonal, all at once at 95 %% (default {ACCURACY_PCT:g})")
+    g.add_argument("--transitional-ms", type=float, default=None, metavar="MS",
+                   help="with --one-run: the longest reversal boost (transitional window) the "
+                        "plan allows for; the estimate leaves 4 such windows out after each "
+                        f"reversal (default {TRANSITIONAL_MS:g}, the paper's)")
+    g.add_argument("--noise-kgf", type=float, default=None, metavar="KGF",
+                   help="with --one-run: the dynamometers' noise the plan assumes (default "
+                        f"{NOISE_KGF:g})")
     g.add_argument("--amplitude-pct", type=float, default=5.0, metavar="PCT",
                    help="with --rig: every meander's command ±PCT (default %(default)s)")
     g.add_argument("--meander-period-s", type=float, default=None, metavar="S",
@@ -70,8 +96,10 @@ def register(sub) -> None:
                         "of the separating periods (simultaneous, default 12)")
     g.add_argument("--cycles", type=int, default=4, metavar="N",
                    help="with --rig, per column: periods per run (default %(default)s)")
-    g.add_argument("--duration-s", type=float, default=120.0, metavar="S",
-                   help="with --rig --simultaneous: the run's length (default %(default)s)")
+    g.add_argument("--duration-s", type=float, default=None, metavar="S",
+                   help="with --rig --simultaneous: the run's length (default 120); with "
+                        "--one-run: instead of the planned length (refused if it cannot give "
+                        "--accuracy-pct)")
     g.add_argument("--fault-action", choices=("hold", "unload"), default="hold",
                    help="with --rig: what a channel's communication or valve fault does to the "
                         "others (default %(default)s)")
@@ -88,9 +116,12 @@ def register(sub) -> None:
 def main(args: argparse.Namespace) -> int:
     if args.rig:
         return _rig(args)
-    if args.simultaneous or args.emulated or args.with_emulator or args.meander_period_s is not None:
-        raise ParameterError("--simultaneous, --emulated, --with-emulator and --meander-period-s "
-                             "plan a rig's identification: give --rig RIG.toml too")
+    if (args.simultaneous or args.one_run or args.emulated or args.with_emulator
+            or args.meander_period_s is not None or args.duration_s is not None
+            or any(getattr(args, a) is not None for a, _ in ONE_RUN_ONLY)):
+        raise ParameterError("--simultaneous, --one-run, --emulated, --with-emulator, "
+                             "--meander-period-s, --duration-s and the --one-run options plan a "
+                             "rig's identification: give --rig RIG.toml too")
     from analysis import report_campaign
     from gateway import Gateway, GatewayConfig, SafetyLimits
     from gateway.campaign import CampaignPlan, run_campaign
@@ -157,22 +188,42 @@ def _rig(args: argparse.Namespace) -> int:
     if abs(args.period_ms / 1e3 - rig.period_s) > 1e-9 and args.period_ms != 2.0:
         raise ParameterError(f"--period-ms {args.period_ms:g}: the rig {args.rig} runs at "
                              f"{rig.period_s * 1e3:g} ms (period_ms in the file); leave --period-ms out")
-    if args.simultaneous:
+    given = [flag for attr, flag in ONE_RUN_ONLY if getattr(args, attr) is not None]
+    if given and not args.one_run:
+        raise ParameterError(f"{', '.join(given)}: only with --one-run")
+    if args.one_run and (args.simultaneous or args.meander_period_s is not None):
+        raise ParameterError("--one-run plans its own excitation: leave --simultaneous and "
+                             "--meander-period-s out")
+    if args.one_run:
+        from analysis.rig.onerun import describe_design, plan_for_rig
+        transitional = (TRANSITIONAL_MS if args.transitional_ms is None else args.transitional_ms) / 1e3
+        design = plan_for_rig(rig, args.amplitude_pct,
+                              ACCURACY_PCT if args.accuracy_pct is None else args.accuracy_pct,
+                              transitional, NOISE_KGF if args.noise_kgf is None else args.noise_kgf,
+                              args.duration_s)
+        plan = GPlan.one(design)
+        what = describe_design(design, transitional)
+    elif args.simultaneous:
+        duration = 120.0 if args.duration_s is None else args.duration_s
         shortest = 12.0 if args.meander_period_s is None else args.meander_period_s
         periods = separating_periods(len(rig.names), shortest, rig.period_s)
-        plan = GPlan(True, args.amplitude_pct, periods, duration_s=args.duration_s)
-        vif = max(planned_inflation(periods, args.duration_s, rig.period_s))
+        plan = GPlan(True, args.amplitude_pct, periods, duration_s=duration)
+        vif = max(planned_inflation(periods, duration, rig.period_s))
         what = (f"one simultaneous run, periods {', '.join(f'{p:g}' for p in periods)} s over "
-                f"{args.duration_s:g} s (planned variance inflation ≤ {vif:.2f})")
+                f"{duration:g} s (planned variance inflation ≤ {vif:.2f})")
     else:
+        if args.duration_s is not None:
+            raise ParameterError("--duration-s: only with --simultaneous or --one-run (per column "
+                                 "the runs are --cycles periods of --meander-period-s)")
         period = 8.0 if args.meander_period_s is None else args.meander_period_s
         if not (2 <= args.cycles <= 1000):
             raise ParameterError(f"--cycles {args.cycles}: it must be from 2 to 1000 (the estimate "
                                  "needs two reversals of each channel's command)")
         plan = GPlan(False, args.amplitude_pct, [period], args.cycles)
         what = f"{len(rig.names)} runs, one per column of G: ±{args.amplitude_pct:g} %, {args.cycles} × {period:g} s"
-    plan.check_rig(rig)          # before anything is opened
     out = Path(args.out or f"campaigns/rig-campaign-{dt.datetime.now():%Y%m%d-%H%M%S}")
+    print(f"rig campaign on {rig.name}: {what} -> {out}/", flush=True)
+    plan.check_rig(rig)          # before anything is opened
     lockstep = args.lockstep or args.with_emulator
     with contextlib.ExitStack() as stack:
         if args.with_emulator:
@@ -183,7 +234,6 @@ def _rig(args: argparse.Namespace) -> int:
             truth = rig_truth(rig)
         config = GatewayConfig(rig=rig, lockstep=lockstep, period_s=rig.period_s,
                                limits=SafetyLimits(), fault_action=args.fault_action)
-        print(f"rig campaign on {rig.name}: {what} -> {out}/")
         with Gateway(config) as gw:
             result = run_campaign(gw, plan, out, progress=False if args.no_progress else None, truth=truth)
     for r in result.runs:

@@ -11,6 +11,7 @@ from core.errors import ParameterError
 from standbus.spec import DEFAULT_BUS
 
 from .common import add_gateway, gateway_config, sigterm_as_interrupt
+from .live_page import add_live_options, check_live_options, gateway_args, live_page, register_watch
 
 
 def register(sub) -> None:
@@ -40,6 +41,7 @@ def register(sub) -> None:
     q.add_argument("--out", required=True, metavar="TESTDIR", help="the test's directory (must not hold a test)")
     q.add_argument("--flights", type=int, metavar="N", help="the target instead of the test file's")
     _gateway_options(q)
+    add_live_options(q)
     q.set_defaults(func=start_main)
 
     q = tsub.add_parser("resume", help="take a stopped or interrupted test up again",
@@ -52,6 +54,7 @@ def register(sub) -> None:
                    help="the test file, if it moved since the start (default: the one it was started from)")
     q.add_argument("--flights", type=int, metavar="N", help="a new target (at least the flights done)")
     _gateway_options(q)
+    add_live_options(q)
     q.set_defaults(func=resume_main)
 
     q = tsub.add_parser("status", help="the test's state, count, position, pace and latest events")
@@ -77,6 +80,8 @@ def register(sub) -> None:
     q.add_argument("testdir", metavar="TESTDIR")
     q.add_argument("--json", action="store_true", help="print the report as JSON")
     q.set_defaults(func=report_main)
+
+    register_watch(tsub)
 
 
 def _gateway_options(q: argparse.ArgumentParser) -> None:
@@ -147,38 +152,43 @@ def plan_main(args: argparse.Namespace) -> int:
 
 
 def start_main(args: argparse.Namespace) -> int:
+    from endurance.live.feed import LiveFeed
     from endurance.run import start
     from endurance.testfile import load_test_file
     started = time.time()
     flights = _flights(args)
+    check_live_options(args)
     test = load_test_file(args.test_file)
     config = _config(args, test)
-    with sigterm_as_interrupt():
-        result = start(test, args.out, config, flights, on_flight=_on_flight(args), started_at=started)
+    feed = LiveFeed()
+    with sigterm_as_interrupt(), live_page(args, args.out, feed, "session"):
+        result = start(test, args.out, config, flights, on_flight=_on_flight(args), started_at=started,
+                       publisher=feed, gateway_args=gateway_args(args, _gateway_options))
     return _finish(result)
 
 
 def resume_main(args: argparse.Namespace) -> int:
+    from endurance.live.feed import LiveFeed
     from endurance.run import resume, test_file_of
     from endurance.testfile import load_test_file
     from pathlib import Path
     started = time.time()
     flights = _flights(args)
+    check_live_options(args)
     test = load_test_file(args.test_file or test_file_of(Path(args.testdir)))
     config = _config(args, test)
-    with sigterm_as_interrupt():
-        result = resume(args.testdir, config, test, flights, on_flight=_on_flight(args), started_at=started)
+    feed = LiveFeed()
+    with sigterm_as_interrupt(), live_page(args, args.testdir, feed, "session"):
+        result = resume(args.testdir, config, test, flights, on_flight=_on_flight(args), started_at=started,
+                        publisher=feed)
     return _finish(result)
 
 
 def status_main(args: argparse.Namespace) -> int:
-    from endurance.journal import Journal
-    from endurance.report import status, status_text
-    with Journal.open(args.testdir) as journal:
-        s = status(journal, args.events)
+    from endurance.report import status_json, status_of, status_text
+    s = status_of(args.testdir, args.events)
     if args.json:
-        json.dump(s, sys.stdout, indent=2)
-        sys.stdout.write("\n")
+        sys.stdout.write(status_json(s))
     else:
         print(status_text(s))
     return 0

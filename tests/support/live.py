@@ -1,0 +1,105 @@
+"""The live page's tests: a test on the emulated example rig with a page served beside it or by
+it, the operator's token file, and plain HTTP clients of the page (its stream read as a
+browser's EventSource reads it)."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+from endurance.journal import Journal, lock_holder
+
+TOKEN = "s3cret-operator-token-0123"
+#: a loaded 2-core host may starve the emulator's heartbeats for a second (as test_endurance_e2e)
+GATEWAY = ["--lockstep", "--no-progress", "--heartbeat-timeout", "3000"]
+
+
+def token_file(path: Path, token: str = TOKEN, mode: int = 0o600) -> Path:
+    path.write_text(token + "\n")
+    path.chmod(mode)
+    return path
+
+
+def stand(*args, timeout: float = 120) -> subprocess.CompletedProcess:
+    res = subprocess.run([sys.executable, "-m", "stand", *map(str, args)], capture_output=True, text=True,
+                         timeout=timeout)
+    assert "Traceback" not in res.stderr + res.stdout, res.stderr
+    return res
+
+
+def serving(*args) -> tuple[subprocess.Popen, str]:
+    """``stand ARGS`` in the background, serving a page (``--serve 127.0.0.1:0``); the process
+    and the page's URL (its first line)."""
+    proc = subprocess.Popen([sys.executable, "-m", "stand", *map(str, args)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    line = proc.stdout.readline()
+    if not line.startswith("live page: "):
+        proc.kill()
+        out, err = proc.communicate()
+        raise AssertionError(f"no page served: {line}{out}{err}")
+    return proc, line.split()[2]
+
+
+def flights_done(testdir: Path) -> int:
+    try:
+        with Journal.open(testdir) as j:
+            return j.flights_done
+    except Exception:                     # not made yet
+        return 0
+
+
+def wait_for(predicate, timeout: float, why: str, every: float = 0.1):
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        assert time.monotonic() < deadline, f"{why}: not within {timeout} s"
+        time.sleep(every)
+
+
+def stop_sessions(testdir: Path) -> None:
+    """End whatever session still runs the test (a resume the page started), by its pid."""
+    import os
+    import signal
+    holder = lock_holder(testdir)
+    if holder and holder.get("pid"):
+        try:
+            os.kill(int(holder["pid"]), signal.SIGTERM)
+        except ProcessLookupError:
+            return
+        wait_for(lambda: lock_holder(testdir) is None, 60, "the session to end")
+
+
+def request(url: str, method: str = "GET", headers: dict | None = None,
+            data: bytes | None = None) -> tuple[int, dict, bytes]:
+    """(status, headers, body) of one request, errors included."""
+    req = urllib.request.Request(url, method=method, headers=headers or {}, data=data)
+    try:
+        with urllib.request.urlopen(req, timeout=30) as res:
+            return res.status, dict(res.headers), res.read()
+    except urllib.error.HTTPError as exc:
+        return exc.code, dict(exc.headers), exc.read()
+
+
+def journal_of_flights(testdir: Path, flights: int = 3, target: int = 10, channels=("root", "inner")) -> Path:
+    """A test directory whose journal holds ``flights`` flights of three load cases (ground,
+    peak, ground) with end points, stopped, as a session leaves it; no bus, no plant. Its
+    test.json names examples/test.toml with ``--lockstep`` as the gateway's options."""
+    from endurance.journal import EndPoint
+    from tests.support.endurance_run import EXAMPLE
+    with Journal.create(testdir, "a test of the live page", target, list(channels), "f" * 64, "{}",
+                        EXAMPLE.read_text()) as journal:
+        journal.start()
+        for n in range(1, flights + 1):
+            journal.begin_flight(n, "C", 1, n, 3)
+            for k, level in enumerate((0.0, 1000.0 + 10 * n, 0.0)):
+                journal.commit_load_case(n, k, [EndPoint(c, level, level + 2.0 * (i + 1), 5.0 * (i + 1) + n)
+                                                 for i, c in enumerate(channels)])
+        journal.stop("operator: stopped at the end of flight %d" % flights)
+    (testdir / "test.json").write_text(json.dumps({"test_file": str(EXAMPLE), "gateway_args": ["--lockstep"]}))
+    return testdir
