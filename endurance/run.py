@@ -524,9 +524,11 @@ class SessionRecorder:
         safety = meta.get("safety")
         if safety and self.window.last_time_s is not None:
             onset = safety.get("onset")
+            acted = safety.get("safe_state") or safety.get("detected")
             self.window.mark_event(str(meta.get("end_reason") or "stop"), str(meta.get("end_message") or ""),
                                    onset if onset and math.isfinite(onset) else None,
-                                   safety.get("channel"), self.flight())
+                                   safety.get("channel"), self.flight(),
+                                   acted if acted and math.isfinite(acted) else None)
         return self.dir
 
 

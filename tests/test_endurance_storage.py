@@ -295,3 +295,36 @@ def test_an_event_window_is_read_by_compare_diagnose_and_report_as_any_run(tmp_p
         assert (tmp_path / f"report-{name}" / "report.html").is_file()
         assert history["dataset"]["samples"] >= 3500 and history["versions"][-1]["model"] == "base", history["dataset"]
         assert abs(history["versions"][-1]["params"]["g"] - 120.0) < 2.0
+
+
+def test_a_stops_deviation_from_the_ratios_counts_from_when_the_stand_was_acted_on(tmp_path):
+    """A heartbeat's loss is acted on a timeout after its onset (the programme moving meanwhile,
+    its channels out of phase): the deviation counts from the hold, where the forces stand
+    still; a spike's reading at the event is left out; a window of another trip named."""
+    from endurance.report import stop_deviation
+    ranges = [10000.0, 10000.0, 5000.0, 5000.0]
+
+    def window(name: str, spike: bool, acted_s: float | None):
+        w = SignalWindow(tmp_path / name, CHANNELS, 0.002, rolling_window_s=30.0, event_window_s=6.0,
+                         chunk_s=5.0)
+        moving = rows(CHANNELS, 0.0, 8.0)
+        if spike:                                       # the reading at the event: tip +3000 kgf
+            moving["y.tip"][2500] += 3000.0
+        w.append_rows(moving)
+        held = rows(CHANNELS, 8.0, 2.0, t0=8.0)         # every force held where it stood
+        for c in CHANNELS:
+            held[f"y.{c}"] = np.full(len(held["t"]), moving[f"y.{c}"][-1])
+        w.append_rows(held)
+        event = w.mark_event("heartbeat_lost", "inner's valve", time_s=1.8e9 + 5.0, channel="inner",
+                             acted_s=acted_s)
+        w.close()
+        return event.path
+
+    held = stop_deviation(window("hb", False, 1.8e9 + 8.0), CHANNELS, ranges)
+    assert held["pct_of_range"] < 0.2 and held["acted_after_s"] == pytest.approx(3.0), held
+    assert held["rows_after"] == 1000
+    moving = stop_deviation(window("onset", False, None), CHANNELS, ranges)    # as if held at the onset
+    assert moving["pct_of_range"] > 10 * held["pct_of_range"] + 5.0, moving
+    spike = stop_deviation(window("spike", True, None), CHANNELS, ranges)
+    assert spike["pct_of_range"] == pytest.approx(moving["pct_of_range"], rel=0.05), spike
+    assert max(spike["forces_at_kgf"]) < 3100.0
