@@ -72,6 +72,9 @@ LEAD_MARGIN = 5
 GLIDE_RATE_KGF_S = APPROACH_RATE_KGF_S
 GLIDE_MIN_S = 0.5
 GLIDE_HOLD_S = 0.1
+#: a hand-over begins at least this long after the landing's turning point (s): the rods'
+#: reversal there is over (the example rig's reversal boost decays in 0.15 s)
+HANDOVER_AFTER_TURN_S = 0.2
 #: a stop at once that unloads halts first this long beyond the largest delay (s)
 HALT_S = 0.1
 #: every valve holds this long at a session's start before the forces are taken as found (s)
@@ -108,11 +111,14 @@ def first_ways(experiment: LoadProgramme) -> np.ndarray:
 
 def lead_in_samples(reference: np.ndarray, turning_idx: np.ndarray, delay_steps: int, period_s: float) -> int:
     """How many of a piece's last samples the next flight's piece takes as its lead-in: the
-    pre-roll's length (:data:`PRE_ROLL_S`) within the last segment (the landing), but at least
-    the largest delay plus :data:`LEAD_MARGIN` (the next flight's first commands go out then),
-    and never the whole reference."""
+    pre-roll's length (:data:`PRE_ROLL_S`) within the last segment (the landing) and beginning
+    at least :data:`HANDOVER_AFTER_TURN_S` after the landing began, but at least the largest
+    delay plus :data:`LEAD_MARGIN` (the next flight's first commands go out then), and never
+    the whole reference. (A hand-over at the landing's turning point, as a short landing of a
+    time-scaled flight put it, planned the next piece's first commands from a standing start
+    while the rods were reversing: the turning point before it missed by 4-7 % of a range.)"""
     last = int(turning_idx[-1] - turning_idx[-2])
-    n = min(int(round(PRE_ROLL_S / period_s)), last)
+    n = min(int(round(PRE_ROLL_S / period_s)), last - int(round(HANDOVER_AFTER_TURN_S / period_s)))
     n = max(n, delay_steps + LEAD_MARGIN)
     return int(min(n, reference.shape[1] - 1))
 
@@ -141,6 +147,8 @@ class FlightPiece:
         interrupted one)
     handover_at : main-phase cycles it runs before the next flight's piece takes over
     start_ways : a session's first piece (a glide-in): each valve's way at its start
+    timing_final : its type's timing was final when it was prepared (no longer searched:
+        :mod:`endurance.timing`)
     """
 
     slot: FlightSlot
@@ -151,6 +159,7 @@ class FlightPiece:
     commit_from: int = 0
     handover_at: int = 0
     start_ways: np.ndarray | None = None
+    timing_final: bool = True
     #: global cycle at which its experiment began (local time 0) and its main phase's first
     #: cycle (the reference's sample 0); None until known
     c0: int | None = None
@@ -279,6 +288,19 @@ class FlightRecord:
             flow = float(np.nanmean(u)) if np.isfinite(u).any() else None
             out.append(EndPoint(name, float(self.levels[c, j]), reached, flow))
         return out
+
+
+def filled_forces(Y: np.ndarray) -> np.ndarray:
+    """Forces with a skipped cycle (NaN: a real-time cycle without a reading) taken from the
+    cycle before."""
+    Y = np.array(Y, float)
+    for row in Y:
+        bad = ~np.isfinite(row)
+        if bad.any() and (~bad).any():
+            idx = np.where(~bad, np.arange(len(row)), 0)
+            np.maximum.accumulate(idx, out=idx)
+            row[:] = row[idx]
+    return Y
 
 
 def _last_finite(y: np.ndarray, i: int) -> float:

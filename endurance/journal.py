@@ -42,7 +42,20 @@ Schema (``PRAGMA user_version`` = :data:`SCHEMA_VERSION`; times are seconds sinc
                  (the monitors' history; exported to the turning-point log, then pruned) WITHOUT ROWID
     compensation (flight_type, channel) key, tables (TOML text), flight, updated
     schedules    flight_type key, schedule (TOML text), flight, updated
+    monitor_state    key (a monitor's part: ``trend``, ``trend.type.C``, ``gain``), state (JSON),
+                 flight, updated: what a monitor needs to go on after a stop or a kill
+    monitor_history  (monitor, flight, seq) key, row (JSON): a monitor's row per flight (the
+                 trend's statistics, the gain's blocks), for plots           WITHOUT ROWID
     events       id, time, kind, channel, flight, load_case, message
+
+What a flight leaves besides its count (its type's compensation and schedule, the monitors'
+states, their rows and alarms) is stored by :meth:`Journal.finish_flight` in **one**
+transaction after the one that counted it: a kill between the two loses what the flight taught
+and its monitors' step, never the count, and never records a monitor's step twice (a flight is
+finished once; the monitors' states say which flight they saw last).
+
+A journal of schema 1 (no monitor tables) is brought to :data:`SCHEMA_VERSION` when it is opened
+for writing; read only, its monitors read as none.
 """
 from __future__ import annotations
 
@@ -54,13 +67,13 @@ import socket
 import sqlite3
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 from core.errors import StandError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 JOURNAL_FILE = "journal.sqlite"
 LOCK_FILE = "lock"
 STATES = ("running", "stopped", "interrupted", "finished")
@@ -139,6 +152,19 @@ CREATE TABLE schedules (
     flight INTEGER,
     updated REAL NOT NULL
 );
+CREATE TABLE monitor_state (
+    key TEXT PRIMARY KEY,
+    state TEXT NOT NULL,
+    flight INTEGER,
+    updated REAL NOT NULL
+);
+CREATE TABLE monitor_history (
+    monitor TEXT NOT NULL,
+    flight INTEGER NOT NULL,
+    seq INTEGER NOT NULL,
+    row TEXT NOT NULL,
+    PRIMARY KEY (monitor, flight, seq)
+) WITHOUT ROWID;
 CREATE TABLE events (
     id INTEGER PRIMARY KEY AUTOINCREMENT,
     time REAL NOT NULL,
@@ -149,6 +175,8 @@ CREATE TABLE events (
     message TEXT NOT NULL
 );
 """
+#: what schema 2 added to schema 1 (:meth:`Journal.open` for writing adds it)
+_SCHEMA_2 = _SCHEMA[_SCHEMA.index("CREATE TABLE monitor_state"):_SCHEMA.index("CREATE TABLE events")]
 
 
 class JournalError(StandError):
@@ -181,6 +209,27 @@ class Position:
     flight: int
     attempt: int | None
     load_case: int
+
+
+@dataclass
+class MonitorStep:
+    """What the monitors made of a flight, stored with it (:meth:`Journal.finish_flight`):
+    ``states`` {key: JSON text} replacing those keys' states, ``rows`` (monitor, flight, seq,
+    JSON text) added to their history, ``events`` (kind, channel or None, message): the alarms."""
+
+    states: dict[str, str] = field(default_factory=dict)
+    rows: list[tuple[str, int, int, str]] = field(default_factory=list)
+    events: list[tuple[str, str | None, str]] = field(default_factory=list)
+
+    def __bool__(self) -> bool:
+        return bool(self.states or self.rows or self.events)
+
+    def extend(self, other: "MonitorStep | None") -> "MonitorStep":
+        if other:
+            self.states.update(other.states)
+            self.rows += other.rows
+            self.events += other.events
+        return self
 
 
 @dataclass(frozen=True)
@@ -314,6 +363,8 @@ class Journal:
                     raise JournalError(f"{path} has schema {version}, written by a newer hydrostand "
                                        f"(this one reads {SCHEMA_VERSION}): update hydrostand")
                 journal = cls(testdir, db, lock_fd, clock)
+                if write and version < SCHEMA_VERSION:
+                    journal._upgrade(version)
             except sqlite3.DatabaseError as exc:
                 db.close()
                 raise JournalError(f"{path} is not a readable journal: {exc}") from None
@@ -327,6 +378,14 @@ class Journal:
             if lock_fd is not None:
                 _release(lock_fd)
             raise
+
+    def _upgrade(self, version: int) -> None:
+        """Bring a journal of an older schema to :data:`SCHEMA_VERSION` (its writer's lock held)."""
+        with self._tx(f"upgrading the journal from schema {version} to {SCHEMA_VERSION}"):
+            for statement in _SCHEMA_2.split(";"):
+                if statement.strip():
+                    self._db.execute(statement)
+            self._db.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
 
     def close(self) -> None:
         with self._mutex:
@@ -534,22 +593,26 @@ class Journal:
             return last
 
     def finish_flight(self, number: int, compensation: Mapping[str, str] | None = None,
-                      schedule: str | None = None) -> FlightRecord:
+                      schedule: str | None = None, monitors: "MonitorStep | None" = None) -> FlightRecord:
         """After flight ``number``'s last load case (which counted it): store what was learnt
-        from it for its type, in one transaction: every channel's compensation tables
-        (``{channel: TOML text}``) and the time-scaling schedule (TOML text). Returns the
-        flight's record; refuses a flight not done."""
+        from it for its type and what its monitors made of it, in one transaction: every
+        channel's compensation tables (``{channel: TOML text}``), the time-scaling schedule
+        (TOML text) and the monitors' step (:class:`MonitorStep`: their states, rows and
+        alarms, the alarms as events of this flight). Returns the flight's record; refuses a
+        flight not done."""
         with self._mutex:
             rec = self.flight(number)
             if rec is None or rec.status != "done":
                 raise JournalError(f"flight {number} is not done: its last load case is not "
                                    "committed")
-            if compensation or schedule is not None:
-                self._need_writer("store a flight's compensation")
-                with self._tx(f"storing what flight {number} learnt"):
+            if compensation or schedule is not None or monitors:
+                self._need_writer("store what a flight taught")
+                with self._tx(f"storing what flight {number} taught"):
                     self._put_compensation(rec.flight_type, compensation or {}, number)
                     if schedule is not None:
                         self._put_schedule(rec.flight_type, schedule, number)
+                    if monitors:
+                        self._put_monitors(monitors, number)
             return rec
 
     def flight(self, number: int) -> FlightRecord | None:
@@ -603,6 +666,48 @@ class Journal:
     def _put_schedule(self, flight_type: str, schedule: str, flight: int | None) -> None:
         self._db.execute("INSERT OR REPLACE INTO schedules VALUES (?, ?, ?, ?)",
                          (flight_type, str(schedule), flight, self._clock()))
+
+    # -- the monitors ----------------------------------------------------------------------------------
+    def record_monitors(self, step: "MonitorStep", flight: int | None = None) -> None:
+        """A monitors' step outside a finished flight (at the end of a session: what a monitor
+        saw of the flight a stop cut), in one transaction."""
+        with self._mutex:
+            self._need_writer("store the monitors' state")
+            with self._tx("storing the monitors' state"):
+                self._put_monitors(step, flight)
+
+    def monitor_states(self, prefix: str = "") -> dict[str, str]:
+        """The monitors' states whose key starts with ``prefix`` ({key: JSON text})."""
+        with self._mutex:
+            try:
+                rows = self._db.execute("SELECT key, state FROM monitor_state WHERE substr(key, 1, ?) = ? "
+                                        "ORDER BY key", (len(prefix), prefix)).fetchall()
+            except sqlite3.OperationalError:          # a journal of schema 1, read only
+                return {}
+        return dict(rows)
+
+    def monitor_history(self, monitor: str, first_flight: int = 1,
+                        last_flight: int | None = None) -> list[tuple[int, int, str]]:
+        """A monitor's rows of flights ``first_flight``..``last_flight``: (flight, seq, JSON text)."""
+        with self._mutex:
+            try:
+                return [tuple(r) for r in self._db.execute(
+                    "SELECT flight, seq, row FROM monitor_history WHERE monitor = ? AND flight BETWEEN ? AND ? "
+                    "ORDER BY flight, seq", (monitor, first_flight,
+                                            last_flight if last_flight is not None else 2 ** 62))]
+            except sqlite3.OperationalError:
+                return []
+
+    def _put_monitors(self, step: "MonitorStep", flight: int | None) -> None:
+        now = self._clock()
+        for key, text in step.states.items():
+            self._db.execute("INSERT OR REPLACE INTO monitor_state VALUES (?, ?, ?, ?)",
+                             (key, str(text), flight, now))
+        for monitor, row_flight, seq, text in step.rows:
+            self._db.execute("INSERT OR REPLACE INTO monitor_history VALUES (?, ?, ?, ?)",
+                             (monitor, row_flight, seq, str(text)))
+        for kind, channel, message in step.events:
+            self._event(kind, message, channel, flight, None)
 
     # -- events ------------------------------------------------------------------------------------
     def add_event(self, kind: str, message: str, channel: str | None = None,

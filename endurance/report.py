@@ -24,7 +24,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from core.errors import StandError
+from core.errors import DataError, StandError
 
 from .journal import Journal
 from .storage import read_turning_points, storage_estimate
@@ -262,6 +262,41 @@ def report(testdir: str | Path) -> dict:
                          for s in sessions],
             "interruptions": kinds.get("interrupted", 0), "stops": kinds.get("stopped", 0),
             "events": events}
+
+
+# -- what the stops did to the ratios --------------------------------------------------------------------
+def ratio_deviation_pct(Y: np.ndarray, y0: np.ndarray, ranges_kgf) -> float:
+    """The largest deviation of the forces ``Y`` (K, N) from the load ratios of ``y0`` (each
+    row's nearest multiple of ``y0``, safety.md's σ), % of each channel's range."""
+    Y, y0 = np.atleast_2d(np.asarray(Y, float)), np.asarray(y0, float)
+    if not len(Y) or not float(y0 @ y0):
+        return 0.0
+    sigma = (Y @ y0) / float(y0 @ y0)
+    return float(np.max(np.abs(Y - sigma[:, None] * y0[None, :]) / np.asarray(ranges_kgf, float)[None, :]) * 100)
+
+
+def stop_deviation(window: str | Path, names: list[str], ranges_kgf) -> dict:
+    """What a stop or a trip did to the load ratios, from its event window (the recorded
+    signals, :class:`endurance.storage.SignalWindow`): the largest deviation of the forces from
+    the moment the stand was acted on (the event's ``acted``, else its time: a heartbeat's loss
+    is acted on a timeout after its onset, the programme going on meanwhile) from the ratios of
+    the last reading before that moment (the reading at the event's time is left out: a spike
+    is a reading, not a force), % of a channel's range. ``rows_after``: the readings it saw (in
+    lockstep a trip's hold ends the session and the stand stands still: none)."""
+    from gateway.runs import load_run
+    run = load_run(window)
+    meta = json.loads((Path(window) / "run.json").read_text())["event"]
+    t = np.asarray(run.signals["sync_time"], float)
+    Y = np.array([run.signals[f"y.{n}"] for n in names], float).T
+    at = max(meta["time"], meta.get("acted") or meta["time"])
+    reading = np.abs(t - meta["time"]) <= 1e-6
+    before, after = (t < at - 1e-6) & ~reading, (t >= at - 1e-6) & ~reading
+    if not before.any() and not after.any():
+        raise DataError(f"{window}: no reading around its event")
+    y0 = Y[before][-1] if before.any() else Y[after][0]
+    return {"kind": meta["kind"], "message": meta.get("message", ""), "channel": meta.get("channel"),
+            "pct_of_range": ratio_deviation_pct(Y[after], y0, ranges_kgf), "rows_after": int(after.sum()),
+            "acted_after_s": at - meta["time"], "forces_at_kgf": y0.tolist()}
 
 
 def _block_size(journal: Journal) -> int | None:

@@ -26,6 +26,18 @@ compensation (:class:`loading.compensation.Compensation`), stored with the fligh
 what a flight learnt is used from the next flight of its type prepared after it (normally one
 flight later). A resumed session takes every type's compensation from the journal.
 
+**Time scaling per flight type** (``[time_scaling]``, a type's ``schedule``): each piece is
+made with its type's current segment durations (:class:`endurance.timing.FlightTiming`), and
+after each flight run whole the type's search takes its step from the same tracking report;
+the schedule is stored with the flight like the compensation, so a resumed session goes on
+with each type's own.
+
+**The monitors** (:mod:`endurance.monitors`): the gain monitor runs in the loop within every
+flight's pass; after each flight the planner thread feeds the end-point trend, and the
+monitors' step is stored with the flight. An alarm notes, or stops the test at once
+(``monitor_alarm``; the gain monitor's own: ``gain_alarm``), holding or unloading, its event
+naming the channels.
+
 **Stop.** ``stand test stop TESTDIR`` writes ``TESTDIR/stop.json``, which the writer thread
 polls (:data:`STOP_POLL_S`): by default the test stops at the end of the flight in progress and
 the valves hold at the ground level; ``--at-once`` unloads every channel keeping the load ratios
@@ -79,13 +91,15 @@ from gateway.load_experiment import LoadProgramme
 from loading.compensation import ChannelCompensation, Compensation
 from loading.report import tracking_report
 
-from .flights import (OPERATOR_STOP, FlightPiece, FlightPlayer, FlightRecord, StopRequest, first_ways,
-                      glide_in, lead_in_of)
+from .flights import (OPERATOR_STOP, FlightPiece, FlightPlayer, FlightRecord, StopRequest, filled_forces,
+                      first_ways, glide_in, lead_in_of)
 from .inbox import take_in
-from .journal import EndPoint, Journal, JournalError, lock_holder
+from .journal import EndPoint, Journal, JournalError, MonitorStep, lock_holder
+from .monitors import MONITOR_ALARM, FlightEnd, GainWatch, MonitorAlarm, TrendWatch
 from .storage import SignalWindow, TurningPointLog
 from .spectrum import FlightSequence
 from .testfile import EnduranceTest, Fingerprint, load_test_file
+from .timing import FlightTiming
 
 STOP_FILE = "stop.json"
 TEST_RECORD = "test.json"
@@ -99,27 +113,6 @@ PIECE_CACHE = 8
 
 
 # -- what the session reports --------------------------------------------------------------------
-@dataclass
-class FlightEnd:
-    """A flight done, for the monitors (``hook``): its end points per load case and, when it
-    was run whole, its tracking report."""
-
-    number: int
-    flight_type: str
-    end_points: dict[int, list[EndPoint]]
-    report: Any = None
-
-
-@dataclass(frozen=True)
-class Alarm:
-    """What a monitor (the ``hook``) asks: ``note`` (an event), ``hold`` or ``unload`` (the test
-    stops at once so)."""
-
-    action: str
-    message: str
-    channel: str | None = None
-
-
 @dataclass
 class SessionResult:
     """How a session ended (also ``TESTDIR/sessions/NNNN.json``)."""
@@ -196,28 +189,21 @@ def compensation_tables(comp: Compensation) -> dict[str, str]:
     return {n: comp.channels[n].to_toml() for n in comp.names}
 
 
-def _filled(Y: np.ndarray) -> np.ndarray:
-    """Forces with a skipped cycle (NaN) taken from the cycle before."""
-    Y = np.array(Y, float)
-    for row in Y:
-        bad = ~np.isfinite(row)
-        if bad.any() and (~bad).any():
-            idx = np.where(~bad, np.arange(len(row)), 0)
-            np.maximum.accumulate(idx, out=idx)
-            row[:] = row[idx]
-    return Y
-
-
 # -- the planner: pieces ahead, learning after ---------------------------------------------------------
 class Planner:
-    """Prepares each flight's piece while the flight before it flies, and learns each flight
-    type's compensation from the flights run whole (one thread, in the order asked)."""
+    """Prepares each flight's piece while the flight before it flies, and learns from each flight
+    done: its type's compensation and timing from the flights run whole, the end-point trend
+    (one thread, in the order asked). ``gain``: the gain monitor every piece shares."""
 
-    def __init__(self, test: EnduranceTest, compensations: dict[str, Compensation], flights: int) -> None:
+    def __init__(self, test: EnduranceTest, compensations: dict[str, Compensation], flights: int,
+                 timing: FlightTiming, trend: TrendWatch | None = None, gain=None) -> None:
         self.test = test
         self.controller = test.controller
         self.sequence = FlightSequence(test.block, flights)
         self.compensations = compensations
+        self.timing = timing
+        self.trend = trend
+        self.gain = gain
         self.T = test.station.period_s
         self.writer: "JournalWriter | None" = None
         self.pool = ThreadPoolExecutor(1, thread_name_prefix="flight-planner")
@@ -227,9 +213,10 @@ class Planner:
         self.built = self.reused = 0
 
     def commanded(self, flight_type: str):
-        """A flight type's programme with its corrections."""
-        nominal = self.test.flight_types[flight_type].programme
-        return nominal.with_levels(self.compensations[flight_type].levels(nominal))
+        """A flight type's programme with its timing (the nominal: what its end points are
+        judged against) and with its corrections (what is run)."""
+        nominal = self.timing.programme(flight_type)
+        return nominal, nominal.with_levels(self.compensations[flight_type].levels(nominal))
 
     def start(self, number: int, load_case: int, begun: bool, y0: np.ndarray) -> None:
         self.futures[number] = self.pool.submit(self._first, number, load_case, begun, np.array(y0, float))
@@ -238,16 +225,16 @@ class Planner:
         """The session's first piece: flight ``number`` from load case ``load_case`` (0-based)
         on, gliding in from the forces ``y0`` to the load case before it (module docstring)."""
         slot = self.sequence.slot(number)
-        nominal = self.test.flight_types[slot.flight_type].programme
         start = max(load_case - 1, 0)
-        commanded = self.commanded(slot.flight_type)
+        final = self.timing.final(slot.flight_type)
+        nominal, commanded = self.commanded(slot.flight_type)
         if start:
             commanded = commanded.from_case(start)
         delay = max(int(round(m.tau / self.T)) for m in self.controller.model.channels)
         lead_in = glide_in(y0, commanded.r_kgf[:, 0], self.T, delay)
-        experiment = LoadProgramme(commanded, self.controller, lead_in=lead_in, unload=False)
+        experiment = LoadProgramme(commanded, self.controller, lead_in=lead_in, unload=False, monitor=self.gain)
         piece = FlightPiece(slot, nominal, start, experiment, begun=begun, commit_from=load_case,
-                            start_ways=first_ways(experiment))
+                            start_ways=first_ways(experiment), timing_final=final)
         self.prepared[number] = piece
         return piece
 
@@ -273,7 +260,8 @@ class Planner:
         lead = lead_in_of(previous)
         lead_in = previous.reference[:, -lead:]
         slot = self.sequence.slot(number)
-        commanded = self.commanded(slot.flight_type)
+        final = self.timing.final(slot.flight_type)
+        nominal, commanded = self.commanded(slot.flight_type)
         key = hashlib.sha1(np.ascontiguousarray(lead_in).tobytes() + commanded.r_kgf.tobytes()
                            + slot.flight_type.encode()).hexdigest()
         cached = self.cache.get(key)
@@ -282,35 +270,49 @@ class Planner:
             experiment = cached.fresh()
             self.reused += 1
         else:
-            experiment = LoadProgramme(commanded, self.controller, lead_in=lead_in, unload=False)
+            experiment = LoadProgramme(commanded, self.controller, lead_in=lead_in, unload=False,
+                                       monitor=self.gain)
             self.cache[key] = experiment
             while len(self.cache) > PIECE_CACHE:
                 self.cache.popitem(last=False)
             experiment = experiment.fresh()
             self.built += 1
-        piece = FlightPiece(slot, self.test.flight_types[slot.flight_type].programme, 0, experiment)
+        piece = FlightPiece(slot, nominal, 0, experiment, timing_final=final)
         self.prepared[number] = piece
         return piece
 
     # -- learning ----------------------------------------------------------------------------------
-    def learn(self, record: FlightRecord) -> None:
-        """Teach the flight type's compensation from ``record`` (a flight run whole), then hand
-        the flight's end to the writer with the tables learnt."""
-        self.pool.submit(self._learn, record)
+    def learn(self, record: FlightRecord, step: MonitorStep | None = None) -> None:
+        """Learn from the flight done ``record`` (its type's compensation and timing when it was
+        run whole; the trend), then hand it to the writer with what was learnt and ``step``
+        (the gain monitor's, taken at its end)."""
+        self.pool.submit(self._learn, record, step or MonitorStep())
 
-    def _learn(self, record: FlightRecord) -> None:
-        tables, report, note = None, None, None
-        try:
-            piece = record.piece
-            nominal = piece.nominal
-            t = (np.arange(record.Y.shape[1]) - piece.experiment.lead) * self.T
-            report = tracking_report(nominal, t, _filled(record.Y))
-            comp = self.compensations[piece.slot.flight_type]
-            comp.learn(report.channels, nominal.ranges_kgf)
-            tables = compensation_tables(comp)
-        except Exception as exc:            # the flight is counted all the same
-            note = f"flight {record.number}: its compensation did not learn ({type(exc).__name__}: {exc})"
-        self.writer.finish(record, tables, report, note)
+    def _learn(self, record: FlightRecord, step: MonitorStep) -> None:
+        tables = schedule = report = None
+        notes, alarms = [], []
+        piece = record.piece
+        if record.whole:
+            try:
+                nominal = piece.nominal
+                t = (np.arange(record.Y.shape[1]) - piece.experiment.lead) * self.T
+                Y = filled_forces(record.Y)
+                report = tracking_report(nominal, t, Y)
+                comp = self.compensations[piece.slot.flight_type]
+                comp.learn(report.channels, nominal.ranges_kgf)
+                tables = compensation_tables(comp)
+                schedule = self.timing.learn(piece.slot.flight_type, nominal, report, t, Y,
+                                             landing_error_pct(record))
+            except Exception as exc:            # the flight is counted all the same
+                notes.append(f"flight {record.number}: it taught its type nothing ({type(exc).__name__}: {exc})")
+        if self.trend is not None:
+            try:
+                trend_step, alarm = self.trend.flight(record, piece.timing_final)
+                step.extend(trend_step)
+                alarms += [alarm] if alarm else []
+            except Exception as exc:
+                notes.append(f"flight {record.number}: the trend did not take it ({type(exc).__name__}: {exc})")
+        self.writer.finish(record, tables, schedule, report, step, alarms, notes)
 
     def close(self) -> None:
         """Stop preparing; finish every learning asked."""
@@ -327,7 +329,8 @@ class JournalWriter:
     def __init__(self, journal: Journal, testdir: Path, stop: StopRequest, planner: Planner,
                  window: SignalWindow, log: TurningPointLog, kind: str, started_at: float,
                  checked_at: float, on_flight: Callable[[FlightEnd, str], None] | None = None,
-                 hook: Callable[[FlightEnd], Alarm | None] | None = None) -> None:
+                 hook: Callable[[FlightEnd], MonitorAlarm | None] | None = None,
+                 gain: GainWatch | None = None) -> None:
         self.journal = journal
         self.testdir = testdir
         self.stop = stop
@@ -336,6 +339,7 @@ class JournalWriter:
         self.log = log
         self.kind, self.started_at, self.checked_at = kind, started_at, checked_at
         self.on_flight, self.hook = on_flight, hook
+        self.gain = gain
         self.ranges = None
         self.error: BaseException | None = None
         self.loading_info: dict | None = None
@@ -355,17 +359,16 @@ class JournalWriter:
         self.q.put((self.journal.commit_load_case, (record.number, index, end_points)))
 
     def flight_done(self, record: FlightRecord) -> None:
-        if record.whole:
-            self.planner.learn(record)
-        else:
-            self.finish(record, None, None, None)
+        step = self.gain.step(record.number)[0] if self.gain is not None else None
+        self.planner.learn(record, step)
 
     def loading(self, info: dict) -> None:
         self.q.put((self._loading, (info,)))
 
     # -- the planner's ---------------------------------------------------------------------------------
-    def finish(self, record: FlightRecord, tables: dict | None, report, note: str | None) -> None:
-        self.q.put((self._finish, (record, tables, report, note)))
+    def finish(self, record: FlightRecord, tables: dict | None, schedule: str | None, report,
+               step: MonitorStep, alarms: list[MonitorAlarm], notes: list[str]) -> None:
+        self.q.put((self._finish, (record, tables, schedule, report, step, alarms, notes)))
 
     # -- the session's ---------------------------------------------------------------------------------
     def event(self, kind: str, message: str, **where) -> None:
@@ -404,20 +407,26 @@ class JournalWriter:
     def _begin(self, slot, cases: int) -> None:
         self.journal.begin_flight(slot.number, slot.flight_type, slot.block, slot.position, cases)
 
-    def _finish(self, record: FlightRecord, tables, report, note) -> None:
-        self.journal.finish_flight(record.number, compensation=tables)
+    def _finish(self, record: FlightRecord, tables, schedule, report, step: MonitorStep,
+                alarms: list[MonitorAlarm], notes: list[str]) -> None:
+        step.events += [("learning", None, note) for note in notes]
+        self.journal.finish_flight(record.number, compensation=tables, schedule=schedule, monitors=step)
         self.flights_flown += 1
-        if note:
-            self.journal.add_event("learning", note, flight=record.number)
         end = FlightEnd(record.number, record.piece.slot.flight_type, dict(record.end_points), report)
         if self.on_flight is not None:
             self.on_flight(end, flight_line(end, record.piece.nominal))
         if self.hook is not None:
             alarm = self.hook(end)
             if alarm is not None:
-                self.journal.add_event(f"alarm_{alarm.action}", alarm.message, alarm.channel, record.number)
-                if alarm.action in ("hold", "unload"):
-                    self.stop.stop_at_once("monitor_alarm", alarm.message, alarm.action)
+                self.journal.add_event(alarm.kind, alarm.message, alarm.channel, record.number)
+                alarms = alarms + [alarm]
+        for alarm in alarms:
+            self.act(alarm)
+
+    def act(self, alarm: MonitorAlarm) -> None:
+        """An alarm's action: a hold or an unload stops the test at once (a note is its event)."""
+        if alarm.action in ("hold", "unload"):
+            self.stop.stop_at_once(MONITOR_ALARM, alarm.message, alarm.action)
         self._since_export += 1
         if self._since_export >= EXPORT_EVERY:
             self.log.export(self.journal)
@@ -457,6 +466,15 @@ class JournalWriter:
             self.stop.after_flight = True
             what = "at the end of the flight in progress, then the valves hold"
         self.journal.add_event("stop_requested", f"the operator asked the test to stop {what}")
+
+
+def landing_error_pct(record: FlightRecord) -> float:
+    """The worst channel's error at the flight's last load case (its ground level), % of the
+    channel's range in the flight."""
+    nominal = record.piece.nominal
+    ranges = np.maximum(nominal.ranges_kgf, 1e-9)
+    points = record.end_points.get(record.cases - 1, [])
+    return max((100 * abs(p.reached_kgf - p.level_kgf) / ranges[i] for i, p in enumerate(points)), default=np.nan)
 
 
 def flight_line(end: FlightEnd, nominal) -> str:
@@ -506,9 +524,11 @@ class SessionRecorder:
         safety = meta.get("safety")
         if safety and self.window.last_time_s is not None:
             onset = safety.get("onset")
+            acted = safety.get("safe_state") or safety.get("detected")
             self.window.mark_event(str(meta.get("end_reason") or "stop"), str(meta.get("end_message") or ""),
                                    onset if onset and math.isfinite(onset) else None,
-                                   safety.get("channel"), self.flight())
+                                   safety.get("channel"), self.flight(),
+                                   acted if acted and math.isfinite(acted) else None)
         return self.dir
 
 
@@ -576,7 +596,7 @@ def start(test_file: "str | Path | EnduranceTest", testdir: str | Path, config, 
     _write_json(testdir / TEST_RECORD, {"test_file": str(test.path.resolve()),
                                         "gateway_args": list(gateway_args or [])})
     return run_session(test, testdir, journal, "start", started_at, gateway_drive(test, config, progress),
-                       on_flight, hook, config.lockstep, publisher)
+                       on_flight, hook, config.lockstep, config.limits.command_limit_pct, publisher)
 
 
 def resume(testdir: str | Path, config, test_file: "str | Path | EnduranceTest | None" = None,
@@ -607,7 +627,7 @@ def resume(testdir: str | Path, config, test_file: "str | Path | EnduranceTest |
         journal.close()
         raise
     return run_session(test, testdir, journal, "resume", started_at, gateway_drive(test, config, progress),
-                       on_flight, hook, config.lockstep, publisher)
+                       on_flight, hook, config.lockstep, config.limits.command_limit_pct, publisher)
 
 
 def _read(test_file: "str | Path | EnduranceTest") -> EnduranceTest:
@@ -670,20 +690,26 @@ def gateway_drive(test: EnduranceTest, config, progress: bool | None = False) ->
 
 
 def run_session(test: EnduranceTest, testdir: Path, journal: Journal, kind: str, started_at: float,
-                drive: Drive, on_flight=None, hook=None, lockstep: bool = True, publisher=None) -> SessionResult:
+                drive: Drive, on_flight=None, hook=None, lockstep: bool = True,
+                command_limit_pct: float = 100.0, publisher=None) -> SessionResult:
     """One session: the flights from the journal's position on, back to back, until a stop,
     the target, an inspection or a fault (module docstring). ``journal`` is open for writing
     (the test's lock held) and is closed here. ``lockstep``: the stand waits for the loop (the
     first cycle may wait for the first flight's piece; in real time the valves hold meanwhile).
-    ``publisher``: the live view's, opened with ``open(testdir, channels, period_s)`` before the
-    run and closed after it."""
+    ``command_limit_pct``: the valves' (time scaling's minimum counts on it). ``publisher``: the
+    live view's, opened with ``open(testdir, channels, period_s)`` before the run and closed after
+    it."""
     try:
         (testdir / STOP_FILE).unlink(missing_ok=True)
         names = test.station.names
         rig = test.station.kind == "rig"
         pos = journal.position()
         compensations = load_compensations(journal, test)
-        planner = Planner(test, compensations, journal.flights_target)
+        timing = FlightTiming(test, {t: journal.schedule(t) for t in test.flight_types}, command_limit_pct)
+        trend = TrendWatch.for_session(test, journal)
+        gain = GainWatch.for_session(test, journal)
+        planner = Planner(test, compensations, journal.flights_target, timing, trend,
+                          gain.monitor if gain is not None else None)
         last, inspection = _last_flight(test, journal, pos.flight)
         stop = StopRequest()
         window = SignalWindow(testdir, names if rig else None, test.station.period_s,
@@ -693,7 +719,7 @@ def run_session(test: EnduranceTest, testdir: Path, journal: Journal, kind: str,
         journal.close()
         raise
     writer = JournalWriter(journal, testdir, stop, planner, window, log, kind, started_at, time.time(),
-                           on_flight, hook)
+                           on_flight, hook, gain)
     planner.writer = writer
     player = FlightPlayer(names, pos.flight, pos.load_case, pos.attempt is not None, planner, writer, last,
                           stop, test.station.period_s, test.controller.command_limit_pct, wait_first=lockstep)
@@ -727,9 +753,13 @@ def run_session(test: EnduranceTest, testdir: Path, journal: Journal, kind: str,
 
 def _interlock_event(writer: JournalWriter, stop: StopRequest, flight: Callable[[], int]) -> Callable:
     """The recorder's ``on_trip``: a trip the session did not ask for (not a stop, a monitor's
-    alarm or a journal error: those have their events) is an ``interlock`` event at its onset."""
+    alarm or a journal error: those have their events) is an ``interlock`` event at its onset.
+    The gain monitor's alarm trips the loop itself; its event is the monitor's (``gain_alarm``,
+    :class:`endurance.monitors.GainWatch`)."""
+    from loading.gain_monitor import GAIN_ALARM
+
     def on_trip(trip) -> None:
-        if stop.at_once and trip.reason == stop.reason:
+        if (stop.at_once and trip.reason == stop.reason) or trip.reason == GAIN_ALARM:
             return
         writer.event("interlock", f"{trip.reason}: {trip.message} -> {trip.action}", channel=trip.channel,
                      flight=flight(), time_s=trip.onset_wall)
@@ -768,6 +798,9 @@ def _end_session(result: SessionResult, journal: Journal, log: TurningPointLog, 
     unload = (meta.get("safety") or {}).get("unload")
     result.unload = unload
     try:
+        if writer.gain is not None and writer.error is None:   # the gain monitor's pass ends here
+            writer.gain.monitor.end_pass()
+            journal.record_monitors(writer.gain.step(player.number)[0], player.number)
         if unload and unload.get("largest_deviation"):
             journal.add_event("unload", unload_text(unload), flight=player.number)
         state = journal.state()

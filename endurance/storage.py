@@ -299,6 +299,9 @@ class EventWindow:
     message: str
     channel: str | None = None
     flight: int | None = None
+    #: when the stand was acted on (epoch s: a trip's safe-state command), if later than
+    #: ``time_s`` (a heartbeat's loss is seen a timeout after its onset); None: at ``time_s``
+    acted_s: float | None = None
 
 
 class SignalWindow:
@@ -405,9 +408,11 @@ class SignalWindow:
         self._queue.put(rows)
 
     def mark_event(self, kind: str, message: str, time_s: float | None = None,
-                   channel: str | None = None, flight: int | None = None) -> EventWindow:
+                   channel: str | None = None, flight: int | None = None,
+                   acted_s: float | None = None) -> EventWindow:
         """Keep ±event_window_s around ``time_s`` (epoch s; default the last row's): written as
-        a run directory once the rows after it are in (or at :meth:`close`)."""
+        a run directory once the rows after it are in (or at :meth:`close`). ``acted_s``: when
+        the stand was acted on, if not at ``time_s`` (in run.json's ``event`` as ``acted``)."""
         t = self.last_time_s if time_s is None else float(time_s)
         if t is None:
             raise DataError("signal window: an event before any row has no time; give time_s")
@@ -419,7 +424,7 @@ class SignalWindow:
         while path.exists() or any(e.path == path for e in self._pending):
             k += 1
             path = self.events_dir / f"{name}-{k}"
-        event = EventWindow(path, t, kind, message, channel, flight)
+        event = EventWindow(path, t, kind, message, channel, flight, acted_s)
         with self._pending_lock:
             self._pending.append(event)
         self._queue.put(_Wake())
@@ -548,7 +553,7 @@ class SignalWindow:
                 "end_reason": "event window", "rows": table.num_rows,
                 "files": {"signals": SIGNALS_FILE},
                 "event": {"kind": event.kind, "message": event.message, "channel": event.channel,
-                          "flight": event.flight, "time": event.time_s,
+                          "flight": event.flight, "time": event.time_s, "acted": event.acted_s,
                           "window_s": [lo, hi], "truncated": truncated,
                           "first_sync_time": float(clock.min()) if len(clock) else None}}
         meta.setdefault("experiment", {"name": "endurance event window", "params": {}})

@@ -12,6 +12,11 @@ which order, how far, and what watches it.
     [flight.A]                    # a flight type: a load-case CSV, `case` and a column per
     load_cases = "flights/A.csv"  # channel (as `stand load --rig` reads it)
     rate_kgf_s = 2000             # its own rate (or frequency_hz), else the file's
+    schedule = "A.schedule.toml"  # optional: its segment durations (stand load --fastest made it)
+
+    [time_scaling]                # optional: each flight type's segments timed to the valves
+    accuracy_pct = 0.5            # as stand load --accuracy, flight after flight of the type
+    search_flights = 20           # at most this many of a type's flights search its durations
 
     [block]                       # the flights of one block, flown in a seeded random order
     seed = 20261201
@@ -21,11 +26,12 @@ which order, how far, and what watches it.
     at_flight = 25000
     note = "NDT of the lower skin"
 
-    [monitor.trend]               # the end points' trend (a crack needs more flow)
-    action = "hold"               # note | hold | unload
-    flow_rise_pct = 5.0           # the flow to reach an end point, above its reference
-    error_pct = 1.0               # an end point's error, % of the channel's range
-    baseline_flights = 200        # the flights whose end points are the reference
+    [monitor.trend]               # the end points' trend (endurance.trends: a crack needs more
+    action = "hold"               # flow); note | hold | unload
+    learn_flights = 30            # a type's flights that learn its baseline
+    shift_pct = 1.0               # the flow change the test is tuned to
+    false_alarm_flights = 1e5     # intact flights between false alarms, on average
+                                  # (and floor_pct, confidence, sides, common_mode: TrendOptions)
 
     [monitor.gain]                # as stand load's --gain options
     mode = "watch"                # off | watch | adapt
@@ -72,6 +78,7 @@ import numpy as np
 from core.errors import DataError, ParameterError
 
 from .spectrum import Block, FlightSequence
+from .trends import ACTIONS as MONITOR_ACTIONS, SIDES, TrendOptions
 
 #: a one-channel stand's channel: the column of its turning-point CSVs
 STAND = "stand"
@@ -82,12 +89,14 @@ STAND_CHANNEL = STAND
 STAND_PERIOD_MS = 2.0
 STAND_RANGE_KGF = 10_000.0
 STAND_FORCE_LIMIT_KGF = 9_500.0
-MONITOR_ACTIONS = ("note", "hold", "unload")
 GAIN_MODES = ("off", "watch", "adapt")
 NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
 
 _TOP = {"name", "station", "controller", "rate_kgf_s", "frequency_hz", "flights", "blocks",
-        "stand", "flight", "block", "inspection", "monitor", "storage"}
+        "stand", "flight", "block", "inspection", "monitor", "storage", "time_scaling"}
+#: a flight type's flights that search its durations at most (then the fastest that met the
+#: accuracy is kept, or the last tried)
+SEARCH_FLIGHTS = 20
 
 
 class TestFileError(ParameterError):
@@ -135,7 +144,9 @@ class FlightType:
     labels : the load cases' labels (the CSV's ``case`` column, or 1, 2, ...)
     rate_kgf_s, frequency_hz : one of them (the other None)
     programme : the load cases as :class:`loading.programme.Programme` at the station's
-        period
+        period, at its rate
+    schedule : its segment durations to replay (:class:`loading.time_scaling.Schedule`,
+        checked against its load cases), or None
     """
 
     name: str
@@ -145,6 +156,7 @@ class FlightType:
     rate_kgf_s: float | None
     frequency_hz: float | None
     programme: Any = field(repr=False, compare=False)
+    schedule: Any = field(default=None, repr=False, compare=False)
 
     @property
     def load_cases(self) -> int:
@@ -165,13 +177,17 @@ class Inspection:
 
 
 @dataclass(frozen=True)
-class TrendMonitor:
-    """The end points' trend: what ``endurance.trends`` watches and what its alarm does."""
+class TimeScaling:
+    """Every flight type without its own schedule timed to the valves, as ``stand load
+    --accuracy`` does, over at most ``search_flights`` of its flights (:mod:`endurance.timing`)."""
 
-    action: str = "note"
-    flow_rise_pct: float = 5.0
-    error_pct: float = 1.0
-    baseline_flights: int = 200
+    accuracy_pct: float = 0.5
+    search_flights: int = SEARCH_FLIGHTS
+
+    def options(self):
+        """:class:`loading.time_scaling.ScalingOptions` at this accuracy."""
+        from loading.time_scaling import ScalingOptions
+        return ScalingOptions(accuracy_pct=self.accuracy_pct)
 
 
 @dataclass(frozen=True)
@@ -215,8 +231,11 @@ class EnduranceTest:
     block: Block
     flights: int
     inspections: list[Inspection] = field(default_factory=list)
-    trend: TrendMonitor = field(default_factory=TrendMonitor)
+    #: the end points' trend (None: off)
+    trend: TrendOptions | None = None
     gain: GainMonitor = field(default_factory=GainMonitor)
+    #: time scaling of the flight types without a schedule (None: off)
+    time_scaling: TimeScaling | None = None
     storage: StoragePolicy = field(default_factory=StoragePolicy)
     controller: Any = field(default=None, repr=False, compare=False)
 
@@ -362,12 +381,12 @@ def load_test_file(path: str | Path, check_controller: bool = True) -> Endurance
     block = r.block(data, types)
     flights = r.target(data, block)
     inspections = r.inspections(data, flights)
-    trend, gain = r.monitors(data)
+    trend, gain = r.monitors(data, station)
     storage = r.storage(data)
     return EnduranceTest(name=name, path=path, station=station, controller_path=controller_path,
                          flight_types=types, block=block, flights=flights,
                          inspections=inspections, trend=trend, gain=gain, storage=storage,
-                         controller=controller)
+                         time_scaling=r.time_scaling(data), controller=controller)
 
 
 class _Reader:
@@ -490,7 +509,7 @@ class _Reader:
                                 "with a letter")
             if not isinstance(table, Mapping):
                 self.fail(name, "must be a table")
-            self.keys(table, {"load_cases", "rate_kgf_s", "frequency_hz"}, name)
+            self.keys(table, {"load_cases", "rate_kgf_s", "frequency_hz", "schedule"}, name)
             path = self.file(table, "load_cases", name, "a load-case CSV (case and a column per "
                                                         "channel)")
             if path.suffix.lower() == ".toml":
@@ -509,8 +528,21 @@ class _Reader:
                 self.fail(name, f"load_cases = {_show(table['load_cases'])}: {exc}",
                           data=isinstance(exc, DataError))
             out[t] = FlightType(t, path, prog.levels_kgf, list(prog.case_labels or []), own_rate,
-                                own_freq, prog)
+                                own_freq, prog, self.schedule(table, name, prog))
         return out
+
+    def schedule(self, table: Mapping[str, Any], name: str, programme) -> Any:
+        """A flight type's ``schedule``: a schedule file made for its load cases, or None."""
+        if "schedule" not in table:
+            return None
+        from loading.time_scaling import Schedule
+        path = self.file(table, "schedule", name, "a schedule file (stand load --rig --fastest made it)")
+        try:
+            schedule = Schedule.load(path)
+            schedule.apply(programme)
+        except ParameterError as exc:
+            self.fail(name, f"schedule = {_show(table['schedule'])}: {exc}")
+        return schedule
 
     def block(self, data: Mapping[str, Any], types: Mapping[str, FlightType]) -> Block:
         table = self.table(data, "block", "block")
@@ -565,19 +597,38 @@ class _Reader:
             self.fail("[[inspection]]", f"at_flight = {twice[0]} is given twice")
         return sorted(out, key=lambda i: i.at_flight)
 
-    def monitors(self, data: Mapping[str, Any]) -> tuple[TrendMonitor, GainMonitor]:
+    def flag(self, table: Mapping[str, Any], key: str, name: str, default: bool) -> bool:
+        v = table.get(key, default)
+        if not isinstance(v, bool):
+            self.fail(name, f"{key} = {_show(v)}: give true or false")
+        return v
+
+    def monitors(self, data: Mapping[str, Any], station: Station) -> tuple[TrendOptions | None, GainMonitor]:
         table = self.table(data, "monitor", "monitor.NAME")
         self.keys(table, {"trend", "gain"}, "[monitor]")
-        trend = self.table(table, "trend", "monitor.trend")
-        name = "[monitor.trend]"
-        self.keys(trend, {"action", "flow_rise_pct", "error_pct", "baseline_flights"}, name)
-        d = TrendMonitor()
-        tm = TrendMonitor(
-            action=self.choice(trend, "action", name, MONITOR_ACTIONS, d.action),
-            flow_rise_pct=self.number(trend, "flow_rise_pct", name, d.flow_rise_pct, hi=1000.0),
-            error_pct=self.number(trend, "error_pct", name, d.error_pct, hi=100.0),
-            baseline_flights=(self.whole(trend, "baseline_flights", name)
-                              if "baseline_flights" in trend else d.baseline_flights))
+        tm = None
+        if "trend" in table:
+            trend = self.table(table, "trend", "monitor.trend")
+            name = "[monitor.trend]"
+            d = TrendOptions()
+            known = {"action", "learn_flights", "shift_pct", "false_alarm_flights", "floor_pct",
+                     "confidence", "sides", "common_mode"}
+            self.keys(trend, known, name)
+            tm = TrendOptions(
+                learn_flights=self.whole(trend, "learn_flights", name) if "learn_flights" in trend
+                else d.learn_flights,
+                shift_pct=self.number(trend, "shift_pct", name, d.shift_pct, lo=0.01, hi=100.0),
+                false_alarm_flights=self.number(trend, "false_alarm_flights", name, d.false_alarm_flights,
+                                                lo=10.0, hi=1e12),
+                floor_pct=self.number(trend, "floor_pct", name, d.floor_pct, positive=False, lo=0.0, hi=10.0),
+                confidence=self.number(trend, "confidence", name, d.confidence, lo=0.5, hi=0.999),
+                sides=self.choice(trend, "sides", name, SIDES, d.sides),
+                common_mode=self.flag(trend, "common_mode", name, d.common_mode),
+                action=self.choice(trend, "action", name, MONITOR_ACTIONS, d.action))
+            try:
+                tm.check(station.n)
+            except ParameterError as exc:
+                self.fail(name, str(exc).removeprefix("trends: "))
         gain = self.table(table, "gain", "monitor.gain")
         name = "[monitor.gain]"
         self.keys(gain, {"mode", "block_s", "fall_pct", "rise_pct", "action"}, name)
@@ -589,6 +640,17 @@ class _Reader:
             rise_pct=self.number(gain, "rise_pct", name, g.rise_pct, lo=0.01, hi=900.0),
             action=self.choice(gain, "action", name, MONITOR_ACTIONS, g.action))
         return tm, gm
+
+    def time_scaling(self, data: Mapping[str, Any]) -> TimeScaling | None:
+        if "time_scaling" not in data:
+            return None
+        table = self.table(data, "time_scaling", "time_scaling")
+        name = "[time_scaling]"
+        self.keys(table, {"accuracy_pct", "search_flights"}, name)
+        d = TimeScaling()
+        return TimeScaling(self.number(table, "accuracy_pct", name, d.accuracy_pct, lo=0.01, hi=10.0),
+                           self.whole(table, "search_flights", name, low=2) if "search_flights" in table
+                           else d.search_flights)
 
     def storage(self, data: Mapping[str, Any]) -> StoragePolicy:
         table = self.table(data, "storage", "storage")

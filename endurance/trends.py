@@ -271,7 +271,7 @@ class TrendOptions:
 
 
 @dataclass
-class Alarm:
+class TrendAlarm:
     """A persistent change found: the channels whose statistic crossed, the strongest first."""
 
     flight: int
@@ -306,7 +306,7 @@ class Alarm:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "Alarm":
+    def from_dict(cls, d: Mapping[str, Any]) -> "TrendAlarm":
         return cls(**d)
 
 
@@ -423,7 +423,7 @@ class TrendDetector:
         self.latched = np.zeros((2, n), bool)
         self.thresholds = np.full(n, math.inf)
         self.last_flight: int | None = None
-        self.alarms: list[Alarm] = []
+        self.alarms: list[TrendAlarm] = []
         self.history: list[FlightTrend] = []
 
     @property
@@ -432,7 +432,7 @@ class TrendDetector:
 
     # -- one flight ----------------------------------------------------------------------------
     def add_flight(self, flight_number: int, flight_type: str, end_points: np.ndarray,
-                   flows: np.ndarray, planned_flows: np.ndarray) -> Alarm | None:
+                   flows: np.ndarray, planned_flows: np.ndarray) -> TrendAlarm | None:
         """The flight ``flight_number`` of type ``flight_type`` ended: each channel's achieved
         end point (kgf), the flow it took and the flow planned for it (%·s), (N, M) for its M
         load cases (:func:`load_case_statistics`). Returns the alarm it raised, if any."""
@@ -610,7 +610,7 @@ class TrendDetector:
                                       if np.any(d > 0) else math.inf)
 
     def _test(self, flight: int, flight_type: str, own: np.ndarray, z: np.ndarray,
-              d: np.ndarray) -> Alarm | None:
+              d: np.ndarray) -> TrendAlarm | None:
         """The CUSUMs' step; a new alarm for every statistic that crossed, was not latched and
         whose channel's own flow excess over the run moved the statistic's way by at least half
         the design change (one that crossed without it crossed for the others' change, which the
@@ -640,7 +640,7 @@ class TrendDetector:
         if not crossed:
             return None
         crossed.sort(key=lambda c: -c[0])
-        alarm = Alarm(
+        alarm = TrendAlarm(
             flight, flight_type, [self.names[i] for _, _, i in crossed],
             ["soften" if side == 0 else "stiffen" for _, side, _ in crossed],
             [int(self._since[side, i]) for _, side, i in crossed],
@@ -756,6 +756,6 @@ class TrendDetector:
         det.latched = np.array(state["latched"], bool)
         det.thresholds = np.array([math.inf if h is None else h for h in state["thresholds"]], float)
         det.last_flight = state["last_flight"]
-        det.alarms = [Alarm.from_dict(a) for a in state["alarms"]]
+        det.alarms = [TrendAlarm.from_dict(a) for a in state["alarms"]]
         det.history = [FlightTrend.from_dict(h) for h in state.get("history", [])]
         return det

@@ -451,6 +451,12 @@ class LoadProgramme(RigExperiment):
                 **({"gain_monitor": dict(vars(self.monitor.options))} if self.monitor is not None else {})}
 
     @property
+    def feedforward_pct(self) -> np.ndarray:
+        """(N, samples): every channel's feedforward planned for each sample of the reference, for
+        the way its rod last moved when the main phase began (None before)."""
+        return self._u
+
+    @property
     def pacing_tolerances_kgf(self) -> np.ndarray:
         """Every channel's ε: the given one, else :data:`DEFAULT_TOLERANCE_SHARE` of its
         programme's range (at least 5 kgf: a channel that keeps one level)."""
@@ -533,10 +539,12 @@ class LoadProgramme(RigExperiment):
         self.abort = None
         self.abort_channel = None
         self.abort_action = "hold"
-        self._begin_main(0.0, np.where(np.asarray(ways, float) < 0, -1.0, 1.0))
+        self._begin_main(0.0, np.where(np.asarray(ways, float) < 0, -1.0, 1.0), handover=True)
         self.law.reset(integral_pct)
 
-    def _begin_main(self, t: float, way: np.ndarray | None = None) -> None:
+    def _begin_main(self, t: float, way: np.ndarray | None = None, handover: bool = False) -> None:
+        """The main phase begins at ``t``: each channel's plan for ``way``; the gain monitor's
+        pass begins, or on a hand-over goes on (the passes are one motion)."""
         self.main_start_s = t
         self.law.reset()
         self.way = (self.approach.way if way is None else way).copy()
@@ -545,7 +553,7 @@ class LoadProgramme(RigExperiment):
         self._scale = np.array([p.scale for p in plans])
         self._hold = np.array([p.way for p in plans])
         self._factor = np.array([p.factor for p in plans])
-        if self.monitor is not None:
+        if self.monitor is not None and not (handover and self.monitor.in_pass):
             self.monitor.begin_pass()
         self.positions = []
         self.clock = None

@@ -205,6 +205,8 @@ class ChannelGainMonitor:
         self.longest_block_cycles = LONGEST_BLOCK * self.block_cycles
         self._tq = _t_quantiles()
         self.blocks: list[GainBlock] = []
+        #: blocks closed over the test (its owner may keep fewer in :attr:`blocks`)
+        self.closed_blocks = 0
         self.alarm: tuple[str, str] | None = None
         self.g_follow = self.g_ref
         self._run = 0                  # consecutive blocks beyond a threshold
@@ -281,7 +283,8 @@ class ChannelGainMonitor:
         o = self.options
         start = self.test_s + self._block_start * self.T
         end = self.test_s + self._cycle * self.T
-        block = GainBlock(len(self.blocks) + 1, self.pass_index, start, end, self._n)
+        self.closed_blocks += 1
+        block = GainBlock(self.closed_blocks, self.pass_index, start, end, self._n)
         n, sbb = self._n, self._sbb
         if n >= o.min_chunks and sbb > 0:
             kappa = self._sab / sbb
@@ -329,6 +332,26 @@ class ChannelGainMonitor:
             self.alarm = (kind, f"block {block.index} ({block.start_s:.0f}-{block.end_s:.0f} s of the test): "
                                 f"the stand's g = {block.g:.1f} kgf/(%·s) [{block.low:.1f}, {block.high:.1f}] "
                                 f"{what}; the model's g is {self.g_ref:.1f}")
+
+    @property
+    def in_pass(self) -> bool:
+        return self._in_pass
+
+    #: what :meth:`state` keeps: the gain the feedforward follows, the alarm's run, the alarm,
+    #: the test's clock and counts (the blocks themselves are history)
+    _STATE = ("g_follow", "_run", "_run_kind", "alarm", "test_s", "pass_index", "closed_blocks")
+
+    def state(self) -> dict:
+        """What a test stopped between passes needs to go on (JSON-ready): the estimate the
+        feedforward follows, the alarm and the run of blocks toward one, the test's clock."""
+        return {k.lstrip("_"): (list(v) if isinstance(v, tuple) else v)
+                for k, v in ((k, getattr(self, k)) for k in self._STATE)}
+
+    def restore(self, state: dict) -> None:
+        """Go on from :meth:`state` (between passes)."""
+        for k in self._STATE:
+            v = state[k.lstrip("_")]
+            setattr(self, k, tuple(v) if k == "alarm" and v is not None else v)
 
     def text(self) -> str:
         """The blocks in a few lines: the estimates' span, the last, the alarm."""
@@ -432,6 +455,27 @@ class GainMonitor:
     def end_pass(self) -> bool:
         """Close the pass on every channel (:meth:`ChannelGainMonitor.end_pass`)."""
         return all([c.end_pass() for c in self.channels])
+
+    @property
+    def in_pass(self) -> bool:
+        """A pass is going (begun, not ended)."""
+        return self.channels[0].in_pass
+
+    def state(self) -> dict:
+        """Every channel's :meth:`ChannelGainMonitor.state` and the station's alarm (JSON-ready)."""
+        return {"channels": {n: c.state() for n, c in zip(self.names, self.channels)},
+                "alarm": list(self.alarm) if self.alarm else None,
+                "alarm_channel": self.alarm_channel}
+
+    def restore(self, state: dict) -> None:
+        """Go on from :meth:`state` (between passes); refused for other channels."""
+        if list(state["channels"]) != self.names:
+            raise ParameterError(f"gain monitor: a state of the channels {', '.join(state['channels'])}, "
+                                 f"this station has {', '.join(self.names)}")
+        for n, c in zip(self.names, self.channels):
+            c.restore(state["channels"][n])
+        self.alarm = tuple(state["alarm"]) if state["alarm"] else None
+        self.alarm_channel = state["alarm_channel"]
 
     def add(self, y: Sequence[float], u_pct: Sequence[float], flow_factor: Sequence[float]) -> None:
         """One cycle of the main phase: every force read now, every command sent now and each

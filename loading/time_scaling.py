@@ -330,6 +330,28 @@ class TimeScaler:
         self.durations = np.minimum(np.maximum(_whole(d, T), self.floor), self.ceiling)
         return self.durations
 
+    #: what :meth:`state` keeps, per segment
+    _STATE = ("floor", "durations", "ceiling", "landed", "missed", "settled")
+
+    def state(self) -> dict[str, list]:
+        """The bisection's state per segment (JSON- and TOML-ready; ``landed`` may be inf):
+        what a search stopped between passes needs to go on (:meth:`from_state`)."""
+        return {k: getattr(self, k).tolist() for k in self._STATE}
+
+    @classmethod
+    def from_state(cls, programme: Programme | ChannelProgramme, options: ScalingOptions,
+                   state: dict) -> "TimeScaler":
+        """The scaler :meth:`state` saved, for ``programme``'s segments."""
+        new = cls.__new__(cls)
+        new.programme, new.options, new.last = programme, options, {}
+        for k in cls._STATE:
+            v = np.asarray(state[k], bool if k == "settled" else float)
+            if v.shape != (len(programme.turning_idx) - 1,):
+                raise ParameterError(f"time scaling: a state of {v.shape[0]} segments for a programme "
+                                     f"of {len(programme.turning_idx) - 1}")
+            setattr(new, k, v)
+        return new
+
     @property
     def all_settled(self) -> bool:
         """(Nearly) every segment settled: at least :data:`SETTLED_SHARE` of them (a few

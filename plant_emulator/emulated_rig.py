@@ -53,6 +53,7 @@ from standbus.handover import handover_many
 
 from .channel import ChannelSetup, EmulatedBus, EmulatedChannel
 from .lockstep_plant import LockstepRig
+from .scheduled_faults import FaultSchedule, ScheduledFault
 
 log = logging.getLogger(__name__)
 
@@ -65,8 +66,9 @@ _MAX_DEFERRAL_S = 0.02
 @dataclass
 class EmulatorOptions:
     """How the emulator runs: lockstep or real time, the noise seed, the one-channel stand's
-    node ids, the plant's integration step ``step_s`` (s) and the real-time watchdog's poll
-    ``watchdog_poll_s`` (s)."""
+    node ids, the plant's integration step ``step_s`` (s), the real-time watchdog's poll
+    ``watchdog_poll_s`` (s) and the faults it makes at scheduled stand times
+    (:mod:`plant_emulator.scheduled_faults`)."""
 
     lockstep: bool = False
     seed: int | None = None
@@ -75,6 +77,7 @@ class EmulatorOptions:
     dynamometer_id: int = P.DYNAMOMETER_NODE_ID
     step_s: float = 0.0005
     watchdog_poll_s: float = 0.005
+    faults: tuple[ScheduledFault, ...] = ()
 
 
 def fd_flags(rig: RigConfig) -> dict[str, int]:
@@ -150,6 +153,9 @@ class EmulatedRig:
             for ch in self.channels:
                 for node in ch.nodes:
                     node.clock = self._stand_time
+        self.faults = FaultSchedule(options.faults)
+        #: a scheduled spike per channel index, added to its next reading (kgf)
+        self._spikes: dict[int, float] = {}
         self._stop = threading.Event()
         self._watchdog: threading.Thread | None = None
         self._reader: threading.Thread | None = None
@@ -296,11 +302,12 @@ class EmulatedRig:
                     answering = (on_bus,)
                     stamp = timestamp
                     self.advance_plant()
+                self._make_faults()
                 for b in answering:          # a bus's answers in one batch
                     frames: list = []
                     for ch in b.channels:
                         reading, over = self.measure(ch)
-                        ch.answer_sync(reading, over, b.counter, stamp, frames)
+                        ch.answer_sync(reading + self._spikes.pop(ch.index, 0.0), over, b.counter, stamp, frames)
                     b.send_frames(frames)
         except Exception as exc:  # never let the notifier swallow it silently
             log.exception("SYNC handling failed")
@@ -317,6 +324,16 @@ class EmulatedRig:
         for b in self._gated:
             b.pending_syncs -= 1
         return self._gated
+
+    def _make_faults(self) -> None:
+        """The scheduled faults whose stand time has come (:mod:`plant_emulator.scheduled_faults`)."""
+        plant = self.lockstep_plant if self.options.lockstep else self.realtime_plant
+        for fault in self.faults.due(plant.stand_time_s):
+            log.warning("scheduled fault: %s", fault.text([c.name for c in self.channels]))
+            if fault.kind == "spike":
+                self._spikes[fault.channel] = self._spikes.get(fault.channel, 0.0) + fault.value_kgf
+            else:
+                self.channels[fault.channel].valve.silence_heartbeat(fault.duration_s)
 
     def _command_changed(self, channel: EmulatedChannel) -> None:
         """Called by a valve after its effective command may have changed."""

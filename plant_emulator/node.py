@@ -136,6 +136,8 @@ class EmulatedNode:
         #: own time, which only SYNCs advance (set by the stand)
         self.clock = time.monotonic
         self.lock = threading.RLock()
+        #: its heartbeat is silenced (a scheduled fault: :meth:`silence_heartbeat`)
+        self.heartbeat_silent = False
         #: the bus notifier's own handlers by arbitration id (``HandoverNotifier.fast``, set by
         #: the emulator once it listens): an RPDO is taken there, raw, without a Message and the
         #: canopen dispatch; None: through canopen only
@@ -193,9 +195,26 @@ class EmulatedNode:
     def _heartbeat_now(self) -> None:
         """A heartbeat right at a state change (as CANopenNode devices send one), so the master
         sees the new state at once instead of up to one heartbeat period later."""
-        if int(self.value(0x1017)) > 0:
+        if int(self.value(0x1017)) > 0 and not self.heartbeat_silent:
             state = NMT_STATE_CODES[self.nmt_state]
             self.network.send_message(P.HEARTBEAT_BASE + self.id, bytes((state,)))
+
+    def silence_heartbeat(self, duration_s: float) -> None:
+        """No heartbeat for ``duration_s`` s of the wall clock, then heartbeats as before (a
+        scheduled fault, :mod:`plant_emulator.scheduled_faults`); everything else goes on."""
+        with self.lock:
+            self.heartbeat_silent = True
+            self.local.nmt.stop_heartbeat()
+
+        def again() -> None:
+            with self.lock:
+                self.heartbeat_silent = False
+                period_ms = int(self.value(0x1017))
+                if period_ms > 0:
+                    self.local.nmt.start_heartbeat(period_ms)
+        timer = threading.Timer(duration_s, again)
+        timer.daemon = True
+        timer.start()
 
     def _start_pdos(self) -> None:
         od = self.local.object_dictionary

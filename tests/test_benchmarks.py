@@ -36,6 +36,7 @@ FIGURES = {
     "live": ("live page: loop cycle, no page", "viewers against none", "stream updates a viewer got"),
     "rig_one_run": ("one run", "per column", "simultaneous", "multisine", "inside their 95 % intervals",
                     "the plan"),
+    "endurance": ("flights counted through a kill -9", "turning-point log", "integrity_check"),
     "crack": ("crack: intact", "runs with an alarm", "false alarms, thresholds for 1 in",
               "3 % at inner from flight 120", "name inner first"),
 }
@@ -44,7 +45,7 @@ FIGURES = {
 #: the rows of each benchmark's quick table
 ROWS = {"control_loop": 6, "wakeup": 1, "rig": 9, "campaign": 1, "decode": 6, "loading": 8,
         "faster": 9, "diagnosis": 2, "stepwise": 2, "rig_identify": 4, "rig_load": 11, "bus": 2,
-        "bus_budget": 2, "crack": 6, "live": 4, "rig_one_run": 11}
+        "bus_budget": 2, "crack": 6, "live": 4, "rig_one_run": 11, "endurance": 2}
 
 _NUMBER = r"[-+]?(?:\d{1,3}(?:,\d{3})+|\d+)(?:\.\d+)?(?:e[-+]?\d+)?"
 
@@ -227,12 +228,21 @@ def _rig_one_run(rows):
     assert "one run of Hadamard meanders" in row(rows, "rig G from one run: the plan")[1]
 
 
+def _endurance(rows):
+    done, target = figures(row(rows, "endurance (quick): flights counted")[1], r"{n} of {n}")
+    assert done == target > 0
+    r = row(rows, "endurance (quick): flights counted")
+    assert r[3] == "met" and figures(r[4], r"kill -9 at \[{n}\]"), r      # the kill happened
+    r = row(rows, "endurance (quick): turning-point log")
+    assert r[1] == "clean" and r[3] == "met", r
+
+
 #: what each benchmark's quick table must say, beyond its figures being numbers
 PLAUSIBLE = {"control_loop": _control_loop, "wakeup": _wakeup, "rig": _rig, "campaign": _campaign,
              "decode": _decode, "loading": _loading, "faster": _faster, "diagnosis": _diagnosis,
              "stepwise": _stepwise, "rig_identify": _rig_identify, "rig_load": _rig_load,
              "bus": _bus, "bus_budget": _bus_budget, "crack": _crack, "live": _live,
-             "rig_one_run": _rig_one_run}
+             "rig_one_run": _rig_one_run, "endurance": _endurance}
 
 
 def test_every_benchmark_has_its_smoke_run():

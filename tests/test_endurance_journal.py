@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from endurance.journal import (JOURNAL_FILE, SCHEMA_VERSION, EndPoint, Journal, JournalError,
+from endurance.journal import (JOURNAL_FILE, SCHEMA_VERSION, EndPoint, Journal, JournalError, MonitorStep,
                                Position, TestLocked, lock_holder)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -137,6 +137,48 @@ def test_what_a_flight_type_learnt_is_kept_per_type_and_channel(tmp_path):
     assert r.schedule("A") == "[segments]\n" and r.schedule("B") is None
     with pytest.raises(JournalError, match="opened for reading"):
         r.set_compensation("A", {"root": ""})
+
+
+def test_a_flights_monitors_step_is_stored_with_what_it_taught_in_one_transaction(tmp_path):
+    j = new(tmp_path / "t", target=10 ** 6)
+    fly(j, 1)
+    step = MonitorStep({"trend": '{"last_flight": 1}', "trend.type.A": "{}"},
+                       [("trend", 1, 0, '{"flight": 1}')],
+                       [("trend_alarm", "inner,tip", "flight 1: channel inner needs 3 % more flow")])
+    j.finish_flight(1, compensation={"root": "# A"}, schedule="[search]\n", monitors=step)
+    fly(j, 2)
+    # a step that cannot be stored (the database full) stores nothing of the flight's lesson
+    pages = j._db.execute("PRAGMA page_count").fetchone()[0]
+    j._db.execute(f"PRAGMA max_page_count = {pages}")
+    big = MonitorStep({"trend": '{"last_flight": 2}'}, [("trend", 2, 0, "x" * 100_000)])
+    with pytest.raises(JournalError, match="storing what flight 2 taught in .*: the disk is full"):
+        j.finish_flight(2, compensation={"root": "# B"}, monitors=big)
+    j._db.execute("PRAGMA max_page_count = 1073741823")
+    j.close()
+    r = Journal.open(tmp_path / "t")
+    assert r.monitor_states() == {"trend": '{"last_flight": 1}', "trend.type.A": "{}"}
+    assert r.monitor_states("trend.type.") == {"trend.type.A": "{}"}
+    assert r.monitor_history("trend") == [(1, 0, '{"flight": 1}')] and r.monitor_history("gain") == []
+    assert r.compensation("A") == {"root": "# A"} and r.schedule("A") == "[search]\n"
+    alarm = [e for e in r.events() if e["kind"] == "trend_alarm"]
+    assert [(e["channel"], e["flight"]) for e in alarm] == [("inner,tip", 1)]
+    assert r.integrity_check() == []
+
+
+def test_a_journal_of_schema_1_gets_the_monitor_tables_when_opened_for_writing(tmp_path):
+    j = new(tmp_path / "t")
+    j.close()
+    raw = sqlite3.connect(tmp_path / "t" / JOURNAL_FILE)
+    raw.executescript("DROP TABLE monitor_state; DROP TABLE monitor_history; PRAGMA user_version = 1;")
+    raw.close()
+    with Journal.open(tmp_path / "t") as r:           # read only: no monitors, nothing changed
+        assert r.monitor_states() == {} and r.monitor_history("trend") == []
+    with Journal.open(tmp_path / "t", write=True) as w:
+        w.record_monitors(MonitorStep({"gain": "{}"}))
+        assert w.monitor_states() == {"gain": "{}"}
+    raw = sqlite3.connect(tmp_path / "t" / JOURNAL_FILE)
+    assert raw.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 2
+    raw.close()
 
 
 def test_a_second_writer_is_refused_naming_the_holder(tmp_path):

@@ -20,6 +20,7 @@ import pytest
 from endurance import run
 from endurance.flights import glide_in, lead_in_samples, line_deviation
 from endurance.journal import Journal
+from endurance.monitors import MonitorAlarm
 from endurance.report import accuracy, end_point_errors, report
 from endurance.storage import read_turning_points
 from endurance.testfile import load_test_file
@@ -167,7 +168,7 @@ def test_a_stop_at_the_end_of_a_flight_an_inspection_and_an_alarm_end_the_sessio
     assert second.reason == "inspection after flight 7: half way: look at the root joint"
 
     def alarm(end):
-        return run.Alarm("unload", f"flight {end.number}: the flow to the end points rose", "root") \
+        return MonitorAlarm("script", "unload", ("root",), f"flight {end.number}: the flow to the end points rose") \
             if end.number == 9 else None
     third = fly(testdir, test_file, plant, hook=alarm)
     assert third.state == "stopped" and third.reason.startswith("monitor_alarm: flight 9")
@@ -175,7 +176,7 @@ def test_a_stop_at_the_end_of_a_flight_an_inspection_and_an_alarm_end_the_sessio
     with Journal.open(testdir) as journal:
         events = journal.events()
         assert journal.integrity_check() == []
-    assert any(e["kind"] == "alarm_unload" and e["channel"] == "root" for e in events)
+    assert any(e["kind"] == "script_alarm" and e["channel"] == "root" and e["flight"] == 9 for e in events)
     assert any(e["kind"] == "inspection" for e in events)
     assert any(e["kind"] == "stop_requested" for e in events)
     assert fly(testdir, test_file, plant).state == "finished"

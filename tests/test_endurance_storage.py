@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import errno
+import json
 
 import numpy as np
 import pyarrow as pa
@@ -259,3 +260,71 @@ def test_the_calibration_is_what_writing_real_data_measures(tmp_path):
     for field in dataclasses.fields(Calibration):
         stated, now = getattr(CALIBRATION, field.name), getattr(measured, field.name)
         assert now == pytest.approx(stated, rel=0.2), f"{field.name}: measured {now:.2f}, stated {stated}"
+
+
+@pytest.mark.slow
+def test_an_event_window_is_read_by_compare_diagnose_and_report_as_any_run(tmp_path):
+    """stand compare, diagnose and report take an event window as a run directory: a rig's with
+    --channel, a stand's as it is (the signals a plant g = 120 kgf/(%·s) would give, 2 kgf noise)."""
+    import subprocess
+    import sys
+    test = load_test_file(EXAMPLE_TEST, check_controller=False)
+    windows = {}
+    for name, channels, meta in (("rig", CHANNELS, rig_meta(test.station)), ("stand", None, {})):
+        w = SignalWindow(tmp_path / name, channels, 0.002, rolling_window_s=20.0, event_window_s=4.0,
+                         chunk_s=5.0, meta=meta)
+        w.append_rows(rows(channels, 0.0, 10.0))
+        event = w.mark_event("force_limit", "a trip", time_s=1.8e9 + 5.0, channel="tip" if channels else None)
+        w.close()
+        windows[name] = event.path
+
+    def stand(*args):
+        res = subprocess.run([sys.executable, "-m", "stand", *map(str, args)], capture_output=True, text=True,
+                             timeout=600, cwd=tmp_path)
+        assert res.returncode == 0 and "Traceback" not in res.stderr, res.stderr[-2000:]
+        return res.stdout
+
+    for name, extra in (("rig", ["--channel", "tip"]), ("stand", [])):
+        out = json.loads(stand("compare", windows[name], "--model", "base", "--no-plots", "--json", *extra))
+        assert abs(out["params"]["g"] - 120.0) < 2.0 and out["metrics"]["n_samples"] >= 3500, out
+        assert out["metrics"]["rmse"] < 2 * out["metrics"]["noise_floor_rmse"], out["metrics"]
+        out = json.loads(stand("diagnose", windows[name], "--candidates", "reversal", "--json", *extra))
+        assert out["model"] == "base" and out["verdict"], out["verdict"]
+        stand("report", windows[name], "--model", "base", "--out", tmp_path / f"report-{name}", *extra)
+        history = json.loads((tmp_path / f"report-{name}" / "history.json").read_text())
+        assert (tmp_path / f"report-{name}" / "report.html").is_file()
+        assert history["dataset"]["samples"] >= 3500 and history["versions"][-1]["model"] == "base", history["dataset"]
+        assert abs(history["versions"][-1]["params"]["g"] - 120.0) < 2.0
+
+
+def test_a_stops_deviation_from_the_ratios_counts_from_when_the_stand_was_acted_on(tmp_path):
+    """A heartbeat's loss is acted on a timeout after its onset (the programme moving meanwhile,
+    its channels out of phase): the deviation counts from the hold, where the forces stand
+    still; a spike's reading at the event is left out; a window of another trip named."""
+    from endurance.report import stop_deviation
+    ranges = [10000.0, 10000.0, 5000.0, 5000.0]
+
+    def window(name: str, spike: bool, acted_s: float | None):
+        w = SignalWindow(tmp_path / name, CHANNELS, 0.002, rolling_window_s=30.0, event_window_s=6.0,
+                         chunk_s=5.0)
+        moving = rows(CHANNELS, 0.0, 8.0)
+        if spike:                                       # the reading at the event: tip +3000 kgf
+            moving["y.tip"][2500] += 3000.0
+        w.append_rows(moving)
+        held = rows(CHANNELS, 8.0, 2.0, t0=8.0)         # every force held where it stood
+        for c in CHANNELS:
+            held[f"y.{c}"] = np.full(len(held["t"]), moving[f"y.{c}"][-1])
+        w.append_rows(held)
+        event = w.mark_event("heartbeat_lost", "inner's valve", time_s=1.8e9 + 5.0, channel="inner",
+                             acted_s=acted_s)
+        w.close()
+        return event.path
+
+    held = stop_deviation(window("hb", False, 1.8e9 + 8.0), CHANNELS, ranges)
+    assert held["pct_of_range"] < 0.2 and held["acted_after_s"] == pytest.approx(3.0), held
+    assert held["rows_after"] == 1000
+    moving = stop_deviation(window("onset", False, None), CHANNELS, ranges)    # as if held at the onset
+    assert moving["pct_of_range"] > 10 * held["pct_of_range"] + 5.0, moving
+    spike = stop_deviation(window("spike", True, None), CHANNELS, ranges)
+    assert spike["pct_of_range"] == pytest.approx(moving["pct_of_range"], rel=0.05), spike
+    assert max(spike["forces_at_kgf"]) < 3100.0

@@ -32,7 +32,8 @@ def test_the_example_test_reads_with_its_rig_flight_types_block_and_policies():
     assert t.block.size == 4529 and t.block.counts["A"] == 1 and t.block.seed == 1
     assert t.flights == 100_000 and t.blocks == 23
     assert [i.at_flight for i in t.inspections] == [25000, 50000]
-    assert t.trend.action == "hold" and t.gain.mode == "watch" and t.gain.options().fall_pct == 2.0
+    assert t.trend.action == "hold" and t.trend.learn_flights == 30 and t.trend.false_alarm_flights == 1e5
+    assert t.gain.mode == "watch" and t.gain.options().fall_pct == 2.0 and t.time_scaling is None
     assert t.storage.rolling_window_s == 600 and t.storage.event_window_s == 30
     assert t.controller.names == t.station.names           # the rig controller, checked
 
@@ -77,6 +78,12 @@ MISTAKES = [
     ("at_flight = 50000", "at_flight = 150000", "[[inspection]] #2 at_flight = 150000: the test has 100000 flights"),
     ("at_flight = 50000", "at_flight = 25000", "[[inspection]] at_flight = 25000 is given twice"),
     ('action = "hold"', 'action = "explode"', "[monitor.trend] action = \"explode\": choose one of note, hold, unload"),
+    ("learn_flights = 30", "learn_flights = 5", "[monitor.trend] learn_flights = 5: give at least 9"),
+    ("learn_flights = 30", "learn_flights = 30\nflow_rise_pct = 5.0", "[monitor.trend] unknown key(s) flow_rise_pct"),
+    ("learn_flights = 30", "learn_flights = 30\ncommon_mode = 1", "[monitor.trend] common_mode = 1: give true or false"),
+    ("[block]", "[time_scaling]\naccuracy_pct = 20\n\n[block]", "[time_scaling] accuracy_pct = 20: it must be from 0.01 to 10"),
+    ('load_cases = "flights/C.csv"', 'load_cases = "flights/C.csv"\nschedule = "flights/A.csv"',
+     '[flight.C] schedule = "flights/A.csv": '),
     ('mode = "watch"', 'mode = "watching"', "[monitor.gain] mode = \"watching\": choose one of off, watch, adapt"),
     ("fall_pct = 2.0", "fall_pct = 95.0", "[monitor.gain] fall_pct = 95: it must be from 0.01 to 90"),
     ("event_window_s = 30", "event_window_s = 900", "[storage] event_window_s = 900 is longer than rolling_window_s = 600"),

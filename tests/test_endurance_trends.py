@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from core.errors import ParameterError
-from endurance.trends import (Alarm, TrendDetector, TrendOptions, cusum_arl, cusum_threshold,
+from endurance.trends import (TrendAlarm, TrendDetector, TrendOptions, cusum_arl, cusum_threshold,
                               load_case_statistics)
 
 NAMES = ["root", "inner", "outer", "tip"]
@@ -179,7 +179,7 @@ def test_a_resumed_test_goes_on_with_the_same_statistic_bit_for_bit():
     assert alarms_resumed == alarms_whole and alarms_whole and alarms_whole[0].action == "hold"
     assert resumed.state(with_history=True) == whole.state(with_history=True)
     assert [h.to_dict() for h in resumed.history] == [h.to_dict() for h in whole.history]
-    assert Alarm.from_dict(alarms_whole[0].to_dict()) == alarms_whole[0]
+    assert TrendAlarm.from_dict(alarms_whole[0].to_dict()) == alarms_whole[0]
 
 
 # -- refusals ----------------------------------------------------------------------------------

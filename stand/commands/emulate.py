@@ -37,6 +37,11 @@ def register(sub) -> None:
                         "in lockstep the run's own time for a first run), at once or linearly "
                         "over RAMP_S; e.g. inner:0.97@600 (a crack). Repeatable, after the rig "
                         "file's [[structure.change]] (docs/rig.md)")
+    p.add_argument("--fault", action="append", metavar="KIND:CHANNEL[:KGF]@T[+D]",
+                   help="a fault the stand makes at stand time T (s, the clock of --change): "
+                        "spike:CHANNEL:KGF@T, its dynamometer reads KGF more once; "
+                        "heartbeat:CHANNEL@T+D, its valve sends no heartbeat for D s. A stand's "
+                        "channel is 'stand'. Repeatable (plant_emulator/scheduled_faults.py)")
     p.add_argument("--lockstep", action="store_true",
                    help="advance the plant one communication period (0x1006) per SYNC instead of "
                         "on the wall clock (a rig: per cycle, once every bus's SYNC came)")
@@ -67,12 +72,15 @@ def main(args: argparse.Namespace) -> int:
         from rig.config import load_rig_file, parse_change, with_changes
         rig = load_rig_file(args.rig)
         rig = with_changes(rig, [parse_change(text, rig) for text in args.change or ()])
+        options.faults = _faults(args, rig.names)
         run = lambda clock: _serve_rig(rig, options, clock)        # noqa: E731
     else:
         if args.change:
             raise ModelError("--change changes a rig's structure: give it with --rig RIG.toml")
         from plant.config import load_plant_config
         config = load_plant_config(args.config, args.model, parse_assignments(args.set))
+        from plant_emulator.stand import BUS_NAME       # the stand's one channel
+        options.faults = _faults(args, [BUS_NAME])
         run = lambda clock: _serve_stand(args, config, options, clock)   # noqa: E731
     scheduling = "lockstep"
     if not args.lockstep:   # before any thread starts: they all inherit it
@@ -100,13 +108,23 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
+def _faults(args: argparse.Namespace, names: list[str]) -> tuple:
+    from plant_emulator.scheduled_faults import parse_fault
+    return tuple(parse_fault(text, names) for text in args.fault or ())
+
+
+def _fault_text(options, names: list[str]) -> str:
+    return "".join(f"; fault: {f.text(names)}" for f in options.faults)
+
+
 def _serve_stand(args: argparse.Namespace, config, options, clock: str):
     from plant_emulator import EmulatedStand
     from plant_emulator.process import serve_until_signalled
     return serve_until_signalled(
         lambda bus: EmulatedStand(bus, config, options), args.bus,
         lambda stand: f"valve node {args.valve_id}, dynamometer node {args.dynamometer_id} on "
-                      f"{args.bus} ({clock}); model {config.model.spec}")
+                      f"{args.bus} ({clock}); model {config.model.spec}"
+                      + _fault_text(options, [stand.channel.name]))
 
 
 def _serve_rig(rig, options, clock: str):
@@ -124,4 +142,5 @@ def _serve_rig(rig, options, clock: str):
         lambda stand: f"rig {rig.name!r}, {len(rig.channels)} channel(s) on {len(rig.buses)} "
                       f"bus(es): {buses} ({clock}); structure from "
                       f"{rig.structure_from}" + "".join(f"; change {rig.change_text(c)}"
-                                                        for c in rig.changes))
+                                                        for c in rig.changes)
+                      + _fault_text(options, rig.names))

@@ -1,0 +1,451 @@
+"""The endurance test through the real processes: 200 flights of ten flight types with two interlocks, an operator's stop, two kill -9 and a crack; an intact structure over 1,000 flights offline.
+
+The test: ``examples/endurance-bench/test.toml`` (the ten TWIST-like flight types of
+``examples/endurance`` on the example rig, 10-20 load cases each, at 6000 kgf/s, every type's
+segments timed to the valves at 0.5 %, blocks of 20; the end-point trend unloads on an alarm),
+its target 200 flights, an inspection after flight 119 added. The rig: ``examples/rig.toml``
+served by ``stand emulate --rig --lockstep`` (its own process, private loopback buses); the
+gateway: ``stand test start`` and ``stand test resume`` (each its own process, a heartbeat
+timeout of 3 s: a loaded 2-core host may starve a heartbeat for a second).
+
+What happens, the moments drawn from a seed printed in the rows:
+
+* an interlock: a force spike of +6000 kgf on tip's dynamometer at a random stand time in the
+  first 119 flights (``stand emulate --fault spike:tip:6000@T``: tip's limit is 4500 kgf and its
+  force up to ~2100 kgf; a spike of +3000 kgf at a low force did not trip);
+* ``kill -9`` of the gateway after a random 10-40 flights, then ``stand test resume``;
+* the operator's ``stand test stop --at-once`` after a random 50-90 flights;
+* the inspection after flight 119: the emulator is restarted with inner's attachment 3 % softer
+  from its first cycle (``--change inner:0.97@0``: the crack from flight 120) and a second
+  interlock, inner's valve's heartbeat silenced for 5 s at a random stand time in what is left
+  (``--fault heartbeat:inner@T+5``);
+* the trend's alarm (if it comes) unloads the rig; the test is resumed;
+* ``kill -9`` after a random 140-180 flights;
+* every stop and trip is followed by ``stand test resume`` until the 200 flights are done.
+
+Measured from the test's directory (the journal, the turning-point log, the event windows, the
+sessions' records): the count, every load case once, SQLite's integrity check, each stop's and
+trip's largest deviation from the load ratios (from the recorded signals), the resumes' time to
+loading, the last block's peaks and valleys, the stand time per flight of the last block at its
+types' schedules against the valve-limited minimum, the storage on disk per 1,000 flights and
+its extrapolation (100,000 flights, 16 channels) beside what ``stand test plan`` promised, and the
+crack's alarm. Then the intact structure: 1,000 flights of the same test through the session's
+own player, planner, journal and monitors offline (:mod:`endurance.offline`: the emulator's
+plant without a bus; 1,000 flights through the processes would take hours here), its alarms.
+The surrogate's statistics (thousands of seeds) are ``scripts/bench crack``'s.
+
+``--quick`` (a smoke run of seconds, 15-30 s): 4 flights through the processes with one kill -9
+and a resume.
+"""
+from __future__ import annotations
+
+import json
+import os
+import random
+import shutil
+import signal
+import sqlite3
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .rig_load import emulated_example, stand
+from .table import Row
+
+ORDER = 64
+ROOT = Path(__file__).resolve().parents[1]
+BENCH_TEST = ROOT / "examples" / "endurance-bench" / "test.toml"
+FLIGHTS = 200
+CRACK_FLIGHT = 120
+CRACK_CHANNEL = "inner"
+SPIKE = "tip:6000"
+HEARTBEAT_CHANNEL, HEARTBEAT_SILENCE_S = "inner", 5.0
+GATEWAY = ["--lockstep", "--no-progress", "--heartbeat-timeout", "3000"]
+#: a session that counts no flight for this long has hung
+STALL_S = 900.0
+INTACT_FLIGHTS = 1000
+#: the journal's tables of a row per flight type (and channel), replaced as the test goes
+FIXED_TABLES = ("compensation", "schedules", "monitor_state")
+QUICK_FLIGHTS = 4
+EXTRAPOLATE_FLIGHTS, EXTRAPOLATE_CHANNELS = 100_000, 16
+
+
+def lay_out(root: Path, flights: int, inspection_at: int | None) -> tuple[Path, Path]:
+    """The bench test under ``root`` as the examples lie (its rig on private loopback buses):
+    the test file's and the rig file's paths."""
+    examples = root / "examples"
+    (examples / "endurance-bench").mkdir(parents=True)
+    shutil.copytree(ROOT / "examples" / "endurance" / "flights", examples / "endurance" / "flights")
+    shutil.copy(ROOT / "examples" / "endurance" / "controller.toml", examples / "endurance" / "controller.toml")
+    rig = emulated_example(examples)
+    text = BENCH_TEST.read_text().replace("flights = 200", f"flights = {flights}")
+    if inspection_at is not None:
+        text += (f"\n[[inspection]]\nat_flight = {inspection_at}\n"
+                 "note = \"the bench: the emulator restarts with the crack\"\n")
+    test = examples / "endurance-bench" / "test.toml"
+    test.write_text(text)
+    return test, rig
+
+
+def emulator(rig: Path, *args: str):
+    from plant_emulator.process import RigEmulatorProcess
+    return RigEmulatorProcess(rig, lockstep=True, seed=5, extra_args=list(args), ready_timeout_s=180.0).start()
+
+
+def flights_done(testdir: Path) -> int:
+    from endurance.journal import Journal
+    try:
+        with Journal.open(testdir) as j:
+            return j.flights_done
+    except Exception:                       # not made yet, or being made
+        return 0
+
+
+@dataclass
+class Course:
+    """What the orchestration did: each session's end, the kills, the stop, the restart."""
+
+    seed: int
+    sessions: list[dict] = field(default_factory=list)
+    kills: list[int] = field(default_factory=list)       #: flights done when killed
+    stops: list[int] = field(default_factory=list)
+    faults: list[str] = field(default_factory=list)
+    wall_s: float = 0.0
+
+
+def session(kind: str, test: Path, testdir: Path, target: int) -> subprocess.Popen:
+    args = ["start", test, "--out", testdir, "--flights", target] if kind == "start" else ["resume", testdir]
+    return subprocess.Popen([sys.executable, "-m", "stand", "test", *map(str, args), *GATEWAY],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+
+
+def run_course(test: Path, rig: Path, testdir: Path, target: int, kills: list[int], stop_at: int | None,
+               rng: random.Random, course: Course, restart=None, kill_delay_s: float = 3.0) -> None:
+    """Sessions until ``target`` flights are done: the kills a random 0-``kill_delay_s`` s after
+    ``kills`` flights, the stop at once after ``stop_at``, every other end (a trip, an alarm, an
+    inspection) resumed; ``restart(course)`` at the inspection (the emulator's restart). A kill
+    whose session ended during the delay is not one (not counted)."""
+    t0 = time.monotonic()
+    kind = "start"
+    kills = list(kills)
+    while True:
+        proc = session(kind, test, testdir, target)
+        kind = "resume"
+        last, progress = flights_done(testdir), time.monotonic()
+        how = None
+        while proc.poll() is None:
+            time.sleep(0.2)
+            done = flights_done(testdir)
+            if done != last:
+                last, progress = done, time.monotonic()
+            if time.monotonic() - progress > STALL_S:
+                proc.kill()
+                raise RuntimeError(f"no flight counted in {STALL_S:.0f} s at flight {done} (seed {course.seed})")
+            if kills and done >= kills[0]:
+                time.sleep(rng.uniform(0.0, kill_delay_s))
+                kills.pop(0)
+                if proc.poll() is not None:         # it ended meanwhile: no kill
+                    break
+                os.kill(proc.pid, signal.SIGKILL)
+                proc.wait(60)
+                course.kills.append(flights_done(testdir))
+                how = "kill -9"
+                break
+            if stop_at is not None and done >= stop_at:
+                time.sleep(rng.uniform(0.0, 2.0))
+                stand("test", "stop", testdir, "--at-once")
+                course.stops.append(flights_done(testdir))
+                stop_at = None
+        out, err = proc.communicate(timeout=120)
+        if "Traceback" in err + out:
+            raise RuntimeError(f"a session failed (seed {course.seed}): {err[-3000:]}")
+        status = json.loads(stand("test", "status", testdir, "--json")[0])
+        course.sessions.append({"ended": how or status["reason"] or status["state"], "state": status["state"],
+                                "flights_done": status["flights_done"]})
+        if status["state"] == "finished" or status["flights_done"] >= target:
+            break
+        reason = status["reason"] or ""
+        if reason.startswith("inspection") and restart is not None:
+            restart(course)
+        if "heartbeat" in reason:
+            time.sleep(HEARTBEAT_SILENCE_S)         # the valve heartbeats again
+    course.wall_s = time.monotonic() - t0
+
+
+# -- what the test directory says ---------------------------------------------------------------------------
+def check_log(testdir: Path, test, flights: int) -> tuple[bool, str]:
+    """Every load case of every flight in the turning-point log once (per attempt; the last
+    attempt whole, an earlier one only as a re-run marked)."""
+    from endurance.storage import read_turning_points
+    t = read_turning_points(testdir)
+    cols = {c: t.column(c).to_pylist() for c in ("flight", "attempt", "load_case", "channel", "rerun")}
+    keys = list(zip(cols["flight"], cols["attempt"], cols["load_case"], cols["channel"]))
+    twice = len(keys) - len(set(keys))
+    last = {}
+    for f, a, *_ in keys:
+        last[f] = max(last.get(f, 0), a)
+    names = test.station.names
+    want = {(f, k, c) for f in range(1, flights + 1) for k in range(test.flight_types[test.sequence.slot(f).flight_type].load_cases)
+            for c in names}
+    final = {(f, k, c) for f, a, k, c in keys if a == last[f]}
+    reruns = sum(1 for f, a in last.items() if a > 1)
+    unmarked = sum(1 for (f, a, k, c), r in zip(keys, cols["rerun"]) if (a > 1) != bool(r))
+    ok = twice == 0 and final == want and unmarked == 0
+    return ok, (f"{len(keys):,} end points; each (flight, load case, channel) of flights 1-{flights} "
+                f"{'once' if final == want else f'NOT once: {len(want - final)} missing, {len(final - want)} extra'}"
+                f"; {twice} twice; {reruns} flight(s) re-run, {unmarked} unmarked")
+
+
+def journal_sizes(testdir: Path) -> dict[str, int]:
+    """Bytes per table of the journal (SQLite's dbstat), after a checkpoint."""
+    db = sqlite3.connect(testdir / "journal.sqlite")
+    try:
+        return {name: int(size) for name, size in db.execute("SELECT name, SUM(pgsize) FROM dbstat GROUP BY name")}
+    finally:
+        db.close()
+
+
+def storage_rows(testdir: Path, test, flights: int, plan: dict) -> list[Row]:
+    """Storage on disk per 1,000 flights and its extrapolation, beside the plan's promise."""
+    from endurance.storage import storage_estimate, turning_point_files
+    n = test.station.n
+    tp = sum(p.stat().st_size for p in turning_point_files(testdir))
+    sizes = journal_sizes(testdir)
+    journal = sum(sizes.values())
+    # what grows with the flights and the channels: the end points (log, journal) and the trend's
+    # rows; with the flights only: the rest but the tables of one row per flight type (and
+    # channel), replaced as the test goes: its compensation, schedules and monitors' states
+    fixed = sum(sizes.get(k, 0) for k in FIXED_TABLES)
+    per_channel = tp + sizes.get("end_points", 0) + sizes.get("monitor_history", 0)
+    per_flight = journal - fixed - sizes.get("end_points", 0) - sizes.get("monitor_history", 0)
+    measured = (tp + journal) / flights * 1000
+    scale = EXTRAPOLATE_FLIGHTS / flights
+    big = (per_channel * EXTRAPOLATE_CHANNELS / n + per_flight) * scale + fixed * EXTRAPOLATE_CHANNELS / n
+    promise = plan["storage_bytes"]["per_1000_flights"]
+    est = storage_estimate(test)
+    promise_big = (est.per_1000_flights_per_channel * EXTRAPOLATE_CHANNELS
+                   + (est.per_1000_flights - est.per_1000_flights_per_channel * n)) * EXTRAPOLATE_FLIGHTS / 1000
+    rolling = sum(p.stat().st_size for p in (testdir / "rolling").glob("*.parquet"))
+    events = [sum(f.stat().st_size for f in d.iterdir()) for d in (testdir / "events").iterdir()]
+    top = sorted(sizes.items(), key=lambda kv: -kv[1])[:4]
+    return [Row(f"endurance: storage per 1,000 flights ({n} channels, measured on disk)",
+                f"{measured / 1e6:.2f} MB (turning points {tp / flights * 1000 / 1e6:.2f}, journal "
+                f"{journal / flights * 1000 / 1e6:.2f})", f"stand test plan: {promise / 1e6:.2f} MB",
+                f"{measured / promise:.2f}",
+                f"journal by table: {', '.join(f'{k} {v / 1e3:.0f} kB' for k, v in top)}; rolling window "
+                f"{rolling / 1e6:.1f} MB, {len(events)} event windows {np.mean(events) / 1e6 if events else 0:.1f} MB each"),
+            Row(f"endurance: storage extrapolated to {EXTRAPOLATE_FLIGHTS:,} flights x {EXTRAPOLATE_CHANNELS} channels",
+                f"{big / 1e9:.2f} GB", f"the plan's estimate for the same: {promise_big / 1e9:.2f} GB",
+                f"{big / promise_big:.2f}",
+                "end points and the trend's rows scale with flights and channels, the rest with the flights "
+                f"but the per-type tables ({fixed / 1e3:.0f} kB: {', '.join(FIXED_TABLES)}; x{EXTRAPOLATE_CHANNELS / n:g} "
+                "for the channels, not with the flights); full-rate data only in the rolling window and event "
+                "windows")]
+
+
+def stop_rows(testdir: Path, test) -> tuple[list[Row], list[float]]:
+    """Each stop's and trip's largest deviation from the load ratios, from its event window."""
+    from endurance.report import stop_deviation
+    ranges = np.array(test.station.ranges_kgf, float)
+    found = []
+    for d in sorted((testdir / "events").iterdir()):
+        kind = d.name.split("-")[1]
+        if kind in ("start", "resume"):
+            continue
+        dev = stop_deviation(d, test.station.names, ranges)
+        found.append((kind, dev["pct_of_range"], dev["channel"], dev["rows_after"], dev["acted_after_s"]))
+    pct = [f[1] for f in found]
+    text = "; ".join(f"{k}{f' ({c})' if c else ''} {p:.2f} % over {r} readings"
+                     + (f" from the hold {a:.1f} s after the onset" if a > 0.05 else "")
+                     for k, p, c, r, a in found)
+    return [Row(f"endurance: the load ratios during every stop and trip ({len(found)})",
+                f"largest deviation {max(pct):.2f} % of a range" if pct else "no stop recorded",
+                "each within 2 % of its channel's range", "met" if pct and max(pct) <= 2.0 else "not met",
+                f"from the recorded signals after each event (event windows): {text}; in lockstep a trip's "
+                "hold ends the session and the emulated stand stands still (no SYNC): few or no readings")], pct
+
+
+def pace_row(testdir: Path, test, plan: dict, block: int) -> Row:
+    """The last block's stand time per flight at its types' timing, against the valve-limited
+    minimum (loading.minimum_time), and flights per hour of stand time."""
+    import tomllib
+    from endurance.journal import Journal
+    minimum = {t["name"]: t["minimum_s"] for t in plan["flight_types"]}
+    at_rate = {t["name"]: t["time_s"] for t in plan["flight_types"]}
+    with Journal.open(testdir) as j:
+        schedules = {t: j.schedule(t) for t in test.flight_types}
+    now = {t: (tomllib.loads(text)["time_s"] if text else at_rate[t]) for t, text in schedules.items()}
+    modes = {t: (tomllib.loads(text)["search"]["mode"] if text else "rate") for t, text in schedules.items()}
+    size = test.block.size
+    types = [test.sequence.slot(f).flight_type for f in range((block - 1) * size + 1, block * size + 1)]
+    t_now = sum(now[t] for t in types)
+    t_min = sum(minimum[t] for t in types)
+    t_rate = sum(at_rate[t] for t in types)
+    return Row(f"endurance: flights per hour of stand time, block {block}, at the chosen accuracy "
+               f"({test.time_scaling.accuracy_pct:g} %)",
+               f"{3600 * size / t_now:.0f} flights/h ({t_now / size:.2f} s a flight)",
+               f"valve-limited minimum {3600 * size / t_min:.0f} flights/h; goal <= 1.5x its time",
+               f"{t_now / t_min:.2f}x", f"at 6000 kgf/s: {3600 * size / t_rate:.0f} flights/h "
+               f"({t_rate / t_now:.2f}x slower); per type: "
+               + ", ".join(f"{t} {now[t] / minimum[t]:.2f}x ({modes[t]})" for t in test.flight_types))
+
+
+def crack_row(testdir: Path, course: Course) -> tuple[Row, dict | None]:
+    from endurance.journal import Journal
+    with Journal.open(testdir) as j:
+        alarms = [e for e in j.events() if e["kind"] == "trend_alarm"]
+        rows = [json.loads(r) for _, _, r in j.monitor_history("trend")]
+    tested = sorted({r["flight_type"] for r in rows if r["tested"] and r["flight"] < CRACK_FLIGHT})
+    first = alarms[0] if alarms else None
+    if first is None:
+        return Row(f"endurance: crack, {CRACK_CHANNEL} 3 % softer from flight {CRACK_FLIGHT} (the running test)",
+                   "no alarm", "the alarm within a stated number of flights, naming the channel", "not met",
+                   f"types tested before the crack: {', '.join(tested) or 'none'}"), None
+    delay = first["flight"] - CRACK_FLIGHT + 1
+    named = (first["channel"] or "").split(",")
+    early = first["flight"] < CRACK_FLIGHT
+    return Row(f"endurance: crack, {CRACK_CHANNEL} 3 % softer from flight {CRACK_FLIGHT} (the running test)",
+               f"alarm at flight {first['flight']} ({'BEFORE the crack' if early else f'its {delay}. flight'}), "
+               f"naming {', '.join(named)}", "the alarm within a few flights, naming the channel; none before",
+               "met" if not early and named[0] == CRACK_CHANNEL else "not met",
+               f"{first['message'][:260]}; types tested before the crack: {', '.join(tested) or 'none'}; "
+               f"{len(alarms)} alarm(s) in all"), first
+
+
+def intact_offline(root: Path, flights: int) -> Row:
+    """The intact structure: ``flights`` flights offline through the session's own machinery."""
+    from endurance.journal import Journal
+    from endurance.offline import OfflineStation, fly
+    test, rig = lay_out(root / "intact", flights, None)
+    test.write_text(test.read_text().replace('action = "unload"', 'action = "note"'))
+    t0 = time.perf_counter()
+    result = fly(root / "intact" / "T", test, OfflineStation.of_rig_file(rig, seed=11), flights)
+    wall = time.perf_counter() - t0
+    with Journal.open(root / "intact" / "T") as j:
+        alarms = [e for e in j.events() if e["kind"] == "trend_alarm"]
+        rows = [json.loads(r) for _, _, r in j.monitor_history("trend")]
+    tested = sum(r["tested"] for r in rows)
+    return Row(f"endurance: intact structure, {flights:,} flights (the session offline: endurance.offline)",
+               f"{len(alarms)} alarm(s) in {result.flights_done:,} flights ({tested:,} tested by the trend)",
+               "none", "met" if not alarms else "not met",
+               f"the emulator's plant without a bus, the session's player, planner, journal and monitors; "
+               f"{len(rows)} flights fed (final timing, run whole); {wall:.0f} s wall"
+               + (f"; first: {alarms[0]['message'][:200]}" if alarms else ""))
+
+
+# -- the runs -----------------------------------------------------------------------------------------
+def run(quick: bool) -> list[Row]:
+    with tempfile.TemporaryDirectory(prefix="bench-endurance-") as tmp:
+        return quick_run(Path(tmp)) if quick else full_run(Path(tmp))
+
+
+def quick_run(root: Path) -> list[Row]:
+    from endurance.journal import Journal
+    from endurance.testfile import load_test_file
+    seed = random.SystemRandom().randrange(10 ** 6)
+    test_file, rig = lay_out(root, QUICK_FLIGHTS, None)
+    test = load_test_file(test_file)
+    testdir = root / "T"
+    course = Course(seed)
+    emu = emulator(rig)
+    try:
+        run_course(test_file, rig, testdir, QUICK_FLIGHTS, [1], None, random.Random(seed), course, kill_delay_s=0.5)
+    finally:
+        emu.stop()
+    with Journal.open(testdir) as j:
+        problems = j.integrity_check()
+        done = j.flights_done
+    ok, text = check_log(testdir, test, done)
+    sessions = [json.loads(p.read_text()) for p in sorted((testdir / "sessions").glob("*.json"))]
+    loading = [s["loading"]["to_loading_s"] for s in sessions if s.get("loading")]
+    killed = len(course.kills)
+    return [Row("endurance (quick): flights counted through a kill -9 and a resume", f"{done} of {QUICK_FLIGHTS}",
+                "exactly the target, after a kill", "met" if done == QUICK_FLIGHTS and killed else "not met",
+                f"seed {seed}; {len(course.sessions)} sessions; kill -9 at "
+                f"{course.kills or 'none (the session ended first)'}; {course.wall_s:.0f} s wall"),
+            Row("endurance (quick): turning-point log, journal PRAGMA integrity_check",
+                "clean" if not problems and ok else f"{problems} {text}", "every load case once, clean",
+                "met" if ok and not problems else "not met",
+                text + f"; resume to loading {', '.join(f'{v:.1f}' for v in loading)} s")]
+
+
+def full_run(root: Path) -> list[Row]:
+    from endurance.journal import Journal
+    from endurance.report import report
+    from endurance.testfile import load_test_file
+    t_start = time.perf_counter()
+    seed = random.SystemRandom().randrange(10 ** 6)
+    rng = random.Random(seed)
+    test_file, rig = lay_out(root, FLIGHTS, CRACK_FLIGHT - 1)
+    test = load_test_file(test_file)
+    plan = json.loads(stand("test", "plan", test_file, "--json")[0])
+    testdir = root / "T"
+    per_flight_min = plan["per_flight_minimum_s"]
+    spike_at = rng.uniform(0.2, 0.6) * (CRACK_FLIGHT - 1) * per_flight_min
+    heartbeat_at = rng.uniform(0.2, 0.6) * (FLIGHTS - CRACK_FLIGHT) * per_flight_min
+    kills = [rng.randint(10, 40), rng.randint(140, 180)]
+    stop_at = rng.randint(50, 90)
+    course = Course(seed, faults=[f"spike:{SPIKE}@{spike_at:.1f}",
+                                  f"heartbeat:{HEARTBEAT_CHANNEL}@{heartbeat_at:.1f}+{HEARTBEAT_SILENCE_S:g}"])
+    emus = [emulator(rig, "--fault", course.faults[0])]
+
+    def restart(c: Course) -> None:          # the inspection after flight 119: the crack
+        emus[-1].stop()
+        emus.append(emulator(rig, "--change", f"{CRACK_CHANNEL}:0.97@0", "--fault", course.faults[1]))
+
+    try:
+        run_course(test_file, rig, testdir, FLIGHTS, kills, stop_at, rng, course, restart)
+    finally:
+        emus[-1].stop()
+    rows: list[Row] = []
+    with Journal.open(testdir) as j:
+        problems = j.integrity_check()
+        done = j.flights_done
+        events = j.events()
+        flights = [j.flight(n) for n in range(1, done + 1)]
+    kinds = [e["kind"] for e in events]
+    ends = "; ".join(f"{s['ended'][:70]} at {s['flights_done']}" for s in course.sessions)
+    rows.append(Row(f"endurance: flights counted ({FLIGHTS} flights of ten types through the gateway)",
+                    f"{done} of {FLIGHTS}", "exactly the target, each once", "met" if done == FLIGHTS else "not met",
+                    f"seed {seed}; {len(course.sessions)} sessions: {ends}; kill -9 at {course.kills}, stop at once at "
+                    f"{course.stops}; {kinds.count('interrupted')} interruptions recorded; "
+                    f"{sum(f.rerun for f in flights)} flight(s) re-run; {course.wall_s / 60:.0f} min wall"))
+    ok, text = check_log(testdir, test, done)
+    rows.append(Row("endurance: every load case of every flight in the turning-point log",
+                    "once each" if ok else "NOT once", "once (a re-run stretch marked)", "met" if ok else "not met", text))
+    rows.append(Row("endurance: journal PRAGMA integrity_check and the count's invariants",
+                    "ok" if not problems else "; ".join(problems[:3]), "ok", "met" if not problems else "not met",
+                    f"after the last session; faults scheduled {', '.join(course.faults)}"))
+    dev_rows, _ = stop_rows(testdir, test)
+    rows += dev_rows
+    sessions = [json.loads(p.read_text()) for p in sorted((testdir / "sessions").glob("*.json"))]
+    loading = [s["loading"]["to_loading_s"] for s in sessions if s.get("kind") == "resume" and s.get("loading")]
+    glide = [s["loading"]["approach_deviation"]["pct_of_range"] for s in sessions
+             if s.get("loading") and s["loading"].get("approach_deviation")]
+    rows.append(Row("endurance: from stand test resume to loading again",
+                    f"{min(loading):.1f}-{max(loading):.1f} s ({len(loading)} resumes)" if loading else "none",
+                    "", "", f"median {np.median(loading):.1f} s; the glides within {max(glide):.2f} % of their "
+                            "ratio line; killed sessions write no record (their resumes do)" if loading else ""))
+    r = report(testdir)
+    last = r["last_block"]
+    worst = max(a["p95"] for a in last["accuracy"].values())
+    rows.append(Row(f"endurance: the last block's peaks and valleys (block {last['block']})",
+                    f"p95 {worst:.3f} % of a range (worst channel)", "p95 <= 0.5 %",
+                    "met" if worst <= 0.5 else "not met",
+                    ", ".join(f"{k} p95 {a['p95']:.3f} max {a['max']:.3f}" for k, a in last["accuracy"].items())))
+    rows.append(pace_row(testdir, test, plan, last["block"]))
+    rows += storage_rows(testdir, test, done, plan)
+    crack, _ = crack_row(testdir, course)
+    rows.append(crack)
+    status = json.loads(stand("test", "status", testdir, "--json", "--events", "1000")[0])
+    named = [e for e in status["events"] if e["kind"] == "trend_alarm"]
+    rows[-1].note += (f"; stand test status --json names {named[0]['channel']}" if named else
+                      "; not in stand test status --json")
+    rows.append(intact_offline(root, INTACT_FLIGHTS))
+    rows.append(Row("endurance: the whole benchmark", f"{(time.perf_counter() - t_start) / 60:.0f} min"))
+    return rows
