@@ -53,8 +53,9 @@ LEGS = ("SYNC→1st TPDO", "1st→2nd TPDO", "2nd TPDO→RPDO", "RPDO→next SYN
 def cycle_breakdown(stamps: np.ndarray, ids: np.ndarray) -> dict[str, float]:
     """Median µs of each leg of the cycles of a lockstep capture (:func:`send_stamps`).
     Every frame carries its sender's wall-clock send time (udp_loopback), so the legs are:
-    the emulator answering a SYNC (after the RPDO before it), the emulator's second send, the
-    transit and the gateway's decision, and the gateway's bookkeeping up to the next SYNC."""
+    the emulator answering a SYNC (after the RPDO before it), the emulator's second send (0: its
+    answers to a SYNC leave in one datagram, stamped alike), the transit and the gateway's
+    decision, and the gateway's bookkeeping up to the next SYNC."""
     syncs = np.flatnonzero(ids == SYNC_ID)
     legs: list[list[float]] = [[] for _ in LEGS]
     for a, b in zip(syncs[:-1], syncs[1:]):
@@ -193,7 +194,8 @@ def run(quick: bool) -> list[Row]:
             f"100x real time: {PERIOD_S / 100 * 1e6:.0f} µs per cycle in all",
             f"{sum(parts.values()) / (PERIOD_S / 100 * 1e6):.1f}x over",
             f"mean cycle {1e6 / rate:.0f} µs; from the frames' send stamps in the run's capture: "
-            "emulator answer, its 2nd send, transit + gateway decision, gateway bookkeeping"),
+            "emulator answer, its 2nd send (0: one datagram), transit + gateway decision, gateway "
+            "bookkeeping"),
         Row("lockstep cycle times (SYNC to SYNC)",
             f"mean {spread['mean']:.0f} / p50 {spread['p50']:.0f} / p90 {spread['p90']:.0f} / "
             f"p99 {spread['p99']:.0f} µs",

@@ -125,8 +125,10 @@ class BusCapture(can.Listener):
         self._queue.put(msg)
 
     def on_frames(self, stamp: float, frames, received: bool, channel=None) -> None:
-        """Raw frames (:mod:`standbus.wire`) received or sent at ``stamp`` on ``channel``."""
-        self._queue.put((stamp, frames, received, channel))
+        """Raw frames (:mod:`standbus.wire`) received or sent at ``stamp`` on ``channel``. The
+        sequence is copied (each frame is a tuple of bytes): a sender may refill its list for
+        the next cycle before this thread formats it."""
+        self._queue.put((stamp, tuple(frames), received, channel))
 
     def _write(self, item) -> int:
         """One queued item into the file's lines (or python-can's writer); its frame count."""

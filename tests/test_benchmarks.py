@@ -81,7 +81,8 @@ def _control_loop(rows):
     for label in ("lockstep HIL loop", "lockstep rig loop"):
         assert figures(row(rows, label)[1], r"{n} cycles/s")[0] > 0
     legs = figures(row(rows, "lockstep cycle: where")[1], r"(?:TPDO|RPDO|SYNC) {n}")
-    assert len(legs) == 4 and all(v > 0 for v in legs), legs
+    # the emulator's two answers leave in one datagram, stamped alike: that leg may be 0
+    assert len(legs) == 4 and all(v >= 0 for v in legs) and sum(legs) > 0, legs
     assert ordered(*figures(row(rows, "lockstep cycle times")[1], r"p50 {n} / p90 {n} / p99 {n}"))
     assert figures(row(rows, "floor: bare UDP")[1], r"{n} round trips/s")[0] > 0
     assert ordered(0, *figures(row(rows, "real-time loop")[1], r"p50 {n} / p99 {n} / max {n} ms"))
