@@ -101,7 +101,9 @@ def plan(test, config) -> Plan:
         timing = programme_timing(ft.programme, test.controller.model, limit)
         types.append(FlightTypePlan(name, int(test.block.counts[name]), ft.load_cases,
                                     float(timing.programme_time_s), float(timing.minimum_time_s)))
-    return Plan(test.name, list(test.station.names), types, test.block.size, test.flights, storage_estimate(test))
+    flight_s = sum(t.per_block * t.time_s for t in types) / test.block.size
+    return Plan(test.name, list(test.station.names), types, test.block.size, test.flights,
+                storage_estimate(test, flight_s=flight_s))
 
 
 def _duration(s: float) -> str:

@@ -641,21 +641,78 @@ CALIBRATION = Calibration(turning_point_b=11.3, journal_load_case_b=24.6,
                           journal_end_point_b=50.8, sample_channel_b=26.1, sample_row_b=3.75)
 
 
+#: Bytes on disk per record that :func:`calibrate` does not write, measured on a session of
+#: ``examples/test.toml`` offline (:mod:`endurance.offline`, 600 flights of 4 channels, 7 load cases
+#: a flight on average, with ``[monitor.trend]``, ``[monitor.gain] mode = "watch"`` and
+#: ``[time_scaling]``): the journal's tables from SQLite's ``dbstat`` (SUM(pgsize) / SUM(ncell):
+#: the rows with their B-tree's keys, index and page fill), the files from their sizes.
+#: Per Parquet file of the turning-point log (footer, schema, the 12 columns' headers and
+#: dictionaries): the same end points written as files of 1-100 flights, size = 3,894 B +
+#: 11.35 B per end point (least squares; the slope is :data:`CALIBRATION`'s).
+TURNING_POINT_FILE_B = 3894.0
+#: a flight's row in the journal and its index (flights, flights_finished): 45,056 B / 600
+JOURNAL_FLIGHT_B = 75.0
+#: a load case's row (load_cases): 94,208 B / 4,200
+JOURNAL_LOAD_CASE_B = 22.4
+#: the trend's row per flight (monitor_history, JSON of 5 numbers per channel): 298 B of
+#: payload for 4 channels (≈ 100 + 50 per channel) and 66 B of key and page: 166 + 50 per channel
+TREND_ROW_B, TREND_ROW_CHANNEL_B = 166.0, 50.0
+#: the gain monitor's row per channel and closed block (``block_s`` of loading): 312 B + 66
+GAIN_ROW_B = 378.0
+#: the pages an end point leaves free in the journal file after it is pruned: the session's
+#: journal grew 0.33 pages a flight more than its live rows (66 free pages after 200 flights
+#: without monitors, 203 after 600 with them; 5,600 and 16,800 end points): 48 B each. A
+#: journal written directly (Journal + TurningPointLog, no session) reuses them: why a session's
+#: does not is open; ``stand test`` VACUUM-free, so the plan counts them
+JOURNAL_FREED_END_POINT_B = 48.0
+#: an event's row (events: 130-170 B of payload with its key) and a session's record
+#: (TESTDIR/sessions/NNNN.json)
+EVENT_ROW_B, SESSION_FILE_B = 200.0, 1250.0
+#: what a flight type keeps, replaced as the test goes (compensation, schedules, monitor_state):
+#: its compensation tables 40 B per channel and load case (30 B of TOML text + key), its schedule
+#: 495 + 92 B per load case (time scaling), the trend's state 130 B per channel and load case
+#: once armed (117-143 B measured; while it learns its flights' statistics ride along)
+COMPENSATION_B, SCHEDULE_B, SCHEDULE_CASE_B, TREND_STATE_B = 40.0, 495.0, 92.0, 130.0
+#: a journal's write-ahead log while a session runs: SQLite checkpoints it at 1,000 pages and
+#: keeps the file at that size until the session's end truncates it
+WAL_B = 1000 * 4096.0
+#: the plan's assumption for the total: event windows per 1,000 flights (one stop or trip and
+#: the window of the resume after it; each window is also shown on its own)
+EVENT_WINDOWS_PER_1000_FLIGHTS = 2.0
+
+
 @dataclass(frozen=True)
 class StorageEstimate:
-    """What a test keeps on disk (bytes)."""
+    """What a test keeps on disk (bytes): what grows with the flights (per 1,000), what is bounded."""
 
     channels: int
     flights: int
     turning_points_per_1000_flights: float
-    turning_point_bytes_per_1000_flights: float
-    journal_bytes_per_1000_flights: float
-    per_1000_flights: float            #: turning points + journal
-    per_1000_flights_per_channel: float  #: the turning points' share per channel
+    turning_point_bytes_per_1000_flights: float   #: end points + a Parquet file per block
+    journal_bytes_per_1000_flights: float         #: flights, load cases, freed end points' pages
+    monitor_bytes_per_1000_flights: float         #: the monitors' rows (monitor_history)
+    per_1000_flights: float            #: what grows: turning points + journal + monitors
+    per_1000_flights_per_channel: float  #: its share that scales with the channels, per channel
     rolling_window: float              #: the rolling window at its fullest (a chunk more)
     journal_block_end_points: float    #: a block's end points in the journal before compaction
     event_window: float                #: each event's run directory
-    total: float                       #: the target, no events
+    event_windows_per_1000_flights: float  #: assumed (:data:`EVENT_WINDOWS_PER_1000_FLIGHTS`)
+    per_type: float                    #: compensation, schedules, monitors' states: fixed
+    block_files: float                 #: the block in progress as files of EXPORT_EVERY flights
+    wal: float                         #: the journal's write-ahead log while a session runs
+    total: float                       #: the target: all of it, the assumed event windows too
+
+    def grown(self, flights: float, sessions: int = 1, event_windows: int = 0) -> float:
+        """Bytes written by ``flights`` flights in ``sessions`` sessions with ``event_windows``
+        windows, start-up files not counted (the bounded parts as far as those flights fill them)."""
+        blocks = self.flights_per_block
+        partial = flights % blocks
+        return (self.per_1000_flights * flights / 1000.0
+                + (TURNING_POINT_FILE_B if partial else 0.0)
+                + self.per_type + sessions * (SESSION_FILE_B + 3 * EVENT_ROW_B)
+                + event_windows * (self.event_window + EVENT_ROW_B))
+
+    flights_per_block: int = 1
 
     def text(self) -> str:
         mb = 1e6
@@ -666,31 +723,57 @@ class StorageEstimate:
             f"{self.per_1000_flights_per_channel / mb:.3f} MB per channel)",
             f"  journal         {self.journal_bytes_per_1000_flights / mb:9.2f} MB per 1,000 flights "
             f"(+ {self.journal_block_end_points / mb:.1f} MB of a block's end points until compacted)",
+            f"  monitors' rows  {self.monitor_bytes_per_1000_flights / mb:9.2f} MB per 1,000 flights",
+            f"  growing         {self.per_1000_flights / mb:9.2f} MB per 1,000 flights",
+            f"  per-type state  {self.per_type / mb:9.2f} MB (fixed; + {self.block_files / mb:.2f} MB of the "
+            f"block in progress, + {self.wal / mb:.1f} MB of write-ahead log while running)",
             f"  rolling window  {self.rolling_window / mb:9.1f} MB (fixed)",
-            f"  each event      {self.event_window / mb:9.1f} MB",
-            f"  the target      {self.total / 1e9:9.2f} GB without events" if self.total >= 1e8 else
-            f"  the target      {self.total / 1e6:9.1f} MB without events",
+            f"  each event      {self.event_window / mb:9.1f} MB (assumed {self.event_windows_per_1000_flights:g} "
+            "per 1,000 flights in the target)",
+            f"  the target      {self.total / 1e9:9.2f} GB" if self.total >= 1e8 else
+            f"  the target      {self.total / 1e6:9.1f} MB",
         ])
 
 
-def storage_estimate(test: Any, calibration: Calibration | None = None) -> StorageEstimate:
+def storage_estimate(test: Any, calibration: Calibration | None = None,
+                     flight_s: float | None = None) -> StorageEstimate:
     """Bytes per 1,000 flights and for the target of ``test`` (:class:`endurance.testfile.EnduranceTest`)
-    on its N channels, from the measured :data:`CALIBRATION` (or ``calibration``)."""
+    on its N channels, from the measured :data:`CALIBRATION` (or ``calibration``) and the
+    per-record sizes above. ``flight_s``: a flight's stand time (the gain monitor's rows; the
+    plan gives it at the chosen rates, an upper bound with time scaling)."""
+    from .run import EXPORT_EVERY
     c = calibration or CALIBRATION
     n = test.station.n
     block = test.block
-    lc_per_flight = sum(block.counts[t] * test.flight_types[t].load_cases for t in block.counts) / block.size
+    types = test.flight_types
+    lc_per_flight = sum(block.counts[t] * types[t].load_cases for t in block.counts) / block.size
     points = 1000.0 * lc_per_flight * n
-    tp = points * c.turning_point_b
-    journal = 1000.0 * lc_per_flight * c.journal_load_case_b
+    tp = points * c.turning_point_b + 1000.0 / block.size * TURNING_POINT_FILE_B
+    journal = 1000.0 * (JOURNAL_FLIGHT_B + lc_per_flight * (JOURNAL_LOAD_CASE_B + n * JOURNAL_FREED_END_POINT_B))
+    trend_on = getattr(test, "trend", None) is not None
+    gain = test.gain.options() if getattr(test, "gain", None) is not None else None
+    monitors = 1000.0 * (TREND_ROW_B + n * TREND_ROW_CHANNEL_B) if trend_on else 0.0
+    if gain is not None and flight_s:
+        monitors += 1000.0 * n * flight_s / gain.block_s * GAIN_ROW_B
+    per_channel = 1000.0 * lc_per_flight * (c.turning_point_b + JOURNAL_FREED_END_POINT_B) + (
+        1000.0 * TREND_ROW_CHANNEL_B if trend_on else 0.0) + (
+        1000.0 * flight_s / gain.block_s * GAIN_ROW_B if gain is not None and flight_s else 0.0)
     per_sample = n * c.sample_channel_b + c.sample_row_b
     rate = 1.0 / test.station.period_s
     rolling = (test.storage.rolling_window_s + test.storage.chunk_s) * rate * per_sample
     event = 2 * test.storage.event_window_s * rate * per_sample
-    block_points = block.size * lc_per_flight * n * c.journal_end_point_b
-    total = (tp + journal) * test.flights / 1000.0 + rolling + block_points
-    return StorageEstimate(n, test.flights, points, tp, journal, tp + journal, tp / n, rolling,
-                           block_points, event, total)
+    block_points = max(block.size, EXPORT_EVERY) * lc_per_flight * n * c.journal_end_point_b
+    cases = sum(ft.load_cases for ft in types.values())
+    per_type = n * cases * (COMPENSATION_B + (TREND_STATE_B if trend_on else 0.0))
+    if getattr(test, "time_scaling", None) is not None:
+        per_type += len(types) * SCHEDULE_B + cases * SCHEDULE_CASE_B
+    block_files = max(math.ceil(block.size / EXPORT_EVERY) - 1, 0) * TURNING_POINT_FILE_B
+    grows = tp + journal + monitors
+    events = EVENT_WINDOWS_PER_1000_FLIGHTS * (event + EVENT_ROW_B)
+    total = (grows + events) * test.flights / 1000.0 + rolling + block_points + per_type + block_files + WAL_B
+    return StorageEstimate(n, test.flights, points, tp, journal, monitors, grows, per_channel, rolling,
+                           block_points, event, EVENT_WINDOWS_PER_1000_FLIGHTS, per_type, block_files,
+                           WAL_B, total, block.size)
 
 
 def calibrate(directory: str | Path, channels: int = 4, flights: int = 300,

@@ -235,6 +235,7 @@ def test_a_write_error_of_the_window_is_heard_at_the_next_flush(tmp_path, monkey
 
 
 def test_the_estimate_counts_end_points_per_channel_and_the_fixed_windows(tmp_path):
+    from endurance.storage import JOURNAL_FLIGHT_B, JOURNAL_FREED_END_POINT_B, JOURNAL_LOAD_CASE_B, TURNING_POINT_FILE_B
     test = load_test_file(EXAMPLE_TEST, check_controller=False)
     unit = Calibration(turning_point_b=10.0, journal_load_case_b=20.0, journal_end_point_b=50.0,
                        sample_channel_b=30.0, sample_row_b=4.0)
@@ -242,16 +243,60 @@ def test_the_estimate_counts_end_points_per_channel_and_the_fixed_windows(tmp_pa
     block = test.block
     lc = sum(block.counts[t] * test.flight_types[t].load_cases for t in block.counts) / block.size
     assert e.turning_points_per_1000_flights == pytest.approx(1000 * lc * 4)
-    assert e.per_1000_flights == pytest.approx(1000 * lc * (4 * 10.0 + 20.0))
-    assert e.per_1000_flights_per_channel == pytest.approx(1000 * lc * 10.0)
+    assert e.turning_point_bytes_per_1000_flights == pytest.approx(
+        1000 * lc * 4 * 10.0 + 1000 / block.size * TURNING_POINT_FILE_B)
+    assert e.journal_bytes_per_1000_flights == pytest.approx(
+        1000 * (JOURNAL_FLIGHT_B + lc * (JOURNAL_LOAD_CASE_B + 4 * JOURNAL_FREED_END_POINT_B)))
     assert e.rolling_window == pytest.approx((600 + 60) * 500 * (4 * 30.0 + 4.0))
     assert e.event_window == pytest.approx(60 * 500 * (4 * 30.0 + 4.0))
-    assert e.total == pytest.approx(100 * e.per_1000_flights + e.rolling_window + e.journal_block_end_points)
-    assert "MB per 1,000 flights" in e.text()
+    assert e.monitor_bytes_per_1000_flights > 0          # the trend's rows (no flight time: no gain rows)
+    assert e.total > 100 * e.per_1000_flights + e.rolling_window
+    assert "MB per 1,000 flights" in e.text() and "monitors' rows" in e.text()
     # N channels: a stand is N = 1
     stand = load_test_file(write_stand_test(tmp_path, flights=1000), check_controller=False)
     one = storage_estimate(stand, unit)
     assert one.channels == 1 and one.rolling_window == pytest.approx((600 + 60) * 500 * 34.0)
+
+
+def _offline_testdir_bytes(tmp_path, flights: int):
+    """TESTDIR's bytes after ``flights`` flights of the short example offline with both monitors
+    and time scaling (no inspection), its start-up files (a new journal, the lock) taken off."""
+    from endurance.journal import Journal
+    from tests.support.endurance_run import OfflineStand, copy_short_test, fly
+    test_file = copy_short_test(tmp_path / f"t{flights}")
+    text = test_file.read_text()
+    text = text[:text.index("[[inspection]]")] + text[text.index("[storage]"):]
+    test_file.write_text(text + '\n[monitor.trend]\naction = "hold"\nlearn_flights = 9\n\n'
+                                '[monitor.gain]\nmode = "watch"\n\n[time_scaling]\naccuracy_pct = 0.5\n')
+    testdir = tmp_path / f"T{flights}"
+    assert fly(testdir, test_file, OfflineStand(), flights).flights_done == flights
+    test = load_test_file(test_file)
+    fresh = tmp_path / f"fresh{flights}"
+    fp = test.fingerprint()
+    Journal.create(fresh, test.name, flights, test.station.names, fp.digest, fp.to_json(), text).close()
+    size = lambda d: sum(p.stat().st_size for p in d.rglob("*") if p.is_file())       # noqa: E731
+    return size(testdir) - size(fresh), test
+
+
+@pytest.mark.slow
+def test_a_short_offline_test_writes_what_its_plan_promised(tmp_path):
+    """Everything an offline session writes (turning points, journal with the monitors' rows,
+    per-type state, its record) within 25 % of the plan for the same flights, and its growth per
+    1,000 flights within 25 % of the plan's (the gain's rows at the rates' flight time)."""
+    from endurance.report import FlightTypePlan  # noqa: F401  (the plan's flight time below)
+    from loading.minimum_time import programme_timing
+    short, long = 24, 72
+    grown = {}
+    for n in (short, long):
+        grown[n], test = _offline_testdir_bytes(tmp_path, n)
+    flight_s = sum(test.block.counts[t] * programme_timing(ft.programme, test.controller.model,
+                                                           test.controller.command_limit_pct).programme_time_s
+                   for t, ft in test.flight_types.items()) / test.block.size
+    e = storage_estimate(test, flight_s=flight_s)
+    for n in (short, long):
+        assert grown[n] == pytest.approx(e.grown(n), rel=0.25), (n, grown[n], e.grown(n))
+    per_1000 = (grown[long] - grown[short]) / (long - short) * 1000
+    assert per_1000 == pytest.approx(e.per_1000_flights, rel=0.25), (per_1000, e.per_1000_flights)
 
 
 @pytest.mark.slow
