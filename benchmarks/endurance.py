@@ -227,7 +227,7 @@ def storage_rows(testdir: Path, test, flights: int, plan: dict) -> list[Row]:
     scale = EXTRAPOLATE_FLIGHTS / flights
     big = (per_channel * EXTRAPOLATE_CHANNELS / n + per_flight) * scale + fixed * EXTRAPOLATE_CHANNELS / n
     promise = plan["storage_bytes"]["per_1000_flights"]
-    est = storage_estimate(test)
+    est = storage_estimate(test, flight_s=plan["per_flight_s"])     # as stand test plan counts it
     promise_big = (est.per_1000_flights_per_channel * EXTRAPOLATE_CHANNELS
                    + (est.per_1000_flights - est.per_1000_flights_per_channel * n)) * EXTRAPOLATE_FLIGHTS / 1000
     rolling = sum(p.stat().st_size for p in (testdir / "rolling").glob("*.parquet"))

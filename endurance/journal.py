@@ -754,8 +754,14 @@ class Journal:
             if through_flight > done:
                 raise JournalError(f"prune through flight {through_flight}: only {done} are done")
             with self._tx("pruning end points"):
-                cur = self._db.execute("DELETE FROM end_points WHERE flight <= ?", (through_flight,))
-                return cur.rowcount
+                deleted = self._db.execute("DELETE FROM end_points WHERE flight <= ?",
+                                           (through_flight,)).rowcount
+            try:            # the free pages back to the file system (a journal made with
+                # auto_vacuum; else nothing); executescript steps it to the end, execute frees one page
+                self._db.executescript("PRAGMA incremental_vacuum;")
+            except sqlite3.Error as exc:
+                raise _journal_error(exc, "giving back the pruned pages") from None
+            return deleted
 
     def checkpoint(self, vacuum: bool = False) -> None:
         """Move the write-ahead log into the database and truncate it (SQLite does this by
@@ -928,6 +934,10 @@ def _connect(path: Path) -> sqlite3.Connection:
     try:
         db = sqlite3.connect(str(path), timeout=10.0, isolation_level=None,
                              check_same_thread=False)
+        # pages freed by pruning go back to the file system (Journal.prune_end_points), so the
+        # file stays the size of what it holds: takes effect on a new file (before WAL and the
+        # first table), on an older journal at its next VACUUM
+        db.execute("PRAGMA auto_vacuum = INCREMENTAL")
         db.execute("PRAGMA journal_mode = WAL")
         db.execute("PRAGMA synchronous = FULL")
     except sqlite3.Error as exc:

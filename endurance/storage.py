@@ -659,12 +659,6 @@ JOURNAL_LOAD_CASE_B = 22.4
 TREND_ROW_B, TREND_ROW_CHANNEL_B = 166.0, 50.0
 #: the gain monitor's row per channel and closed block (``block_s`` of loading): 312 B + 66
 GAIN_ROW_B = 378.0
-#: the pages an end point leaves free in the journal file after it is pruned: the session's
-#: journal grew 0.33 pages a flight more than its live rows (66 free pages after 200 flights
-#: without monitors, 203 after 600 with them; 5,600 and 16,800 end points): 48 B each. A
-#: journal written directly (Journal + TurningPointLog, no session) reuses them: why a session's
-#: does not is open; ``stand test`` VACUUM-free, so the plan counts them
-JOURNAL_FREED_END_POINT_B = 48.0
 #: an event's row (events: 130-170 B of payload with its key) and a session's record
 #: (TESTDIR/sessions/NNNN.json)
 EVENT_ROW_B, SESSION_FILE_B = 200.0, 1250.0
@@ -689,7 +683,7 @@ class StorageEstimate:
     flights: int
     turning_points_per_1000_flights: float
     turning_point_bytes_per_1000_flights: float   #: end points + a Parquet file per block
-    journal_bytes_per_1000_flights: float         #: flights, load cases, freed end points' pages
+    journal_bytes_per_1000_flights: float         #: flights and load cases (pruned end points' pages are given back)
     monitor_bytes_per_1000_flights: float         #: the monitors' rows (monitor_history)
     per_1000_flights: float            #: what grows: turning points + journal + monitors
     per_1000_flights_per_channel: float  #: its share that scales with the channels, per channel
@@ -749,13 +743,13 @@ def storage_estimate(test: Any, calibration: Calibration | None = None,
     lc_per_flight = sum(block.counts[t] * types[t].load_cases for t in block.counts) / block.size
     points = 1000.0 * lc_per_flight * n
     tp = points * c.turning_point_b + 1000.0 / block.size * TURNING_POINT_FILE_B
-    journal = 1000.0 * (JOURNAL_FLIGHT_B + lc_per_flight * (JOURNAL_LOAD_CASE_B + n * JOURNAL_FREED_END_POINT_B))
+    journal = 1000.0 * (JOURNAL_FLIGHT_B + lc_per_flight * JOURNAL_LOAD_CASE_B)
     trend_on = getattr(test, "trend", None) is not None
     gain = test.gain.options() if getattr(test, "gain", None) is not None else None
     monitors = 1000.0 * (TREND_ROW_B + n * TREND_ROW_CHANNEL_B) if trend_on else 0.0
     if gain is not None and flight_s:
         monitors += 1000.0 * n * flight_s / gain.block_s * GAIN_ROW_B
-    per_channel = 1000.0 * lc_per_flight * (c.turning_point_b + JOURNAL_FREED_END_POINT_B) + (
+    per_channel = 1000.0 * lc_per_flight * c.turning_point_b + (
         1000.0 * TREND_ROW_CHANNEL_B if trend_on else 0.0) + (
         1000.0 * flight_s / gain.block_s * GAIN_ROW_B if gain is not None and flight_s else 0.0)
     per_sample = n * c.sample_channel_b + c.sample_row_b

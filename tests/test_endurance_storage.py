@@ -235,7 +235,7 @@ def test_a_write_error_of_the_window_is_heard_at_the_next_flush(tmp_path, monkey
 
 
 def test_the_estimate_counts_end_points_per_channel_and_the_fixed_windows(tmp_path):
-    from endurance.storage import JOURNAL_FLIGHT_B, JOURNAL_FREED_END_POINT_B, JOURNAL_LOAD_CASE_B, TURNING_POINT_FILE_B
+    from endurance.storage import JOURNAL_FLIGHT_B, JOURNAL_LOAD_CASE_B, TURNING_POINT_FILE_B
     test = load_test_file(EXAMPLE_TEST, check_controller=False)
     unit = Calibration(turning_point_b=10.0, journal_load_case_b=20.0, journal_end_point_b=50.0,
                        sample_channel_b=30.0, sample_row_b=4.0)
@@ -246,7 +246,7 @@ def test_the_estimate_counts_end_points_per_channel_and_the_fixed_windows(tmp_pa
     assert e.turning_point_bytes_per_1000_flights == pytest.approx(
         1000 * lc * 4 * 10.0 + 1000 / block.size * TURNING_POINT_FILE_B)
     assert e.journal_bytes_per_1000_flights == pytest.approx(
-        1000 * (JOURNAL_FLIGHT_B + lc * (JOURNAL_LOAD_CASE_B + 4 * JOURNAL_FREED_END_POINT_B)))
+        1000 * (JOURNAL_FLIGHT_B + lc * JOURNAL_LOAD_CASE_B))
     assert e.rolling_window == pytest.approx((600 + 60) * 500 * (4 * 30.0 + 4.0))
     assert e.event_window == pytest.approx(60 * 500 * (4 * 30.0 + 4.0))
     assert e.monitor_bytes_per_1000_flights > 0          # the trend's rows (no flight time: no gain rows)
@@ -270,6 +270,11 @@ def _offline_testdir_bytes(tmp_path, flights: int):
                                 '[monitor.gain]\nmode = "watch"\n\n[time_scaling]\naccuracy_pct = 0.5\n')
     testdir = tmp_path / f"T{flights}"
     assert fly(testdir, test_file, OfflineStand(), flights).flights_done == flights
+    import sqlite3
+    from endurance.journal import JOURNAL_FILE
+    with sqlite3.connect(testdir / JOURNAL_FILE) as db:    # the pruned end points' pages given back
+        assert db.execute("PRAGMA auto_vacuum").fetchone()[0] == 2
+        assert db.execute("PRAGMA freelist_count").fetchone()[0] <= 8
     test = load_test_file(test_file)
     fresh = tmp_path / f"fresh{flights}"
     fp = test.fingerprint()
@@ -283,9 +288,8 @@ def test_a_short_offline_test_writes_what_its_plan_promised(tmp_path):
     """Everything an offline session writes (turning points, journal with the monitors' rows,
     per-type state, its record) within 25 % of the plan for the same flights, and its growth per
     1,000 flights within 25 % of the plan's (the gain's rows at the rates' flight time)."""
-    from endurance.report import FlightTypePlan  # noqa: F401  (the plan's flight time below)
     from loading.minimum_time import programme_timing
-    short, long = 24, 72
+    short, long = 72, 144          # a few blocks: the fixed parts (per type, a partial file) amortized
     grown = {}
     for n in (short, long):
         grown[n], test = _offline_testdir_bytes(tmp_path, n)
