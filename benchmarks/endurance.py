@@ -221,12 +221,15 @@ def storage_rows(testdir: Path, test, flights: int, plan: dict) -> list[Row]:
     # rows; with the flights only: the rest but the tables of one row per flight type (and
     # channel), replaced as the test goes: its compensation, schedules and monitors' states
     fixed = sum(sizes.get(k, 0) for k in FIXED_TABLES)
-    per_channel = tp + sizes.get("end_points", 0) + sizes.get("monitor_history", 0)
-    per_flight = journal - fixed - sizes.get("end_points", 0) - sizes.get("monitor_history", 0)
+    # the journal's end points are those of the block in progress (a block's are pruned once in
+    # the log): bounded, they scale with the channels, not with the flights
+    bounded = sizes.get("end_points", 0)
+    per_channel = tp + sizes.get("monitor_history", 0)
+    per_flight = journal - fixed - bounded - sizes.get("monitor_history", 0)
     measured = (tp + journal) / flights * 1000
     growth = (tp + journal - fixed) / flights * 1000      # what the plan's per 1,000 flights counts
     scale = EXTRAPOLATE_FLIGHTS / flights
-    big = (per_channel * EXTRAPOLATE_CHANNELS / n + per_flight) * scale + fixed * EXTRAPOLATE_CHANNELS / n
+    big = (per_channel * EXTRAPOLATE_CHANNELS / n + per_flight) * scale + (fixed + bounded) * EXTRAPOLATE_CHANNELS / n
     promise = plan["storage_bytes"]["per_1000_flights"]
     est = storage_estimate(test, flight_s=plan["per_flight_s"])     # as stand test plan counts it
     promise_big = (est.per_1000_flights_per_channel * EXTRAPOLATE_CHANNELS
@@ -244,7 +247,7 @@ def storage_rows(testdir: Path, test, flights: int, plan: dict) -> list[Row]:
             Row(f"endurance: storage extrapolated to {EXTRAPOLATE_FLIGHTS:,} flights x {EXTRAPOLATE_CHANNELS} channels",
                 f"{big / 1e9:.2f} GB", f"the plan's estimate for the same: {promise_big / 1e9:.2f} GB",
                 f"{big / promise_big:.2f}",
-                "end points and the trend's rows scale with flights and channels, the rest with the flights "
+                "end points in the log and the monitors' rows scale with flights and channels, the rest with the flights "
                 f"but the per-type tables ({fixed / 1e3:.0f} kB: {', '.join(FIXED_TABLES)}; x{EXTRAPOLATE_CHANNELS / n:g} "
                 "for the channels, not with the flights); full-rate data only in the rolling window and event "
                 "windows")]
