@@ -96,7 +96,7 @@ from .flights import (OPERATOR_STOP, FlightPiece, FlightPlayer, FlightRecord, St
 from .inbox import take_in
 from .journal import EndPoint, Journal, JournalError, MonitorStep, lock_holder
 from .monitors import MONITOR_ALARM, FlightEnd, GainWatch, MonitorAlarm, TrendWatch
-from .storage import SignalWindow, TurningPointLog
+from .storage import EXPORT_EVERY, SignalWindow, TurningPointLog
 from .spectrum import FlightSequence
 from .testfile import EnduranceTest, Fingerprint, load_test_file
 from .timing import FlightTiming
@@ -106,8 +106,6 @@ TEST_RECORD = "test.json"
 SESSIONS_DIR = "sessions"
 #: how often the writer thread looks for a stop file, s
 STOP_POLL_S = 0.2
-#: the turning-point log is brought up to date every this many flights (and at a session's end)
-EXPORT_EVERY = 50
 #: prepared flights kept for a flight type that comes again with the same programme
 PIECE_CACHE = 8
 

@@ -59,6 +59,8 @@ from gateway.runs import FORMAT, META_FILE, SCHEMA, SIGNALS_FILE, rig_schema
 from .journal import Journal
 
 TURNING_POINTS_DIR = "turning_points"
+#: a session brings the turning-point log up to date every this many flights (and at its end)
+EXPORT_EVERY = 50
 ROLLING_DIR = "rolling"
 EVENTS_DIR = "events"
 COMPRESSION = "zstd"
@@ -735,7 +737,6 @@ def storage_estimate(test: Any, calibration: Calibration | None = None,
     on its N channels, from the measured :data:`CALIBRATION` (or ``calibration``) and the
     per-record sizes above. ``flight_s``: a flight's stand time (the gain monitor's rows; the
     plan gives it at the chosen rates, an upper bound with time scaling)."""
-    from .run import EXPORT_EVERY
     c = calibration or CALIBRATION
     n = test.station.n
     block = test.block
