@@ -154,6 +154,7 @@ def diagnose_rig(records: Sequence[RigRecord], rig: RigModel,
     current = rig
     results: dict[str, ChannelResult] = {}
     notes: list[str] = []
+    start_model = PlantModel.from_spec(start) if isinstance(start, str) else start
     for r in range(rounds):
         tasks = []
         for name in names:
@@ -162,15 +163,11 @@ def diagnose_rig(records: Sequence[RigRecord], rig: RigModel,
                 notes += why
             if not recs:
                 continue
-            if r == 0 and start is not None:
-                first = PlantModel.from_spec(start) if isinstance(start, str) else start
-            else:
-                first = current.channels[current.names.index(name)]
+            origin = start_model if start_model is not None else rig.channels[rig.names.index(name)]
+            first = origin if r == 0 else current.channels[current.names.index(name)]
             # what a round before added was picked against the couplings of its time: checked
             # again with the others in place, so an effect standing in for a neighbour's goes
-            origin = (PlantModel.from_spec(start) if isinstance(start, str) else start) \
-                if start is not None else rig.channels[rig.names.index(name)]
-            carried = [e.name for e in first.effects if origin.effect(e.name) is None] if r else []
+            carried = [e.name for e in first.effects if origin.effect(e.name) is None]
             tasks.append(ChannelTask(name, recs, first.spec, first.params(), build_up,
                                      window_s, max_effects,
                                      None if effects is None else list(effects), plugins,
