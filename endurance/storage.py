@@ -26,10 +26,15 @@ removal of the small files leaves files whose flights another holds, which the n
 ±``event_window_s`` around each event (:meth:`SignalWindow.mark_event`), each a **run
 directory** (``run.json`` + ``signals.parquet``, :mod:`gateway.runs`; a rig's columns
 ``u.NAME``, ``y.NAME``, ... ) that ``stand compare``, ``diagnose`` and ``report`` read like any
-run. The window's clock is the rows' ``sync_time`` (the wall clock, increasing across passes and
-resumes); in an event window ``t`` is made to increase (a pass that starts again at 0 continues
-after the one before, the wall-clock gap between them kept, so the analysis splits there).
-Conversion and disk I/O happen on a writer thread.
+run. The windows are the **stand's time**, counted in rows of the control period: the rolling
+window keeps the last ``rolling_window_s / period_s`` rows (a chunk more while one fills), an event
+window the rows within ``event_window_s`` of its event on the continuous stand time
+(:func:`continuous_time`: ``t`` made to increase across passes and resumes, a gap between them
+counted at its wall-clock length). In real time that is the wall clock's seconds; in lockstep,
+where the stand's second passes in a fraction of the wall's, it is what the plan counted (a
+window by the wall clock would hold the run's speed-up times as many rows). Files are named and
+events placed by ``sync_time`` (the wall clock). In an event window ``t`` is the continuous
+time, so the analysis splits at a gap. Conversion and disk I/O happen on a writer thread.
 
 **(c) The estimate** (:func:`storage_estimate`): bytes per 1,000 flights and for the whole target,
 from the sizes measured by writing real data through these classes (:func:`calibrate`;
@@ -353,6 +358,12 @@ class SignalWindow:
         self._error: BaseException | None = None
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._batches: list[pa.RecordBatch] = []        # the chunk being filled (writer thread)
+        self._filling = 0                                # its rows
+        self._chunk_rows = max(int(round(self.chunk_s / self.period_s)), 1)
+        self._rolling_rows = max(int(round(self.rolling_window_s / self.period_s)), 1)
+        self._event_rows = max(int(round(self.event_window_s / self.period_s)), 1)
+        self._chunks: list[_Chunk] = self._found_chunks()
+        self._rows_of: dict[Path, int] = {}              # an event's row, once on disk
         self._pending: list[EventWindow] = []            # events whose window is not written yet
         self._pending_lock = threading.Lock()
         self.written: list[EventWindow] = []
@@ -482,39 +493,38 @@ class SignalWindow:
                 self._error = exc
 
     def _add(self, batch: pa.RecordBatch) -> None:
-        clock = batch.column("sync_time").to_numpy()
-        # a batch that crosses a chunk's end is split there
-        while len(clock):
-            start = (self._batches[0].column("sync_time")[0].as_py() if self._batches
-                     else float(clock[0]))
-            end = start + self.chunk_s
-            cut = int(np.searchsorted(clock, end, side="left"))
-            if cut == len(clock):
+        # a batch that crosses a chunk's end is split there (a chunk: chunk_s of the stand's rows)
+        while batch.num_rows:
+            room = self._chunk_rows - self._filling
+            if batch.num_rows < room:
                 self._batches.append(batch)
+                self._filling += batch.num_rows
                 return
-            if cut:
-                self._batches.append(batch.slice(0, cut))
+            self._batches.append(batch.slice(0, room))
             self._write_chunk()
-            batch, clock = batch.slice(cut), clock[cut:]
+            batch = batch.slice(room)
 
     def _write_chunk(self) -> None:
-        if not self._batches:
+        batches, self._batches, self._filling = self._batches, [], 0
+        if not batches:
             return
-        table = pa.Table.from_batches(self._batches, schema=self.schema)
-        self._batches = []
+        table = pa.Table.from_batches(batches, schema=self.schema)
         if not table.num_rows:
             return
         clock = table.column("sync_time")
         first, last = clock[0].as_py(), clock[-1].as_py()
-        write_parquet_atomic(table, self.rolling / f"chunk-{_ms(first)}-{_ms(last)}.parquet")
-        # the oldest go once every pending event's window is safe from it
+        path = write_parquet_atomic(table, self.rolling / f"chunk-{_ms(first)}-{_ms(last)}.parquet")
+        self._chunks.append(_Chunk(_ms(first), _ms(last), path, self._rows_on_disk(), table.num_rows))
+        # the oldest go once no row of theirs is in the rolling window or a pending event's
+        keep_from = self._rows_on_disk() - self._rolling_rows
         with self._pending_lock:
-            oldest_needed = min((e.time_s - self.event_window_s for e in self._pending),
-                                default=math.inf)
-        horizon = min(last - self.rolling_window_s, oldest_needed)
-        for a, b, path in self.chunks():
-            if b / 1000.0 < horizon:
-                path.unlink(missing_ok=True)
+            pending = list(self._pending)
+        for event in pending:
+            row = self._event_row(event)
+            if row is not None:
+                keep_from = min(keep_from, row - self._event_rows)
+        while len(self._chunks) > 1 and self._chunks[0].end <= keep_from:
+            self._chunks.pop(0).path.unlink(missing_ok=True)
 
     def chunks(self) -> list[tuple[int, int, Path]]:
         """(first ms, last ms, path) of the rolling window's files, oldest first."""
@@ -525,29 +535,67 @@ class SignalWindow:
                 out.append((int(m.group(1)), int(m.group(2)), p))
         return sorted(out)
 
+    def _found_chunks(self) -> list["_Chunk"]:
+        """The chunks a session before left, numbered on from the oldest (their rows from the
+        files' footers; a file that cannot be read is left out of the window)."""
+        found, start = [], 0
+        for a, b, path in self.chunks():
+            try:
+                rows = pq.read_metadata(path).num_rows
+            except (OSError, pa.ArrowException):
+                continue
+            found.append(_Chunk(a, b, path, start, rows))
+            start += rows
+        return found
+
+    def _rows_on_disk(self) -> int:
+        return self._chunks[-1].end if self._chunks else 0
+
+    def _event_row(self, event: EventWindow) -> int | None:
+        """The row (numbered as the chunks are) at or after the event's time; None while that
+        row is not on disk (the first on disk if the event is older than every row kept)."""
+        if event.path in self._rows_of:
+            return self._rows_of[event.path]
+        for chunk in self._chunks:
+            if chunk.last_ms / 1000.0 + 0.001 < event.time_s:
+                continue
+            clock = pq.read_table(chunk.path, columns=["sync_time"]).column("sync_time").to_numpy()
+            k = int(np.searchsorted(clock, event.time_s - 1e-6, side="left"))
+            if k < len(clock):
+                self._rows_of[event.path] = chunk.start + k
+                return chunk.start + k
+        return None
+
     def _write_events(self, final: bool) -> None:
         with self._pending_lock:
             pending = list(self._pending)
-        if not pending:
-            return
-        chunks = self.chunks()
-        on_disk = chunks[-1][1] / 1000.0 if chunks else -math.inf
         for event in pending:
-            if not final and on_disk < event.time_s + self.event_window_s:
+            row = self._event_row(event)
+            complete = row is not None and self._rows_on_disk() > row + self._event_rows
+            if not (complete or final):
                 continue
-            self._write_event(event, chunks, truncated=on_disk < event.time_s + self.event_window_s)
+            self._write_event(event, self._rows_on_disk() if row is None else row)
             with self._pending_lock:
                 self._pending.remove(event)
             self.written.append(event)
 
-    def _write_event(self, event: EventWindow, chunks, truncated: bool) -> None:
-        lo, hi = event.time_s - self.event_window_s, event.time_s + self.event_window_s
-        tables = [pq.read_table(p) for a, b, p in chunks if b / 1000.0 >= lo and a / 1000.0 <= hi]
-        table = (pa.concat_tables(tables) if tables else self.schema.empty_table())
+    def _write_event(self, event: EventWindow, row: int) -> None:
+        """The event's window: the rows within ±event_window_s of its row on the continuous
+        stand time (a superset first: that many rows of the period each side)."""
+        lo, hi = row - self._event_rows, row + self._event_rows
+        parts = [(c, pq.read_table(c.path)) for c in self._chunks if c.end > lo and c.start <= hi]
+        tables = [t.slice(max(lo - c.start, 0), min(hi + 1, c.end) - max(lo, c.start)) for c, t in parts]
+        table = pa.concat_tables(tables) if tables else self.schema.empty_table()
         clock = table.column("sync_time").to_numpy() if table.num_rows else np.array([])
-        table = table.filter(pa.array((clock >= lo) & (clock <= hi)))
-        t = continuous_time(table.column("t").to_numpy(), table.column("sync_time").to_numpy(),
-                            self.period_s) if table.num_rows else np.array([])
+        t = continuous_time(table.column("t").to_numpy(), clock, self.period_s) if table.num_rows else np.array([])
+        truncated = True
+        if table.num_rows:
+            at = int(np.clip(row - max(lo, parts[0][0].start), 0, table.num_rows - 1))
+            # the event after every row (marked at the end of a session): the last row's time
+            t_event = t[at] if row < self._rows_on_disk() else t[-1] + self.period_s
+            inside = np.abs(t - t_event) <= self.event_window_s + self.period_s / 2
+            truncated = bool(t[-1] < t_event + self.event_window_s - self.period_s / 2)
+            table, clock, t = table.filter(pa.array(inside)), clock[inside], t[inside]
         table = table.set_column(table.schema.get_field_index("t"), "t", pa.array(t, pa.float64()))
         event.path.mkdir(parents=True)
         write_parquet_atomic(table, event.path / SIGNALS_FILE)
@@ -556,10 +604,27 @@ class SignalWindow:
                 "files": {"signals": SIGNALS_FILE},
                 "event": {"kind": event.kind, "message": event.message, "channel": event.channel,
                           "flight": event.flight, "time": event.time_s, "acted": event.acted_s,
-                          "window_s": [lo, hi], "truncated": truncated,
+                          "window_s": [float(clock.min()) if len(clock) else None,
+                                       float(clock.max()) if len(clock) else None],
+                          "stand_window_s": self.event_window_s, "truncated": truncated,
                           "first_sync_time": float(clock.min()) if len(clock) else None}}
         meta.setdefault("experiment", {"name": "endurance event window", "params": {}})
         _write_json_atomic(event.path / META_FILE, meta)
+
+
+@dataclass(frozen=True)
+class _Chunk:
+    """A file of the rolling window: its name's times (ms), its rows numbered on from the oldest."""
+
+    first_ms: int
+    last_ms: int
+    path: Path
+    start: int
+    rows: int
+
+    @property
+    def end(self) -> int:
+        return self.start + self.rows
 
 
 def continuous_time(t: np.ndarray, sync_time: np.ndarray, period_s: float) -> np.ndarray:

@@ -175,9 +175,9 @@ def test_the_rolling_window_keeps_its_length_and_an_event_window_is_a_run(tmp_pa
                                  channel="tip", flight=42)
         w.sync()
         chunks = w.chunks()
-        assert len(chunks) == min(k, 5)                # the chunk being filled is in memory
+        assert len(chunks) == min(k + 1, 4)            # a chunk's rows full: written at once
         if chunks:
-            assert (chunks[-1][1] - chunks[0][0]) / 1000.0 <= 20.0 + 5.0
+            assert (chunks[-1][1] - chunks[0][0]) / 1000.0 <= 20.0
             assert all((b - a) / 1000.0 < 5.0 for a, b, _ in chunks)
     assert w.close() == [event]
     assert event.path.parent == tmp_path / "events" and event.path.name.endswith("-limit-tip-f42")
@@ -209,6 +209,40 @@ def test_a_stands_event_window_is_a_one_channel_run_and_an_event_at_the_end_is_k
     run = load_run(end.path)
     assert run.meta["event"]["truncated"] is True and len(run) == 1001       # 2 s before it, none after
     assert run.sync_time[-1] == pytest.approx(1.8e9 + 9.0 - 0.002)
+
+
+def test_in_lockstep_the_windows_hold_the_stands_seconds_not_the_walls(tmp_path):
+    """A lockstep run 8x faster than real time: the rolling window keeps rolling_window_s of
+    the stand's rows (what the plan counts), an event window ±event_window_s of the stand's
+    time; a second session on the same directory numbers on from what the first left."""
+    from gateway.runs import load_run
+    fast = 8.0
+    def lockstep_rows(first_s: float, seconds: float):
+        out = rows(CHANNELS, first_s, seconds, t0=first_s)
+        out["sync_time"] = 1.8e9 + (out["t"] - out["t"][0]) / fast + first_s / fast
+        return out
+    w = SignalWindow(tmp_path, CHANNELS, 0.002, rolling_window_s=20.0, event_window_s=3.0, chunk_s=5.0)
+    for k in range(12):                                  # 60 s of stand time in 7.5 s of wall
+        w.append_rows(lockstep_rows(5.0 * k, 5.0))
+        if k == 6:
+            event = w.mark_event("interlock", "spike", time_s=1.8e9 + 31.0 / fast)
+        w.sync()
+    rows_kept = sum(pq.read_metadata(p).num_rows for _, _, p in w.chunks())
+    assert rows_kept == 10_000                            # 20 s of the stand at 2 ms
+    assert w.close() == [event]
+    run = load_run(event.path)
+    assert len(run) == 3001 and run.t[0] == pytest.approx(28.0) and run.t[-1] == pytest.approx(34.0)
+    assert run.meta["event"]["truncated"] is False
+    # the next session: its event at its start reaches back into the last one's rows
+    w2 = SignalWindow(tmp_path, CHANNELS, 0.002, rolling_window_s=20.0, event_window_s=3.0, chunk_s=5.0)
+    again = w2.mark_event("resume", "after the stop", time_s=1.8e9 + 60.0 / fast + 0.5)
+    w2.append_rows({**rows(CHANNELS, 60.5, 10.0),
+                    "sync_time": 1.8e9 + 60.0 / fast + 0.5 + np.arange(5000) * 0.002 / fast})
+    assert w2.close() == [again]
+    run = load_run(again.path)
+    # 0.5 s of wall between the sessions: 2.5 s of the first one's last rows, 3 s of the second
+    assert abs(len(run) - (1250 + 1501)) <= 1 and run.meta["event"]["truncated"] is False
+    assert sum(pq.read_metadata(p).num_rows for _, _, p in w2.chunks()) == 10_000
 
 
 def test_continuous_time_keeps_the_gap_between_passes():
