@@ -254,25 +254,35 @@ def storage_rows(testdir: Path, test, flights: int, plan: dict) -> list[Row]:
 
 
 def stop_rows(testdir: Path, test) -> tuple[list[Row], list[float]]:
-    """Each stop's and trip's largest deviation from the load ratios, from its event window."""
-    from endurance.report import stop_deviation
+    """Each stop's and trip's largest deviation from the load ratios, from its event window
+    (the readings after the stand was acted on) and across the hold to the forces the next
+    resume found (its window's first reading)."""
+    from endurance.report import found_at_resume, held_deviation, stop_deviation
     ranges = np.array(test.station.ranges_kgf, float)
+    names = test.station.names
+    windows = sorted((testdir / "events").iterdir())
     found = []
-    for d in sorted((testdir / "events").iterdir()):
+    for i, d in enumerate(windows):
         kind = d.name.split("-")[1]
         if kind in ("start", "resume"):
             continue
-        dev = stop_deviation(d, test.station.names, ranges)
-        found.append((kind, dev["pct_of_range"], dev["channel"], dev["rows_after"], dev["acted_after_s"]))
-    pct = [f[1] for f in found]
-    text = "; ".join(f"{k}{f' ({c})' if c else ''} {p:.2f} % over {r} readings"
-                     + (f" from the hold {a:.1f} s after the onset" if a > 0.05 else "")
-                     for k, p, c, r, a in found)
+        dev = stop_deviation(d, names, ranges)
+        nxt = next((w for w in windows[i + 1:] if w.name.split("-")[1] == "resume"), None)
+        held = held_deviation(dev, found_at_resume(nxt, names), ranges) if nxt is not None else None
+        found.append((kind, dev, held))
+    pct = [max(dev["pct_of_range"], held["pct_of_range"] if held else 0.0) for _, dev, held in found]
+    text = "; ".join(
+        f"{k}{' (' + dev['channel'] + ')' if dev['channel'] else ''} {dev['pct_of_range']:.2f} % over "
+        f"{dev['rows_after']} readings" + (f" from the hold {dev['acted_after_s']:.1f} s after the onset"
+                                            if dev["acted_after_s"] > 0.05 else "")
+        + (f", {held['pct_of_range']:.2f} % at the resume {held['after_s']:.0f} s later" if held else "")
+        for k, dev, held in found)
     return [Row(f"endurance: the load ratios during every stop and trip ({len(found)})",
                 f"largest deviation {max(pct):.2f} % of a range" if pct else "no stop recorded",
                 "each within 2 % of its channel's range", "met" if pct and max(pct) <= 2.0 else "not met",
-                f"from the recorded signals after each event (event windows): {text}; in lockstep a trip's "
-                "hold ends the session and the emulated stand stands still (no SYNC): few or no readings")], pct
+                f"from the recorded signals after each event (event windows), then the forces the next "
+                f"resume found against the ratios before the event: {text}; in lockstep a trip's hold "
+                "ends the session and the emulated stand stands still (no SYNC) until the resume")], pct
 
 
 def pace_row(testdir: Path, test, plan: dict, block: int) -> Row:

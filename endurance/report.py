@@ -298,7 +298,32 @@ def stop_deviation(window: str | Path, names: list[str], ranges_kgf) -> dict:
     y0 = Y[before][-1] if before.any() else Y[after][0]
     return {"kind": meta["kind"], "message": meta.get("message", ""), "channel": meta.get("channel"),
             "pct_of_range": ratio_deviation_pct(Y[after], y0, ranges_kgf), "rows_after": int(after.sum()),
-            "acted_after_s": at - meta["time"], "forces_at_kgf": y0.tolist()}
+            "acted_after_s": at - meta["time"], "forces_at_kgf": y0.tolist(), "time": float(meta["time"])}
+
+
+def found_at_resume(window: str | Path, names: list[str]) -> dict:
+    """The forces a resume found (its event window's first reading at or after its event):
+    what a hold left. Beside :func:`stop_deviation` of the trip before it, the ratio
+    deviation across the hold (:func:`held_deviation`) when the hold ended the session and its
+    own window saw no reading after it (in lockstep the emulated stand stands still without
+    SYNCs, as a held bench's valves keep their forces)."""
+    from gateway.runs import load_run
+    run = load_run(window)
+    meta = json.loads((Path(window) / "run.json").read_text())["event"]
+    t = np.asarray(run.signals["sync_time"], float)
+    after = np.flatnonzero(t >= meta["time"] - 1e-6)
+    if not len(after):
+        raise DataError(f"{window}: no reading after its event")
+    return {"time": float(t[after[0]]),
+            "forces_kgf": [float(run.signals[f"y.{n}"][after[0]]) for n in names]}
+
+
+def held_deviation(stop: dict, resume: dict, ranges_kgf) -> dict:
+    """The deviation from the load ratios across a stop (:func:`stop_deviation`'s result) to
+    the forces the next resume found (:func:`found_at_resume`), % of a channel's range."""
+    return {"pct_of_range": ratio_deviation_pct(np.asarray(resume["forces_kgf"])[None, :],
+                                                np.asarray(stop["forces_at_kgf"]), ranges_kgf),
+            "after_s": resume["time"] - stop.get("time", resume["time"])}
 
 
 def _block_size(journal: Journal) -> int | None:

@@ -411,3 +411,35 @@ def test_a_stops_deviation_from_the_ratios_counts_from_when_the_stand_was_acted_
     spike = stop_deviation(window("spike", True, None), CHANNELS, ranges)
     assert spike["pct_of_range"] == pytest.approx(moving["pct_of_range"], rel=0.05), spike
     assert max(spike["forces_at_kgf"]) < 3100.0
+
+
+def test_across_a_hold_that_ended_the_session_the_resumes_found_forces_are_measured(tmp_path):
+    """A trip whose hold ended the session (no reading after it, as in lockstep): the deviation
+    across the hold is the next resume's first reading against the ratios before the trip; a
+    stand that sagged on one channel meanwhile is seen, one that held is not."""
+    from endurance.report import found_at_resume, held_deviation, stop_deviation
+    ranges = [10000.0, 10000.0, 5000.0, 5000.0]
+    w = SignalWindow(tmp_path / "trip", CHANNELS, 0.002, rolling_window_s=30.0, event_window_s=6.0, chunk_s=5.0)
+    before = rows(CHANNELS, 0.0, 4.0)
+    w.append_rows(before)
+    trip = w.mark_event("force_limit", "tip", time_s=1.8e9 + 4.0, channel="tip")   # after the last reading
+    w.close()
+    stop = stop_deviation(trip.path, CHANNELS, ranges)
+    assert stop["rows_after"] == 0 and stop["pct_of_range"] == 0.0
+    last = np.array([before[f"y.{c}"][-1] for c in CHANNELS])
+
+    def resume(name: str, forces) -> dict:
+        r = SignalWindow(tmp_path / name, CHANNELS, 0.002, rolling_window_s=30.0, event_window_s=6.0, chunk_s=5.0)
+        event = r.mark_event("resume", "resumed", time_s=1.8e9 + 60.0)
+        after = rows(CHANNELS, 60.0, 2.0)
+        for c, f in zip(CHANNELS, forces):
+            after[f"y.{c}"] = np.full(len(after["t"]), f)
+        r.append_rows(after)
+        r.close()
+        return found_at_resume(event.path, CHANNELS)
+
+    held = held_deviation(stop, resume("held", last), ranges)
+    assert held["pct_of_range"] < 1e-9 and held["after_s"] == pytest.approx(56.0)
+    sagged = last.copy()
+    sagged[1] -= 400.0                                   # inner lost 400 kgf of 10,000 meanwhile
+    assert held_deviation(stop, resume("sagged", sagged), ranges)["pct_of_range"] > 2.5
