@@ -365,6 +365,10 @@ class Journal:
                 journal = cls(testdir, db, lock_fd, clock)
                 if write and version < SCHEMA_VERSION:
                     journal._upgrade(version)
+                if write and db.execute("PRAGMA auto_vacuum").fetchone()[0] == 0:
+                    # a journal made before it gave pruned pages back: rewritten once (it holds
+                    # a block's end points at most, so seconds) with incremental auto-vacuum
+                    db.execute("VACUUM")
             except sqlite3.DatabaseError as exc:
                 db.close()
                 raise JournalError(f"{path} is not a readable journal: {exc}") from None

@@ -313,6 +313,31 @@ def test_end_points_are_pruned_only_for_done_flights(tmp_path):
     assert j.prune_end_points(1) == 6 and len(j.end_points(1, 2)) == 6
 
 
+def test_a_journal_made_before_auto_vacuum_is_converted_once_when_opened_for_writing(tmp_path):
+    """An older journal (no auto-vacuum: pruned pages stayed in the file) is rewritten with
+    incremental auto-vacuum by the next writer; what it held stays, and it gives pages back."""
+    j = new(tmp_path / "t", target=200)
+    for n in range(1, 121):
+        fly(j, n, load_cases=10)
+    j.close()
+    with sqlite3.connect(tmp_path / "t" / JOURNAL_FILE) as db:       # as an older hydrostand made it
+        db.execute("PRAGMA auto_vacuum = NONE")
+        db.execute("VACUUM")
+        assert db.execute("PRAGMA auto_vacuum").fetchone()[0] == 0
+    with Journal.open(tmp_path / "t") as reader:                     # a reader changes nothing
+        assert reader.flights_done == 120
+    with sqlite3.connect(tmp_path / "t" / JOURNAL_FILE) as db:
+        assert db.execute("PRAGMA auto_vacuum").fetchone()[0] == 0
+    j = Journal.open(tmp_path / "t", write=True)
+    assert j.flights_done == 120 and len(j.end_points(1, 120)) == 120 * 10 * len(CHANNELS)
+    j.prune_end_points(120)
+    j.checkpoint()
+    j.close()
+    with sqlite3.connect(tmp_path / "t" / JOURNAL_FILE) as db:
+        assert db.execute("PRAGMA auto_vacuum").fetchone()[0] == 2
+        assert db.execute("PRAGMA freelist_count").fetchone()[0] <= 2
+
+
 def test_a_journal_of_a_newer_schema_or_an_unfinished_creation_is_refused(tmp_path):
     j = new(tmp_path / "t")
     j.close()
