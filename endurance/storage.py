@@ -731,9 +731,14 @@ GAIN_ROW_B = 378.0
 EVENT_ROW_B, SESSION_FILE_B = 200.0, 1250.0
 #: what a flight type keeps, replaced as the test goes (compensation, schedules, monitor_state):
 #: its compensation tables 40 B per channel and load case (30 B of TOML text + key), its schedule
-#: 495 + 92 B per load case (time scaling), the trend's state 130 B per channel and load case
-#: once armed (117-143 B measured; while it learns its flights' statistics ride along)
-COMPENSATION_B, SCHEDULE_B, SCHEDULE_CASE_B, TREND_STATE_B = 40.0, 495.0, 92.0, 130.0
+#: 495 + 92 B per load case (time scaling)
+COMPENSATION_B, SCHEDULE_B, SCHEDULE_CASE_B = 40.0, 495.0, 92.0
+#: the trend's state of a type (JSON, :meth:`endurance.trends.TrendDetector.state`), 19.9 B a
+#: number (16 channels, 460 flights offline): while it learns, its learning flights' three
+#: numbers per channel and load case; armed, four per channel and load case, three N x N
+#: matrices (the noise's scatter, its whitening, the correction) and three per channel;
+#: whichever is larger (a test's first blocks are all learning), + 230 B of keys
+TREND_NUMBER_B, TREND_STATE_B = 19.9, 230.0
 #: a journal's write-ahead log while a session runs: SQLite checkpoints it at 1,000 pages and
 #: keeps the file at that size until the session's end truncates it
 WAL_B = 1000 * 4096.0
@@ -824,7 +829,12 @@ def storage_estimate(test: Any, calibration: Calibration | None = None,
     event = 2 * test.storage.event_window_s * rate * per_sample
     block_points = max(block.size, EXPORT_EVERY) * lc_per_flight * n * c.journal_end_point_b
     cases = sum(ft.load_cases for ft in types.values())
-    per_type = n * cases * (COMPENSATION_B + (TREND_STATE_B if trend_on else 0.0))
+    per_type = n * cases * COMPENSATION_B
+    if trend_on:
+        learn = test.trend.learn_flights
+        per_type += sum(TREND_STATE_B + TREND_NUMBER_B * max(learn * 3 * ft.load_cases * n,
+                                                              4 * ft.load_cases * n + 3 * n * n + 3 * n)
+                        for ft in types.values())
     if getattr(test, "time_scaling", None) is not None:
         per_type += len(types) * SCHEDULE_B + cases * SCHEDULE_CASE_B
     block_files = max(math.ceil(block.size / EXPORT_EVERY) - 1, 0) * TURNING_POINT_FILE_B
