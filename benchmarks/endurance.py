@@ -73,6 +73,9 @@ INTACT_FLIGHTS = 1000
 FIXED_TABLES = ("compensation", "schedules", "monitor_state")
 QUICK_FLIGHTS = 4
 EXTRAPOLATE_FLIGHTS, EXTRAPOLATE_CHANNELS = 100_000, 16
+#: the wide station's flights measured between (every type's trend armed by the first: a
+#: type once a block learns over its 6 search flights and 21 more, 27 blocks of 20)
+WIDE_FLIGHTS = (560, 660)
 
 
 def lay_out(root: Path, flights: int, inspection_at: int | None) -> tuple[Path, Path]:
@@ -212,7 +215,7 @@ def journal_sizes(testdir: Path) -> dict[str, int]:
 
 def storage_rows(testdir: Path, test, flights: int, plan: dict) -> list[Row]:
     """Storage on disk per 1,000 flights and its extrapolation, beside the plan's promise."""
-    from endurance.storage import storage_estimate, turning_point_files
+    from endurance.storage import turning_point_files
     n = test.station.n
     tp = sum(p.stat().st_size for p in turning_point_files(testdir))
     sizes = journal_sizes(testdir)
@@ -221,19 +224,9 @@ def storage_rows(testdir: Path, test, flights: int, plan: dict) -> list[Row]:
     # rows; with the flights only: the rest but the tables of one row per flight type (and
     # channel), replaced as the test goes: its compensation, schedules and monitors' states
     fixed = sum(sizes.get(k, 0) for k in FIXED_TABLES)
-    # the journal's end points are those of the block in progress (a block's are pruned once in
-    # the log): bounded, they scale with the channels, not with the flights
-    bounded = sizes.get("end_points", 0)
-    per_channel = tp + sizes.get("monitor_history", 0)
-    per_flight = journal - fixed - bounded - sizes.get("monitor_history", 0)
     measured = (tp + journal) / flights * 1000
     growth = (tp + journal - fixed) / flights * 1000      # what the plan's per 1,000 flights counts
-    scale = EXTRAPOLATE_FLIGHTS / flights
-    big = (per_channel * EXTRAPOLATE_CHANNELS / n + per_flight) * scale + (fixed + bounded) * EXTRAPOLATE_CHANNELS / n
     promise = plan["storage_bytes"]["per_1000_flights"]
-    est = storage_estimate(test, flight_s=plan["per_flight_s"])     # as stand test plan counts it
-    promise_big = (est.per_1000_flights_per_channel * EXTRAPOLATE_CHANNELS
-                   + (est.per_1000_flights - est.per_1000_flights_per_channel * n)) * EXTRAPOLATE_FLIGHTS / 1000
     rolling = sum(p.stat().st_size for p in (testdir / "rolling").glob("*.parquet"))
     events = [sum(f.stat().st_size for f in d.iterdir()) for d in (testdir / "events").iterdir()]
     top = sorted(sizes.items(), key=lambda kv: -kv[1])[:4]
@@ -243,14 +236,88 @@ def storage_rows(testdir: Path, test, flights: int, plan: dict) -> list[Row]:
                 f"per-type tables ({fixed / 1e3:.0f} kB, fixed)", f"stand test plan: {promise / 1e6:.2f} MB growing",
                 f"{growth / promise:.2f}",
                 f"journal by table: {', '.join(f'{k} {v / 1e3:.0f} kB' for k, v in top)}; rolling window "
-                f"{rolling / 1e6:.1f} MB, {len(events)} event windows {np.mean(events) / 1e6 if events else 0:.1f} MB each"),
-            Row(f"endurance: storage extrapolated to {EXTRAPOLATE_FLIGHTS:,} flights x {EXTRAPOLATE_CHANNELS} channels",
-                f"{big / 1e9:.2f} GB", f"the plan's estimate for the same: {promise_big / 1e9:.2f} GB",
-                f"{big / promise_big:.2f}",
-                "end points in the log and the monitors' rows scale with flights and channels, the rest with the flights "
-                f"but the per-type tables ({fixed / 1e3:.0f} kB: {', '.join(FIXED_TABLES)}; x{EXTRAPOLATE_CHANNELS / n:g} "
-                "for the channels, not with the flights); full-rate data only in the rolling window and event "
-                "windows")]
+                f"{rolling / 1e6:.1f} MB (plan {plan['storage_bytes']['rolling_window'] / 1e6:.1f}), {len(events)} "
+                f"event windows {np.mean(events) / 1e6 if events else 0:.1f} MB each (plan "
+                f"{plan['storage_bytes']['event_window'] / 1e6:.1f}, an event in the middle of its window)")]
+
+
+def written(testdir: Path) -> tuple[int, int]:
+    """What a test keeps on disk but its windows (turning points, the journal's tables by
+    SQLite's dbstat, its sessions' records), bytes; and its fixed part (the per-type tables)."""
+    from endurance.storage import turning_point_files
+    sizes = journal_sizes(testdir)
+    total = (sum(p.stat().st_size for p in turning_point_files(testdir)) + sum(sizes.values())
+             + sum(p.stat().st_size for p in (testdir / "sessions").glob("*.json")))
+    return total, sum(sizes.get(k, 0) for k in FIXED_TABLES)
+
+
+def wide_station(root: Path, channels: int) -> Path:
+    """The bench test on a chain rig of ``channels`` copies of the example's first channel
+    (benchmarks/rig.py, 4 a bus), the flight types' columns repeated over its channels, its
+    controller from ``stand design``: the test file's path."""
+    import csv
+    import tomllib
+
+    from .rig import chain_file
+    root.mkdir(parents=True, exist_ok=True)
+    rig = chain_file(root, channels, max(channels // 4, 1))
+    names = [c["name"] for c in tomllib.loads(rig.read_text())["channel"]]
+    (root / "flights").mkdir(exist_ok=True)
+    for src in sorted((ROOT / "examples" / "endurance" / "flights").glob("*.csv")):
+        rows = list(csv.DictReader(src.open()))
+        cols = [c for c in rows[0] if c != "case"]
+        with (root / "flights" / src.name).open("w", newline="") as f:
+            out = csv.writer(f)
+            out.writerow(["case", *names])
+            out.writerows([r["case"], *(r[cols[i % len(cols)]] for i in range(channels))] for r in rows)
+    stand("design", rig, "-o", root / "controller.toml")
+    text = (BENCH_TEST.read_text().replace('station = "../rig.toml"', f'station = "{rig.name}"')
+            .replace('controller = "../endurance/controller.toml"', 'controller = "controller.toml"')
+            .replace("../endurance/flights/", "flights/")
+            # the trend learns a type's noise covariance: at least the channels + 5 flights
+            .replace("learn_flights = 10 ", f"learn_flights = {channels + 5} "))
+    (root / "test.toml").write_text(text)
+    return root / "test.toml"
+
+
+def storage_wide(root: Path, channels: int = EXTRAPOLATE_CHANNELS, first: int = WIDE_FLIGHTS[0],
+                 last: int = WIDE_FLIGHTS[1]) -> Row:
+    """Storage of the bench test on ``channels`` channels, measured offline (the session's own
+    journal, log and monitors on the emulator's plant): what grows from flight ``first`` (every
+    flight type's trend armed) to ``last``, per 1,000 flights and extrapolated to
+    EXTRAPOLATE_FLIGHTS, beside what ``stand test plan`` promises for the same."""
+    from endurance.journal import Journal
+    from endurance.offline import OfflineStation, fly
+    from endurance.storage import storage_estimate
+    from endurance.testfile import load_test_file
+    test_file = wide_station(root, channels)
+    test = load_test_file(test_file)
+    plan = json.loads(stand("test", "plan", test_file, "--json")[0])
+    station = OfflineStation.of_rig_file(test.station.rig.path, seed=13)
+    testdir = root / "T"
+    t0 = time.perf_counter()
+    fly(testdir, test_file, station, first)
+    size_first, fixed_first = written(testdir)
+    with Journal.open(testdir, write=True) as j:
+        j.set_target(last)
+    fly(testdir, test_file, station)
+    size_last, fixed_last = written(testdir)
+    wall = time.perf_counter() - t0
+    per_1000 = ((size_last - fixed_last) - (size_first - fixed_first)) / (last - first) * 1000
+    est = storage_estimate(test, flight_s=plan["per_flight_s"])
+    big = per_1000 * EXTRAPOLATE_FLIGHTS / 1000 + max(fixed_first, fixed_last)
+    promise = est.per_1000_flights * EXTRAPOLATE_FLIGHTS / 1000 + est.per_type
+    return Row(f"endurance: storage of {EXTRAPOLATE_FLIGHTS:,} flights x {channels} channels (measured at "
+               f"{channels}, extrapolated in flights)",
+               f"{big / 1e9:.2f} GB ({per_1000 / 1e6:.2f} MB per 1,000 flights)",
+               f"stand test plan: {promise / 1e9:.2f} GB ({est.per_1000_flights / 1e6:.2f} MB per 1,000 flights)",
+               f"{big / promise:.2f}",
+               f"offline (endurance.offline), a chain rig of {channels} channels on {max(channels // 4, 1)} buses, "
+               f"the bench's ten flight types on every channel: what grew from flight {first} (every type's trend "
+               f"armed) to {last}, the per-type tables apart (measured {fixed_first / 1e6:.2f} MB at {first}, "
+               f"{fixed_last / 1e6:.2f} MB at {last}; planned {est.per_type / 1e6:.2f} MB, their largest while "
+               f"every type learns); the windows are fixed (plan: rolling {est.rolling_window / 1e6:.1f} MB, "
+               f"{est.event_window / 1e6:.1f} MB an event); {wall:.0f} s wall")
 
 
 def stop_rows(testdir: Path, test) -> tuple[list[Row], list[float]]:
@@ -462,5 +529,6 @@ def full_run(root: Path) -> list[Row]:
     rows[-1].note += (f"; stand test status --json names {named[0]['channel']}" if named else
                       "; not in stand test status --json")
     rows.append(intact_offline(root, INTACT_FLIGHTS))
+    rows.append(storage_wide(root / "wide"))
     rows.append(Row("endurance: the whole benchmark", f"{(time.perf_counter() - t_start) / 60:.0f} min"))
     return rows
