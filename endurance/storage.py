@@ -45,7 +45,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import queue
 import re
 import threading
 import time
@@ -59,6 +58,7 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
 from core.errors import DataError, ParameterError
+from gateway.rowbuffer import RowBuffer
 from gateway.runs import FORMAT, META_FILE, SCHEMA, SIGNALS_FILE, rig_schema
 
 from .journal import Journal
@@ -344,19 +344,11 @@ class SignalWindow:
         self.channels = list(channels) if channels is not None else None
         self.schema = SCHEMA if channels is None else rig_schema(self.channels)
         self.columns = tuple(self.schema.names)
-        self._groups = None if channels is None else \
-            [[f"{col}.{ch}" for ch in self.channels] for col in ("u", "y", "r", "y_counts", "spool",
-                                                                "valve_status", "stale")]
         self.period_s = float(period_s)
         self.rolling_window_s = float(rolling_window_s)
         self.event_window_s = float(event_window_s)
         self.chunk_s = float(chunk_s)
         self.meta = dict(meta or {})
-        self._flush_s = flush_s
-        self._buf: dict[str, list] = {c: [] for c in self.columns}
-        self._last_flush = time.monotonic()
-        self._error: BaseException | None = None
-        self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._batches: list[pa.RecordBatch] = []        # the chunk being filled (writer thread)
         self._filling = 0                                # its rows
         self._chunk_rows = max(int(round(self.chunk_s / self.period_s)), 1)
@@ -367,29 +359,26 @@ class SignalWindow:
         self._pending: list[EventWindow] = []            # events whose window is not written yet
         self._pending_lock = threading.Lock()
         self.written: list[EventWindow] = []
-        self.last_time_s: float | None = None
+        self._appended_s: float | None = None            # append_rows' last sync_time
         self.closed = False
-        self._thread = threading.Thread(target=self._work, name="signal-window", daemon=True)
-        self._thread.start()
+        self._rows = RowBuffer(self.schema, self.channels, self._handle,
+                               f"{self.rolling}: the signal window", "signal-window", flush_s,
+                               on_close=self._finish)
+        #: one cycle of every channel, as :meth:`gateway.recorder.RunRecorder.append_cycle`
+        #: takes it (the channel values as sequences in the channels' order)
+        self.append_cycle = self._rows.append_cycle
+        self.poll = self._rows.poll
+        self.flush = self._rows.flush
+        self.sync = self._rows.sync
 
-    # -- the loop's side: appends only ------------------------------------------------------------
-    def append_cycle(self, t: float, cycle: int, sync_time: float, u, y, r, y_counts, spool,
-                     valve_status, stale) -> None:
-        """One cycle of every channel, as :meth:`gateway.recorder.RunRecorder.append_cycle`
-        takes it (the channel values as sequences in the channels' order)."""
-        b = self._buf
-        b["t"].append(t); b["cycle"].append(cycle); b["sync_time"].append(sync_time)
-        if self._groups is None:
-            b["u"].append(u[0]); b["y"].append(y[0]); b["r"].append(r[0])
-            b["y_counts"].append(y_counts[0]); b["spool"].append(spool[0])
-            b["valve_status"].append(valve_status[0]); b["stale"].append(stale[0])
-        else:
-            for names, values in zip(self._groups, (u, y, r, y_counts, spool, valve_status, stale)):
-                for name, v in zip(names, values):
-                    b[name].append(v)
-        self.last_time_s = sync_time
-        if time.monotonic() - self._last_flush >= self._flush_s:
-            self.flush()
+    # -- the loop's side: appends only (:class:`gateway.rowbuffer.RowBuffer`) ---------------------
+    @property
+    def last_time_s(self) -> float | None:
+        """The last row's ``sync_time`` (None before any)."""
+        last = self._rows.last_sync_time
+        if self._appended_s is not None and (last is None or self._appended_s > last):
+            return self._appended_s
+        return last
 
     def append_rows(self, columns: Mapping[str, Any]) -> None:
         """Many rows at once: a mapping of every column (:attr:`columns`) to equal-length
@@ -397,28 +386,11 @@ class SignalWindow:
         missing = [c for c in self.columns if c not in columns]
         if missing:
             raise DataError(f"signal window: rows lack column(s) {', '.join(missing[:5])}")
-        self.flush()
         batch = pa.record_batch([pa.array(np.asarray(columns[c]), type=self.schema.field(c).type)
                                  for c in self.columns], schema=self.schema)
         if batch.num_rows:
-            self.last_time_s = float(np.asarray(columns["sync_time"])[-1])
-            self._queue.put(batch)
-
-    def poll(self) -> None:
-        """Hand the buffered rows over if they are due (a control loop calls this while it
-        waits for the stand, as :meth:`gateway.recorder.RunRecorder.poll`)."""
-        if time.monotonic() - self._last_flush >= self._flush_s:
-            self.flush()
-
-    def flush(self) -> None:
-        """Hand the buffered rows to the writer thread."""
-        self._last_flush = time.monotonic()
-        if self._error is not None:
-            raise DataError(f"{self.rolling}: the signal window cannot write: {self._error}")
-        if not self._buf["t"]:
-            return
-        rows, self._buf = self._buf, {c: [] for c in self.columns}
-        self._queue.put(rows)
+            self._appended_s = float(np.asarray(columns["sync_time"])[-1])
+            self._rows.put(batch)
 
     def mark_event(self, kind: str, message: str, time_s: float | None = None,
                    channel: str | None = None, flight: int | None = None,
@@ -440,17 +412,8 @@ class SignalWindow:
         event = EventWindow(path, t, kind, message, channel, flight, acted_s)
         with self._pending_lock:
             self._pending.append(event)
-        self._queue.put(_Wake())
+        self._rows.put(_WAKE)
         return event
-
-    def sync(self) -> None:
-        """Flush, and wait until the writer thread has handled everything so far."""
-        self.flush()
-        done = threading.Event()
-        self._queue.put(_Barrier(done))
-        done.wait()
-        if self._error is not None:
-            raise DataError(f"{self.rolling}: the signal window cannot write: {self._error}")
 
     def close(self) -> list[EventWindow]:
         """Write the chunk being filled and every pending event's window (with what there is
@@ -458,39 +421,20 @@ class SignalWindow:
         if self.closed:
             return self.written
         try:
-            self.flush()
-        except DataError:
-            pass
-        self._queue.put(_Close())
-        self._thread.join()
-        self.closed = True
-        if self._error is not None:
-            raise DataError(f"{self.rolling}: the signal window cannot write: {self._error}")
+            self._rows.close()
+        finally:
+            self.closed = True
         return self.written
 
     # -- the writer thread ------------------------------------------------------------------------
-    def _work(self) -> None:
-        while True:
-            item = self._queue.get()
-            try:
-                if isinstance(item, _Close):
-                    if self._error is None:
-                        self._write_chunk()
-                        self._write_events(final=True)
-                    return
-                if isinstance(item, _Barrier):
-                    item.event.set()
-                    continue
-                if self._error is not None:
-                    continue
-                if isinstance(item, dict):
-                    item = pa.record_batch([pa.array(item[c], type=self.schema.field(c).type)
-                                            for c in self.columns], schema=self.schema)
-                if isinstance(item, pa.RecordBatch):
-                    self._add(item)
-                self._write_events(final=False)
-            except BaseException as exc:        # the disk full, ...: heard at the next flush
-                self._error = exc
+    def _handle(self, item) -> None:
+        if isinstance(item, pa.RecordBatch):
+            self._add(item)
+        self._write_events(final=False)
+
+    def _finish(self) -> None:
+        self._write_chunk()
+        self._write_events(final=True)
 
     def _add(self, batch: pa.RecordBatch) -> None:
         # a batch that crosses a chunk's end is split there (a chunk: chunk_s of the stand's rows)
@@ -659,17 +603,8 @@ def rig_meta(station: Any, name: str | None = None) -> dict[str, Any]:
                     "channels": channels, "driven": list(rig.names)}}
 
 
-class _Barrier:
-    def __init__(self, event: threading.Event) -> None:
-        self.event = event
-
-
-class _Close:
-    pass
-
-
-class _Wake:
-    pass
+#: a marker put on the writer's queue: an event was marked (its window may be due)
+_WAKE = object()
 
 
 def _ms(t: float) -> int:

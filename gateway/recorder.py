@@ -17,10 +17,7 @@ import functools
 import json
 import os
 import platform
-import queue
 import sys
-import threading
-import time
 from importlib import metadata as _md
 from pathlib import Path
 from typing import Any
@@ -30,7 +27,8 @@ import pyarrow.ipc
 import pyarrow.parquet as pq
 
 from .errors import DataError, StandError
-from .runs import (CAPTURE_FILE, CHANNEL_COLUMNS, COLUMNS, FORMAT, META_FILE,
+from .rowbuffer import RowBuffer
+from .runs import (CAPTURE_FILE, FORMAT, META_FILE,
                    SCHEMA, SIGNALS_FILE, STREAM_FILE, TRUTH_FILE, rig_schema)
 
 
@@ -102,28 +100,19 @@ class RunRecorder:
         write_json(self.dir / META_FILE, self.meta)
         _warm_up_arrow()
         self.schema = SCHEMA if channels is None else rig_schema(channels)
-        self.columns = COLUMNS if channels is None else tuple(self.schema.names)
-        #: a rig: the column names of each channel column kind, in CHANNEL_COLUMNS order
-        self._groups = None if channels is None else \
-            [[f"{col}.{ch}" for ch in channels] for col in CHANNEL_COLUMNS]
-        self.append_cycle = self._append_one if channels is None else self._append_rig
-        self._buf: dict[str, list] = {name: [] for name in self.columns}
-        #: a rig: per channel column kind, one tuple of the channels' values per cycle
-        self._kinds: list[list] = [] if channels is None else [[] for _ in CHANNEL_COLUMNS]
+        self.columns = tuple(self.schema.names)
         self._stream_path = self.dir / STREAM_FILE
         self._sink = pa.OSFile(str(self._stream_path), "wb")
         self._writer = pa.ipc.new_stream(self._sink, self.schema)
         self._sink.flush()
-        self._flush_s = flush_s
-        self._last_flush = time.monotonic()
-        self.rows = 0
         #: rows known to be on disk (written and fsync'ed)
         self.rows_on_disk = 0
         self.closed = False
-        self._error: BaseException | None = None
-        self._batches: queue.SimpleQueue = queue.SimpleQueue()
-        self._thread = threading.Thread(target=self._write_batches, name="run-recorder", daemon=True)
-        self._thread.start()
+        self._rows = RowBuffer(self.schema, channels, self._write_batch,
+                               f"{self._stream_path}: the recorder", "run-recorder", flush_s)
+        self.append_cycle = self._rows.append_cycle
+        self.poll = self._rows.poll
+        self.flush = self._rows.flush
 
     @property
     def capture_path(self) -> Path:
@@ -139,102 +128,42 @@ class RunRecorder:
 
     def append(self, t: float, u: float, y: float, r: float, cycle: int, y_counts: int,
                spool: float, valve_status: int, stale: bool, sync_time: float) -> None:
-        b = self._buf
-        b["t"].append(t); b["u"].append(u); b["y"].append(y); b["r"].append(r)
-        b["cycle"].append(cycle); b["y_counts"].append(y_counts); b["spool"].append(spool)
-        b["valve_status"].append(valve_status); b["stale"].append(stale)
-        b["sync_time"].append(sync_time)
-        self.rows += 1
-        if time.monotonic() - self._last_flush >= self._flush_s:
-            self.flush()
+        """One row of a one-channel run (:meth:`append_cycle` with each value alone)."""
+        self._rows.append_cycle(t, cycle, sync_time, (u,), (y,), (r,), (y_counts,), (spool,),
+                                (valve_status,), (stale,))
 
     #: one cycle of every channel: ``append_cycle(t, cycle, sync_time, u, y, r, y_counts, spool,
     #: valve_status, stale)``, the channel values as sequences in the channels' order
+    #: (:class:`gateway.rowbuffer.RowBuffer`); ``poll()`` and ``flush()`` are the buffer's too
     append_cycle = None
 
-    def _append_one(self, t: float, cycle: int, sync_time: float, u, y, r, y_counts, spool,
-                    valve_status, stale) -> None:
-        b = self._buf
-        b["t"].append(t); b["u"].append(u[0]); b["y"].append(y[0]); b["r"].append(r[0])
-        b["cycle"].append(cycle); b["y_counts"].append(y_counts[0]); b["spool"].append(spool[0])
-        b["valve_status"].append(valve_status[0]); b["stale"].append(stale[0])
-        b["sync_time"].append(sync_time)
-        self.rows += 1
-        if time.monotonic() - self._last_flush >= self._flush_s:
-            self.flush()
+    @property
+    def rows(self) -> int:
+        """Rows appended so far."""
+        return self._rows.rows
 
-    def _append_rig(self, t: float, cycle: int, sync_time: float, *channel_values) -> None:
-        b = self._buf
-        b["t"].append(t); b["cycle"].append(cycle); b["sync_time"].append(sync_time)
-        # a cycle's values of each kind as one tuple (the loop reuses its lists); the writer
-        # thread turns them into the channels' columns (16 channels: 7 appends, not 112)
-        for kind, values in zip(self._kinds, channel_values):
-            kind.append(tuple(values))
-        self.rows += 1
-        if time.monotonic() - self._last_flush >= self._flush_s:
-            self.flush()
-
-    def poll(self) -> None:
-        """Flush if the oldest buffered row is due (the loop calls this while it waits)."""
-        if time.monotonic() - self._last_flush >= self._flush_s:
-            self.flush()
-
-    def flush(self) -> None:
-        """Hand the buffered rows to the writer thread (one record batch, then fsync)."""
-        self._last_flush = time.monotonic()
-        if self._error is not None:
-            raise DataError(f"{self._stream_path}: the recorder cannot write: {self._error}")
-        if not self._buf["t"]:
-            return
-        rows, self._buf = self._buf, {name: [] for name in self.columns}
-        if self._groups is not None:
-            kinds, self._kinds = self._kinds, [[] for _ in CHANNEL_COLUMNS]
-            rows = _RigRows(rows, kinds)
-        self._batches.put(rows)
-
-    def _write_batches(self) -> None:
-        while True:
-            rows = self._batches.get()
-            if rows is None:
-                return
-            if isinstance(rows, _Barrier):
-                rows.event.set()
-                continue
-            if self._error is not None:
-                continue
-            try:
-                if isinstance(rows, _RigRows):
-                    rows = rows.columns(self._groups)
-                schema = self.schema
-                batch = pa.record_batch([pa.array(rows[name], type=schema.field(name).type)
-                                         for name in self.columns], schema=schema)
-                self._writer.write_batch(batch)
-                self._sink.flush()
-                try:
-                    os.fsync(self._sink.fileno())
-                except (OSError, AttributeError, pa.ArrowNotImplementedError):
-                    pass
-                self.rows_on_disk += batch.num_rows
-            except BaseException as exc:   # disk full, ...: the loop hears it at its next flush
-                self._error = exc
+    def _write_batch(self, batch: pa.RecordBatch) -> None:
+        """The writer thread's: a batch onto the stream, then fsync."""
+        self._writer.write_batch(batch)
+        self._sink.flush()
+        try:
+            os.fsync(self._sink.fileno())
+        except (OSError, AttributeError, pa.ArrowNotImplementedError):
+            pass
+        self.rows_on_disk += batch.num_rows
 
     def sync(self) -> None:
-        """Flush and wait until every row appended so far is on disk."""
-        self.flush()
-        done = threading.Event()
-        self._batches.put(_Barrier(done))
-        done.wait()
+        """Flush and wait until every row appended so far is on disk (raises a write's failure)."""
+        self._rows.sync()
 
     def close(self, status: str = "complete", end_reason: str | None = None, **extra: Any) -> Path:
         """Finish the run: Parquet signals, final metadata. Safe to call once."""
         if self.closed:
             return self.dir
         try:
-            self.flush()
+            self._rows.close()
         except DataError:
-            pass
-        self._batches.put(None)
-        self._thread.join()
+            pass                     # what reached the disk is the run (the loop heard it)
         self._writer.close()
         self._sink.close()
         with pa.OSFile(str(self._stream_path), "rb") as fh:
@@ -249,26 +178,3 @@ class RunRecorder:
 
     def write_truth(self, truth: dict[str, Any]) -> None:
         write_json(self.truth_path, truth)
-
-
-class _RigRows:
-    """A rig's buffered rows: the scalar columns, and per channel column kind one tuple of the
-    channels' values per cycle."""
-
-    def __init__(self, scalars: dict[str, list], kinds: list[list]) -> None:
-        self.scalars, self.kinds = scalars, kinds
-
-    def columns(self, groups: list[list[str]]) -> dict[str, list]:
-        out = dict(self.scalars)
-        for names, rows in zip(groups, self.kinds):
-            for name, column in zip(names, zip(*rows)):
-                out[name] = list(column)
-        return out
-
-
-class _Barrier(dict):
-    """A marker in the writer queue: sets its event when everything before it is written."""
-
-    def __init__(self, event: threading.Event) -> None:
-        super().__init__()
-        self.event = event
