@@ -327,15 +327,14 @@ def stop_rows(testdir: Path, test) -> tuple[list[Row], list[float]]:
     from endurance.report import found_at_resume, held_deviation, stop_deviation
     ranges = np.array(test.station.ranges_kgf, float)
     names = test.station.names
-    windows = sorted((testdir / "events").iterdir())
     found = []
-    for i, d in enumerate(windows):
+    for d in sorted((testdir / "events").iterdir()):
         kind = d.name.split("-")[1]
         if kind in ("start", "resume"):
             continue
         dev = stop_deviation(d, names, ranges)
-        nxt = next((w for w in windows[i + 1:] if w.name.split("-")[1] == "resume"), None)
-        held = held_deviation(dev, found_at_resume(nxt, names), ranges) if nxt is not None else None
+        found_then = found_at_resume(testdir, dev["time"])
+        held = held_deviation(dev, found_then, ranges) if found_then is not None else None
         found.append((kind, dev, held))
     pct = [max(dev["pct_of_range"], held["pct_of_range"] if held else 0.0) for _, dev, held in found]
     text = "; ".join(
@@ -348,8 +347,9 @@ def stop_rows(testdir: Path, test) -> tuple[list[Row], list[float]]:
                 f"largest deviation {max(pct):.2f} % of a range" if pct else "no stop recorded",
                 "each within 2 % of its channel's range", "met" if pct and max(pct) <= 2.0 else "not met",
                 f"from the recorded signals after each event (event windows), then the forces the next "
-                f"resume found against the ratios before the event: {text}; in lockstep a trip's hold "
-                "ends the session and the emulated stand stands still (no SYNC) until the resume")], pct
+                f"resume found (its record's, after the valves' settling hold) against the ratios before "
+                f"the event: {text}; in lockstep a trip's hold ends the session and the emulated stand "
+                "stands still (no SYNC) until the resume")], pct
 
 
 def pace_row(testdir: Path, test, plan: dict, block: int) -> Row:

@@ -301,21 +301,26 @@ def stop_deviation(window: str | Path, names: list[str], ranges_kgf) -> dict:
             "acted_after_s": at - meta["time"], "forces_at_kgf": y0.tolist(), "time": float(meta["time"])}
 
 
-def found_at_resume(window: str | Path, names: list[str]) -> dict:
-    """The forces a resume found (its event window's first reading at or after its event):
-    what a hold left. Beside :func:`stop_deviation` of the trip before it, the ratio
-    deviation across the hold (:func:`held_deviation`) when the hold ended the session and its
-    own window saw no reading after it (in lockstep the emulated stand stands still without
-    SYNCs, as a held bench's valves keep their forces)."""
-    from gateway.runs import load_run
-    run = load_run(window)
-    meta = json.loads((Path(window) / "run.json").read_text())["event"]
-    t = np.asarray(run.signals["sync_time"], float)
-    after = np.flatnonzero(t >= meta["time"] - 1e-6)
-    if not len(after):
-        raise DataError(f"{window}: no reading after its event")
-    return {"time": float(t[after[0]]),
-            "forces_kgf": [float(run.signals[f"y.{n}"][after[0]]) for n in names]}
+def found_at_resume(testdir: str | Path, after_s: float) -> dict | None:
+    """The forces the first resume after ``after_s`` (epoch s) found when it began (its
+    session's record: ``loading.forces_found_kgf``, read after the valves' settling hold): what
+    a stop or a trip left. Beside :func:`stop_deviation`, the deviation across the hold
+    (:func:`held_deviation`), also where the hold ended the session and its event window saw no
+    reading after it (in lockstep the emulated stand stands still without SYNCs). None: no
+    resume after it (or it found nothing: killed before it loaded)."""
+    records = []
+    for path in sorted((Path(testdir) / "sessions").glob("*.json")):
+        try:
+            records.append(json.loads(path.read_text()))
+        except (OSError, ValueError):
+            continue
+    later = sorted((r for r in records if r.get("kind") == "resume" and (r.get("started_at") or 0) > after_s),
+                   key=lambda r: r["started_at"])
+    if not later or not (later[0].get("loading") or {}).get("forces_found_kgf"):
+        return None
+    loading = later[0]["loading"]
+    return {"time": float(loading.get("began_at") or later[0]["started_at"]),
+            "forces_kgf": [float(f) for f in loading["forces_found_kgf"]]}
 
 
 def held_deviation(stop: dict, resume: dict, ranges_kgf) -> dict:

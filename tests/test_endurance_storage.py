@@ -415,8 +415,9 @@ def test_a_stops_deviation_from_the_ratios_counts_from_when_the_stand_was_acted_
 
 def test_across_a_hold_that_ended_the_session_the_resumes_found_forces_are_measured(tmp_path):
     """A trip whose hold ended the session (no reading after it, as in lockstep): the deviation
-    across the hold is the next resume's first reading against the ratios before the trip; a
-    stand that sagged on one channel meanwhile is seen, one that held is not."""
+    across the hold is what the next resume found (its session's record) against the ratios
+    before the trip; a stand that sagged on one channel meanwhile is seen, one that held is
+    not; a resume before the trip, or none, is no answer."""
     from endurance.report import found_at_resume, held_deviation, stop_deviation
     ranges = [10000.0, 10000.0, 5000.0, 5000.0]
     w = SignalWindow(tmp_path / "trip", CHANNELS, 0.002, rolling_window_s=30.0, event_window_s=6.0, chunk_s=5.0)
@@ -427,19 +428,20 @@ def test_across_a_hold_that_ended_the_session_the_resumes_found_forces_are_measu
     stop = stop_deviation(trip.path, CHANNELS, ranges)
     assert stop["rows_after"] == 0 and stop["pct_of_range"] == 0.0
     last = np.array([before[f"y.{c}"][-1] for c in CHANNELS])
+    testdir = tmp_path / "T"
+    (testdir / "sessions").mkdir(parents=True)
+    assert found_at_resume(testdir, stop["time"]) is None
 
-    def resume(name: str, forces) -> dict:
-        r = SignalWindow(tmp_path / name, CHANNELS, 0.002, rolling_window_s=30.0, event_window_s=6.0, chunk_s=5.0)
-        event = r.mark_event("resume", "resumed", time_s=1.8e9 + 60.0)
-        after = rows(CHANNELS, 60.0, 2.0)
-        for c, f in zip(CHANNELS, forces):
-            after[f"y.{c}"] = np.full(len(after["t"]), f)
-        r.append_rows(after)
-        r.close()
-        return found_at_resume(event.path, CHANNELS)
+    def resume(number: int, started: float, forces) -> dict:
+        record = {"kind": "resume", "started_at": started,
+                  "loading": {"began_at": started + 0.8, "forces_found_kgf": list(map(float, forces))}}
+        (testdir / "sessions" / f"{number:04d}.json").write_text(json.dumps(record))
+        return found_at_resume(testdir, stop["time"])
 
-    held = held_deviation(stop, resume("held", last), ranges)
-    assert held["pct_of_range"] < 1e-9 and held["after_s"] == pytest.approx(56.0)
     sagged = last.copy()
     sagged[1] -= 400.0                                   # inner lost 400 kgf of 10,000 meanwhile
-    assert held_deviation(stop, resume("sagged", sagged), ranges)["pct_of_range"] > 2.5
+    assert resume(1, 1.8e9 - 100.0, sagged) is None       # a resume before the trip
+    held = held_deviation(stop, resume(2, 1.8e9 + 60.0, last), ranges)
+    assert held["pct_of_range"] < 1e-9 and held["after_s"] == pytest.approx(56.8)
+    (testdir / "sessions" / "0002.json").unlink()
+    assert held_deviation(stop, resume(3, 1.8e9 + 60.0, sagged), ranges)["pct_of_range"] > 2.5
