@@ -423,7 +423,13 @@ def intact_offline(root: Path, flights: int) -> Row:
 # -- the runs -----------------------------------------------------------------------------------------
 def run(quick: bool) -> list[Row]:
     with tempfile.TemporaryDirectory(prefix="bench-endurance-") as tmp:
-        return quick_run(Path(tmp)) if quick else full_run(Path(tmp))
+        rows = quick_run(Path(tmp)) if quick else full_run(Path(tmp))
+        if any(r.ratio == "not met" for r in rows) and (Path(tmp) / "T").is_dir():
+            # a goal missed: the test's directory kept for a look (journal, sessions, windows)
+            kept = Path(tempfile.gettempdir()) / f"hydrostand-bench-endurance-{os.getpid()}"
+            shutil.copytree(Path(tmp) / "T", kept, dirs_exist_ok=True)
+            rows.append(Row("endurance: a goal not met: the test directory kept", str(kept)))
+        return rows
 
 
 def quick_run(root: Path) -> list[Row]:
