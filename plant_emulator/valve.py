@@ -34,6 +34,9 @@ log = logging.getLogger(__name__)
 _STATE_BITS = {s: (int(s.value), bool(s.is_fault)) for s in P.ValveState}
 _DISABLE, _HOLD, _ACTIVE, _RESET_FAULT = (int(b) for b in (
     P.ControlBit.DISABLE, P.ControlBit.HOLD, P.ControlBit.ACTIVE, P.ControlBit.RESET_FAULT))
+_STATUS_KEY, _ERROR_KEY, _ACTUAL_VALUE = (P.STATUS_WORD, 0), (P.ERROR_REGISTER, 0), P.ACTUAL_VALUE
+_LIMIT_REACHED = P.STATUS_LIMIT_REACHED
+percent_to_counts = P.percent_to_counts
 #: the command RPDO's objects, as the profile maps them
 _COMMAND_KEYS = ((P.CONTROL_WORD, 0), P.SETPOINT)
 
@@ -156,12 +159,18 @@ class ServoValveNode(EmulatedNode):
     def _refresh(self) -> None:
         status, fault = _STATE_BITS[self.state]
         if self.limit_reached:
-            status |= P.STATUS_LIMIT_REACHED
+            status |= _LIMIT_REACHED
         live = self.live
-        live[P.STATUS_WORD, 0] = status
-        live[P.ERROR_REGISTER, 0] = 0x01 if fault else 0
+        live[_STATUS_KEY] = status
+        live[_ERROR_KEY] = 0x01 if fault else 0
 
     def update_outputs(self, spool_percent: float) -> None:
-        """Refresh the values the TPDO carries (status word, actual spool position)."""
-        self._refresh()
-        self.live[P.ACTUAL_VALUE] = P.percent_to_counts(spool_percent)
+        """Refresh the values the TPDO carries (status word, actual spool position): what
+        :meth:`_refresh` writes, inline (every SYNC), and the spool."""
+        status, fault = _STATE_BITS[self.state]
+        if self.limit_reached:
+            status |= _LIMIT_REACHED
+        live = self.live
+        live[_STATUS_KEY] = status
+        live[_ERROR_KEY] = 0x01 if fault else 0
+        live[_ACTUAL_VALUE] = percent_to_counts(spool_percent)
