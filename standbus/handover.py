@@ -188,6 +188,21 @@ def handover_many(notifiers: "list[HandoverNotifier]", spin_s: float = 0.0,
         yield_cpu = getattr(os, "sched_yield", lambda: None)
         count = len(pumps)
         first = [0]
+        # where every bus's descriptor can be watched: one epoll says which buses have a datagram
+        # (one call, ~0.3 µs, where asking each bus's socket cost ~2 µs a bus). Only a bus taken
+        # raw whose frames all show on its descriptor (``frames_only_when_readable``: nothing
+        # left queued by a ``recv``, nothing held back by fault injection; taken raw, nothing
+        # is queued later) is skipped while it is not ready; any other is asked every time
+        poller = None
+        if waitable and len(set(descriptors)) == count and hasattr(select, "epoll"):
+            try:
+                poller = stack.enter_context(select.epoll())
+                for fd in descriptors:
+                    poller.register(fd, select.EPOLLIN)
+            except OSError:
+                poller = None
+        skippable = [bool(getattr(n, "_raw", False) and getattr(n.bus, "raw_frames", False)
+                          and getattr(n.bus, "frames_only_when_readable", False)) for n in notifiers]
 
         def pump(timeout: float) -> can.Message | None:
             start = clock()
@@ -195,17 +210,29 @@ def handover_many(notifiers: "list[HandoverNotifier]", spin_s: float = 0.0,
             spin_end = start + min(spin_s, timeout)
             while True:
                 k0 = first[0]
-                for j in range(count):
-                    k = (k0 + j) % count
-                    msg = pumps[k](0.0)
-                    if msg is not None:
-                        first[0] = (k + 1) % count
-                        return msg
+                if poller is not None:
+                    ready = {fd for fd, _ in poller.poll(0)}
+                    for j in range(count):
+                        k = (k0 + j) % count
+                        if descriptors[k] in ready or not skippable[k]:
+                            msg = pumps[k](0.0)
+                            if msg is not None:
+                                first[0] = (k + 1) % count
+                                return msg
+                else:
+                    for j in range(count):
+                        k = (k0 + j) % count
+                        msg = pumps[k](0.0)
+                        if msg is not None:
+                            first[0] = (k + 1) % count
+                            return msg
                 now = clock()
                 if now >= end:
                     return None
                 if now < spin_end:
                     yield_cpu()
+                elif poller is not None:
+                    poller.poll(min(end - now, idle_poll_s))
                 elif waitable:
                     try:
                         select.select(descriptors, [], [], min(end - now, idle_poll_s))

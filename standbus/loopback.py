@@ -391,6 +391,13 @@ class LoopbackBus(BusABC):
         with faults (they act per frame) or this bus hears its own frames."""
         return self.faults is None and not self._receive_own
 
+    @property
+    def frames_only_when_readable(self) -> bool:
+        """Whether a receive can find a frame only when the socket is readable: none left
+        queued by ``recv``, none held back by fault injection (a poller may then skip this bus
+        while its descriptor is not ready)."""
+        return self.faults is None and not self._pending
+
     def recv_frames(self, timeout: float | None):
         """The next datagram's frames, raw (``(flags, arbitration_id, dlc, data)``, see
         :mod:`standbus.wire`), with their send time: ``(timestamp, frames)``, or None on

@@ -66,3 +66,40 @@ def test_the_bus_goes_back_to_the_reader_after_an_exception(channel):
     with pytest.raises(RuntimeError, match="stopped"):
         with notifier.handover():
             pass
+
+
+@pytest.mark.parametrize("spin", [0.0, 0.002])
+def test_handover_many_delivers_every_frame_of_every_bus_the_poller_skipping_only_idle_raw_buses(channel, spin):
+    """Three buses on one pump: a plain one (taken raw: the poller skips it while its socket is
+    idle), one delaying its frames on purpose (fault injection: its frames come due without
+    waking its socket) and one hearing its own frames (not raw: a batch's frames queued behind
+    its socket). Every frame reaches its bus's listener once, in order, the delayed ones after
+    their delay."""
+    from standbus import wire
+    from standbus.handover import handover_many
+    names = [f"{channel}-plain", f"{channel}-slow", f"{channel}-own"]
+    senders = [LoopbackBus(n) for n in names]
+    buses = [LoopbackBus(names[0]), LoopbackBus(names[1], delay_ms=20.0),
+             LoopbackBus(names[2], receive_own_messages=True)]
+    got: list[list[int]] = [[], [], []]
+    notifiers = [HandoverNotifier(b, [lambda m, k=k: got[k].append(int.from_bytes(m.data, "little"))],
+                                  timeout=0.005) for k, b in enumerate(buses)]
+    try:
+        assert buses[0].frames_only_when_readable and not buses[1].frames_only_when_readable
+        with handover_many(notifiers, spin_s=spin) as pump:
+            sent = time.monotonic()
+            for i in range(0, 30, 3):        # batches: three frames in one datagram
+                for s in senders:
+                    s.send_frames([wire.raw_of(frame(j)) for j in (i, i + 1, i + 2)])
+            deadline = time.monotonic() + 3.0
+            while any(len(g) < 30 for g in got) and time.monotonic() < deadline:
+                pump(0.05)
+                if len(got[1]) == 0:
+                    assert time.monotonic() - sent < 0.02 + 0.5   # (the delayed bus not yet due)
+            assert all(g == list(range(30)) for g in got), got
+            assert pump(0.01) is None
+    finally:
+        for n in notifiers:
+            n.stop()
+        for b in senders + buses:
+            b.shutdown()
