@@ -304,12 +304,13 @@ class EmulatedRig:
                     self.advance_plant()
                 self._make_faults()
                 spikes = self._spikes
-                measure = self.measure
                 if type(self).measure is EmulatedRig.measure:   # the plant's forces, read here
                     forces = self.lockstep_plant.forces if self.options.lockstep else self.realtime_plant.forces
 
                     def measure(ch):
                         return ch.sensor.read(forces[ch.index])
+                else:
+                    measure = self.measure
                 for b in answering:          # a bus's answers in one batch
                     frames: list = []
                     counter = b.counter

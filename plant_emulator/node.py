@@ -263,7 +263,7 @@ class EmulatedNode:
         configured RPDO of its length, the node OPERATIONAL) without the look-ups; anything else
         through :meth:`_on_rpdo` itself."""
         cfg = self.rpdos[cob]
-        size, unpack, keys = cfg.size, cfg.unpack, cfg.layout.keys
+        size, unpack = cfg.size, cfg.unpack
         nmt = self.local.nmt
         rpdos, lock, on_rpdo_ = self.rpdos, self.lock, self._on_rpdo
         take = self.rpdo_taker(cfg)
