@@ -18,6 +18,7 @@ as the caller pumps. When the block ends the reader thread takes the bus back.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import os
 import select
@@ -203,6 +204,10 @@ def handover_many(notifiers: "list[HandoverNotifier]", spin_s: float = 0.0,
                 poller = None
         skippable = [bool(getattr(n, "_raw", False) and getattr(n.bus, "raw_frames", False)
                           and getattr(n.bus, "frames_only_when_readable", False)) for n in notifiers]
+        every_skippable = all(skippable)
+        index_of = {fd: k for k, fd in enumerate(descriptors)}
+        receivers = [functools.partial(n.receive, n.bus) for n in notifiers]
+        poll = poller.poll if poller is not None else None
 
         def pump(timeout: float) -> can.Message | None:
             start = clock()
@@ -210,8 +215,19 @@ def handover_many(notifiers: "list[HandoverNotifier]", spin_s: float = 0.0,
             spin_end = start + min(spin_s, timeout)
             while True:
                 k0 = first[0]
-                if poller is not None:
-                    ready = {fd for fd, _ in poller.poll(0)}
+                if poller is not None and every_skippable:
+                    events = poll(0)
+                    if events:                # the ready bus next in the round, taken at once
+                        if len(events) == 1:
+                            k = index_of[events[0][0]]
+                        else:
+                            k = min((index_of[fd] for fd, _ in events), key=lambda k: (k - k0) % count)
+                        msg = receivers[k](0.0)
+                        if msg is not None:
+                            first[0] = (k + 1) % count
+                            return msg
+                elif poller is not None:
+                    ready = {fd for fd, _ in poll(0)}
                     for j in range(count):
                         k = (k0 + j) % count
                         if descriptors[k] in ready or not skippable[k]:

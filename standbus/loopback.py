@@ -362,25 +362,17 @@ class LoopbackBus(BusABC):
                 if exc.errno == errno.EBADF:
                     raise can.CanOperationError("loopback bus is shut down") from exc
                 raise can.CanOperationError(f"loopback bus receive failed: {exc}") from exc
-            try:
-                sender, stamp, frames = wire.unpack_frames(datagram)
+            try:   # the frames, the FD ones only on an FD bus, no classic one over 8 bytes
+                sender, stamp, kept, oversized = wire.unpack_for_bus(
+                    datagram, self._can_protocol is CanProtocol.CAN_FD)
             except wire.WireFormatError:
                 self.malformed_datagrams += 1
                 continue
             own = sender == self._sender_id
             if own and not self._receive_own:
                 continue
-            fd = self._can_protocol is CanProtocol.CAN_FD
-            kept = []
-            for frame in frames:
-                flags, data = frame[0], frame[3]
-                if flags & wire.FLAG_FD:
-                    if not fd:
-                        continue
-                elif len(data) > 8:    # no classic frame carries more than 8 bytes
-                    self.malformed_datagrams += 1
-                    continue
-                kept.append(frame)
+            if oversized:
+                self.malformed_datagrams += oversized
             if kept:
                 return stamp, kept, own
 
