@@ -432,6 +432,10 @@ class ControlLoop:
         bank = SupervisorBank(sups) if n > 1 else None
         bus_of = [c.bus for c in chans]
         out_frames: list[list] = [[] for _ in networks]
+        #: each channel's last shaped command, its counts and the command as recorded
+        shaped = [math.nan] * n
+        shaped_counts = [0] * n
+        shaped_pct = [0.0] * n
         next_arrival = self._next_arrival
         overrun_limit = sups[0].limits.overrun_limit_s
         percent_to_counts, counts_to_percent = P.percent_to_counts, P.counts_to_percent
@@ -651,9 +655,13 @@ class ControlLoop:
                         for frames in out_frames:
                             frames.clear()
                         for i in all_channels:
-                            counts = percent_to_counts(sups[i].shape_command(us_req[i]))
-                            out_frames[bus_of[i]].append(masters[i].valve_frame(CW_ACTIVE, counts))
-                            us[i] = counts_to_percent(counts)
+                            v = sups[i].shape_command(us_req[i])
+                            if v != shaped[i]:       # (a held command: its counts as before)
+                                shaped[i] = v
+                                shaped_counts[i] = percent_to_counts(v)
+                                shaped_pct[i] = counts_to_percent(shaped_counts[i])
+                            out_frames[bus_of[i]].append(masters[i].valve_frame(CW_ACTIVE, shaped_counts[i]))
+                            us[i] = shaped_pct[i]
                         for net, frames in zip(networks, out_frames):   # a bus's in one batch
                             if frames:
                                 net.send_frames(frames)

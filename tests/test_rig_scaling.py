@@ -213,6 +213,46 @@ def test_the_supervisors_together_are_quiet_only_when_each_would_say_nothing():
             assert before == [(s._stale_run, s._inactive_run, s._indicated) for s in sups], trial
 
 
+def test_a_held_command_is_shaped_as_every_command_is():
+    """Supervisor.shape_command returns a command asked for again at once when it passed
+    unchanged the time before: on random sequences (repeats, values beyond the limit, NaN,
+    infinities, a slew limit or none, a smaller declared maximum, resets) every result, the
+    count of shaped commands and the last command are those of the full rule."""
+    import math
+    from gateway import SafetyLimits
+    from gateway.capture import TappedNetwork
+    from gateway.master import StandMaster
+    from gateway.supervisor import Supervisor
+
+    def full(sup, u, state):             # the rule as written before the shortcut
+        u_in, u_max = u, sup.u_max
+        if not (-u_max <= u <= u_max):
+            u = max(-u_max, min(u_max, u)) if math.isfinite(u) else 0.0
+        if sup.limits.slew_pct_per_s:
+            step = sup.limits.slew_pct_per_s * sup.period_s
+            u = max(state["last"] - step, min(state["last"] + step, u))
+        if u != u_in:
+            state["clamped"] += 1
+        state["last"] = u
+        return u
+
+    rng = random.Random(11)
+    master = StandMaster(TappedNetwork(None), 1, 2)
+    for slew in (None, 50.0, 5000.0):
+        sup = Supervisor(master, SafetyLimits(force_limit_kgf=5000.0, slew_pct_per_s=slew), 0.002)
+        for trial in range(200):
+            sup.reset(rng.choice((None, None, 20.0, 80.0)))
+            state = {"last": 0.0, "clamped": 0}
+            u = 0.0
+            for _ in range(60):
+                if rng.random() < 0.4:       # a new command, else the last one again
+                    u = rng.choice((rng.uniform(-150, 150), rng.uniform(-5, 5), 0.0, -0.0, 100.0,
+                                    float("nan"), float("inf"), -float("inf")))
+                got, want = sup.shape_command(u), full(sup, u, state)
+                assert got == want or (math.isnan(got) and math.isnan(want)), (slew, trial, u)
+                assert sup.clamped == state["clamped"] and sup._last_u == state["last"]
+
+
 def test_an_sdo_read_of_a_commanded_object_returns_the_last_rpdo_then_the_sdo_write():
     from plant_emulator import EmulatedStand, EmulatorOptions
     from tests.support.stand import plant
