@@ -432,6 +432,7 @@ class ControlLoop:
         bank = SupervisorBank(sups) if n > 1 else None
         bus_of = [c.bus for c in chans]
         out_frames: list[list] = [[] for _ in networks]
+        channels_of_bus = [[i for i in range(n) if bus_of[i] == b] for b in range(len(networks))]
         #: each channel's last shaped command, its counts and the command as recorded
         shaped = [math.nan] * n
         shaped_counts = [0] * n
@@ -652,17 +653,18 @@ class ControlLoop:
                                 break
                     if new is None:
                         us = [0.0] * n
-                        for frames in out_frames:
+                        # a bus's commands in one batch, sent as soon as they are shaped (the
+                        # stand takes the first bus's while the next bus's are made)
+                        for net, frames, on_bus in zip(networks, out_frames, channels_of_bus):
                             frames.clear()
-                        for i in all_channels:
-                            v = sups[i].shape_command(us_req[i])
-                            if v != shaped[i]:       # (a held command: its counts as before)
-                                shaped[i] = v
-                                shaped_counts[i] = percent_to_counts(v)
-                                shaped_pct[i] = counts_to_percent(shaped_counts[i])
-                            out_frames[bus_of[i]].append(masters[i].valve_frame(CW_ACTIVE, shaped_counts[i]))
-                            us[i] = shaped_pct[i]
-                        for net, frames in zip(networks, out_frames):   # a bus's in one batch
+                            for i in on_bus:
+                                v = sups[i].shape_command(us_req[i])
+                                if v != shaped[i]:       # (a held command: its counts as before)
+                                    shaped[i] = v
+                                    shaped_counts[i] = percent_to_counts(v)
+                                    shaped_pct[i] = counts_to_percent(shaped_counts[i])
+                                frames.append(masters[i].valve_frame(CW_ACTIVE, shaped_counts[i]))
+                                us[i] = shaped_pct[i]
                             if frames:
                                 net.send_frames(frames)
                 if trip is None and new is not None:

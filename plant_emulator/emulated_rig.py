@@ -330,8 +330,10 @@ class EmulatedRig:
         if not on_bus.channels:
             return ()
         on_bus.pending_syncs += 1
-        if self._several_buses and any(b.pending_syncs == 0 for b in self._gated):
-            return ()
+        if self._several_buses:
+            for b in self._gated:
+                if b.pending_syncs == 0:
+                    return ()
         for b in self._gated:
             b.pending_syncs -= 1
         return self._gated
