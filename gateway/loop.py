@@ -438,6 +438,7 @@ class ControlLoop:
         shaped_counts = [0] * n
         shaped_pct = [0.0] * n
         next_arrival = self._next_arrival
+        take_arrival = self._arrivals.get_nowait
         overrun_limit = sups[0].limits.overrun_limit_s
         percent_to_counts, counts_to_percent = P.percent_to_counts, P.counts_to_percent
         CW_ACTIVE = P.CW_ACTIVE
@@ -533,15 +534,18 @@ class ControlLoop:
                     remaining = deadline - time.perf_counter()
                     if remaining <= 0:
                         break
-                    try:
-                        key, values, stamp = next_arrival(min(remaining, WAIT_SLICE_S))
+                    try:       # what a datagram already brought, taken at once
+                        key, values, stamp = take_arrival()
                     except queue.Empty:
-                        if recorder is not None:
-                            recorder.poll()
-                        wait_trip = self._check_nodes(watched)
-                        if wait_trip is not None:
-                            break
-                        continue
+                        try:
+                            key, values, stamp = next_arrival(min(remaining, WAIT_SLICE_S))
+                        except queue.Empty:
+                            if recorder is not None:
+                                recorder.poll()
+                            wait_trip = self._check_nodes(watched)
+                            if wait_trip is not None:
+                                break
+                            continue
                     if wall_stamps is None:      # first frame: does the bus stamp wall-clock time?
                         wall_stamps = abs(stamp - time.time()) < 1.0
                     if wall_stamps and stamp < fresh_from:
