@@ -169,9 +169,10 @@ def handover_many(notifiers: "list[HandoverNotifier]", spin_s: float = 0.0,
     """:meth:`HandoverNotifier.handover` over several buses at once (a rig's buses): every
     reader thread parks, and the one ``pump(timeout)`` receives a frame from whichever bus has
     one (round robin, so no bus starves), handing it to that bus's listeners. It polls all buses
-    for ``spin_s`` before it sleeps, then waits in ``select`` on the buses' file descriptors
-    (at most ``idle_poll_s`` at a time, so a bus whose frames do not wake its descriptor, e.g.
-    one delaying frames on purpose, is still polled); a bus without a descriptor is polled."""
+    for ``spin_s`` before it sleeps, then waits on the buses' file descriptors (at most
+    ``idle_poll_s`` at a time, so a bus whose frames do not wake its descriptor, e.g. one
+    delaying frames on purpose, is still polled); a bus without a descriptor is polled. Where
+    every descriptor can be watched, one epoll tells which buses to ask, in the spin too."""
     with contextlib.ExitStack() as stack:
         pumps = [stack.enter_context(n.handover(0.0)) for n in notifiers]
         if len(pumps) == 1 and spin_s == 0.0:
