@@ -248,9 +248,7 @@ def handover_many(notifiers: "list[HandoverNotifier]", spin_s: float = 0.0,
                     return None
                 if now < spin_end:
                     yield_cpu()
-                elif poller is not None:
-                    poller.poll(min(end - now, idle_poll_s))
-                elif waitable:
+                elif waitable:      # (select: epoll's timeout is rounded up to whole milliseconds)
                     try:
                         select.select(descriptors, [], [], min(end - now, idle_poll_s))
                     except (OSError, ValueError):

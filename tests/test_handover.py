@@ -103,3 +103,28 @@ def test_handover_many_delivers_every_frame_of_every_bus_the_poller_skipping_onl
             n.stop()
         for b in senders + buses:
             b.shutdown()
+
+
+@pytest.mark.serial
+def test_handover_many_waits_no_longer_than_asked_below_a_millisecond(channel):
+    """The real-time loop waits for its answers and its next SYNC's time in slices of a
+    fraction of a millisecond: a pump over several buses with nothing to receive returns after
+    about the time asked, not a whole millisecond later (epoll's own timeout rounds up to whole
+    milliseconds; the wait is select's)."""
+    from standbus.handover import handover_many
+    buses = [LoopbackBus(f"{channel}-{k}") for k in range(3)]
+    notifiers = [HandoverNotifier(b, [], timeout=0.005) for b in buses]
+    try:
+        with handover_many(notifiers, spin_s=0.0) as pump:
+            took = []
+            for _ in range(31):
+                t0 = time.perf_counter()
+                assert pump(0.0002) is None
+                took.append(time.perf_counter() - t0)
+        took.sort()
+        assert took[15] < 0.0008, took        # the median: an epoll wait would be >= 1 ms each
+    finally:
+        for n in notifiers:
+            n.stop()
+        for b in buses:
+            b.shutdown()
