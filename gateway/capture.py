@@ -23,7 +23,6 @@ frames on their ids with the right length (wrong DLC, unexpected ids: counted an
 """
 from __future__ import annotations
 
-import contextlib
 import io
 import logging
 import os
@@ -323,19 +322,25 @@ def send_together(networks: "list[TappedNetwork]", can_id: int, data: bytes) -> 
     with every network's send lock held, :func:`standbus.together.send_together` hands the
     frames to their buses with nothing else of this process in between; then each is captured,
     stamped as it was handed over (before any answer to it: the answers are received after
-    this returns). A bus that fails does not keep the frame from the others; the first failure
-    is raised after all were tried."""
-    msgs = [can.Message(is_extended_id=can_id > 0x7FF, arbitration_id=can_id, data=data,
-                        is_rx=False, channel=net._channel(),
-                        is_fd=bool(net.cyclic_flags & wire.FLAG_FD),
-                        bitrate_switch=bool(net.cyclic_flags & wire.FLAG_BRS)) for net in networks]
-    with contextlib.ExitStack() as locks:
+    this returns), raw (no :class:`can.Message`: a rig's 4 SYNCs cost ~28 µs a cycle with
+    them). A bus that fails does not keep the frame from the others; the first failure is
+    raised after all were tried."""
+    extended = wire.FLAG_EXTENDED if can_id > 0x7FF else 0
+    frames = [(net.cyclic_flags | extended, can_id, len(data), data) for net in networks]
+    facts = [net._of_bus() for net in networks]
+    stamps = [0.0] * len(networks)
+    taken = []
+    try:
         for net in networks:
-            locks.enter_context(net.send_lock)
+            net.send_lock.acquire()
+            taken.append(net.send_lock)
+        together.send_frames_together([net.bus for net in networks], frames,
+                                      [path for _, path in facts], stamps)
+    finally:
         try:
-            together.send_together([net.bus for net in networks], msgs,
-                                   [net._of_bus()[1] for net in networks])
+            for net, frame, stamp, (channel, _) in zip(networks, frames, stamps, facts):
+                if net.capture is not None and stamp:
+                    net.capture.on_frames(stamp, (frame,), False, channel)
         finally:
-            for net, msg in zip(networks, msgs):
-                if net.capture is not None and msg.timestamp:
-                    net.capture.on_sent(msg)
+            for lock in reversed(taken):
+                lock.release()

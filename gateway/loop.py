@@ -432,7 +432,13 @@ class ControlLoop:
         bank = SupervisorBank(sups) if n > 1 else None
         bus_of = [c.bus for c in chans]
         out_frames: list[list] = [[] for _ in networks]
+        channels_of_bus = [[i for i in range(n) if bus_of[i] == b] for b in range(len(networks))]
+        #: each channel's last shaped command, its counts and the command as recorded
+        shaped = [math.nan] * n
+        shaped_counts = [0] * n
+        shaped_pct = [0.0] * n
         next_arrival = self._next_arrival
+        take_arrival = self._arrivals.get_nowait
         overrun_limit = sups[0].limits.overrun_limit_s
         percent_to_counts, counts_to_percent = P.percent_to_counts, P.counts_to_percent
         CW_ACTIVE = P.CW_ACTIVE
@@ -528,15 +534,18 @@ class ControlLoop:
                     remaining = deadline - time.perf_counter()
                     if remaining <= 0:
                         break
-                    try:
-                        key, values, stamp = next_arrival(min(remaining, WAIT_SLICE_S))
+                    try:       # what a datagram already brought, taken at once
+                        key, values, stamp = take_arrival()
                     except queue.Empty:
-                        if recorder is not None:
-                            recorder.poll()
-                        wait_trip = self._check_nodes(watched)
-                        if wait_trip is not None:
-                            break
-                        continue
+                        try:
+                            key, values, stamp = next_arrival(min(remaining, WAIT_SLICE_S))
+                        except queue.Empty:
+                            if recorder is not None:
+                                recorder.poll()
+                            wait_trip = self._check_nodes(watched)
+                            if wait_trip is not None:
+                                break
+                            continue
                     if wall_stamps is None:      # first frame: does the bus stamp wall-clock time?
                         wall_stamps = abs(stamp - time.time()) < 1.0
                     if wall_stamps and stamp < fresh_from:
@@ -648,13 +657,18 @@ class ControlLoop:
                                 break
                     if new is None:
                         us = [0.0] * n
-                        for frames in out_frames:
+                        # a bus's commands in one batch, sent as soon as they are shaped (the
+                        # stand takes the first bus's while the next bus's are made)
+                        for net, frames, on_bus in zip(networks, out_frames, channels_of_bus):
                             frames.clear()
-                        for i in all_channels:
-                            counts = percent_to_counts(sups[i].shape_command(us_req[i]))
-                            out_frames[bus_of[i]].append(masters[i].valve_frame(CW_ACTIVE, counts))
-                            us[i] = counts_to_percent(counts)
-                        for net, frames in zip(networks, out_frames):   # a bus's in one batch
+                            for i in on_bus:
+                                v = sups[i].shape_command(us_req[i])
+                                if v != shaped[i]:       # (a held command: its counts as before)
+                                    shaped[i] = v
+                                    shaped_counts[i] = percent_to_counts(v)
+                                    shaped_pct[i] = counts_to_percent(shaped_counts[i])
+                                frames.append(masters[i].valve_frame(CW_ACTIVE, shaped_counts[i]))
+                                us[i] = shaped_pct[i]
                             if frames:
                                 net.send_frames(frames)
                 if trip is None and new is not None:

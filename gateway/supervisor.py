@@ -182,6 +182,10 @@ class Supervisor:
         #: indicate-only detectors that logged their event and wait to re-arm
         self._indicated: set[str] = set()
         self._last_u = 0.0
+        #: the last command if it passed :meth:`shape_command` unchanged (NaN: none)
+        self._held = math.nan
+        slew = self.limits.slew_pct_per_s
+        self._steady = not slew or (slew > 0 and self.period_s > 0)
         self.events = []
         self.clamped = 0
         lim = self.limits
@@ -323,6 +327,8 @@ class Supervisor:
 
     def shape_command(self, u: float) -> float:
         """Clamp, rate-limit and sanitise the command (NaN/inf → 0), in %."""
+        if u == self._held:      # the last command again, which passed unchanged: so again
+            return u
         lim = self.limits
         u_in = u
         u_max = self.u_max
@@ -334,6 +340,9 @@ class Supervisor:
         if u != u_in:
             self.clamped += 1
         self._last_u = u
+        # it passes unchanged again as long as it is asked for again: it is within ±u_max and
+        # a slew step from itself (a positive step) is no step
+        self._held = u if u == u_in and self._steady else math.nan
         return u
 
     def unloader(self, y0: float) -> Unloader:

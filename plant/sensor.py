@@ -68,9 +68,12 @@ class Dynamometer:
             reading, over = self.measure(v)
             return float(reading), bool(over)
         if self.noise_kgf:
-            self._ensure(1)
-            v += float(self._noise[self._next])
-            self._next += 1
+            k = self._next
+            if k >= len(self._noise):
+                self._ensure(1)
+                k = self._next
+            v += float(self._noise[k])
+            self._next = k + 1
         res = self.resolution_kgf
         if res:
             v = round(v / res) * res   # half to even, like np.round

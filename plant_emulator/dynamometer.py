@@ -17,6 +17,8 @@ from dbc import profile as P
 from .node import EmulatedNode
 
 _INT32 = 2**31 - 1
+_PV_INT32, _PV_REAL32, _AI_STATUS, _N_PER_KGF = P.PV_INT32, P.PV_REAL32, P.AI_STATUS, P.N_PER_KGF
+_isfinite = math.isfinite
 
 
 class DynamometerNode(EmulatedNode):
@@ -49,15 +51,18 @@ class DynamometerNode(EmulatedNode):
     def publish(self, reading_kgf: float, over_range: bool) -> None:
         """Set the process value and status from one reading; EMCY on range transitions."""
         scale = self._scale_kgf or self._scale()
-        counts = int(round(reading_kgf / scale)) if math.isfinite(reading_kgf) else 0
-        counts = max(-_INT32, min(_INT32, counts))
+        counts = int(round(reading_kgf / scale)) if _isfinite(reading_kgf) else 0
+        if counts > _INT32:
+            counts = _INT32
+        elif counts < -_INT32:
+            counts = -_INT32
         status = 0
         if over_range:
             status = P.AI_STATUS_POSITIVE_OVERLOAD if reading_kgf > 0 else P.AI_STATUS_NEGATIVE_OVERLOAD
         live = self.live
-        live[P.PV_INT32] = counts
-        live[P.PV_REAL32] = float(counts * scale * P.N_PER_KGF)
-        live[P.AI_STATUS] = status
+        live[_PV_INT32] = counts
+        live[_PV_REAL32] = float(counts * scale * _N_PER_KGF)
+        live[_AI_STATUS] = status
         self.over_range = over_range
         if over_range != self._signalled and self.nmt_state in ("PRE-OPERATIONAL", "OPERATIONAL"):
             self._signalled = over_range

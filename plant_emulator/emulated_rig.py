@@ -303,11 +303,22 @@ class EmulatedRig:
                     stamp = timestamp
                     self.advance_plant()
                 self._make_faults()
+                spikes = self._spikes
+                if type(self).measure is EmulatedRig.measure:   # the plant's forces, read here
+                    forces = self.lockstep_plant.forces if self.options.lockstep else self.realtime_plant.forces
+
+                    def measure(ch):
+                        return ch.sensor.read(forces[ch.index])
+                else:
+                    measure = self.measure
                 for b in answering:          # a bus's answers in one batch
                     frames: list = []
+                    counter = b.counter
                     for ch in b.channels:
-                        reading, over = self.measure(ch)
-                        ch.answer_sync(reading + self._spikes.pop(ch.index, 0.0), over, b.counter, stamp, frames)
+                        reading, over = measure(ch)
+                        if spikes:
+                            reading += spikes.pop(ch.index, 0.0)
+                        ch.answer_sync(reading, over, counter, stamp, frames)
                     b.send_frames(frames)
         except Exception as exc:  # never let the notifier swallow it silently
             log.exception("SYNC handling failed")
@@ -319,8 +330,10 @@ class EmulatedRig:
         if not on_bus.channels:
             return ()
         on_bus.pending_syncs += 1
-        if self._several_buses and any(b.pending_syncs == 0 for b in self._gated):
-            return ()
+        if self._several_buses:
+            for b in self._gated:
+                if b.pending_syncs == 0:
+                    return ()
         for b in self._gated:
             b.pending_syncs -= 1
         return self._gated
@@ -373,9 +386,11 @@ class EmulatedRig:
         period = self._cycle_period()
         if period > 0 and math.isfinite(period):
             self.stand_time_s += period
+        now = self.stand_time_s
         for ch in self.channels:
-            if ch.valve.check_rpdo_timeout(self.stand_time_s):
-                ch.valve.fault(P.EMCY_RPDO_TIMEOUT)
+            valve = ch.valve
+            if valve.last_rpdo_time is not None and valve.check_rpdo_timeout(now):
+                valve.fault(P.EMCY_RPDO_TIMEOUT)
 
     def _watch(self) -> None:
         """Real time: every valve's RPDO watchdog (event timer 0x1400:05), polled every

@@ -60,6 +60,11 @@ class PdoConfig:
         getter = operator.itemgetter(*keys) if keys else (lambda live: ())
         #: the mapped objects' values from a node's ``live`` (KeyError if one is not live)
         self.live_values = getter if len(keys) != 1 else (lambda live: (getter(live),))
+        #: the layout's COB-ID, size and codec, looked up once (read every cycle)
+        self.cob_id = self.layout.cob_id
+        self.size = self.layout.size
+        self.pack = self.layout.codec.pack
+        self.unpack = self.layout.codec.unpack
 
 
 def read_pdo_config(node: canopen.LocalNode, com_index: int, map_index: int) -> PdoConfig | None:
@@ -254,10 +259,41 @@ class EmulatedNode:
             return None
 
     def _fast_rpdo(self, cob: int):
+        """The RPDO's handler in the bus's notifier: :meth:`_on_rpdo`, its usual case (the
+        configured RPDO of its length, the node OPERATIONAL) without the look-ups; anything else
+        through :meth:`_on_rpdo` itself."""
+        cfg = self.rpdos[cob]
+        size, unpack = cfg.size, cfg.unpack
+        nmt = self.local.nmt
+        rpdos, lock, on_rpdo_ = self.rpdos, self.lock, self._on_rpdo
+        take = self.rpdo_taker(cfg)
+
         def on_rpdo(data: bytes, stamp: float) -> bool:
-            self._on_rpdo(cob, data, stamp)
+            if len(data) != size or nmt._state != 5 or self.rpdos is not rpdos:
+                on_rpdo_(cob, data, stamp)
+                return True
+            with lock:
+                if nmt._state != 5:                  # (changed meanwhile by another thread)
+                    on_rpdo_(cob, data, stamp)
+                    return True
+                self.last_rpdo_time = self.clock()
+                take(unpack(data))
             return True
         return on_rpdo
+
+    def rpdo_taker(self, cfg: PdoConfig):
+        """``take(values)``: what :meth:`_on_rpdo` does with a well-formed RPDO of ``cfg``'s
+        values once its time is noted (store them, tell the device); a device may give a faster
+        one for a mapping it knows."""
+        keys = cfg.layout.keys
+        rpdo_values, stored = self._rpdo_values, self._stored
+
+        def take(values) -> None:
+            changes = list(zip(keys, values))
+            for key, value in changes:
+                rpdo_values[key] = stored[key] = value
+            self.on_objects_written(changes)
+        return take
 
     def _stop_pdos(self) -> None:
         for cob in list(self.rpdos):
@@ -286,6 +322,16 @@ class EmulatedNode:
             return
         self._sync_count += 1
         if self._every_sync:
+            if sync_stamp is None and out is not None:   # the usual case (lockstep), in one go
+                live, flags = self.live, self.cyclic_flags
+                for cfg in self.tpdos:
+                    try:
+                        data = cfg.pack(*cfg.live_values(live))
+                    except KeyError:
+                        self.transmit(cfg, out)
+                        continue
+                    out.append((flags, cfg.cob_id, cfg.size, data))
+                return
             due = self.tpdos
         else:
             due = [cfg for cfg in self.tpdos
@@ -307,11 +353,11 @@ class EmulatedNode:
         except KeyError:
             value = self.value
             values = [live[key] if key in live else value(*key) for key in cfg.layout.keys]
-        data = cfg.layout.codec.pack(*values)
+        data = cfg.pack(*values)
         if out is None:
-            self.network.send_message(cfg.layout.cob_id, data)
+            self.network.send_message(cfg.cob_id, data)
         else:
-            out.append((self.cyclic_flags, cfg.layout.cob_id, len(data), data))
+            out.append((self.cyclic_flags, cfg.cob_id, len(data), data))
 
     def _on_rpdo(self, can_id: int, data: bytes, timestamp: float) -> None:
         with self.lock:
@@ -331,7 +377,7 @@ class EmulatedNode:
     def rpdo_timeout_due(self, now: float) -> bool:
         """True if an RPDO with an event timer is overdue (without reporting it)."""
         with self.lock:
-            if not self.operational or self.last_rpdo_time is None:
+            if self.last_rpdo_time is None or self.local.nmt._state != 5:   # not OPERATIONAL
                 return False
             timers = self._rpdo_timers
             if timers is None or timers[0] is not self.rpdos:    # the RPDOs as configured now

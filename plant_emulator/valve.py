@@ -34,6 +34,11 @@ log = logging.getLogger(__name__)
 _STATE_BITS = {s: (int(s.value), bool(s.is_fault)) for s in P.ValveState}
 _DISABLE, _HOLD, _ACTIVE, _RESET_FAULT = (int(b) for b in (
     P.ControlBit.DISABLE, P.ControlBit.HOLD, P.ControlBit.ACTIVE, P.ControlBit.RESET_FAULT))
+_STATUS_KEY, _ERROR_KEY, _ACTUAL_VALUE = (P.STATUS_WORD, 0), (P.ERROR_REGISTER, 0), P.ACTUAL_VALUE
+_LIMIT_REACHED = P.STATUS_LIMIT_REACHED
+percent_to_counts = P.percent_to_counts
+#: the command RPDO's objects, as the profile maps them
+_COMMAND_KEYS = ((P.CONTROL_WORD, 0), P.SETPOINT)
 
 
 class ServoValveNode(EmulatedNode):
@@ -85,6 +90,26 @@ class ServoValveNode(EmulatedNode):
     def on_object_written(self, index: int, sub: int, value: Any) -> None:
         self.on_objects_written([((index, sub), value)])
 
+    def rpdo_taker(self, cfg):
+        """The command RPDO as the profile maps it (control word, setpoint): stored and applied
+        as :meth:`on_objects_written` applies it, without the generic loop."""
+        if cfg.layout.keys != _COMMAND_KEYS or type(self).on_objects_written is not ServoValveNode.on_objects_written:
+            return super().rpdo_taker(cfg)
+        rpdo_values, stored = self._rpdo_values, self._stored
+        word_key, setpoint_key = _COMMAND_KEYS
+        apply = self._apply_control_word
+
+        def take(values) -> None:
+            word, setpoint = values
+            rpdo_values[word_key] = stored[word_key] = word
+            rpdo_values[setpoint_key] = stored[setpoint_key] = setpoint
+            self.before_change()
+            apply(int(word))
+            self.setpoint_counts = int(setpoint)
+            self._refresh()
+            self.after_change()
+        return take
+
     def on_objects_written(self, changes) -> None:
         """One command (an RPDO: control word and setpoint) changes the spool once."""
         self.before_change()
@@ -101,7 +126,7 @@ class ServoValveNode(EmulatedNode):
         # the control bits as plain ints (IntFlag's operators cost ~1 µs each, 16 valves a cycle)
         rising_reset = bool(word & _RESET_FAULT) and not (self._control_word & _RESET_FAULT)
         self._control_word = word
-        if self.state.is_fault:
+        if _STATE_BITS[self.state][1]:         # a fault state
             if rising_reset:
                 self.state = S.DISABLED
                 self.local.emcy.reset()
@@ -134,12 +159,18 @@ class ServoValveNode(EmulatedNode):
     def _refresh(self) -> None:
         status, fault = _STATE_BITS[self.state]
         if self.limit_reached:
-            status |= P.STATUS_LIMIT_REACHED
+            status |= _LIMIT_REACHED
         live = self.live
-        live[P.STATUS_WORD, 0] = status
-        live[P.ERROR_REGISTER, 0] = 0x01 if fault else 0
+        live[_STATUS_KEY] = status
+        live[_ERROR_KEY] = 0x01 if fault else 0
 
     def update_outputs(self, spool_percent: float) -> None:
-        """Refresh the values the TPDO carries (status word, actual spool position)."""
-        self._refresh()
-        self.live[P.ACTUAL_VALUE] = P.percent_to_counts(spool_percent)
+        """Refresh the values the TPDO carries (status word, actual spool position): what
+        :meth:`_refresh` writes, inline (every SYNC), and the spool."""
+        status, fault = _STATE_BITS[self.state]
+        if self.limit_reached:
+            status |= _LIMIT_REACHED
+        live = self.live
+        live[_STATUS_KEY] = status
+        live[_ERROR_KEY] = 0x01 if fault else 0
+        live[_ACTUAL_VALUE] = percent_to_counts(spool_percent)

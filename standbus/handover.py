@@ -18,6 +18,7 @@ as the caller pumps. When the block ends the reader thread takes the bus back.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import os
 import select
@@ -168,9 +169,10 @@ def handover_many(notifiers: "list[HandoverNotifier]", spin_s: float = 0.0,
     """:meth:`HandoverNotifier.handover` over several buses at once (a rig's buses): every
     reader thread parks, and the one ``pump(timeout)`` receives a frame from whichever bus has
     one (round robin, so no bus starves), handing it to that bus's listeners. It polls all buses
-    for ``spin_s`` before it sleeps, then waits in ``select`` on the buses' file descriptors
-    (at most ``idle_poll_s`` at a time, so a bus whose frames do not wake its descriptor, e.g.
-    one delaying frames on purpose, is still polled); a bus without a descriptor is polled."""
+    for ``spin_s`` before it sleeps, then waits on the buses' file descriptors (at most
+    ``idle_poll_s`` at a time, so a bus whose frames do not wake its descriptor, e.g. one
+    delaying frames on purpose, is still polled); a bus without a descriptor is polled. Where
+    every descriptor can be watched, one epoll tells which buses to ask, in the spin too."""
     with contextlib.ExitStack() as stack:
         pumps = [stack.enter_context(n.handover(0.0)) for n in notifiers]
         if len(pumps) == 1 and spin_s == 0.0:
@@ -188,6 +190,25 @@ def handover_many(notifiers: "list[HandoverNotifier]", spin_s: float = 0.0,
         yield_cpu = getattr(os, "sched_yield", lambda: None)
         count = len(pumps)
         first = [0]
+        # where every bus's descriptor can be watched: one epoll says which buses have a datagram
+        # (one call, ~0.3 µs, where asking each bus's socket cost ~2 µs a bus). Only a bus taken
+        # raw whose frames all show on its descriptor (``frames_only_when_readable``: nothing
+        # left queued by a ``recv``, nothing held back by fault injection; taken raw, nothing
+        # is queued later) is skipped while it is not ready; any other is asked every time
+        poller = None
+        if waitable and len(set(descriptors)) == count and hasattr(select, "epoll"):
+            try:
+                poller = stack.enter_context(select.epoll())
+                for fd in descriptors:
+                    poller.register(fd, select.EPOLLIN)
+            except OSError:
+                poller = None
+        skippable = [bool(getattr(n, "_raw", False) and getattr(n.bus, "raw_frames", False)
+                          and getattr(n.bus, "frames_only_when_readable", False)) for n in notifiers]
+        every_skippable = all(skippable)
+        index_of = {fd: k for k, fd in enumerate(descriptors)}
+        receivers = [functools.partial(n.receive, n.bus) for n in notifiers]
+        poll = poller.poll if poller is not None else None
 
         def pump(timeout: float) -> can.Message | None:
             start = clock()
@@ -195,18 +216,39 @@ def handover_many(notifiers: "list[HandoverNotifier]", spin_s: float = 0.0,
             spin_end = start + min(spin_s, timeout)
             while True:
                 k0 = first[0]
-                for j in range(count):
-                    k = (k0 + j) % count
-                    msg = pumps[k](0.0)
-                    if msg is not None:
-                        first[0] = (k + 1) % count
-                        return msg
+                if poller is not None and every_skippable:
+                    events = poll(0)
+                    if events:                # the ready bus next in the round, taken at once
+                        if len(events) == 1:
+                            k = index_of[events[0][0]]
+                        else:
+                            k = min((index_of[fd] for fd, _ in events), key=lambda k: (k - k0) % count)
+                        msg = receivers[k](0.0)
+                        if msg is not None:
+                            first[0] = (k + 1) % count
+                            return msg
+                elif poller is not None:
+                    ready = {fd for fd, _ in poll(0)}
+                    for j in range(count):
+                        k = (k0 + j) % count
+                        if descriptors[k] in ready or not skippable[k]:
+                            msg = pumps[k](0.0)
+                            if msg is not None:
+                                first[0] = (k + 1) % count
+                                return msg
+                else:
+                    for j in range(count):
+                        k = (k0 + j) % count
+                        msg = pumps[k](0.0)
+                        if msg is not None:
+                            first[0] = (k + 1) % count
+                            return msg
                 now = clock()
                 if now >= end:
                     return None
                 if now < spin_end:
                     yield_cpu()
-                elif waitable:
+                elif waitable:      # (select: epoll's timeout is rounded up to whole milliseconds)
                     try:
                         select.select(descriptors, [], [], min(end - now, idle_poll_s))
                     except (OSError, ValueError):

@@ -362,25 +362,17 @@ class LoopbackBus(BusABC):
                 if exc.errno == errno.EBADF:
                     raise can.CanOperationError("loopback bus is shut down") from exc
                 raise can.CanOperationError(f"loopback bus receive failed: {exc}") from exc
-            try:
-                sender, stamp, frames = wire.unpack_frames(datagram)
+            try:   # the frames, the FD ones only on an FD bus, no classic one over 8 bytes
+                sender, stamp, kept, oversized = wire.unpack_for_bus(
+                    datagram, self._can_protocol is CanProtocol.CAN_FD)
             except wire.WireFormatError:
                 self.malformed_datagrams += 1
                 continue
             own = sender == self._sender_id
             if own and not self._receive_own:
                 continue
-            fd = self._can_protocol is CanProtocol.CAN_FD
-            kept = []
-            for frame in frames:
-                flags, data = frame[0], frame[3]
-                if flags & wire.FLAG_FD:
-                    if not fd:
-                        continue
-                elif len(data) > 8:    # no classic frame carries more than 8 bytes
-                    self.malformed_datagrams += 1
-                    continue
-                kept.append(frame)
+            if oversized:
+                self.malformed_datagrams += oversized
             if kept:
                 return stamp, kept, own
 
@@ -390,6 +382,13 @@ class LoopbackBus(BusABC):
         """Whether :meth:`recv_frames` may stand for ``recv``: not while frames are injected
         with faults (they act per frame) or this bus hears its own frames."""
         return self.faults is None and not self._receive_own
+
+    @property
+    def frames_only_when_readable(self) -> bool:
+        """Whether a receive can find a frame only when the socket is readable: none left
+        queued by ``recv``, none held back by fault injection (a poller may then skip this bus
+        while its descriptor is not ready)."""
+        return self.faults is None and not self._pending
 
     def recv_frames(self, timeout: float | None):
         """The next datagram's frames, raw (``(flags, arbitration_id, dlc, data)``, see

@@ -41,11 +41,14 @@ class RawPath:
     """How to hand one bus a frame in a single system call: its socket, the destination
     address (None: the socket's own) and the frame's bytes for a message stamped at a time."""
 
-    __slots__ = ("fd", "address", "encode")
+    __slots__ = ("fd", "address", "encode", "encode_raw")
 
     def __init__(self, fd: int, address: bytes | None,
-                 encode: Callable[[can.Message, float], bytes]) -> None:
+                 encode: Callable[[can.Message, float], bytes],
+                 encode_raw: Callable[[tuple, float], bytes] | None = None) -> None:
         self.fd, self.address, self.encode = fd, address, encode
+        #: the bytes of a raw frame ``(flags, arbitration_id, dlc, data)`` stamped at a time
+        self.encode_raw = encode_raw or (lambda frame, stamp: encode(wire.message(stamp, frame, None, False), stamp))
 
 
 def _sockaddr_in(host: str, port: int) -> bytes:
@@ -60,8 +63,13 @@ def raw_path(bus: can.BusABC) -> RawPath | None:
         return None
     if isinstance(bus, LoopbackBus):
         sender = bus._sender_id
+        head = wire.HEADER.pack
+
+        def encode_raw(frame, stamp: float) -> bytes:
+            flags, arb_id, dlc, data = frame
+            return head(wire.MAGIC, wire.VERSION, flags, sender, stamp, arb_id, dlc & 0xFF, len(data)) + data
         return RawPath(bus._socket.fileno(), _sockaddr_in(*bus._destination),
-                       lambda msg, stamp: wire.pack(msg, sender, stamp))
+                       lambda msg, stamp: wire.pack(msg, sender, stamp), encode_raw)
     try:
         from can.interfaces.socketcan.socketcan import SocketcanBus, build_can_frame
     except ImportError:                             # pragma: no cover - not on Linux
@@ -99,6 +107,37 @@ def send_together(buses: Sequence[can.BusABC], msgs: Sequence[can.Message],
             stamp = time.time()
             buses[i].send(msgs[i])
             msgs[i].timestamp = stamps[i] = stamp
+        except can.CanError as exc:
+            failure = failure or exc
+    if failure is not None:
+        raise failure
+    return stamps
+
+
+def send_frames_together(buses: Sequence[can.BusABC], frames: Sequence[tuple],
+                         paths: Sequence[RawPath | None], stamps: list[float]) -> list[float]:
+    """:func:`send_together` of raw frames (``frames[i]``, ``(flags, arbitration_id, dlc,
+    data)``, on ``buses[i]``), without a :class:`can.Message` where a bus has a single-call
+    path: ``stamps[i]`` is set to the wall-clock time frame i was handed to its bus (left as
+    it was for a frame not sent) before the first failure, if any, is raised."""
+    fallback: list[int] = []
+    for i, (path, frame) in enumerate(zip(paths, frames)):
+        if path is not None:
+            stamp = time.time()
+            data = path.encode_raw(frame, stamp)
+            address = path.address
+            sent = _sendto(path.fd, data, len(data), MSG_DONTWAIT, address,
+                           len(address) if address is not None else 0)
+            if sent == len(data):
+                stamps[i] = stamp
+                continue
+        fallback.append(i)     # bus.send waits for a full buffer, or says what went wrong
+    failure = None
+    for i in fallback:
+        try:
+            stamp = time.time()
+            buses[i].send(wire.message(stamp, frames[i], None, False))
+            stamps[i] = stamp
         except can.CanError as exc:
             failure = failure or exc
     if failure is not None:

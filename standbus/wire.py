@@ -163,6 +163,55 @@ def unpack_frames(datagram: bytes) -> tuple[int, float, list[tuple[int, int, int
     return sender, ts, frames
 
 
+def unpack_for_bus(datagram: bytes, fd: bool) -> tuple[int, float, list, int]:
+    """:func:`unpack_frames` and a bus's rules in one pass (the receive path of every frame):
+    ``(sender_id, timestamp, frames kept, classic frames dropped for carrying more than 8
+    bytes)``; FD frames are dropped unless ``fd``. Raises :class:`WireFormatError` for a
+    datagram that is not well formed, whatever its frames."""
+    size = len(datagram)
+    if size < BATCH_HEADER.size:
+        raise WireFormatError(f"datagram of {size} bytes is shorter than the header")
+    magic, version, count, sender, ts = BATCH_HEADER.unpack_from(datagram)
+    kept = []
+    oversized = 0
+    if version != BATCH_VERSION or magic != MAGIC or count == 0:
+        sender, ts, frames = unpack_frames(datagram)   # a single frame, or the error it is
+        raw = frames
+    else:
+        raw = None
+        at = BATCH_HEADER.size
+        head = BATCH_FRAME.unpack_from
+        step = BATCH_FRAME.size
+        append = kept.append
+        for _ in range(count):
+            if at + step > size:
+                raise WireFormatError("a batch datagram shorter than its frames")
+            flags, arb_id, dlc, n = head(datagram, at)
+            at += step
+            if n > 64 or at + n > size:
+                raise WireFormatError("a batch datagram shorter than its frames")
+            if flags & FLAG_FD:
+                if fd:
+                    append((flags, arb_id, dlc, datagram[at:at + n]))
+            elif n > 8:              # no classic frame carries more than 8 bytes
+                oversized += 1
+            else:
+                append((flags, arb_id, dlc, datagram[at:at + n]))
+            at += n
+        if at != size:
+            raise WireFormatError(f"batch datagram length {size} does not match its frames")
+    if raw is not None:
+        for frame in raw:
+            if frame[0] & FLAG_FD:
+                if fd:
+                    kept.append(frame)
+            elif len(frame[3]) > 8:
+                oversized += 1
+            else:
+                kept.append(frame)
+    return sender, ts, kept, oversized
+
+
 def unpack(datagram: bytes, channel: str | None = None) -> tuple[can.Message, int]:
     """Decode one datagram into ``(message, sender_id)``.
 

@@ -341,6 +341,27 @@ def test_frames_sent_together_reach_every_bus_stamped_in_order_and_an_unknown_bu
             together.send_together([senders[0], broken, senders[1]], msgs)
         assert msgs[1].timestamp == 0.0 and msgs[0].timestamp and msgs[2].timestamp
         assert all(bytes(rx.recv(1.0).data) == b"\x08" for rx in listeners)
+
+        # the same, raw frames (a rig's SYNCs: no Message made): an FD frame on the first bus
+        frames = [(wire.FLAG_FD | wire.FLAG_BRS, 0x80, 1, b"\x09"), (0, 0x80, 1, b"\x09"),
+                  (0, 0x80, 1, b"\x09")]
+        paths = [together.raw_path(b) for b in (*senders, virtual)]
+        stamps = [0.0] * 3
+        before = time.time()
+        assert together.send_frames_together([*senders, virtual], frames, paths, stamps) is stamps
+        assert before <= stamps[0] <= stamps[1] <= stamps[2] <= time.time()
+        for rx, stamp, fd in zip([*listeners, virtual_rx], stamps, (True, False, False)):
+            got = rx.recv(1.0)
+            assert got is not None and got.arbitration_id == 0x80 and bytes(got.data) == b"\x09"
+            assert got.is_fd == fd and got.bitrate_switch == fd and not got.is_extended_id
+            if rx in listeners:
+                assert got.timestamp == stamp
+        stamps = [0.0] * 3
+        with pytest.raises(can.CanOperationError, match="unplugged"):
+            together.send_frames_together([senders[0], broken, senders[1]], frames[1:] + frames[1:2],
+                                          [paths[0], None, paths[1]], stamps)
+        assert stamps[1] == 0.0 and stamps[0] and stamps[2]
+        assert all(bytes(rx.recv(1.0).data) == b"\x09" for rx in listeners)
         broken.shutdown()
     finally:
         for b in [*senders, *listeners, virtual, virtual_rx]:

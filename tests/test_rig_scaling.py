@@ -73,6 +73,56 @@ def test_malformed_batches_are_counted_not_delivered():
     assert wire.unpack_frames(good) == (1, 2.0, frames_of(3))
 
 
+def _kept_the_old_way(datagram: bytes, fd: bool):
+    """The receive path before unpack_for_bus: unpack_frames, then the bus's rules per frame."""
+    sender, stamp, frames = wire.unpack_frames(datagram)
+    kept, oversized = [], 0
+    for frame in frames:
+        if frame[0] & wire.FLAG_FD:
+            if fd:
+                kept.append(frame)
+        elif len(frame[3]) > 8:
+            oversized += 1
+        else:
+            kept.append(frame)
+    return sender, stamp, kept, oversized
+
+
+def test_unpacking_for_a_bus_in_one_pass_is_unpacking_then_the_rules():
+    """wire.unpack_for_bus (the receive path) against unpack_frames and the bus's rules after
+    it, on 3,000 random datagrams: batches and single frames, FD frames, classic frames over 8
+    bytes, and every kind of damage (cut, lengthened, a byte changed). The same frames, the
+    same count of oversized ones, and a malformed datagram refused by both."""
+    rng = random.Random(41)
+    for _ in range(3000):
+        frames = []
+        for _ in range(rng.randint(1, 6)):
+            flags = rng.choice([0, 0, wire.FLAG_FD, wire.FLAG_FD | wire.FLAG_BRS, wire.FLAG_EXTENDED])
+            n = rng.choice([0, 1, 4, 8, 8, 12, 64]) if flags & wire.FLAG_FD else rng.choice([0, 2, 4, 8, 12])
+            frames.append((flags, rng.randrange(0x800), n if n <= 15 else 15, bytes(rng.randrange(256) for _ in range(n))))
+        if len(frames) == 1:
+            f = frames[0]
+            datagram = wire.HEADER.pack(wire.MAGIC, wire.VERSION, f[0], 9, 3.0, f[1], f[2], len(f[3])) + f[3]
+        else:
+            datagram = wire.pack_batch(frames, 9, 3.0)
+        damage = rng.random()
+        if damage < 0.15:
+            datagram = datagram[:rng.randrange(len(datagram))]
+        elif damage < 0.2:
+            datagram += bytes(rng.randint(1, 3))
+        elif damage < 0.3:
+            k = rng.randrange(len(datagram))
+            datagram = datagram[:k] + bytes((rng.randrange(256),)) + datagram[k + 1:]
+        for fd in (False, True):
+            try:
+                want = _kept_the_old_way(datagram, fd)
+            except wire.WireFormatError:
+                with pytest.raises(wire.WireFormatError):
+                    wire.unpack_for_bus(datagram, fd)
+                continue
+            assert wire.unpack_for_bus(datagram, fd) == want
+
+
 def test_candump_lines_are_python_cans_byte_for_byte():
     rng = random.Random(3)
     msgs = []
@@ -161,6 +211,46 @@ def test_the_supervisors_together_are_quiet_only_when_each_would_say_nothing():
         if quiet:
             assert all(t is None for t in each), trial
             assert before == [(s._stale_run, s._inactive_run, s._indicated) for s in sups], trial
+
+
+def test_a_held_command_is_shaped_as_every_command_is():
+    """Supervisor.shape_command returns a command asked for again at once when it passed
+    unchanged the time before: on random sequences (repeats, values beyond the limit, NaN,
+    infinities, a slew limit or none, a smaller declared maximum, resets) every result, the
+    count of shaped commands and the last command are those of the full rule."""
+    import math
+    from gateway import SafetyLimits
+    from gateway.capture import TappedNetwork
+    from gateway.master import StandMaster
+    from gateway.supervisor import Supervisor
+
+    def full(sup, u, state):             # the rule as written before the shortcut
+        u_in, u_max = u, sup.u_max
+        if not (-u_max <= u <= u_max):
+            u = max(-u_max, min(u_max, u)) if math.isfinite(u) else 0.0
+        if sup.limits.slew_pct_per_s:
+            step = sup.limits.slew_pct_per_s * sup.period_s
+            u = max(state["last"] - step, min(state["last"] + step, u))
+        if u != u_in:
+            state["clamped"] += 1
+        state["last"] = u
+        return u
+
+    rng = random.Random(11)
+    master = StandMaster(TappedNetwork(None), 1, 2)
+    for slew in (None, 50.0, 5000.0):
+        sup = Supervisor(master, SafetyLimits(force_limit_kgf=5000.0, slew_pct_per_s=slew), 0.002)
+        for trial in range(200):
+            sup.reset(rng.choice((None, None, 20.0, 80.0)))
+            state = {"last": 0.0, "clamped": 0}
+            u = 0.0
+            for _ in range(60):
+                if rng.random() < 0.4:       # a new command, else the last one again
+                    u = rng.choice((rng.uniform(-150, 150), rng.uniform(-5, 5), 0.0, -0.0, 100.0,
+                                    float("nan"), float("inf"), -float("inf")))
+                got, want = sup.shape_command(u), full(sup, u, state)
+                assert got == want or (math.isnan(got) and math.isnan(want)), (slew, trial, u)
+                assert sup.clamped == state["clamped"] and sup._last_u == state["last"]
 
 
 def test_an_sdo_read_of_a_commanded_object_returns_the_last_rpdo_then_the_sdo_write():
