@@ -12,6 +12,7 @@ average of ``u(t − τ)`` over step ``k`` is ``(1 − f)·u[k−m] + f·u[k−m
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Iterable, Mapping
 
@@ -38,6 +39,34 @@ INTEGRATION_TOL = 1e-12
 #: its first and its largest block, steps
 INTEGRATION_FIRST_BLOCK = 1024
 INTEGRATION_MAX_BLOCK = 4096
+
+#: the factors of FLOW effects that do not read the force, by effect, values and drive arrays
+#: (:func:`_flow_factor`): a fit's Jacobian moves one parameter at a time, and for most
+#: columns (g, Δ, a force law, a sensor, another effect's value) these factors stay the same
+_FACTORS: "OrderedDict[tuple, tuple]" = OrderedDict()
+_FACTORS_KEPT = 48
+
+
+def _flow_factor(eff: Effect, q: np.ndarray, aux) -> np.ndarray:
+    """``eff.gain(q, aux, None)`` of a FLOW effect that does not read the force, kept for
+    read-only arrays ``q`` and ``aux`` (a fit's cached drives, :mod:`analysis.identification.windows`)
+    and the effect's type and values: the same array (read-only) for the same inputs, as the
+    gain is a function of them alone (the contract). Arrays that may still change (the
+    emulator's blocks) are not kept: the gain is computed."""
+    if not (isinstance(q, np.ndarray) and not q.flags.writeable
+            and (aux is None or (isinstance(aux, np.ndarray) and not aux.flags.writeable))):
+        return eff.gain(q, aux, None)
+    key = (type(eff), tuple(eff.values.items()), id(q), id(aux))
+    hit = _FACTORS.get(key)
+    if hit is not None and hit[0] is q and hit[1] is aux:
+        _FACTORS.move_to_end(key)
+        return hit[2]
+    factor = np.asarray(eff.gain(q, aux, None))
+    factor.flags.writeable = False
+    _FACTORS[key] = (q, aux, factor)      # q and aux kept alive: their ids stay theirs
+    if len(_FACTORS) > _FACTORS_KEPT:
+        _FACTORS.popitem(last=False)
+    return factor
 
 
 @dataclass
@@ -293,7 +322,7 @@ class PlantModel:
             if eff.depends_on_force:
                 varying.append((eff, a))
             else:
-                static = static * eff.gain(drv.q, a, None)
+                static = static * _flow_factor(eff, drv.q, a)
         added = self.delta if drv.dist is None else self.delta + drv.dist
         force = self._force
 
@@ -436,7 +465,7 @@ class PlantModel:
         ``force_terms=False`` leaves out the FORCE effects' terms."""
         r = self.g * q
         for eff, a in zip(self._flow, aux):
-            r = r * eff.gain(q, a, y)
+            r = r * (eff.gain(q, a, y) if eff.depends_on_force else _flow_factor(eff, q, a))
         r = r + self.delta
         if dist is not None:
             r = r + dist
@@ -450,7 +479,7 @@ class PlantModel:
         multiplies (``g`` here, a row of ``G`` in a rig: :mod:`plant.rig`)."""
         w = q
         for eff, a in zip(self._flow, aux):
-            w = w * eff.gain(q, a, y)
+            w = w * (eff.gain(q, a, y) if eff.depends_on_force else _flow_factor(eff, q, a))
         return w
 
     def rate_terms(self, dist: np.ndarray | None, y: np.ndarray) -> np.ndarray:

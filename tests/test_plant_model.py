@@ -539,3 +539,34 @@ def test_the_stiffness_gain_compiled_is_numpy_s_law_bit_for_bit():
             got = eff.gain(None, None, y)
             assert np.shape(got) == np.shape(numpy_law)
             assert np.array_equal(got, numpy_law, equal_nan=True)
+
+
+def test_flow_factors_of_read_only_drives_are_kept_bit_for_bit_and_others_computed():
+    """The factors of FLOW effects that do not read the force are kept for a fit's cached
+    (read-only) drives, by the effect's values: the same numbers as the gain's, a new value
+    computed anew, and an emulator's (writeable) block never kept."""
+    from plant import model as M
+    rng = np.random.default_rng(7)
+    dt = 0.002
+    u = np.where((np.arange(2000) * dt // 0.5) % 2 == 0, 8.0, -8.0)[None, :] + rng.normal(0, 0.3, (1, 2000))
+    m = PlantModel.from_spec("base+reversal+stiffness", {"stiffness.k_abs": 1.0})
+    drv = m.drive(u, dt, m.new_state(1, dt, 0.0, u[:, 0]))
+    rev = m.effect("reversal")
+    j = m._flow.index(rev)                         # its prepared signal in the drive
+    fresh = rev.gain(drv.q, drv.aux[j], None)
+    M._FACTORS.clear()
+    assert np.array_equal(M._flow_factor(rev, drv.q, drv.aux[j]), fresh) and not M._FACTORS
+    for arr in (drv.q, drv.aux[j]):
+        arr.flags.writeable = False
+    first = M._flow_factor(rev, drv.q, drv.aux[j])
+    assert np.array_equal(first, fresh) and len(M._FACTORS) == 1 and not first.flags.writeable
+    assert M._flow_factor(rev, drv.q, drv.aux[j]) is first
+    y = rng.normal(0, 3000.0, drv.q.shape)
+    for other in (m, m.with_params({"g": 80.0, "stiffness.k_abs": 2.0})):   # the same factor
+        assert np.array_equal(other.rate_along(drv, y), other._rate(
+            np.array(drv.q), [np.array(a) for a in drv.aux], None, y))
+    assert len(M._FACTORS) == 1
+    moved = m.with_params({"reversal.boost": 3.0})
+    assert np.array_equal(M._flow_factor(moved.effect("reversal"), drv.q, drv.aux[j]),
+                          moved.effect("reversal").gain(drv.q, drv.aux[j], None))
+    assert len(M._FACTORS) == 2

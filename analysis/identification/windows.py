@@ -217,14 +217,56 @@ def _piece_drive(model: PlantModel, piece: Piece) -> tuple[Drive, Drive]:
     return drv, wdrv
 
 
+def _window_starts(piece: Piece, n_windows: int) -> np.ndarray:
+    """The steps of the piece where its evaluated windows start."""
+    return piece.warmup + np.arange(n_windows) * piece.window
+
+
 def _cut_windows(model: PlantModel, piece: Piece) -> tuple[Drive, np.ndarray, list[dict] | None]:
     """The piece's drive cut into its evaluated windows (:func:`_piece_drive`), the measured
     starts, and the sensor filters' states at the starts (None without SENSOR effects)."""
     drv, wdrv = _piece_drive(model, piece)
-    steps = piece.warmup + np.arange(wdrv.q.shape[0]) * piece.window
+    steps = _window_starts(piece, wdrv.q.shape[0])
     sensor = (model.window_filter_states(drv, piece.y, piece.dt, steps)
               if model.has_sensor_effects else None)
     return wdrv, piece.y[steps], sensor
+
+
+#: the windows of groups of pieces side by side, by the pieces and the drive's key
+#: (:func:`_group_drive`)
+_GROUPS: "OrderedDict[tuple, tuple[list, Drive, np.ndarray]]" = OrderedDict()
+_GROUPS_KEPT = 16
+
+
+def _group_drive(model: PlantModel, group: Sequence[Piece]) -> tuple[Drive, np.ndarray]:
+    """The windows of several pieces (same sample time and window) side by side: their drives
+    cut into windows (:func:`_piece_drive`) and stacked, and the measured starts; kept by the
+    pieces and :meth:`PlantModel.drive_key` as the pieces' drives are (read-only arrays)."""
+    key = (tuple(id(p) for p in group), model.drive_key())
+    hit = _GROUPS.get(key)
+    if hit is not None and all(a is b for a, b in zip(hit[0], group)):
+        _GROUPS.move_to_end(key)
+        return hit[1], hit[2]
+    wdrvs = [_piece_drive(model, p)[1] for p in group]
+
+    def cat(arrs):
+        return None if arrs[0] is None else np.concatenate(arrs, axis=0)
+    # a disturbance some pieces have and others not (a rig channel's coupling is a known rate
+    # only in the runs where another channel moves): zero in the others
+    dists = [d.dist for d in wdrvs]
+    dist = None if all(d is None for d in dists) else np.concatenate(
+        [np.zeros_like(w.q) if d is None else d for w, d in zip(wdrvs, dists)], axis=0)
+    drv = Drive(q=np.concatenate([w.q for w in wdrvs], axis=0),
+                aux=[cat([w.aux[j] for w in wdrvs]) for j in range(len(wdrvs[0].aux))],
+                dist=dist)
+    starts = np.concatenate([p.y[_window_starts(p, w.q.shape[0])] for p, w in zip(group, wdrvs)])
+    for arr in (drv.q, drv.dist, starts, *drv.aux):
+        if isinstance(arr, np.ndarray):
+            arr.flags.writeable = False
+    _GROUPS[key] = (list(group), drv, starts)
+    if len(_GROUPS) > _GROUPS_KEPT:
+        _GROUPS.popitem(last=False)
+    return drv, starts
 
 
 def simulate_pieces(model: PlantModel, pieces: Sequence[Piece]) -> list[np.ndarray]:
@@ -237,34 +279,30 @@ def simulate_pieces(model: PlantModel, pieces: Sequence[Piece]) -> list[np.ndarr
     for i, p in enumerate(pieces):
         groups.setdefault((p.dt, p.window), []).append(i)
     for (dt, W), idx in groups.items():
-        cuts = [_cut_windows(model, pieces[i]) for i in idx]
-        if len(cuts) == 1:
-            drv, starts, sensor = cuts[0]
+        group = [pieces[i] for i in idx]
+        if len(idx) == 1:
+            drv, starts, sensor = _cut_windows(model, group[0])
+            sizes = [drv.q.shape[0]]
         else:
-            def cat(arrs):
-                return None if arrs[0] is None else np.concatenate(arrs, axis=0)
-            # a disturbance some pieces have and others not (a rig channel's coupling is a
-            # known rate only in the runs where another channel moves): zero in the others
-            dists = [c[0].dist for c in cuts]
-            dist = None if all(d is None for d in dists) else np.concatenate(
-                [np.zeros_like(c[0].q) if d is None else d for c, d in zip(cuts, dists)], axis=0)
-            drv = Drive(q=np.concatenate([c[0].q for c in cuts], axis=0),
-                        aux=[cat([c[0].aux[j] for c in cuts]) for j in range(len(cuts[0][0].aux))],
-                        dist=dist)
-            starts = np.concatenate([c[1] for c in cuts])
-            sensor = None if cuts[0][2] is None else [
-                {k: np.concatenate([c[2][j][k] for c in cuts]) for k in cuts[0][2][j]}
-                for j in range(len(cuts[0][2]))]
+            drv, starts = _group_drive(model, group)
+            sizes = [p.n_windows for p in group]
+            sensor = None
+            if model.has_sensor_effects:
+                states = [model.window_filter_states(_piece_drive(model, p)[0], p.y, p.dt,
+                                                     _window_starts(p, p.n_windows))
+                          for p in group]
+                sensor = [{k: np.concatenate([s[j][k] for s in states]) for k in states[0][j]}
+                          for j in range(len(states[0]))]
         if model.depends_on_force:
             # solved from the last solution for these windows: a fit's next simulation moves
             # one parameter a little (the answer does not depend on where it starts)
-            key = (tuple(id(pieces[i]) for i in idx), dt, W)
+            key = (tuple(id(p) for p in group), dt, W)
             hit = _FORCES.get(key)
             force = model.integrate(drv, model.force_under(starts, sensor), dt,
                                     guess=hit[1] if hit is not None and all(
-                                        a is b for a, b in zip(hit[0], (pieces[i] for i in idx)))
+                                        a is b for a, b in zip(hit[0], group))
                                     else None)
-            _FORCES[key] = ([pieces[i] for i in idx], force)
+            _FORCES[key] = (group, force)
             if len(_FORCES) > _DRIVES_KEPT:
                 _FORCES.pop(next(iter(_FORCES)))
             yy = force if sensor is None else model.sense(force, dt, starts, sensor)
@@ -272,8 +310,7 @@ def simulate_pieces(model: PlantModel, pieces: Sequence[Piece]) -> list[np.ndarr
             yy = model.integrate_from_readings(drv, starts, dt, sensor)
         yy = yy[:, :-1]
         row = 0
-        for i, (d, _, _) in zip(idx, cuts):
-            k = d.q.shape[0]
+        for i, k in zip(idx, sizes):
             out[i] = yy[row:row + k].reshape(-1)[:pieces[i].n_eval]
             row += k
     return out  # type: ignore[return-value]
