@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -175,8 +176,31 @@ def subset_pieces(full: Sequence[Piece], max_windows: int = 150, chunk_windows: 
 _DRIVES: "OrderedDict[tuple, tuple[Piece, Drive, Drive]]" = OrderedDict()
 _DRIVES_KEPT = 64
 #: the last force trajectories of groups of pieces whose model depends on the force, by the
-#: pieces: where the next simulation's integration starts
-_FORCES: dict[tuple, tuple[list, np.ndarray]] = {}
+#: pieces, with the recursion's growth factors along them: where the next simulation's
+#: integration starts, and what a Jacobian's columns are linearised about
+_FORCES: dict[tuple, tuple[list, np.ndarray, np.ndarray | None]] = {}
+#: while a Jacobian's columns are simulated (:func:`linearised_columns`): the trajectories of
+#: the point they are taken at, by group, as :data:`_FORCES` held them
+_BASES: dict[tuple, tuple[list, np.ndarray, np.ndarray | None]] | None = None
+
+
+@contextmanager
+def linearised_columns():
+    """Within: the simulations are a Jacobian's finite-difference columns at the parameters
+    simulated last (each moves one parameter by a step of ~1e-6). A model whose rate depends on
+    the force is then not solved by Newton passes but linearised about that last solution
+    (:meth:`PlantModel.integrate_linearised`, one rate evaluation and one compiled pass instead
+    of two to six evaluations and two or three passes): exact to first order in the step, so
+    the column differs from the solved one by the step's second-order terms, the size of the
+    forward difference's own error. Models whose rate does not depend on the force, and groups
+    of pieces not simulated last, are simulated as always. The last solutions stay those of
+    the point itself (where the next trial starts)."""
+    global _BASES
+    _BASES = dict(_FORCES)
+    try:
+        yield
+    finally:
+        _BASES = None
 
 
 def _piece_drive(model: PlantModel, piece: Piece) -> tuple[Drive, Drive]:
@@ -297,14 +321,20 @@ def simulate_pieces(model: PlantModel, pieces: Sequence[Piece]) -> list[np.ndarr
             # solved from the last solution for these windows: a fit's next simulation moves
             # one parameter a little (the answer does not depend on where it starts)
             key = (tuple(id(p) for p in group), dt, W)
-            hit = _FORCES.get(key)
-            force = model.integrate(drv, model.force_under(starts, sensor), dt,
-                                    guess=hit[1] if hit is not None and all(
-                                        a is b for a, b in zip(hit[0], group))
-                                    else None)
-            _FORCES[key] = (group, force)
-            if len(_FORCES) > _DRIVES_KEPT:
-                _FORCES.pop(next(iter(_FORCES)))
+            y0 = model.force_under(starts, sensor)
+            base = _BASES.get(key) if _BASES is not None else None
+            if (base is not None and base[2] is not None and base[1].shape == (len(y0), W + 1)
+                    and all(a is b for a, b in zip(base[0], group))):
+                force = model.integrate_linearised(drv, y0, dt, base[1], base[2])
+            else:
+                hit = _FORCES.get(key)
+                growth: list = []
+                force = model.integrate(drv, y0, dt, guess=hit[1] if hit is not None and all(
+                    a is b for a, b in zip(hit[0], group)) else None, growth=growth)
+                if _BASES is None:
+                    _FORCES[key] = (group, force, growth[0] if growth else None)
+                    if len(_FORCES) > _DRIVES_KEPT:
+                        _FORCES.pop(next(iter(_FORCES)))
             yy = force if sensor is None else model.sense(force, dt, starts, sensor)
         else:
             yy = model.integrate_from_readings(drv, starts, dt, sensor)
