@@ -12,7 +12,6 @@ average of ``u(t − τ)`` over step ``k`` is ``(1 − f)·u[k−m] + f·u[k−m
 from __future__ import annotations
 
 import math
-from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Iterable, Mapping
 
@@ -20,6 +19,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from core.jit import njit
+from core.kept import Kept
 
 from .catalogue import effect_class, order
 from .contract import Effect, Stage
@@ -43,30 +43,17 @@ INTEGRATION_MAX_BLOCK = 4096
 #: the factors of FLOW effects that do not read the force, by effect, values and drive arrays
 #: (:func:`_flow_factor`): a fit's Jacobian moves one parameter at a time, and for most
 #: columns (g, Δ, a force law, a sensor, another effect's value) these factors stay the same
-_FACTORS: "OrderedDict[tuple, tuple]" = OrderedDict()
-_FACTORS_KEPT = 48
+_FACTORS = Kept(48)
 
 
 def _flow_factor(eff: Effect, q: np.ndarray, aux) -> np.ndarray:
     """``eff.gain(q, aux, None)`` of a FLOW effect that does not read the force, kept for
     read-only arrays ``q`` and ``aux`` (a fit's cached drives, :mod:`analysis.identification.windows`)
-    and the effect's type and values: the same array (read-only) for the same inputs, as the
-    gain is a function of them alone (the contract). Arrays that may still change (the
-    emulator's blocks) are not kept: the gain is computed."""
-    if not (isinstance(q, np.ndarray) and not q.flags.writeable
-            and (aux is None or (isinstance(aux, np.ndarray) and not aux.flags.writeable))):
-        return eff.gain(q, aux, None)
-    key = (type(eff), tuple(eff.values.items()), id(q), id(aux))
-    hit = _FACTORS.get(key)
-    if hit is not None and hit[0] is q and hit[1] is aux:
-        _FACTORS.move_to_end(key)
-        return hit[2]
-    factor = np.asarray(eff.gain(q, aux, None))
-    factor.flags.writeable = False
-    _FACTORS[key] = (q, aux, factor)      # q and aux kept alive: their ids stay theirs
-    if len(_FACTORS) > _FACTORS_KEPT:
-        _FACTORS.popitem(last=False)
-    return factor
+    and the effect's type and values (:class:`core.kept.Kept`): the gain is a function of them
+    alone (the contract). Arrays that may still change (the emulator's blocks) are not kept:
+    the gain is computed."""
+    return _FACTORS.get((q, aux), (type(eff), tuple(eff.values.items())),
+                        lambda: np.asarray(eff.gain(q, aux, None)))
 
 
 @dataclass

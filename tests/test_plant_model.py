@@ -609,3 +609,26 @@ def test_the_linearised_integration_is_a_finite_difference_column_to_its_own_err
         col = solved - base
         err = np.max(np.abs(linear - solved))
         assert err <= 1e-5 * np.max(np.abs(col)) + 1e-9 * np.max(np.abs(base)), (name, err)
+
+
+def test_the_reversal_s_scale_is_kept_for_a_read_only_command_and_is_numpy_s_law():
+    """The boost's power law of the command is kept by command and exponent (a fit's Jacobian
+    moves the boost, its decay, g... with the same scale): its gain is the law's to the last
+    bit either way, for a read-only command or one that may change."""
+    from plant.effects import reversal as R
+    rng = np.random.default_rng(3)
+    q = rng.normal(0, 8.0, (5, 400))
+    aux = rng.uniform(0, 1, q.shape)
+    R._SCALES.clear()
+    for p, b in ((0.7, 2.5), (0.7, 3.0), (0.0, 2.5), (1.0, 0.1)):
+        eff = R.Reversal(boost=b, exponent=p)
+        law = 1.0 + b * (10.0 / np.maximum(np.abs(q), 0.5)) ** p * aux
+        assert np.array_equal(eff.gain(q, aux, None), law)
+        frozen = q.copy()
+        frozen.flags.writeable = False
+        assert np.array_equal(eff.gain(frozen, aux, None), law)
+    assert len(R._SCALES) == 4          # one per read-only command and exponent ...
+    ro = q.copy()
+    ro.flags.writeable = False
+    first = R._command_scale(ro, 10.0, 0.7)
+    assert R._command_scale(ro, 10.0, 0.7) is first and len(R._SCALES) == 5   # ... kept
