@@ -50,8 +50,8 @@ from ..parallel import one_blas_thread
 from ..records.record import Record
 from .projection import project_gain_trend
 from .starts import DataSummary, effect_starts, initial_delay, without
-from .windows import (WINDOW_S, Piece, linearised_columns, pieces_from_records, residual,
-                      subset_pieces, window_labels, window_sse)
+from .windows import (WINDOW_S, Piece, fresh_solutions, linearised_columns, pieces_from_records,
+                      residual, subset_pieces, window_labels, window_sse)
 
 #: relative tolerance on the cost and the step of the polishing least squares
 FTOL = 1e-7
@@ -262,6 +262,7 @@ def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
     :data:`SEARCH_WINDOWS` windows the starts are searched (and polished loosely) on a subset
     of them, then polished on all. Returns a :class:`FitResult` with confidence intervals."""
     opt = options or FitOptions()
+    fresh_solutions()
     model = _as_model(model)
     pieces = _as_pieces(data, window_s)
     search, searched_subset = (subset_pieces(pieces, SEARCH_WINDOWS) if opt.search_starts

@@ -184,6 +184,29 @@ _FORCES: dict[tuple, tuple[list, np.ndarray, np.ndarray | None]] = {}
 _BASES: dict[tuple, tuple[list, np.ndarray, np.ndarray | None]] | None = None
 
 
+def _measured_windows(group: Sequence[Piece]) -> np.ndarray:
+    """The measured force along the windows of ``group`` side by side, (n, W + 1) as the
+    simulation's trajectories (each window's last point the next sample, the record's last
+    one repeated past its end): where a simulation with no last solution starts solving, the
+    same for every process (:func:`fresh_solutions`)."""
+    W = group[0].window
+    out = []
+    for p in group:
+        first = p.warmup + np.arange(p.n_windows)[:, None] * p.window
+        out.append(p.y[np.minimum(first + np.arange(W + 1)[None, :], len(p.y) - 1)])
+    return np.concatenate(out, axis=0) if len(out) > 1 else out[0]
+
+
+def fresh_solutions() -> None:
+    """Forget the last solutions (:data:`_FORCES`): a fit that starts here solves its first
+    simulation from the measured force (:func:`_measured_windows`), so its answer does not
+    depend on what the process simulated before (a guess changes a solution only within the
+    integration's tolerance, but a fit in a flat valley can carry such a difference far). With
+    it, a fit gives the same numbers in a worker process as in this one, whatever ran there
+    before."""
+    _FORCES.clear()
+
+
 @contextmanager
 def linearised_columns():
     """Within: the simulations are a Jacobian's finite-difference columns at the parameters
@@ -329,8 +352,9 @@ def simulate_pieces(model: PlantModel, pieces: Sequence[Piece]) -> list[np.ndarr
             else:
                 hit = _FORCES.get(key)
                 growth: list = []
-                force = model.integrate(drv, y0, dt, guess=hit[1] if hit is not None and all(
-                    a is b for a, b in zip(hit[0], group)) else None, growth=growth)
+                guess = (hit[1] if hit is not None and all(a is b for a, b in zip(hit[0], group))
+                         else _measured_windows(group))
+                force = model.integrate(drv, y0, dt, guess=guess, growth=growth)
                 if _BASES is None:
                     _FORCES[key] = (group, force, growth[0] if growth else None)
                     if len(_FORCES) > _DRIVES_KEPT:
