@@ -50,8 +50,9 @@ def meanders(cycles: int = 8) -> list:
             for i, a in enumerate((5.0, 10.0, 20.0))]
 
 
-def _stepping(self, drv, y0, dt, guess=None):
-    """The per-step Python loop the block solver replaced (the reference)."""
+def _stepping(self, drv, y0, dt, guess=None, growth=None):
+    """The per-step Python loop the block solver replaced (the reference; it gives no growth
+    factors, so the Jacobian's columns are solved as the points are)."""
     n, K = drv.q.shape
     out = np.empty((n, K + 1))
     out[:, 0] = y = np.asarray(y0, float).copy()

@@ -19,6 +19,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from core.jit import njit
+from core.kept import Kept
 
 from .catalogue import effect_class, order
 from .contract import Effect, Stage
@@ -38,6 +39,21 @@ INTEGRATION_TOL = 1e-12
 #: its first and its largest block, steps
 INTEGRATION_FIRST_BLOCK = 1024
 INTEGRATION_MAX_BLOCK = 4096
+
+#: the factors of FLOW effects that do not read the force, by effect, values and drive arrays
+#: (:func:`_flow_factor`): a fit's Jacobian moves one parameter at a time, and for most
+#: columns (g, Δ, a force law, a sensor, another effect's value) these factors stay the same
+_FACTORS = Kept(48)
+
+
+def _flow_factor(eff: Effect, q: np.ndarray, aux) -> np.ndarray:
+    """``eff.gain(q, aux, None)`` of a FLOW effect that does not read the force, kept for
+    read-only arrays ``q`` and ``aux`` (a fit's cached drives, :mod:`analysis.identification.windows`)
+    and the effect's type and values (:class:`core.kept.Kept`): the gain is a function of them
+    alone (the contract). Arrays that may still change (the emulator's blocks) are not kept:
+    the gain is computed."""
+    return _FACTORS.get((q, aux), (type(eff), tuple(eff.values.items())),
+                        lambda: np.asarray(eff.gain(q, aux, None)))
 
 
 @dataclass
@@ -234,11 +250,13 @@ class PlantModel:
         return (1.0 - f) * v + f * prev
 
     def integrate(self, drv: Drive, y0: np.ndarray, dt: float,
-                  guess: np.ndarray | None = None) -> np.ndarray:
+                  guess: np.ndarray | None = None, growth: list | None = None) -> np.ndarray:
         """Force trajectory (n, K+1) from ``y0`` (n,) under the block's drive. ``guess``: a
         trajectory of the same shape near the answer (the last one of a fit, whose next
         simulation moves one parameter a little), where the force-dependent integration starts
-        (:meth:`_integrate_in_blocks`); the answer does not depend on it."""
+        (:meth:`_integrate_in_blocks`); the answer does not depend on it. ``growth``: a list
+        that gets the recursion's growth factors along the answer, ``1 + dt·f'`` (n, K), when
+        the rate depends on the force (for :meth:`integrate_linearised`)."""
         y0 = np.asarray(y0, float)
         n, K = drv.q.shape
         lam = self.force_decay()
@@ -253,7 +271,31 @@ class PlantModel:
                 a = 1.0 - lam * dt
                 out[:, 1:], _ = lfilter([dt], [1.0, -a], rate, axis=1, zi=(a * y0)[:, None])
             return out
-        return self._integrate_in_blocks(drv, y0, dt, guess)
+        return self._integrate_in_blocks(drv, y0, dt, guess, growth)
+
+    def integrate_linearised(self, drv: Drive, y0: np.ndarray, dt: float, base: np.ndarray,
+                             growth: np.ndarray) -> np.ndarray:
+        r"""The force trajectories (n, K+1) from ``y0`` (n,), linearised about ``base``: the
+        answer of :meth:`integrate` for a model (or drive) near the one whose answer ``base`` is,
+        with ``growth`` (n, K) that one's growth factors ``1 + dt·f'`` along it
+        (``integrate(..., growth=[])``). One pass of the linear recursion
+        ``y[k+1] = ŷ_k + dt·f_k(ŷ_k) + (1 + dt·f'_k)·(y[k] − ŷ_k)``, ``ŷ = base``, this model's
+        rate ``f`` along the base: the tangent-linear model, exact to first order in the change
+        of the parameters, the drive and the start (second-order terms left out: of the size of
+        a forward difference's own error when they are its step). For a finite-difference
+        column of a fit's Jacobian this is the whole simulation's cost but one rate evaluation
+        (:func:`analysis.identification.windows.linearised_columns`). Only for a model whose
+        rate depends on the force (:attr:`depends_on_force`)."""
+        rate = self._force_dependent_rate(drv)
+        n, K = drv.q.shape
+        out = np.empty((n, K + 1))
+        out[:, 0] = y0
+        guess = np.ascontiguousarray(base[:, :-1])
+        with np.errstate(all="ignore"):
+            f = rate(0, K, guess)
+            f *= dt
+            _newton_pass(growth, f, guess, out)
+        return out
 
     def force_decay(self) -> float | None:
         """``λ`` (1/s) when the force rate is linear in the force, ``r(t) − λ·y``: no FLOW
@@ -267,7 +309,8 @@ class PlantModel:
         return sum(rates)
 
     def _integrate_in_blocks(self, drv: Drive, y0: np.ndarray, dt: float,
-                             guess: np.ndarray | None = None) -> np.ndarray:
+                             guess: np.ndarray | None = None,
+                             growth: list | None = None) -> np.ndarray:
         r"""The force when its rate depends on it: the explicit recursion
         ``y[k+1] = y[k] + dt·f_k(y[k])`` of every step, solved a block of steps at a time.
 
@@ -285,29 +328,10 @@ class PlantModel:
         shape ``(n, B)``, as elsewhere.
         """
         n, K = drv.q.shape
-        # what does not depend on the force, once: g·q times the other FLOW factors, Δ and the
-        # disturbances; per pass only the force-dependent factors and terms
-        static = self.g * drv.q
-        varying = []
-        for eff, a in zip(self._flow, drv.aux):
-            if eff.depends_on_force:
-                varying.append((eff, a))
-            else:
-                static = static * eff.gain(drv.q, a, None)
-        added = self.delta if drv.dist is None else self.delta + drv.dist
-        force = self._force
-
-        def rate(a: int, b: int, y: np.ndarray) -> np.ndarray:
-            r = static[:, a:b]
-            for eff, aux in varying:
-                r = r * eff.gain(drv.q[:, a:b], None if aux is None else aux[:, a:b], y)
-            r = r + (added if np.ndim(added) == 0 else added[:, a:b])
-            for eff in force:
-                r = r + eff.force_rate(y)
-            return r
-
+        rate = self._force_dependent_rate(drv)
         out = np.empty((n, K + 1))
         out[:, 0] = y0
+        kept = np.empty((n, K)) if growth is not None else None
         warm = guess is not None and guess.shape == out.shape and bool(np.all(np.isfinite(guess)))
         a, block = 0, K if warm else INTEGRATION_FIRST_BLOCK
         with np.errstate(all="ignore"):   # a guess may stray where the law is steep
@@ -332,9 +356,39 @@ class PlantModel:
                     f *= dt
                     if _newton_pass(grow, f, guess, seg) <= INTEGRATION_TOL * size:
                         break
+                if kept is not None:
+                    kept[:, a:b] = grow
                 a = b
                 block = min(2 * block, INTEGRATION_MAX_BLOCK)
+        if growth is not None:
+            growth.append(kept)
         return out
+
+    def _force_dependent_rate(self, drv: Drive):
+        """``rate(a, b, y)``: the force rate over steps ``a`` to ``b`` of the drive at the
+        forces ``y`` (n, b − a), for :meth:`_integrate_in_blocks`."""
+        # what does not depend on the force, once: g·q times the other FLOW factors, Δ and the
+        # disturbances; per pass only the force-dependent factors and terms
+        static = self.g * drv.q
+        varying = []
+        for eff, a in zip(self._flow, drv.aux):
+            if eff.depends_on_force:
+                varying.append((eff, a))
+            else:
+                static = static * _flow_factor(eff, drv.q, a)
+        added = self.delta if drv.dist is None else self.delta + drv.dist
+        force = self._force
+
+        def rate(a: int, b: int, y: np.ndarray) -> np.ndarray:
+            r = static[:, a:b]
+            for eff, aux in varying:
+                r = r * eff.gain(drv.q[:, a:b], None if aux is None else aux[:, a:b], y)
+            r = r + (added if np.ndim(added) == 0 else added[:, a:b])
+            for eff in force:
+                r = r + eff.force_rate(y)
+            return r
+
+        return rate
 
     def sense(self, y: np.ndarray, dt: float, start: np.ndarray,
               states: list[dict] | None = None) -> np.ndarray:
@@ -436,7 +490,7 @@ class PlantModel:
         ``force_terms=False`` leaves out the FORCE effects' terms."""
         r = self.g * q
         for eff, a in zip(self._flow, aux):
-            r = r * eff.gain(q, a, y)
+            r = r * (eff.gain(q, a, y) if eff.depends_on_force else _flow_factor(eff, q, a))
         r = r + self.delta
         if dist is not None:
             r = r + dist
@@ -450,7 +504,7 @@ class PlantModel:
         multiplies (``g`` here, a row of ``G`` in a rig: :mod:`plant.rig`)."""
         w = q
         for eff, a in zip(self._flow, aux):
-            w = w * eff.gain(q, a, y)
+            w = w * (eff.gain(q, a, y) if eff.depends_on_force else _flow_factor(eff, q, a))
         return w
 
     def rate_terms(self, dist: np.ndarray | None, y: np.ndarray) -> np.ndarray:

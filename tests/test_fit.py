@@ -191,3 +191,72 @@ def test_a_gap_in_the_data_splits_the_record_instead_of_being_fitted_across(tmp_
     across = fit_model([whole], "base")
     assert abs(split.params["g"] - 120.0) < 1.0 and abs(split.params["tau"] - 0.05) < 0.002
     assert split.objective_rmse < 3.0 < 3 * split.objective_rmse < across.objective_rmse
+
+
+def test_the_polish_s_linearised_jacobian_columns_are_the_solved_ones(monkeypatch):
+    """The polish's Jacobian of a force-dependent model takes its columns linearised about the
+    point's solution (windows.linearised_columns): on the issue's stand (a reversal boost, a
+    stiffening specimen, stiction, the windows from the measured readings) every column is the
+    solved forward difference's to 1e-5, and the fit ends where the solved columns' fit ends,
+    within a hundredth of each parameter's standard error."""
+    from scipy.optimize._numdiff import approx_derivative
+    from analysis.identification import fit as F
+    from analysis.identification.windows import linearised_columns
+    spec = "base+reversal+stiffness+stiction"
+    truth = PlantModel.from_spec(spec, {"g": 95.0, "tau": 0.06, "delta": 5.0, "reversal.boost": 2.5,
+                                        "reversal.decay": 0.12, "stiffness.k_abs": 1.5,
+                                        "stiction.width": 150.0})
+    recs = [S.meander(truth, (a,), period_s=4.0, cycles=2, seed=i + 3)
+            for i, a in enumerate((5.0, 20.0))]
+    pieces = pieces_from_records(recs)
+    start = {**truth.params(), "g": 90.0, "reversal.boost": 2.0, "stiffness.k_sgn": 0.1,
+             "stiction.width": 120.0}
+    par = Parameterization(spec, start, list(start))
+    x = par.to_x(start)
+    lo, hi = par.bounds()
+
+    def simulate(z):
+        return residual(par.model(z), pieces)
+
+    r = simulate(x)                      # the point: what the columns are linearised about
+    with linearised_columns():
+        linear = approx_derivative(simulate, x, method="2-point", rel_step=F.DIFF_STEP, f0=r,
+                                   bounds=(lo, hi))
+    solved = approx_derivative(simulate, x, method="2-point", rel_step=F.DIFF_STEP, f0=r,
+                               bounds=(lo, hi))
+    for j, name in enumerate(par.free):
+        assert np.linalg.norm(linear[:, j] - solved[:, j]) <= 1e-5 * np.linalg.norm(solved[:, j]), name
+    fits = {}
+    for flag in (True, False):
+        monkeypatch.setattr(F, "LINEARISED_COLUMNS", flag)
+        fits[flag] = fit_model(recs, spec)
+    a, b = fits[True], fits[False]
+    assert a.objective_rmse == pytest.approx(b.objective_rmse, rel=1e-6)
+    for name, e in b.estimates.items():
+        assert abs(a.estimates[name].value - e.value) <= 0.01 * e.stderr, name
+
+
+def test_a_fit_gives_the_same_numbers_whatever_the_process_simulated_before():
+    """A force-dependent model's simulations start from the last solution for the same windows
+    (the integration's guess), which moves the answer within the integration's tolerance
+    (~1e-12 here), and a fit in a flat valley can carry that far. A fit forgets the solutions of
+    earlier work (fresh_solutions) and starts from the measured force: the same simulation
+    after different earlier work gives the same numbers to the last bit, and so the same fit
+    does in any process (a worker of the diagnosis)."""
+    from analysis.identification.windows import fresh_solutions, pieces_from_records, residual
+    spec = "base+reversal+stiffness+stiction"
+    truth = PlantModel.from_spec(spec, {"g": 95.0, "stiffness.k_abs": 1.5})
+    pieces = pieces_from_records([meander4(truth, seed=5)])
+    got = {}
+    for fresh in (False, True):
+        for g in (60.0, 130.0):        # earlier work: another model on the same windows
+            residual(PlantModel.from_spec(spec, {"g": g, "stiffness.k_abs": 4.0}), pieces)
+            if fresh:
+                fresh_solutions()
+            got[fresh, g] = residual(truth, pieces)
+    # without forgetting they differ by ~7e-13 kgf here (what a guess does; not asserted: a
+    # guess may happen to converge to the same bits)
+    assert np.array_equal(got[True, 60.0], got[True, 130.0])
+    first = fit_model(pieces, "base+stiffness+stiction")
+    residual(PlantModel.from_spec(spec, {"g": 60.0}), pieces)
+    assert fit_model(pieces, "base+stiffness+stiction").params == first.params

@@ -539,3 +539,96 @@ def test_the_stiffness_gain_compiled_is_numpy_s_law_bit_for_bit():
             got = eff.gain(None, None, y)
             assert np.shape(got) == np.shape(numpy_law)
             assert np.array_equal(got, numpy_law, equal_nan=True)
+
+
+def test_flow_factors_of_read_only_drives_are_kept_bit_for_bit_and_others_computed():
+    """The factors of FLOW effects that do not read the force are kept for a fit's cached
+    (read-only) drives, by the effect's values: the same numbers as the gain's, a new value
+    computed anew, and an emulator's (writeable) block never kept."""
+    from plant import model as M
+    rng = np.random.default_rng(7)
+    dt = 0.002
+    u = np.where((np.arange(2000) * dt // 0.5) % 2 == 0, 8.0, -8.0)[None, :] + rng.normal(0, 0.3, (1, 2000))
+    m = PlantModel.from_spec("base+reversal+stiffness", {"stiffness.k_abs": 1.0})
+    drv = m.drive(u, dt, m.new_state(1, dt, 0.0, u[:, 0]))
+    rev = m.effect("reversal")
+    j = m._flow.index(rev)                         # its prepared signal in the drive
+    fresh = rev.gain(drv.q, drv.aux[j], None)
+    M._FACTORS.clear()
+    assert np.array_equal(M._flow_factor(rev, drv.q, drv.aux[j]), fresh) and not M._FACTORS
+    for arr in (drv.q, drv.aux[j]):
+        arr.flags.writeable = False
+    first = M._flow_factor(rev, drv.q, drv.aux[j])
+    assert np.array_equal(first, fresh) and len(M._FACTORS) == 1 and not first.flags.writeable
+    assert M._flow_factor(rev, drv.q, drv.aux[j]) is first
+    y = rng.normal(0, 3000.0, drv.q.shape)
+    for other in (m, m.with_params({"g": 80.0, "stiffness.k_abs": 2.0})):   # the same factor
+        assert np.array_equal(other.rate_along(drv, y), other._rate(
+            np.array(drv.q), [np.array(a) for a in drv.aux], None, y))
+    assert len(M._FACTORS) == 1
+    moved = m.with_params({"reversal.boost": 3.0})
+    assert np.array_equal(M._flow_factor(moved.effect("reversal"), drv.q, drv.aux[j]),
+                          moved.effect("reversal").gain(drv.q, drv.aux[j], None))
+    assert len(M._FACTORS) == 2
+
+
+@pytest.mark.parametrize("spec, values", [
+    ("base+stiffness", {"stiffness.k_abs": 1.5, "stiffness.k_sgn": 0.3}),
+    ("base+reversal+stiffness+stiction", {"stiffness.k_abs": 1.5}),
+    ("base+load_pressure", {}), ("base+unloading", {}),
+    ("base+leakage+stiffness", {"stiffness.k_abs": 3.0}),
+    ("base+supply+load_pressure+oscillation", {}),
+])
+def test_the_linearised_integration_is_a_finite_difference_column_to_its_own_error(spec, values):
+    """A finite-difference column of the force from the recursion linearised about the base
+    solution (one pass, the base's growth factors) is the column of the solved recursion, for
+    every parameter of the model: those of the law, the gain, the trend, and those that move
+    the drive (delay, a boost's decay) or the start, to 1e-5 of the column (the forward
+    difference's own error is of that order)."""
+    rng = np.random.default_rng(1)
+    dt = 0.002
+    t = np.arange(2500) * dt
+    u = np.stack([np.where((t // 1.0) % 2 == 0, a, -a) for a in (5, 10, 20)])
+    u = u + rng.normal(0, 0.5, u.shape)
+    m = PlantModel.from_spec(spec, values)
+    y0 = np.array([50.0, 800.0, -1500.0])      # not on a law's step at zero force
+
+    def solve(model, start=y0, growth=None):
+        drv = model.drive(u, dt, model.new_state(3, dt, 0.0, u[:, 0]))
+        return drv, model.integrate(drv, start, dt, growth=growth)
+
+    growth: list = []
+    _, base = solve(m, growth=growth)
+    assert growth and growth[0].shape == (3, u.shape[1])
+    cases = [(name, m.with_params({name: v + 1e-6 * max(1.0, abs(v))}), y0)
+             for name, v in m.params().items() if not (name == "tau" and v == 0.0)]
+    cases.append(("start", m, y0 + 1e-3))
+    for name, moved, start in cases:
+        drv, solved = solve(moved, start)
+        linear = moved.integrate_linearised(drv, start, dt, base, growth[0])
+        col = solved - base
+        err = np.max(np.abs(linear - solved))
+        assert err <= 1e-5 * np.max(np.abs(col)) + 1e-9 * np.max(np.abs(base)), (name, err)
+
+
+def test_the_reversal_s_scale_is_kept_for_a_read_only_command_and_is_numpy_s_law():
+    """The boost's power law of the command is kept by command and exponent (a fit's Jacobian
+    moves the boost, its decay, g... with the same scale): its gain is the law's to the last
+    bit either way, for a read-only command or one that may change."""
+    from plant.effects import reversal as R
+    rng = np.random.default_rng(3)
+    q = rng.normal(0, 8.0, (5, 400))
+    aux = rng.uniform(0, 1, q.shape)
+    R._SCALES.clear()
+    for p, b in ((0.7, 2.5), (0.7, 3.0), (0.0, 2.5), (1.0, 0.1)):
+        eff = R.Reversal(boost=b, exponent=p)
+        law = 1.0 + b * (10.0 / np.maximum(np.abs(q), 0.5)) ** p * aux
+        assert np.array_equal(eff.gain(q, aux, None), law)
+        frozen = q.copy()
+        frozen.flags.writeable = False
+        assert np.array_equal(eff.gain(frozen, aux, None), law)
+    assert len(R._SCALES) == 4          # one per read-only command and exponent ...
+    ro = q.copy()
+    ro.flags.writeable = False
+    first = R._command_scale(ro, 10.0, 0.7)
+    assert R._command_scale(ro, 10.0, 0.7) is first and len(R._SCALES) == 5   # ... kept

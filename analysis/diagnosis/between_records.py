@@ -51,7 +51,7 @@ from plant import PlantModel
 
 from ..identification.fit import DIFF_STEP, Parameterization
 from ..identification.projection import gain_trend_columns
-from ..identification.windows import Piece, window_sse
+from ..identification.windows import Piece, fresh_solutions, window_sse
 from ..records.record import Record
 from .significance import UNEXPLAINED_RATIO, ErrorCut, error_cut
 
@@ -197,6 +197,7 @@ def refit_per_record(model: PlantModel, pieces: Sequence[Piece], rec_of: np.ndar
     spec, values = model.spec, model.params()
     others = [n for n in values if n not in ("g", "delta")]
     par = Parameterization(spec, values, others)
+    fresh_solutions()                # the same answer whatever this process simulated before
     if not par.free:
         return values
 

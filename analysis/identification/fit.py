@@ -41,6 +41,7 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 from scipy import optimize, stats
+from scipy.optimize._numdiff import approx_derivative
 
 from plant import PlantModel
 from plant.params import ModelError, Param
@@ -49,8 +50,8 @@ from ..parallel import one_blas_thread
 from ..records.record import Record
 from .projection import project_gain_trend
 from .starts import DataSummary, effect_starts, initial_delay, without
-from .windows import (WINDOW_S, Piece, pieces_from_records, residual, subset_pieces, window_labels,
-                      window_sse)
+from .windows import (WINDOW_S, Piece, fresh_solutions, linearised_columns, pieces_from_records,
+                      residual, subset_pieces, window_labels, window_sse)
 
 #: relative tolerance on the cost and the step of the polishing least squares
 FTOL = 1e-7
@@ -63,6 +64,9 @@ SCREEN_TOL = 1e-4
 SEARCH_WINDOWS = 150
 #: relative finite-difference step of the Jacobian (in the optimizer's coordinates)
 DIFF_STEP = 1e-6
+#: the polish's Jacobian columns of a model whose rate depends on the force linearised about
+#: the solution they are taken at, not solved (:func:`~.windows.linearised_columns`)
+LINEARISED_COLUMNS = True
 
 
 # ------------------------------------------------------------------------------------------
@@ -208,12 +212,30 @@ def _polish(par: Parameterization, pieces: Sequence[Piece], values: Mapping[str,
     eps = 1e-9 * np.maximum(1.0, np.abs(hi - lo))
     x0 = np.clip(x0, lo + eps, hi - eps)
 
-    def fun(x):
+    def simulate(x):
         return residual(par.model(x), pieces)
+
+    last: list = []                    # (x, residual) of the last simulation
+
+    def fun(x):
+        r = simulate(x)
+        last[:] = [np.array(x, copy=True), r]
+        return r
+
+    def jac(x):
+        """scipy's forward differences (the same steps), their columns linearised about the
+        solution at ``x`` (:func:`~.windows.linearised_columns`)."""
+        if not last or not np.array_equal(last[0], x):
+            fun(x)
+        with linearised_columns():
+            return approx_derivative(simulate, x, method="2-point", rel_step=DIFF_STEP,
+                                     f0=last[1], bounds=(lo, hi))
 
     if max_nfev is None:
         max_nfev = 40 * (len(x0) + 1)
-    res = optimize.least_squares(fun, x0, bounds=(lo, hi), method="trf", x_scale="jac",
+    linearised = LINEARISED_COLUMNS and PlantModel.from_spec(par.spec).depends_on_force
+    res = optimize.least_squares(fun, x0, jac=jac if linearised else "2-point", bounds=(lo, hi),
+                                 method="trf", x_scale="jac",
                                  tr_solver="lsmr" if len(x0) and _n_eval(pieces) > 400_000 else "exact",
                                  diff_step=DIFF_STEP, max_nfev=max_nfev, ftol=tol, xtol=tol)
     return res.x, res
@@ -240,6 +262,7 @@ def fit_model(data: Sequence[Record] | Sequence[Piece], model: PlantModel | str,
     :data:`SEARCH_WINDOWS` windows the starts are searched (and polished loosely) on a subset
     of them, then polished on all. Returns a :class:`FitResult` with confidence intervals."""
     opt = options or FitOptions()
+    fresh_solutions()
     model = _as_model(model)
     pieces = _as_pieces(data, window_s)
     search, searched_subset = (subset_pieces(pieces, SEARCH_WINDOWS) if opt.search_starts

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -175,8 +176,54 @@ def subset_pieces(full: Sequence[Piece], max_windows: int = 150, chunk_windows: 
 _DRIVES: "OrderedDict[tuple, tuple[Piece, Drive, Drive]]" = OrderedDict()
 _DRIVES_KEPT = 64
 #: the last force trajectories of groups of pieces whose model depends on the force, by the
-#: pieces: where the next simulation's integration starts
-_FORCES: dict[tuple, tuple[list, np.ndarray]] = {}
+#: pieces, with the recursion's growth factors along them: where the next simulation's
+#: integration starts, and what a Jacobian's columns are linearised about
+_FORCES: dict[tuple, tuple[list, np.ndarray, np.ndarray | None]] = {}
+#: while a Jacobian's columns are simulated (:func:`linearised_columns`): the trajectories of
+#: the point they are taken at, by group, as :data:`_FORCES` held them
+_BASES: dict[tuple, tuple[list, np.ndarray, np.ndarray | None]] | None = None
+
+
+def _measured_windows(group: Sequence[Piece]) -> np.ndarray:
+    """The measured force along the windows of ``group`` side by side, (n, W + 1) as the
+    simulation's trajectories (each window's last point the next sample, the record's last
+    one repeated past its end): where a simulation with no last solution starts solving, the
+    same for every process (:func:`fresh_solutions`)."""
+    W = group[0].window
+    out = []
+    for p in group:
+        first = p.warmup + np.arange(p.n_windows)[:, None] * p.window
+        out.append(p.y[np.minimum(first + np.arange(W + 1)[None, :], len(p.y) - 1)])
+    return np.concatenate(out, axis=0) if len(out) > 1 else out[0]
+
+
+def fresh_solutions() -> None:
+    """Forget the last solutions (:data:`_FORCES`): a fit that starts here solves its first
+    simulation from the measured force (:func:`_measured_windows`), so its answer does not
+    depend on what the process simulated before (a guess changes a solution only within the
+    integration's tolerance, but a fit in a flat valley can carry such a difference far). With
+    it, a fit gives the same numbers in a worker process as in this one, whatever ran there
+    before."""
+    _FORCES.clear()
+
+
+@contextmanager
+def linearised_columns():
+    """Within: the simulations are a Jacobian's finite-difference columns at the parameters
+    simulated last (each moves one parameter by a step of ~1e-6). A model whose rate depends on
+    the force is then not solved by Newton passes but linearised about that last solution
+    (:meth:`PlantModel.integrate_linearised`, one rate evaluation and one compiled pass instead
+    of two to six evaluations and two or three passes): exact to first order in the step, so
+    the column differs from the solved one by the step's second-order terms, the size of the
+    forward difference's own error. Models whose rate does not depend on the force, and groups
+    of pieces not simulated last, are simulated as always. The last solutions stay those of
+    the point itself (where the next trial starts)."""
+    global _BASES
+    _BASES = dict(_FORCES)
+    try:
+        yield
+    finally:
+        _BASES = None
 
 
 def _piece_drive(model: PlantModel, piece: Piece) -> tuple[Drive, Drive]:
@@ -217,14 +264,56 @@ def _piece_drive(model: PlantModel, piece: Piece) -> tuple[Drive, Drive]:
     return drv, wdrv
 
 
+def _window_starts(piece: Piece, n_windows: int) -> np.ndarray:
+    """The steps of the piece where its evaluated windows start."""
+    return piece.warmup + np.arange(n_windows) * piece.window
+
+
 def _cut_windows(model: PlantModel, piece: Piece) -> tuple[Drive, np.ndarray, list[dict] | None]:
     """The piece's drive cut into its evaluated windows (:func:`_piece_drive`), the measured
     starts, and the sensor filters' states at the starts (None without SENSOR effects)."""
     drv, wdrv = _piece_drive(model, piece)
-    steps = piece.warmup + np.arange(wdrv.q.shape[0]) * piece.window
+    steps = _window_starts(piece, wdrv.q.shape[0])
     sensor = (model.window_filter_states(drv, piece.y, piece.dt, steps)
               if model.has_sensor_effects else None)
     return wdrv, piece.y[steps], sensor
+
+
+#: the windows of groups of pieces side by side, by the pieces and the drive's key
+#: (:func:`_group_drive`)
+_GROUPS: "OrderedDict[tuple, tuple[list, Drive, np.ndarray]]" = OrderedDict()
+_GROUPS_KEPT = 16
+
+
+def _group_drive(model: PlantModel, group: Sequence[Piece]) -> tuple[Drive, np.ndarray]:
+    """The windows of several pieces (same sample time and window) side by side: their drives
+    cut into windows (:func:`_piece_drive`) and stacked, and the measured starts; kept by the
+    pieces and :meth:`PlantModel.drive_key` as the pieces' drives are (read-only arrays)."""
+    key = (tuple(id(p) for p in group), model.drive_key())
+    hit = _GROUPS.get(key)
+    if hit is not None and all(a is b for a, b in zip(hit[0], group)):
+        _GROUPS.move_to_end(key)
+        return hit[1], hit[2]
+    wdrvs = [_piece_drive(model, p)[1] for p in group]
+
+    def cat(arrs):
+        return None if arrs[0] is None else np.concatenate(arrs, axis=0)
+    # a disturbance some pieces have and others not (a rig channel's coupling is a known rate
+    # only in the runs where another channel moves): zero in the others
+    dists = [d.dist for d in wdrvs]
+    dist = None if all(d is None for d in dists) else np.concatenate(
+        [np.zeros_like(w.q) if d is None else d for w, d in zip(wdrvs, dists)], axis=0)
+    drv = Drive(q=np.concatenate([w.q for w in wdrvs], axis=0),
+                aux=[cat([w.aux[j] for w in wdrvs]) for j in range(len(wdrvs[0].aux))],
+                dist=dist)
+    starts = np.concatenate([p.y[_window_starts(p, w.q.shape[0])] for p, w in zip(group, wdrvs)])
+    for arr in (drv.q, drv.dist, starts, *drv.aux):
+        if isinstance(arr, np.ndarray):
+            arr.flags.writeable = False
+    _GROUPS[key] = (list(group), drv, starts)
+    if len(_GROUPS) > _GROUPS_KEPT:
+        _GROUPS.popitem(last=False)
+    return drv, starts
 
 
 def simulate_pieces(model: PlantModel, pieces: Sequence[Piece]) -> list[np.ndarray]:
@@ -237,43 +326,45 @@ def simulate_pieces(model: PlantModel, pieces: Sequence[Piece]) -> list[np.ndarr
     for i, p in enumerate(pieces):
         groups.setdefault((p.dt, p.window), []).append(i)
     for (dt, W), idx in groups.items():
-        cuts = [_cut_windows(model, pieces[i]) for i in idx]
-        if len(cuts) == 1:
-            drv, starts, sensor = cuts[0]
+        group = [pieces[i] for i in idx]
+        if len(idx) == 1:
+            drv, starts, sensor = _cut_windows(model, group[0])
+            sizes = [drv.q.shape[0]]
         else:
-            def cat(arrs):
-                return None if arrs[0] is None else np.concatenate(arrs, axis=0)
-            # a disturbance some pieces have and others not (a rig channel's coupling is a
-            # known rate only in the runs where another channel moves): zero in the others
-            dists = [c[0].dist for c in cuts]
-            dist = None if all(d is None for d in dists) else np.concatenate(
-                [np.zeros_like(c[0].q) if d is None else d for c, d in zip(cuts, dists)], axis=0)
-            drv = Drive(q=np.concatenate([c[0].q for c in cuts], axis=0),
-                        aux=[cat([c[0].aux[j] for c in cuts]) for j in range(len(cuts[0][0].aux))],
-                        dist=dist)
-            starts = np.concatenate([c[1] for c in cuts])
-            sensor = None if cuts[0][2] is None else [
-                {k: np.concatenate([c[2][j][k] for c in cuts]) for k in cuts[0][2][j]}
-                for j in range(len(cuts[0][2]))]
+            drv, starts = _group_drive(model, group)
+            sizes = [p.n_windows for p in group]
+            sensor = None
+            if model.has_sensor_effects:
+                states = [model.window_filter_states(_piece_drive(model, p)[0], p.y, p.dt,
+                                                     _window_starts(p, p.n_windows))
+                          for p in group]
+                sensor = [{k: np.concatenate([s[j][k] for s in states]) for k in states[0][j]}
+                          for j in range(len(states[0]))]
         if model.depends_on_force:
             # solved from the last solution for these windows: a fit's next simulation moves
             # one parameter a little (the answer does not depend on where it starts)
-            key = (tuple(id(pieces[i]) for i in idx), dt, W)
-            hit = _FORCES.get(key)
-            force = model.integrate(drv, model.force_under(starts, sensor), dt,
-                                    guess=hit[1] if hit is not None and all(
-                                        a is b for a, b in zip(hit[0], (pieces[i] for i in idx)))
-                                    else None)
-            _FORCES[key] = ([pieces[i] for i in idx], force)
-            if len(_FORCES) > _DRIVES_KEPT:
-                _FORCES.pop(next(iter(_FORCES)))
+            key = (tuple(id(p) for p in group), dt, W)
+            y0 = model.force_under(starts, sensor)
+            base = _BASES.get(key) if _BASES is not None else None
+            if (base is not None and base[2] is not None and base[1].shape == (len(y0), W + 1)
+                    and all(a is b for a, b in zip(base[0], group))):
+                force = model.integrate_linearised(drv, y0, dt, base[1], base[2])
+            else:
+                hit = _FORCES.get(key)
+                growth: list = []
+                guess = (hit[1] if hit is not None and all(a is b for a, b in zip(hit[0], group))
+                         else _measured_windows(group))
+                force = model.integrate(drv, y0, dt, guess=guess, growth=growth)
+                if _BASES is None:
+                    _FORCES[key] = (group, force, growth[0] if growth else None)
+                    if len(_FORCES) > _DRIVES_KEPT:
+                        _FORCES.pop(next(iter(_FORCES)))
             yy = force if sensor is None else model.sense(force, dt, starts, sensor)
         else:
             yy = model.integrate_from_readings(drv, starts, dt, sensor)
         yy = yy[:, :-1]
         row = 0
-        for i, (d, _, _) in zip(idx, cuts):
-            k = d.q.shape[0]
+        for i, k in zip(idx, sizes):
             out[i] = yy[row:row + k].reshape(-1)[:pieces[i].n_eval]
             row += k
     return out  # type: ignore[return-value]

@@ -8,6 +8,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from core.jit import njit
+from core.kept import Kept
 from plant.contract import Effect, Stage
 from plant.params import Param
 from plant.start_grids import renamed
@@ -63,8 +64,7 @@ class Reversal(Effect):
         return np.exp(-since_reversal(q, dt, state) / self.decay)
 
     def gain(self, q, aux, y):
-        scale = (self.U_REF / np.maximum(np.abs(q), 0.5)) ** self.exponent
-        return 1.0 + self.boost * scale * aux
+        return 1.0 + self.boost * _command_scale(q, self.U_REF, self.exponent) * aux
 
     def largest_gain_factor(self) -> float:
         """1 + b: right after a reversal, at |q| = u_ref."""
@@ -170,6 +170,18 @@ class TravelReversal(Effect):
         return [{"travel_reversal.boost": b, "travel_reversal.travel": min(50.0, max(0.005, ref * T))}
                 for b in (0.5, 2.0, 8.0) for T in (0.03, 0.1, 0.3)] + [
             {"travel_reversal.boost": 0.0, "travel_reversal.travel": max(0.005, ref * 0.1)}]
+
+
+#: the boost's scale by flow command and exponent (:func:`_command_scale`)
+_SCALES = Kept(16)
+
+
+def _command_scale(q: np.ndarray, u_ref: float, exponent: float) -> np.ndarray:
+    """``(u_ref / max(|q|, 0.5 %))^p``, kept for a read-only ``q`` (a fit's cached drive) and
+    ``p``: numpy's power is the boost's whole cost, and most of a fit's Jacobian columns (g, Δ,
+    the boost's size and decay, a force law) leave ``q`` and ``p`` as they were."""
+    return _SCALES.get((q,), (u_ref, exponent),
+                       lambda: (u_ref / np.maximum(np.abs(q), 0.5)) ** exponent)
 
 
 def reversal_state(n: int, u0: np.ndarray) -> dict[str, np.ndarray]:
