@@ -145,22 +145,37 @@ def unpack_frames(datagram: bytes) -> tuple[int, float, list[tuple[int, int, int
         return sender, ts, [(third, arb_id, dlc, datagram[HEADER_SIZE:])]
     if version != BATCH_VERSION or third == 0:
         raise WireFormatError("not a loopback-bus frame (wrong version or an empty batch)")
-    frames = []
+    frames, _ = _batch(datagram, third, None)
+    return sender, ts, frames
+
+
+def _batch(datagram: bytes, count: int, fd: bool | None) -> tuple[list, int]:
+    """A batch datagram's ``count`` frames, in one pass: every one (``fd`` None), or those a
+    bus keeps (FD frames only if ``fd``; a classic frame of more than 8 bytes dropped and
+    counted); ``(frames, dropped oversized)``. Raises :class:`WireFormatError` for a batch
+    that is not well formed, whatever its frames."""
+    size = len(datagram)
+    kept = []
+    append = kept.append
+    oversized = 0
     at = BATCH_HEADER.size
     head = BATCH_FRAME.unpack_from
     step = BATCH_FRAME.size
-    for _ in range(third):
+    for _ in range(count):
         if at + step > size:
             raise WireFormatError("a batch datagram shorter than its frames")
         flags, arb_id, dlc, n = head(datagram, at)
         at += step
         if n > 64 or at + n > size:
             raise WireFormatError("a batch datagram shorter than its frames")
-        frames.append((flags, arb_id, dlc, datagram[at:at + n]))
+        if fd is None or (fd if flags & FLAG_FD else n <= 8):
+            append((flags, arb_id, dlc, datagram[at:at + n]))
+        elif not flags & FLAG_FD:        # no classic frame carries more than 8 bytes
+            oversized += 1
         at += n
     if at != size:
         raise WireFormatError(f"batch datagram length {size} does not match its frames")
-    return sender, ts, frames
+    return kept, oversized
 
 
 def unpack_for_bus(datagram: bytes, fd: bool) -> tuple[int, float, list, int]:
@@ -172,36 +187,12 @@ def unpack_for_bus(datagram: bytes, fd: bool) -> tuple[int, float, list, int]:
     if size < BATCH_HEADER.size:
         raise WireFormatError(f"datagram of {size} bytes is shorter than the header")
     magic, version, count, sender, ts = BATCH_HEADER.unpack_from(datagram)
-    kept = []
-    oversized = 0
-    if version != BATCH_VERSION or magic != MAGIC or count == 0:
-        sender, ts, frames = unpack_frames(datagram)   # a single frame, or the error it is
-        raw = frames
-    else:
-        raw = None
-        at = BATCH_HEADER.size
-        head = BATCH_FRAME.unpack_from
-        step = BATCH_FRAME.size
-        append = kept.append
-        for _ in range(count):
-            if at + step > size:
-                raise WireFormatError("a batch datagram shorter than its frames")
-            flags, arb_id, dlc, n = head(datagram, at)
-            at += step
-            if n > 64 or at + n > size:
-                raise WireFormatError("a batch datagram shorter than its frames")
-            if flags & FLAG_FD:
-                if fd:
-                    append((flags, arb_id, dlc, datagram[at:at + n]))
-            elif n > 8:              # no classic frame carries more than 8 bytes
-                oversized += 1
-            else:
-                append((flags, arb_id, dlc, datagram[at:at + n]))
-            at += n
-        if at != size:
-            raise WireFormatError(f"batch datagram length {size} does not match its frames")
-    if raw is not None:
-        for frame in raw:
+    if version == BATCH_VERSION and magic == MAGIC and count:
+        kept, oversized = _batch(datagram, count, fd)
+    else:                       # a single frame, or the error it is
+        sender, ts, frames = unpack_frames(datagram)
+        kept, oversized = [], 0
+        for frame in frames:
             if frame[0] & FLAG_FD:
                 if fd:
                     kept.append(frame)
