@@ -89,28 +89,12 @@ def send_together(buses: Sequence[can.BusABC], msgs: Sequence[can.Message],
     if paths is None:
         paths = [raw_path(b) for b in buses]
     stamps = [0.0] * len(buses)
-    fallback: list[int] = []
-    for i, (path, msg) in enumerate(zip(paths, msgs)):
-        if path is not None:
-            stamp = time.time()
-            data = path.encode(msg, stamp)
-            address = path.address
-            sent = _sendto(path.fd, data, len(data), MSG_DONTWAIT, address,
-                           len(address) if address is not None else 0)
-            if sent == len(data):
-                msg.timestamp = stamps[i] = stamp
-                continue
-        fallback.append(i)     # bus.send waits for a full buffer, or says what went wrong
-    failure = None
-    for i in fallback:
-        try:
-            stamp = time.time()
-            buses[i].send(msgs[i])
-            msgs[i].timestamp = stamps[i] = stamp
-        except can.CanError as exc:
-            failure = failure or exc
-    if failure is not None:
-        raise failure
+    try:
+        _send_each(buses, msgs, paths, stamps, raw=False)
+    finally:
+        for msg, stamp in zip(msgs, stamps):
+            if stamp:
+                msg.timestamp = stamp
     return stamps
 
 
@@ -120,11 +104,19 @@ def send_frames_together(buses: Sequence[can.BusABC], frames: Sequence[tuple],
     data)``, on ``buses[i]``), without a :class:`can.Message` where a bus has a single-call
     path: ``stamps[i]`` is set to the wall-clock time frame i was handed to its bus (left as
     it was for a frame not sent) before the first failure, if any, is raised."""
+    _send_each(buses, frames, paths, stamps, raw=True)
+    return stamps
+
+
+def _send_each(buses, items, paths, stamps: list[float], raw: bool) -> None:
+    """``items[i]`` (a :class:`can.Message`, or with ``raw`` a raw frame) on ``buses[i]``, by
+    its single-call path where it has one, else by ``bus.send``; ``stamps[i]`` set to the time
+    each was handed over; the first failure raised after all were tried."""
     fallback: list[int] = []
-    for i, (path, frame) in enumerate(zip(paths, frames)):
+    for i, (path, item) in enumerate(zip(paths, items)):
         if path is not None:
             stamp = time.time()
-            data = path.encode_raw(frame, stamp)
+            data = path.encode_raw(item, stamp) if raw else path.encode(item, stamp)
             address = path.address
             sent = _sendto(path.fd, data, len(data), MSG_DONTWAIT, address,
                            len(address) if address is not None else 0)
@@ -136,10 +128,9 @@ def send_frames_together(buses: Sequence[can.BusABC], frames: Sequence[tuple],
     for i in fallback:
         try:
             stamp = time.time()
-            buses[i].send(wire.message(stamp, frames[i], None, False))
+            buses[i].send(wire.message(stamp, items[i], None, False) if raw else items[i])
             stamps[i] = stamp
         except can.CanError as exc:
             failure = failure or exc
     if failure is not None:
         raise failure
-    return stamps
