@@ -165,12 +165,6 @@ class ServoValveNode(EmulatedNode):
         live[_ERROR_KEY] = 0x01 if fault else 0
 
     def update_outputs(self, spool_percent: float) -> None:
-        """Refresh the values the TPDO carries (status word, actual spool position): what
-        :meth:`_refresh` writes, inline (every SYNC), and the spool."""
-        status, fault = _STATE_BITS[self.state]
-        if self.limit_reached:
-            status |= _LIMIT_REACHED
-        live = self.live
-        live[_STATUS_KEY] = status
-        live[_ERROR_KEY] = 0x01 if fault else 0
-        live[_ACTUAL_VALUE] = percent_to_counts(spool_percent)
+        """Refresh the values the TPDO carries (status word, actual spool position)."""
+        self._refresh()
+        self.live[_ACTUAL_VALUE] = percent_to_counts(spool_percent)
