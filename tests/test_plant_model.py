@@ -487,13 +487,17 @@ def _stepped(model, drv, y0, dt):
     return out
 
 
-@pytest.mark.parametrize("spec, values", [
+#: laws whose rate depends on the force (the block solver's and the linearised columns' cases)
+FORCE_DEPENDENT = [
     ("base+stiffness", {"stiffness.k_abs": 1.5, "stiffness.k_sgn": 0.3}),
     ("base+reversal+stiffness+stiction", {"stiffness.k_abs": 1.5}),
     ("base+load_pressure", {}), ("base+unloading", {}),
     ("base+leakage+stiffness", {"stiffness.k_abs": 3.0}),
     ("base+supply+load_pressure+oscillation", {}),
-])
+]
+
+
+@pytest.mark.parametrize("spec, values", FORCE_DEPENDENT)
 def test_a_force_dependent_rate_is_integrated_as_the_step_by_step_recursion(spec, values):
     """The block solver (Newton on whole blocks) reaches the explicit recursion's own answer,
     from any guess, whatever the law: to 1e-12 of the force."""
@@ -572,13 +576,7 @@ def test_flow_factors_of_read_only_drives_are_kept_bit_for_bit_and_others_comput
     assert len(M._FACTORS) == 2
 
 
-@pytest.mark.parametrize("spec, values", [
-    ("base+stiffness", {"stiffness.k_abs": 1.5, "stiffness.k_sgn": 0.3}),
-    ("base+reversal+stiffness+stiction", {"stiffness.k_abs": 1.5}),
-    ("base+load_pressure", {}), ("base+unloading", {}),
-    ("base+leakage+stiffness", {"stiffness.k_abs": 3.0}),
-    ("base+supply+load_pressure+oscillation", {}),
-])
+@pytest.mark.parametrize("spec, values", FORCE_DEPENDENT)
 def test_the_linearised_integration_is_a_finite_difference_column_to_its_own_error(spec, values):
     """A finite-difference column of the force from the recursion linearised about the base
     solution (one pass, the base's growth factors) is the column of the solved recursion, for
