@@ -359,7 +359,6 @@ class SignalWindow:
         self._pending: list[EventWindow] = []            # events whose window is not written yet
         self._pending_lock = threading.Lock()
         self.written: list[EventWindow] = []
-        self._appended_s: float | None = None            # append_rows' last sync_time
         self.closed = False
         self._rows = RowBuffer(self.schema, self.channels, self._handle,
                                f"{self.rolling}: the signal window", "signal-window", flush_s,
@@ -375,10 +374,7 @@ class SignalWindow:
     @property
     def last_time_s(self) -> float | None:
         """The last row's ``sync_time`` (None before any)."""
-        last = self._rows.last_sync_time
-        if self._appended_s is not None and (last is None or self._appended_s > last):
-            return self._appended_s
-        return last
+        return self._rows.last_sync_time
 
     def append_rows(self, columns: Mapping[str, Any]) -> None:
         """Many rows at once: a mapping of every column (:attr:`columns`) to equal-length
@@ -389,7 +385,7 @@ class SignalWindow:
         batch = pa.record_batch([pa.array(np.asarray(columns[c]), type=self.schema.field(c).type)
                                  for c in self.columns], schema=self.schema)
         if batch.num_rows:
-            self._appended_s = float(np.asarray(columns["sync_time"])[-1])
+            self._rows.last_sync_time = float(np.asarray(columns["sync_time"])[-1])
             self._rows.put(batch)
 
     def mark_event(self, kind: str, message: str, time_s: float | None = None,
@@ -519,6 +515,7 @@ class SignalWindow:
             if not (complete or final):
                 continue
             self._write_event(event, self._rows_on_disk() if row is None else row)
+            self._rows_of.pop(event.path, None)
             with self._pending_lock:
                 self._pending.remove(event)
             self.written.append(event)
