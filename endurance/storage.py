@@ -26,10 +26,12 @@ removal of the small files leaves files whose flights another holds, which the n
 ±``event_window_s`` around each event (:meth:`SignalWindow.mark_event`), each a **run
 directory** (``run.json`` + ``signals.parquet``, :mod:`gateway.runs`; a rig's columns
 ``u.NAME``, ``y.NAME``, ... ) that ``stand compare``, ``diagnose`` and ``report`` read like any
-run. The windows are the **stand's time**, counted in rows of the control period: the rolling
-window keeps the last ``rolling_window_s / period_s`` rows (a chunk more while one fills), an event
-window the rows within ``event_window_s`` of its event on the continuous stand time
-(:func:`continuous_time`: ``t`` made to increase across passes and resumes, a gap between them
+run (each built in a hidden directory and renamed into place whole, so a kill never leaves a
+window without its ``run.json``; :func:`event_windows` lists them). The windows are the
+**stand's time**, counted in rows of the control period: the rolling window keeps the last
+``rolling_window_s / period_s`` rows (a chunk more while one fills), an event window the rows
+within ``event_window_s`` of its event on the continuous stand time (:func:`continuous_time`:
+``t`` made to increase across passes and resumes, a gap between them
 counted at its wall-clock length). In real time that is the wall clock's seconds; in lockstep,
 where the stand's second passes in a fraction of the wall's, it is what the plan counted (a
 window by the wall clock would hold the run's speed-up times as many rows). Files are named and
@@ -46,6 +48,7 @@ import json
 import math
 import os
 import re
+import shutil
 import threading
 import time
 from dataclasses import dataclass
@@ -138,6 +141,13 @@ def _fsync_dir(path: Path) -> None:
         pass
     finally:
         os.close(fd)
+
+
+def event_windows(testdir: str | Path) -> list[Path]:
+    """The test's event windows, oldest first: only whole ones (one being written, or left by a
+    kill while it was, is a hidden directory)."""
+    root = Path(testdir) / EVENTS_DIR
+    return sorted(p for p in root.iterdir() if not p.name.startswith(".")) if root.is_dir() else []
 
 
 # -- (a) the turning-point log ---------------------------------------------------------------------
@@ -341,6 +351,8 @@ class SignalWindow:
         self.events_dir.mkdir(parents=True, exist_ok=True)
         for p in self.rolling.glob(".*.tmp"):
             p.unlink(missing_ok=True)
+        for p in self.events_dir.glob(".*.tmp"):
+            shutil.rmtree(p, ignore_errors=True)
         self.channels = list(channels) if channels is not None else None
         self.schema = SCHEMA if channels is None else rig_schema(self.channels)
         self.columns = tuple(self.schema.names)
@@ -538,8 +550,12 @@ class SignalWindow:
             truncated = bool(t[-1] < t_event + self.event_window_s - self.period_s / 2)
             table, clock, t = table.filter(pa.array(inside)), clock[inside], t[inside]
         table = table.set_column(table.schema.get_field_index("t"), "t", pa.array(t, pa.float64()))
-        event.path.mkdir(parents=True)
-        write_parquet_atomic(table, event.path / SIGNALS_FILE)
+        # built in a hidden directory and renamed into place whole: a kill while it is written
+        # leaves no window without its run.json (the hidden one is removed at the next open)
+        tmp = event.path.parent / f".{event.path.name}.tmp"
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)
+        write_parquet_atomic(table, tmp / SIGNALS_FILE)
         meta = {"format": FORMAT, **self.meta, "status": "complete", "period_s": self.period_s,
                 "end_reason": "event window", "rows": table.num_rows,
                 "files": {"signals": SIGNALS_FILE},
@@ -550,7 +566,10 @@ class SignalWindow:
                           "stand_window_s": self.event_window_s, "truncated": truncated,
                           "first_sync_time": float(clock.min()) if len(clock) else None}}
         meta.setdefault("experiment", {"name": "endurance event window", "params": {}})
-        _write_json_atomic(event.path / META_FILE, meta)
+        _write_json_atomic(tmp / META_FILE, meta)
+        _fsync_dir(tmp)
+        os.rename(tmp, event.path)
+        _fsync_dir(event.path.parent)
 
 
 @dataclass(frozen=True)

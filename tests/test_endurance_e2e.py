@@ -24,7 +24,7 @@ import pytest
 
 from endurance.journal import Journal
 from endurance.report import accuracy, end_point_errors, ratio_deviation_pct
-from endurance.storage import read_turning_points
+from endurance.storage import event_windows, read_turning_points
 from endurance.testfile import load_test_file
 from gateway import load_run
 from tests.support.endurance_run import copy_short_test
@@ -63,6 +63,15 @@ def wait_for(testdir: Path, flights: int, proc: subprocess.Popen, why: str, time
         assert proc.poll() is None, f"{why}: the session ended early: {proc.communicate()}"
         assert time.monotonic() < deadline, f"{why}: {done(testdir)} of {flights} flights in {timeout} s"
         time.sleep(0.1)
+
+
+def a_moment_in_flight(testdir: Path, flight: int, proc: subprocess.Popen, why: str, rng: random.Random) -> None:
+    """Returns at a random moment of flight ``flight`` (its length taken as the one before's:
+    the moment scales with however fast the flights run here)."""
+    wait_for(testdir, flight - 2, proc, why)
+    began = time.monotonic()
+    wait_for(testdir, flight - 1, proc, why)
+    time.sleep(rng.uniform(0.0, 0.9) * (time.monotonic() - began))
 
 
 def kill(proc: subprocess.Popen) -> None:
@@ -107,8 +116,7 @@ def test_32_flights_through_a_stop_at_once_and_two_kills_are_counted_once_each(t
     assert again.returncode == 2 and "is a live test: process" in again.stderr
     live = stand("test", "resume", testdir, "--lockstep")
     assert live.returncode == 2 and "is a live test: process" in live.stderr
-    wait_for(testdir, rng.randint(3, 6), first, why)
-    time.sleep(rng.uniform(0.0, 3.0))
+    a_moment_in_flight(testdir, done(testdir) + rng.randint(2, 4), first, why, rng)
     kill(first)
     with Journal.open(testdir) as j:
         assert j.state() == "interrupted" and j.integrity_check() == [], why
@@ -116,8 +124,7 @@ def test_32_flights_through_a_stop_at_once_and_two_kills_are_counted_once_each(t
 
     # session 2: resumed, then stopped at once by the operator (every channel unloads)
     second = session("resume", testdir)
-    wait_for(testdir, done(testdir) + rng.randint(2, 4), second, why)
-    time.sleep(rng.uniform(0.0, 2.0))
+    a_moment_in_flight(testdir, done(testdir) + rng.randint(3, 5), second, why, rng)
     stop = stand("test", "stop", testdir, "--at-once", timeout=120)
     assert stop.returncode == 0, stop.stderr
     out, err = second.communicate(timeout=60)
@@ -127,8 +134,7 @@ def test_32_flights_through_a_stop_at_once_and_two_kills_are_counted_once_each(t
 
     # session 3: resumed, killed again
     third = session("resume", testdir)
-    wait_for(testdir, done(testdir) + rng.randint(2, 4), third, why)
-    time.sleep(rng.uniform(0.0, 3.0))
+    a_moment_in_flight(testdir, done(testdir) + rng.randint(3, 5), third, why, rng)
     kill(third)
     with Journal.open(testdir) as j:
         killed_at.append(j.position())
@@ -180,7 +186,7 @@ def test_32_flights_through_a_stop_at_once_and_two_kills_are_counted_once_each(t
         assert 0 < info["to_loading_s"] < 60 and info["approach_deviation"]["pct_of_range"] <= 2.0, info
     figures["to_loading_s"] = [round(s["loading"]["to_loading_s"], 2) for s in sessions]
     # from the recorded signals: the unload keeps the ratios of where it began ...
-    windows = {p.name.split("-")[1]: p for p in sorted((testdir / "events").iterdir())}
+    windows = {p.name.split("-")[1]: p for p in event_windows(testdir)}
     t, Y, R, meta = rows(windows["operator_stop"])
     after = t >= meta["event"]["time"]
     figures["unload_recorded_pct"] = ratio_deviation_pct(Y[after], Y[after][0], list(RANGES.values()))
@@ -190,7 +196,7 @@ def test_32_flights_through_a_stop_at_once_and_two_kills_are_counted_once_each(t
     # (a killed session's resume window is there too when it ran long enough to write it: each
     # record goes with the window of its own flight)
     resumes = [(int(p.name.rsplit("-f", 1)[1]), json.loads((p / "run.json").read_text())["event"]["time"], p)
-               for p in (testdir / "events").iterdir() if "-resume-" in p.name]
+               for p in event_windows(testdir) if "-resume-" in p.name]
     assert len(resumes) >= 2
     for s in sessions:            # a killed resume may have begun at the same flight: the one marked as it loaded
         flight, at = s["loading"]["flight"], s["loading"]["loading_at"]

@@ -18,7 +18,7 @@ import pytest
 from core.errors import DataError
 from endurance.journal import EndPoint, Journal
 from endurance.storage import (CALIBRATION, TURNING_POINT_SCHEMA, Calibration, SignalWindow,
-                               TurningPointLog, calibrate, continuous_time, read_turning_points,
+                               TurningPointLog, calibrate, continuous_time, event_windows, read_turning_points,
                                rig_meta, storage_estimate, turning_point_files,
                                write_parquet_atomic)
 from endurance.testfile import load_test_file
@@ -189,6 +189,27 @@ def test_the_rolling_window_keeps_its_length_and_an_event_window_is_a_run(tmp_pa
     assert tip.meta["channel"] == "tip" and np.isfinite(tip.y).all()
     records = load_all([event.path], channel="tip")
     assert len(records) == 1 and len(records[0].t) == 3001 and records[0].notes == []
+
+
+def test_a_kill_while_an_event_window_is_written_leaves_no_window_without_its_run_json(tmp_path, monkeypatch):
+    import endurance.storage as storage
+    w = SignalWindow(tmp_path, CHANNELS, 0.002, rolling_window_s=4.0, event_window_s=1.0, chunk_s=1.0)
+    w.append_rows(rows(CHANNELS, 0.0, 3.0))
+    w.mark_event("limit", "force limit indicated", time_s=1.8e9 + 1.0, channel="tip", flight=7)
+
+    def killed(path, data):                               # the process dies before run.json is in
+        raise OSError("killed")
+
+    monkeypatch.setattr(storage, "_write_json_atomic", killed)
+    with pytest.raises((OSError, DataError)):
+        w.close()
+    left = [p for p in (tmp_path / "events").iterdir()]
+    assert [p.name.startswith(".") for p in left] == [True], left     # signals written, hidden
+    assert event_windows(tmp_path) == []
+    monkeypatch.undo()
+    again = SignalWindow(tmp_path, CHANNELS, 0.002, rolling_window_s=4.0, event_window_s=1.0, chunk_s=1.0)
+    assert list((tmp_path / "events").iterdir()) == []                 # the next open removes it
+    again.close()
 
 
 def test_a_stands_event_window_is_a_one_channel_run_and_an_event_at_the_end_is_kept(tmp_path):
