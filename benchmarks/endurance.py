@@ -19,7 +19,9 @@ What happens, the moments drawn from a seed printed in the rows:
   from its first cycle (``--change inner:0.97@0``: the crack from flight 120) and a second
   interlock, inner's valve's heartbeat silenced for 5 s at a random stand time in what is left
   (``--fault heartbeat:inner@T+5``);
-* the trend's alarm (if it comes) unloads the rig; the test is resumed;
+* the trend's alarm (if it comes) unloads the rig; the test is resumed with ``--repaired`` (the
+  operator's answer after the inspection: the structure as it now is, the emulated crack staying,
+  is the trend's new baseline);
 * ``kill -9`` after a random 140-180 flights;
 * every stop and trip is followed by ``stand test resume`` until the 200 flights are done.
 
@@ -121,8 +123,9 @@ class Course:
     wall_s: float = 0.0
 
 
-def session(kind: str, test: Path, testdir: Path, target: int) -> subprocess.Popen:
+def session(kind: str, test: Path, testdir: Path, target: int, *more: str) -> subprocess.Popen:
     args = ["start", test, "--out", testdir, "--flights", target] if kind == "start" else ["resume", testdir]
+    args += list(more)
     return subprocess.Popen([sys.executable, "-m", "stand", "test", *map(str, args), *GATEWAY],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
 
@@ -136,9 +139,10 @@ def run_course(test: Path, rig: Path, testdir: Path, target: int, kills: list[in
     t0 = time.monotonic()
     kind = "start"
     kills = list(kills)
+    found: list[str] = []
     while True:
-        proc = session(kind, test, testdir, target)
-        kind = "resume"
+        proc = session(kind, test, testdir, target, *found)
+        kind, found = "resume", []
         last, progress = flights_done(testdir), time.monotonic()
         how = None
         while proc.poll() is None:
@@ -177,6 +181,10 @@ def run_course(test: Path, rig: Path, testdir: Path, target: int, kills: list[in
             restart(course)
         if "heartbeat" in reason:
             time.sleep(HEARTBEAT_SILENCE_S)         # the valve heartbeats again
+        if reason.startswith("monitor_alarm"):
+            # the operator's answer after the crack's alarm: the structure, as it now is, the
+            # trend's new baseline (the emulated crack stays: no second alarm for it)
+            found = ["--repaired"]
     course.wall_s = time.monotonic() - t0
 
 
@@ -215,7 +223,7 @@ def journal_sizes(testdir: Path) -> dict[str, int]:
 
 def storage_rows(testdir: Path, test, flights: int, plan: dict) -> list[Row]:
     """Storage on disk per 1,000 flights and its extrapolation, beside the plan's promise."""
-    from endurance.storage import turning_point_files
+    from endurance.storage import event_windows, turning_point_files
     n = test.station.n
     tp = sum(p.stat().st_size for p in turning_point_files(testdir))
     sizes = journal_sizes(testdir)
@@ -228,7 +236,7 @@ def storage_rows(testdir: Path, test, flights: int, plan: dict) -> list[Row]:
     growth = (tp + journal - fixed) / flights * 1000      # what the plan's per 1,000 flights counts
     promise = plan["storage_bytes"]["per_1000_flights"]
     rolling = sum(p.stat().st_size for p in (testdir / "rolling").glob("*.parquet"))
-    events = [sum(f.stat().st_size for f in d.iterdir()) for d in (testdir / "events").iterdir()]
+    events = [sum(f.stat().st_size for f in d.iterdir()) for d in event_windows(testdir)]
     top = sorted(sizes.items(), key=lambda kv: -kv[1])[:4]
     return [Row(f"endurance: storage per 1,000 flights ({n} channels, measured on disk)",
                 f"{growth / 1e6:.2f} MB growing (turning points {tp / flights * 1000 / 1e6:.2f}, journal "
@@ -325,10 +333,11 @@ def stop_rows(testdir: Path, test) -> tuple[list[Row], list[float]]:
     (the readings after the stand was acted on) and across the hold to the forces the next
     resume found (its window's first reading)."""
     from endurance.report import found_at_resume, held_deviation, stop_deviation
+    from endurance.storage import event_windows
     ranges = np.array(test.station.ranges_kgf, float)
     names = test.station.names
     found = []
-    for d in sorted((testdir / "events").iterdir()):
+    for d in event_windows(testdir):
         kind = d.name.split("-")[1]
         if kind in ("start", "resume"):
             continue

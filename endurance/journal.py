@@ -442,6 +442,12 @@ class Journal:
             return "interrupted"
         return s
 
+    @property
+    def reason(self) -> str | None:
+        """Why the test stopped (or was interrupted), as the state's last change said it."""
+        with self._mutex:
+            return self._state()["reason"]
+
     def position(self) -> Position:
         """The next flight and load case (a flight in progress continues where it stopped)."""
         with self._mutex:

@@ -180,6 +180,69 @@ class TrendWatch:
         return changed
 
 
+#: what an inspection found, as ``stand test resume --inspected | --repaired`` says it
+INSPECTED, REPAIRED = "inspected", "repaired"
+
+
+def after_inspection(test: EnduranceTest, journal: Journal, found: str | None) -> str | None:
+    """Before a session resumes: what the inspection after the trend's alarm found.
+
+    An alarm stays latched (its channels untested) until the operator says what the inspection
+    found: ``inspected`` (nothing to repair: every statistic from 0, the alarmed channels watched
+    again against their baselines; a crack still there alarms again) or ``repaired`` (the
+    structure is a new one: every flight type's baseline is learnt again, no alarm until a type
+    is armed again; also after an inspection stop without an alarm). A test the trend's alarm
+    stopped (hold or unload) and still latched is not resumed without either (ParameterError
+    naming the channels). The answer is journalled (its state and a ``trend_acknowledged``
+    event, one transaction); returns the event's text (None: nothing done)."""
+    flag = f"--{found}" if found else ""
+    if test.trend is None:
+        if found:
+            raise ParameterError(f"{flag}: the test watches no end-point trend ([monitor.trend]); leave it out")
+        return None
+    detector, latched = _latched(journal)
+    if found is None:
+        waiting = awaiting_inspection(journal)
+        if waiting:
+            raise ParameterError(
+                f"{journal.testdir}: the test stopped for the trend's alarm on {', '.join(waiting)}; say what the "
+                f"inspection found: resume --{INSPECTED} (nothing to repair: {', '.join(waiting)} watched "
+                f"again against the baseline) or --{REPAIRED} (every flight type's baseline learnt again)")
+        return None
+    if found == INSPECTED and not latched:
+        raise ParameterError(f"{flag}: no trend alarm is on (it acknowledges one); leave it out, or "
+                             f"--{REPAIRED} after a repair")
+    if detector is None:                       # nothing learnt yet: nothing to learn again
+        text = "repaired before the trend learnt anything: nothing to learn again"
+    else:
+        detector.acknowledge(relearn=found == REPAIRED)
+        on = f" after the alarm on {', '.join(latched)}" if latched else ""
+        text = (f"inspected{on}: nothing to repair; every channel watched again against its baseline, "
+                "the statistics from 0" if found == INSPECTED else
+                f"repaired{on}: every flight type's baseline is learnt again (the structure is a new "
+                "one); no alarm until a type is armed again")
+    step = MonitorStep(detector_rows(detector) if detector is not None else {},
+                       events=[("trend_acknowledged", ",".join(latched) or None, text)])
+    journal.record_monitors(step, journal.flights_done or None)
+    return text
+
+
+def awaiting_inspection(journal: Journal) -> list[str]:
+    """The channels of the trend's alarm that stopped the test (hold or unload), still latched: a
+    resume waits for what the inspection found (:func:`after_inspection`). [] if none."""
+    return _latched(journal)[1] if (journal.reason or "").startswith(MONITOR_ALARM) else []
+
+
+def _latched(journal: Journal) -> tuple[TrendDetector | None, list[str]]:
+    """The trend's detector as the journal holds it (None: nothing learnt yet) and its latched
+    channels."""
+    states = journal.monitor_states(TREND)
+    if TREND not in states:
+        return None, []
+    detector = detector_from_rows(states)
+    return detector, [n for n, on in zip(detector.names, detector.latched.any(axis=0)) if on]
+
+
 def detector_rows(detector: TrendDetector) -> dict[str, str]:
     """:meth:`TrendDetector.state` as the journal's rows: ``trend`` and ``trend.type.T`` per
     flight type (JSON, floats exact; the types' order kept: the thresholds mix them in it)."""

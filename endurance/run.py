@@ -95,7 +95,7 @@ from .flights import (OPERATOR_STOP, FlightPiece, FlightPlayer, FlightRecord, St
                       first_ways, glide_in, lead_in_of)
 from .inbox import take_in
 from .journal import EndPoint, Journal, JournalError, MonitorStep, lock_holder
-from .monitors import MONITOR_ALARM, FlightEnd, GainWatch, MonitorAlarm, TrendWatch
+from .monitors import MONITOR_ALARM, FlightEnd, GainWatch, MonitorAlarm, TrendWatch, after_inspection
 from .storage import EXPORT_EVERY, SignalWindow, TurningPointLog
 from .spectrum import FlightSequence
 from .testfile import EnduranceTest, Fingerprint, load_test_file
@@ -130,6 +130,7 @@ class SessionResult:
     flights_flown: int = 0
     waited_for_pieces_s: float = 0.0
     path: Path | None = None
+    inspection: str | None = None        #: what the operator said the inspection found
 
     def to_dict(self) -> dict:
         d = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(self).items()}
@@ -139,6 +140,8 @@ class SessionResult:
         lines = [f"{self.kind}: {self.flights_flown} flight(s) flown; {self.flights_done} of "
                  f"{self.flights_target} done; the test is {self.state}"
                  + (f" ({self.reason})" if self.reason else "")]
+        if self.inspection:
+            lines.insert(0, f"the trend: {self.inspection}")
         if self.loading:
             lines.append(loading_text(self.loading))
         if self.unload and self.unload.get("largest_deviation"):
@@ -600,8 +603,10 @@ def start(test_file: "str | Path | EnduranceTest", testdir: str | Path, config, 
 def resume(testdir: str | Path, config, test_file: "str | Path | EnduranceTest | None" = None,
            flights: int | None = None,
            progress: bool | None = False, on_flight=None, hook=None,
-           started_at: float | None = None, publisher=None) -> SessionResult:
-    """The session that takes the test in ``testdir`` up again (module docstring)."""
+           started_at: float | None = None, publisher=None, found: str | None = None) -> SessionResult:
+    """The session that takes the test in ``testdir`` up again (module docstring). ``found``:
+    what the inspection after the trend's alarm found (:func:`endurance.monitors.after_inspection`:
+    ``inspected`` or ``repaired``; a test the alarm stopped is not resumed without it)."""
     started_at = time.time() if started_at is None else started_at
     testdir = Path(testdir)
     with Journal.open(testdir) as peek:
@@ -621,11 +626,14 @@ def resume(testdir: str | Path, config, test_file: "str | Path | EnduranceTest |
         if journal.state() == "finished":
             raise JournalError(f"{testdir}: the test is finished ({journal.flights_done} flights); "
                                "resume --flights N raises its target")
+        inspection = after_inspection(test, journal, found)
     except BaseException:
         journal.close()
         raise
-    return run_session(test, testdir, journal, "resume", started_at, gateway_drive(test, config, progress),
-                       on_flight, hook, config.lockstep, config.limits.command_limit_pct, publisher)
+    result = run_session(test, testdir, journal, "resume", started_at, gateway_drive(test, config, progress),
+                         on_flight, hook, config.lockstep, config.limits.command_limit_pct, publisher)
+    result.inspection = inspection
+    return result
 
 
 def _read(test_file: "str | Path | EnduranceTest") -> EnduranceTest:

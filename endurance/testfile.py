@@ -273,8 +273,13 @@ class Fingerprint:
 
     @classmethod
     def from_json(cls, text: str) -> "Fingerprint":
-        data = json.loads(text)
-        return cls(dict(data["parts"]), str(data.get("station", "rig")))
+        """The fingerprint :meth:`to_json` wrote (DataError: not one, the journal damaged)."""
+        try:
+            data = json.loads(text)
+            return cls(dict(data["parts"]), str(data.get("station", "rig")))
+        except (ValueError, TypeError, KeyError, AttributeError) as exc:
+            raise DataError(f"the test's fingerprint in the journal cannot be read ({type(exc).__name__}: "
+                            f"{exc}); the journal is damaged") from None
 
     def changes(self, before: "Fingerprint") -> list[str]:
         """What changed from ``before`` (the test as it was started) to this one, one sentence

@@ -11,9 +11,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from core.errors import ParameterError
 from endurance.journal import Journal, MonitorStep
-from endurance.monitors import (GAIN, TREND, GainWatch, MonitorAlarm, TrendWatch, detector_from_rows,
-                                detector_rows, fed)
+from endurance.monitors import (GAIN, TREND, GainWatch, MonitorAlarm, TrendWatch, after_inspection,
+                                detector_from_rows, detector_rows, fed)
 from endurance.testfile import load_test_file
 from endurance.trends import TrendDetector, TrendOptions
 from loading.gain_monitor import GainMonitor, MonitorOptions
@@ -222,10 +223,27 @@ def test_the_trends_alarm_unloads_naming_the_channel_its_state_going_on_across_s
     status = json.loads(subprocess.run([sys.executable, "-m", "stand", "test", "status", str(testdir), "--json"],
                                        capture_output=True, text=True, timeout=120).stdout)
     assert any(e["kind"] == "trend_alarm" and e["channel"].startswith("inner") for e in status["events"])
-    # the next session goes on: inner's alarm latched (no second one), the test to its end
-    assert fly(testdir, test_file, station).state == "finished"
+    # not resumed before the operator says what the inspection found
+    with pytest.raises(ParameterError, match=r"stopped for the trend's alarm on inner.*--inspected.*--repaired"):
+        fly(testdir, test_file, station)
+    # inspected, nothing repaired: inner is watched again and, still softer, alarms again
+    again = fly(testdir, test_file, station, found="inspected")
+    assert again.inspection.startswith("inspected after the alarm on inner: nothing to repair")
+    assert again.state == "stopped" and again.reason.startswith("monitor_alarm: flight ")
     with Journal.open(testdir) as j:
-        assert [e["kind"] for e in j.events()].count("trend_alarm") == 1 and j.integrity_check() == []
+        alarms = [e for e in j.events() if e["kind"] == "trend_alarm"]
+        said = [e for e in j.events() if e["kind"] == "trend_acknowledged"]
+    assert len(alarms) == 2 and alarms[1]["channel"].split(",")[0] == "inner", alarms
+    assert said[0]["channel"] == "inner" and alarms[1]["flight"] > alarm[0]["flight"]
+    # repaired: the structure is a new one, its baselines learnt again; no alarm to the end
+    fixed = fly(testdir, test_file, station, found="repaired")
+    assert fixed.state == "finished" and fixed.inspection.startswith("repaired after the alarm on inner")
+    with Journal.open(testdir) as j:
+        assert [e["kind"] for e in j.events()].count("trend_alarm") == 2 and j.integrity_check() == []
+        relearnt = detector_from_rows(j.monitor_states(TREND))
+    assert not relearnt.latched.any() and relearnt.last_flight > alarms[1]["flight"]
+    with Journal.open(testdir, write=True) as j, pytest.raises(ParameterError, match="no trend alarm is on"):
+        after_inspection(load_test_file(test_file), j, "inspected")
 
 
 @pytest.mark.slow

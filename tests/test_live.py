@@ -9,20 +9,21 @@ from __future__ import annotations
 import json
 import re
 import socket
-import time
 from pathlib import Path
 
 import pytest
 
 from core.errors import ParameterError
 from endurance.inbox import INBOX_DIR, record_event, take_in
-from endurance.journal import Journal
+from endurance.journal import Journal, MonitorStep
 from endurance.live.feed import LIVE_FILE, FeedClient, LiveFeed
 from endurance.live.operator import REFUSALS_PER_MINUTE, Operator, read_token_file, resume_command
 from endurance.live.ring import MARGIN, SampleRing
 from endurance.live.server import Address, LiveServer, serve_address
 from endurance.live.viewer import StreamViewer
+from endurance.monitors import detector_rows
 from endurance.report import status_json, status_of
+from endurance.trends import TrendDetector, TrendOptions
 from tests.support.live import TOKEN, journal_of_flights, request, stand, token_file, wait_for
 
 
@@ -193,6 +194,17 @@ def test_with_the_token_an_action_the_test_cannot_take_now_is_409_and_says_why(p
         j.set_target(3)                                        # finished: 3 of 3
     status, _, body = request(url + "resume", "POST", bearer, b"")
     assert status == 409 and "the test is finished" in json.loads(body)["refused"]
+    # stopped by the trend's alarm: what the inspection found is the command line's to say
+    url, testdir = page(TOKEN)
+    detector = TrendDetector(["root", "inner"], None, TrendOptions())
+    detector.latched[0, 1] = True
+    with Journal.open(testdir, write=True) as j:
+        j.record_monitors(MonitorStep(detector_rows(detector)))
+        j.start()
+        j.stop("monitor_alarm: flight 3: channel inner needs 3.1 % more flow")
+    status, _, body = request(url + "resume", "POST", bearer, b"")
+    assert status == 409 and "the trend's alarm on inner stopped the test" in json.loads(body)["refused"]
+    assert "--inspected" in json.loads(body)["refused"] and not (testdir / "sessions").exists()
 
 
 def test_refusals_are_logged_at_most_ten_a_minute(tmp_path):

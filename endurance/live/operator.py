@@ -10,8 +10,10 @@
 * **resume**: ``stand test resume TESTDIR`` with the gateway options the test was started with
   (``TESTDIR/test.json``, :data:`endurance.run.TEST_RECORD`) as its own process, in its own
   session (it outlives the page's server), its output in ``TESTDIR/sessions/resume-*.log``;
-  refused while a session runs and once the test is finished (the target is raised from the
-  command line, ``stand test resume --flights N``).
+  refused while a session runs, once the test is finished (the target is raised from the
+  command line, ``stand test resume --flights N``) and while the trend's alarm that stopped it
+  waits for what the inspection found (``--inspected`` or ``--repaired``, the command line's:
+  :func:`endurance.monitors.after_inspection`).
 
 Every action taken and every one refused is an event in the journal (``operator``,
 ``refused``; :func:`endurance.inbox.record_event`); refusals at most :data:`REFUSALS_PER_MINUTE`
@@ -32,6 +34,7 @@ from pathlib import Path
 from core.errors import ParameterError, StandError
 from endurance.inbox import record_event
 from endurance.journal import Journal, lock_holder
+from endurance.monitors import awaiting_inspection
 from endurance.run import TEST_RECORD, SESSIONS_DIR, request_stop
 
 MIN_TOKEN_CHARS = 16
@@ -153,6 +156,11 @@ class Operator:
             if journal.state() == "finished":
                 raise Refused(409, f"the test is finished ({journal.flights_done} flights); raise its target "
                                    f"with stand test resume {self.testdir} --flights N")
+            waiting = awaiting_inspection(journal)
+        if waiting:
+            raise Refused(409, f"the trend's alarm on {', '.join(waiting)} stopped the test: say what the "
+                               f"inspection found on the command line, stand test resume {self.testdir} "
+                               "--inspected (nothing to repair) or --repaired")
         command = resume_command(self.testdir)
         log = self.testdir / SESSIONS_DIR / f"resume-{time.strftime('%Y%m%dT%H%M%S')}.log"
         log.parent.mkdir(exist_ok=True)

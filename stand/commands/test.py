@@ -48,11 +48,20 @@ def register(sub) -> None:
                         description="Take the test in TESTDIR up where its journal says (the load case "
                                     "before the interrupted one, approached along the ratio-keeping line "
                                     "from the forces found), refused if the test file changed since the "
-                                    "start (naming what).")
+                                    "start (naming what), or if the trend's alarm stopped it and the "
+                                    "operator has not said what the inspection found (--inspected or "
+                                    "--repaired).")
     q.add_argument("testdir", metavar="TESTDIR")
     q.add_argument("--test", metavar="TEST.toml", dest="test_file",
                    help="the test file, if it moved since the start (default: the one it was started from)")
     q.add_argument("--flights", type=int, metavar="N", help="a new target (at least the flights done)")
+    found = q.add_mutually_exclusive_group()
+    found.add_argument("--inspected", dest="found", action="store_const", const="inspected",
+                       help="after the trend's alarm: inspected, nothing to repair (the alarmed channels are "
+                            "watched again against their baselines)")
+    found.add_argument("--repaired", dest="found", action="store_const", const="repaired",
+                       help="after a repair (an alarm's or an inspection's): the structure is a new one, every "
+                            "flight type's baseline is learnt again")
     _gateway_options(q)
     add_live_options(q)
     q.set_defaults(func=resume_main)
@@ -180,7 +189,7 @@ def resume_main(args: argparse.Namespace) -> int:
     feed = LiveFeed()
     with sigterm_as_interrupt(), live_page(args, args.testdir, feed, "session"):
         result = resume(args.testdir, config, test, flights, on_flight=_on_flight(args), started_at=started,
-                        publisher=feed)
+                        publisher=feed, found=args.found)
     return _finish(result)
 
 
