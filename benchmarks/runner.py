@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import importlib
+import inspect
 import os
 import platform
 import sys
@@ -46,6 +47,9 @@ def machine() -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="scripts/bench", description=__doc__)
     ap.add_argument("--quick", action="store_true", help="small sizes: a smoke run under a minute")
+    ap.add_argument("--seed", type=int, metavar="N",
+                    help="the seed of the benchmarks that draw random moments (endurance), to repeat a run "
+                         "whose rows printed it (default: a fresh one)")
     ap.add_argument("names", nargs="*",
                     help="benchmarks to run (default: all modules in benchmarks/)")
     args = ap.parse_args(argv)
@@ -61,7 +65,9 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.monotonic()
         print(f"running {name} ({BENCHMARKS[name]}) ...", file=sys.stderr, flush=True)
         try:
-            rows += importlib.import_module(f"benchmarks.{name}").run(args.quick)
+            module = importlib.import_module(f"benchmarks.{name}")
+            seeded = args.seed is not None and "seed" in inspect.signature(module.run).parameters
+            rows += module.run(args.quick, seed=args.seed) if seeded else module.run(args.quick)
         except Exception as exc:  # a broken benchmark is reported, the others still run
             failed += 1
             traceback.print_exc()

@@ -26,7 +26,7 @@ import pyarrow.compute as pc
 
 from core.errors import DataError, StandError
 
-from .journal import Journal
+from .journal import JOURNAL_FILE, Journal
 from .storage import read_turning_points, storage_estimate
 
 SCHEMA = "hydrostand-test-report/1"
@@ -307,20 +307,35 @@ def found_at_resume(testdir: str | Path, after_s: float) -> dict | None:
     a stop or a trip left. Beside :func:`stop_deviation`, the deviation across the hold
     (:func:`held_deviation`), also where the hold ended the session and its event window saw no
     reading after it (in lockstep the emulated stand stands still without SYNCs). None: no
-    resume after it (or it found nothing: killed before it loaded)."""
+    resume after it, or the first one wrote no record (killed: what it found is not known, and
+    a later resume's forces are not the hold's but the next stop's), or it found nothing."""
+    testdir = Path(testdir)
     records = []
-    for path in sorted((Path(testdir) / "sessions").glob("*.json")):
+    for path in sorted((testdir / "sessions").glob("*.json")):
         try:
             records.append(json.loads(path.read_text()))
         except (OSError, ValueError):
             continue
     later = sorted((r for r in records if r.get("kind") == "resume" and (r.get("started_at") or 0) > after_s),
                    key=lambda r: r["started_at"])
+    first = _first_start_after(testdir, after_s)
+    if first is not None:           # a record's start (the command's) comes before its journal's
+        later = [r for r in later if r["started_at"] <= first]
     if not later or not (later[0].get("loading") or {}).get("forces_found_kgf"):
         return None
     loading = later[0]["loading"]
     return {"time": float(loading.get("began_at") or later[0]["started_at"]),
             "forces_kgf": [float(f) for f in loading["forces_found_kgf"]]}
+
+
+def _first_start_after(testdir: Path, after_s: float) -> float | None:
+    """When the first session after ``after_s`` started the test (its journal's ``started``
+    event; None: none, or no journal)."""
+    if not (testdir / JOURNAL_FILE).exists():
+        return None
+    with Journal.open(testdir) as journal:
+        starts = [e["time"] for e in journal.events() if e["kind"] == "started" and e["time"] > after_s]
+    return min(starts) if starts else None
 
 
 def held_deviation(stop: dict, resume: dict, ranges_kgf) -> dict:
