@@ -355,7 +355,7 @@ def stop_rows(testdir: Path, test) -> tuple[list[Row], list[float]]:
         f"{dev['rows_after']} readings" + (f" from the hold {dev['acted_after_s']:.1f} s after the onset"
                                             if dev["acted_after_s"] > 0.05 else "")
         + (f", {held['pct_of_range']:.2f} % at the resume {held['after_s']:.0f} s later" if held else
-           ", not measured across the hold (no record of the next resume: killed before it wrote one)")
+           ", not measured across the hold (no record of the next resume: killed before it loaded)")
         for k, dev, held in found)
     return [Row(f"endurance: the load ratios during every stop and trip ({len(found)})",
                 f"largest deviation {max(pct):.2f} % of a range" if pct else "no stop recorded",
@@ -540,7 +540,7 @@ def full_run(root: Path, seed: int) -> list[Row]:
     rows.append(Row("endurance: from stand test resume to loading again",
                     f"{min(loading):.1f}-{max(loading):.1f} s ({len(loading)} resumes)" if loading else "none",
                     "", "", f"median {np.median(loading):.1f} s; the glides within {max(glide):.2f} % of their "
-                            "ratio line; killed sessions write no record (their resumes do)" if loading else ""))
+                            "ratio line; a killed session's record is the one it began as it loaded" if loading else ""))
     r = report(testdir)
     last = r["last_block"]
     worst = max(a["p95"] for a in last["accuracy"].values())

@@ -246,6 +246,9 @@ def report(testdir: str | Path) -> dict:
             sessions.append(json.loads(p.read_text()))
         except (OSError, ValueError):
             continue
+    for i, s in enumerate(sessions):        # begun at loading, never completed: killed (or running)
+        if "ended_at" not in s and not (status["state"] == "running" and i == len(sessions) - 1):
+            s.update(state="killed", reason="the process died; its record is what it wrote when it loaded")
     errors = end_point_errors(table)
     done = status["flights_done"]
     last_block = None
@@ -307,8 +310,8 @@ def found_at_resume(testdir: str | Path, after_s: float) -> dict | None:
     a stop or a trip left. Beside :func:`stop_deviation`, the deviation across the hold
     (:func:`held_deviation`), also where the hold ended the session and its event window saw no
     reading after it (in lockstep the emulated stand stands still without SYNCs). None: no
-    resume after it, or the first one wrote no record (killed: what it found is not known, and
-    a later resume's forces are not the hold's but the next stop's), or it found nothing."""
+    resume after it, or the first one wrote no record (killed before it loaded: what it found is
+    not known, and a later resume's forces are not the hold's but the next stop's)."""
     testdir = Path(testdir)
     records = []
     for path in sorted((testdir / "sessions").glob("*.json")):
@@ -361,7 +364,8 @@ def report_text(r: dict) -> str:
              f"flights {r['flights_done']:,} of {r['flights_target']:,}; {r['end_points']:,} end points; "
              f"{len(r['sessions'])} session(s), {r['stops']} stop(s), {r['interruptions']} interruption(s)"]
     for i, s in enumerate(r["sessions"], start=1):
-        line = f"  session {i}: {s['kind']} at flight {s['first_flight']}, {s['flights_flown']} flown, ended " \
+        flown = f"{s['flights_flown']} flown, ended" if s.get("flights_flown") is not None else "its end not recorded:"
+        line = f"  session {i}: {s['kind']} at flight {s['first_flight']}, {flown} " \
                f"{s['state']}" + (f" ({s['reason']})" if s.get("reason") else "")
         if s.get("loading"):
             line += f"; loading {s['loading']['to_loading_s']:.2f} s after the {s['kind']}"

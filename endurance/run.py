@@ -52,7 +52,9 @@ set-point approach) to the levels of the load case before the interrupted one, a
 goes on from there (that segment is run again: the structure sees the interrupted load case's
 whole swing), with the compensation its type has; the interrupted flight is completed, counted
 once. The time from the resume to loading again is an event (``loading``) and in the
-session's record (``TESTDIR/sessions/NNNN.json``).
+session's record (``TESTDIR/sessions/NNNN.json``: begun with ``state`` running when the session
+loads, completed at its end; a session killed after loading leaves it so, with where it found
+the stand, and none before).
 
 **The live view.** A session takes a ``publisher`` (:class:`endurance.live.feed.LiveFeed`:
 the command line always gives one): the control loop hands it every cycle's forces, references
@@ -344,6 +346,7 @@ class JournalWriter:
         self.ranges = None
         self.error: BaseException | None = None
         self.loading_info: dict | None = None
+        self.record_path: Path | None = None           #: the session's record, once it loads
         self.flights_flown = 0
         self._since_export = 0
         self._stop_seen = False
@@ -442,6 +445,11 @@ class JournalWriter:
         self.loading_info = info
         message = loading_text(info)
         self.journal.add_event("loading", message, flight=info["flight"], load_case=info["load_case"])
+        # the session's record, begun now and completed at its end: a session killed later
+        # still says where it found the stand (what the stop before it left)
+        self.record_path = session_record_path(self.testdir)
+        _write_json(self.record_path, {"kind": self.kind, "state": "running", "first_flight": info["flight"],
+                                       "started_at": self.started_at, "loading": info})
         if self.window.last_time_s is not None:        # its event window: the approach before it
             self.window.mark_event(self.kind, message, flight=info["flight"])
 
@@ -546,6 +554,13 @@ def read_stop_file(testdir: Path) -> dict | None:
         return json.loads((Path(testdir) / STOP_FILE).read_text())
     except (OSError, ValueError):
         return None
+
+
+def session_record_path(testdir: Path) -> Path:
+    """The next session's record, ``TESTDIR/sessions/NNNN.json`` (numbered on)."""
+    sessions = testdir / SESSIONS_DIR
+    sessions.mkdir(exist_ok=True)
+    return sessions / f"{len(list(sessions.glob('*.json'))) + 1:04d}.json"
 
 
 def _write_json(path: Path, data: dict) -> None:
@@ -835,10 +850,7 @@ def _end_session(result: SessionResult, journal: Journal, log: TurningPointLog, 
     status = journal.status()
     result.state, result.reason = status["state"], status["reason"]
     result.flights_done, result.flights_target = status["flights_done"], status["flights_target"]
-    sessions = result.testdir / SESSIONS_DIR
-    sessions.mkdir(exist_ok=True)
-    number = len(list(sessions.glob("*.json"))) + 1
-    result.path = sessions / f"{number:04d}.json"
+    result.path = writer.record_path or session_record_path(result.testdir)
     _write_json(result.path, {**result.to_dict(), "started_at": writer.started_at, "ended_at": time.time(),
                               "stats": meta.get("stats"), "safety": meta.get("safety"),
                               "pieces": {"built": player.pieces.built, "reused": player.pieces.reused}})

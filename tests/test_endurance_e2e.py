@@ -174,8 +174,15 @@ def test_32_flights_through_a_stop_at_once_and_two_kills_are_counted_once_each(t
     assert not any(cols["rerun"])
 
     # -- the stops and the resumes ------------------------------------------------------------------------
-    sessions = [json.loads(p.read_text()) for p in sorted((testdir / "sessions").glob("*.json"))]
-    assert [s["kind"] for s in sessions] == ["resume", "resume"]          # the killed ones wrote none
+    records = [json.loads(p.read_text()) for p in sorted((testdir / "sessions").glob("*.json"))]
+    assert [s["kind"] for s in records] == ["start", "resume", "resume", "resume"]
+    # a killed session's record is what it wrote as it loaded (where it found the stand), never ended
+    assert ["ended_at" in s for s in records] == [False, True, False, True], records
+    assert all(s["state"] == "running" and s["loading"]["forces_found_kgf"] for s in records[::2])
+    killed = [s for s in json.loads(stand("test", "report", testdir, "--json").stdout)["sessions"]
+              if s["state"] == "killed"]
+    assert [s["first_flight"] for s in killed] == [records[0]["first_flight"], records[2]["first_flight"]]
+    sessions = [s for s in records if "ended_at" in s]
     stopped, last = sessions
     assert stopped["end_reason"] == "operator_stop"
     unload = stopped["unload"]

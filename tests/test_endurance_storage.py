@@ -466,8 +466,8 @@ def test_across_a_hold_that_ended_the_session_the_resumes_found_forces_are_measu
     assert held["pct_of_range"] < 1e-9 and held["after_s"] == pytest.approx(56.8)
     (testdir / "sessions" / "0002.json").unlink()
     assert held_deviation(stop, resume(3, 1.8e9 + 60.0, sagged), ranges)["pct_of_range"] > 2.5
-    # the first resume after the trip was killed (it started the test, wrote no record): the
-    # record of a later one is not what the hold left, so no answer
+    # the first resume after the trip was killed before it loaded (it started the test, wrote no
+    # record): the record of a later one is not what the hold left, so no answer
     with Journal.create(testdir, "t", 10, CHANNELS, "f" * 64, "{}", "") as j:
         j.add_event("started", "resumed at flight 3 load case 2", time_s=1.8e9 + 30.0)
     assert found_at_resume(testdir, stop["time"]) is None
