@@ -1,4 +1,4 @@
-"""The endurance test through the real processes: 200 flights of ten flight types with two interlocks, an operator's stop, two kill -9 and a crack; an intact structure over 1,000 flights offline.
+"""The endurance test through the real processes: 200 flights of ten flight types with two interlocks, an operator's stop, two kill -9 and a crack; an intact structure over 1,000 flights.
 
 The test: ``examples/endurance-bench/test.toml`` (the ten TWIST-like flight types of
 ``examples/endurance`` on the example rig, 10-20 load cases each, at 6000 kgf/s, every type's
@@ -32,9 +32,8 @@ trip's largest deviation from the load ratios (from the recorded signals), the r
 loading, the last block's peaks and valleys, the stand time per flight of the last block at its
 types' schedules against the valve-limited minimum, the storage on disk per 1,000 flights and
 its extrapolation (100,000 flights, 16 channels) beside what ``stand test plan`` promised, and the
-crack's alarm. Then the intact structure: 1,000 flights of the same test through the session's
-own player, planner, journal and monitors offline (:mod:`endurance.offline`: the emulator's
-plant without a bus; 1,000 flights through the processes would take hours here), its alarms.
+crack's alarm. Then the intact structure: 1,000 flights of the same test through the processes
+(a fresh emulator, one ``stand test start``, the trend noting what it finds), its alarms.
 The surrogate's statistics (thousands of seeds) are ``scripts/bench crack``'s.
 
 ``--quick`` (a smoke run of seconds, 15-30 s): 4 flights through the processes with one kill -9
@@ -413,25 +412,30 @@ def crack_row(testdir: Path, course: Course) -> tuple[Row, dict | None]:
                f"{len(alarms)} alarm(s) in all"), first
 
 
-def intact_offline(root: Path, flights: int) -> Row:
-    """The intact structure: ``flights`` flights offline through the session's own machinery."""
+def intact_structure(root: Path, flights: int, seed: int) -> Row:
+    """The intact structure: ``flights`` flights through the processes (the emulator in
+    lockstep, one ``stand test start``), the trend noting its alarms (none expected)."""
     from endurance.journal import Journal
-    from endurance.offline import OfflineStation, fly
     test, rig = lay_out(root / "intact", flights, None)
     test.write_text(test.read_text().replace('action = "unload"', 'action = "note"'))
-    t0 = time.perf_counter()
-    result = fly(root / "intact" / "T", test, OfflineStation.of_rig_file(rig, seed=11), flights)
-    wall = time.perf_counter() - t0
-    with Journal.open(root / "intact" / "T") as j:
+    testdir = root / "intact" / "T"
+    course = Course(seed)
+    emu = emulator(rig)
+    try:
+        run_course(test, rig, testdir, flights, [], None, random.Random(seed), course)
+    finally:
+        emu.stop()
+    with Journal.open(testdir) as j:
         alarms = [e for e in j.events() if e["kind"] == "trend_alarm"]
         rows = [json.loads(r) for _, _, r in j.monitor_history("trend")]
+        done = j.flights_done
     tested = sum(r["tested"] for r in rows)
-    return Row(f"endurance: intact structure, {flights:,} flights (the session offline: endurance.offline)",
-               f"{len(alarms)} alarm(s) in {result.flights_done:,} flights ({tested:,} tested by the trend)",
-               "none", "met" if not alarms else "not met",
-               f"the emulator's plant without a bus, the session's player, planner, journal and monitors; "
-               f"{len(rows)} flights fed (final timing, run whole); {wall:.0f} s wall"
-               + (f"; first: {alarms[0]['message'][:200]}" if alarms else ""))
+    return Row(f"endurance: intact structure, {flights:,} flights through the gateway",
+               f"{len(alarms)} alarm(s) in {done:,} flights ({tested:,} tested by the trend)",
+               "none", "met" if not alarms and done == flights else "not met",
+               f"`stand emulate --rig --lockstep` and `stand test start`, the trend's action note; {len(rows)} "
+               f"flights fed (final timing, run whole); {len(course.sessions)} session(s); "
+               f"{course.wall_s / 60:.0f} min wall" + (f"; first: {alarms[0]['message'][:200]}" if alarms else ""))
 
 
 # -- the runs -----------------------------------------------------------------------------------------
@@ -556,7 +560,7 @@ def full_run(root: Path, seed: int) -> list[Row]:
     named = [e for e in status["events"] if e["kind"] == "trend_alarm"]
     rows[-1].note += (f"; stand test status --json names {named[0]['channel']}" if named else
                       "; not in stand test status --json")
-    rows.append(intact_offline(root, INTACT_FLIGHTS))
+    rows.append(intact_structure(root, INTACT_FLIGHTS, seed))
     rows.append(storage_wide(root / "wide"))
     rows.append(Row("endurance: the whole benchmark", f"{(time.perf_counter() - t_start) / 60:.0f} min"))
     return rows

@@ -367,7 +367,7 @@ class SignalWindow:
         self._rolling_rows = max(int(round(self.rolling_window_s / self.period_s)), 1)
         self._event_rows = max(int(round(self.event_window_s / self.period_s)), 1)
         self._chunks: list[_Chunk] = self._found_chunks()
-        self._rows_of: dict[Path, int] = {}              # an event's row, once on disk
+        self._rows_of: dict[tuple[Path, bool], int] = {}  # an event's rows (onset, acted), once on disk
         self._pending: list[EventWindow] = []            # events whose window is not written yet
         self._pending_lock = threading.Lock()
         self.written: list[EventWindow] = []
@@ -503,18 +503,21 @@ class SignalWindow:
     def _rows_on_disk(self) -> int:
         return self._chunks[-1].end if self._chunks else 0
 
-    def _event_row(self, event: EventWindow) -> int | None:
-        """The row (numbered as the chunks are) at or after the event's time; None while that
-        row is not on disk (the first on disk if the event is older than every row kept)."""
-        if event.path in self._rows_of:
-            return self._rows_of[event.path]
+    def _event_row(self, event: EventWindow, acted: bool = False) -> int | None:
+        """The row (numbered as the chunks are) at or after the event's time (``acted``: the
+        time the stand was acted on); None while that row is not on disk (the first on disk if
+        the event is older than every row kept)."""
+        key = (event.path, acted)
+        if key in self._rows_of:
+            return self._rows_of[key]
+        at = event.acted_s if acted else event.time_s
         for chunk in self._chunks:
-            if chunk.last_ms / 1000.0 + 0.001 < event.time_s:
+            if chunk.last_ms / 1000.0 + 0.001 < at:
                 continue
             clock = pq.read_table(chunk.path, columns=["sync_time"]).column("sync_time").to_numpy()
-            k = int(np.searchsorted(clock, event.time_s - 1e-6, side="left"))
+            k = int(np.searchsorted(clock, at - 1e-6, side="left"))
             if k < len(clock):
-                self._rows_of[event.path] = chunk.start + k
+                self._rows_of[key] = chunk.start + k
                 return chunk.start + k
         return None
 
@@ -523,19 +526,26 @@ class SignalWindow:
             pending = list(self._pending)
         for event in pending:
             row = self._event_row(event)
-            complete = row is not None and self._rows_on_disk() > row + self._event_rows
+            # a trip acted on later than its onset (a heartbeat's timeout: in lockstep tens of
+            # seconds of the stand's time): the window reaches as far past that moment
+            later = event.acted_s is not None and event.acted_s > event.time_s
+            end = self._event_row(event, acted=True) if later and row is not None else row
+            complete = end is not None and self._rows_on_disk() > end + self._event_rows
             if not (complete or final):
                 continue
-            self._write_event(event, self._rows_on_disk() if row is None else row)
-            self._rows_of.pop(event.path, None)
+            last = self._rows_on_disk()
+            self._write_event(event, last if row is None else row, last if end is None else end)
+            self._rows_of.pop((event.path, False), None)
+            self._rows_of.pop((event.path, True), None)
             with self._pending_lock:
                 self._pending.remove(event)
             self.written.append(event)
 
-    def _write_event(self, event: EventWindow, row: int) -> None:
-        """The event's window: the rows within ±event_window_s of its row on the continuous
-        stand time (a superset first: that many rows of the period each side)."""
-        lo, hi = row - self._event_rows, row + self._event_rows
+    def _write_event(self, event: EventWindow, row: int, end: int) -> None:
+        """The event's window: the rows within event_window_s before its row and after ``end``
+        (the row where the stand was acted on; ``row`` if then) on the continuous stand time (a
+        superset first: that many rows of the period each side)."""
+        lo, hi = row - self._event_rows, end + self._event_rows
         parts = [(c, pq.read_table(c.path)) for c in self._chunks if c.end > lo and c.start <= hi]
         tables = [t.slice(max(lo - c.start, 0), min(hi + 1, c.end) - max(lo, c.start)) for c, t in parts]
         table = pa.concat_tables(tables) if tables else self.schema.empty_table()
@@ -546,8 +556,11 @@ class SignalWindow:
             at = int(np.clip(row - max(lo, parts[0][0].start), 0, table.num_rows - 1))
             # the event after every row (marked at the end of a session): the last row's time
             t_event = t[at] if row < self._rows_on_disk() else t[-1] + self.period_s
-            inside = np.abs(t - t_event) <= self.event_window_s + self.period_s / 2
-            truncated = bool(t[-1] < t_event + self.event_window_s - self.period_s / 2)
+            upto = int(np.clip(end - max(lo, parts[0][0].start), 0, table.num_rows - 1))
+            t_end = max(t[upto] if end < self._rows_on_disk() else t[-1] + self.period_s, t_event)
+            half = self.period_s / 2
+            inside = (t >= t_event - self.event_window_s - half) & (t <= t_end + self.event_window_s + half)
+            truncated = bool(t[-1] < t_end + self.event_window_s - half)
             table, clock, t = table.filter(pa.array(inside)), clock[inside], t[inside]
         table = table.set_column(table.schema.get_field_index("t"), "t", pa.array(t, pa.float64()))
         # built in a hidden directory and renamed into place whole: a kill while it is written

@@ -266,6 +266,32 @@ def test_in_lockstep_the_windows_hold_the_stands_seconds_not_the_walls(tmp_path)
     assert sum(pq.read_metadata(p).num_rows for _, _, p in w2.chunks()) == 10_000
 
 
+def test_a_trip_acted_on_a_timeout_after_its_onset_keeps_the_stand_up_to_then_and_after(tmp_path):
+    """A heartbeat's loss is acted on 3 s of the wall after its onset: in lockstep at 8x that is
+    24 s of the stand's time, past a window of ±3 s around the onset; the window reaches from
+    3 s before the onset to 3 s after the moment the stand was acted on."""
+    from gateway.runs import load_run
+    from endurance.report import stop_deviation
+    fast = 8.0
+    w = SignalWindow(tmp_path, CHANNELS, 0.002, rolling_window_s=60.0, event_window_s=3.0, chunk_s=5.0)
+    for k in range(12):                                  # 60 s of stand time in 7.5 s of wall
+        out = rows(CHANNELS, 5.0 * k, 5.0, t0=5.0 * k)
+        out["sync_time"] = 1.8e9 + out["t"] / fast
+        w.append_rows(out)
+        if k == 2:
+            onset = 1.8e9 + 11.0 / fast
+            event = w.mark_event("heartbeat_lost", "inner", time_s=onset, channel="inner", acted_s=onset + 3.0)
+        w.sync()
+    assert w.close() == [event]
+    run = load_run(event.path)
+    assert run.t[0] == pytest.approx(8.0) and run.t[-1] == pytest.approx(11.0 + 24.0 + 3.0)
+    assert run.meta["event"]["truncated"] is False
+    # the stop's deviation counts from the reading before the hold, not from the window's end
+    stop = stop_deviation(event.path, CHANNELS, [1e4, 1e4, 5e3, 5e3])
+    held = np.array([np.interp(35.0 - 0.002, run.t, run.signals[f"y.{c}"]) for c in CHANNELS])
+    assert np.allclose(stop["forces_at_kgf"], held, atol=20.0) and stop["rows_after"] == 1501
+
+
 def test_continuous_time_keeps_the_gap_between_passes():
     t = np.r_[np.arange(5) * 0.002, np.arange(3) * 0.002]
     wall = np.r_[10 + np.arange(5) * 0.002, 11 + np.arange(3) * 0.002]
