@@ -455,6 +455,7 @@ def run(quick: bool, seed: int | None = None) -> list[Row]:
 
 def quick_run(root: Path, seed: int) -> list[Row]:
     from endurance.journal import Journal
+    from endurance.report import session_records
     from endurance.testfile import load_test_file
     test_file, rig = lay_out(root, QUICK_FLIGHTS, None)
     test = load_test_file(test_file)
@@ -469,7 +470,7 @@ def quick_run(root: Path, seed: int) -> list[Row]:
         problems = j.integrity_check()
         done = j.flights_done
     ok, text = check_log(testdir, test, done)
-    sessions = [json.loads(p.read_text()) for p in sorted((testdir / "sessions").glob("*.json"))]
+    sessions = session_records(testdir)
     loading = [s["loading"]["to_loading_s"] for s in sessions if s.get("loading")]
     killed = len(course.kills)
     return [Row("endurance (quick): flights counted through a kill -9 and a resume", f"{done} of {QUICK_FLIGHTS}",
@@ -484,7 +485,7 @@ def quick_run(root: Path, seed: int) -> list[Row]:
 
 def full_run(root: Path, seed: int) -> list[Row]:
     from endurance.journal import Journal
-    from endurance.report import report
+    from endurance.report import report, session_records
     from endurance.testfile import load_test_file
     t_start = time.perf_counter()
     rng = random.Random(seed)
@@ -537,7 +538,7 @@ def full_run(root: Path, seed: int) -> list[Row]:
                     f"after the last session; faults scheduled {', '.join(course.faults)}"))
     dev_rows, _ = stop_rows(testdir, test)
     rows += dev_rows
-    sessions = [json.loads(p.read_text()) for p in sorted((testdir / "sessions").glob("*.json"))]
+    sessions = session_records(testdir)
     loading = [s["loading"]["to_loading_s"] for s in sessions if s.get("kind") == "resume" and s.get("loading")]
     glide = [s["loading"]["approach_deviation"]["pct_of_range"] for s in sessions
              if s.get("loading") and s["loading"].get("approach_deviation")]

@@ -240,12 +240,7 @@ def report(testdir: str | Path) -> dict:
         events = journal.events()
         table = test_end_points(testdir, journal)
         block_size = _block_size(journal)
-    sessions = []
-    for p in sorted((testdir / "sessions").glob("*.json")):
-        try:
-            sessions.append(json.loads(p.read_text()))
-        except (OSError, ValueError):
-            continue
+    sessions = session_records(testdir)
     for i, s in enumerate(sessions):        # begun at loading, never completed: killed (or running)
         if "ended_at" not in s and not (status["state"] == "running" and i == len(sessions) - 1):
             s.update(state="killed", reason="the process died; its record is what it wrote when it loaded")
@@ -304,6 +299,18 @@ def stop_deviation(window: str | Path, names: list[str], ranges_kgf) -> dict:
             "acted_after_s": at - meta["time"], "forces_at_kgf": y0.tolist(), "time": float(meta["time"])}
 
 
+def session_records(testdir: str | Path) -> list[dict]:
+    """The sessions' records (``TESTDIR/sessions/NNNN.json``), oldest first; one that cannot be
+    read is left out."""
+    records = []
+    for path in sorted((Path(testdir) / "sessions").glob("*.json")):
+        try:
+            records.append(json.loads(path.read_text()))
+        except (OSError, ValueError):
+            continue
+    return records
+
+
 def found_at_resume(testdir: str | Path, after_s: float) -> dict | None:
     """The forces the first resume after ``after_s`` (epoch s) found when it began (its
     session's record: ``loading.forces_found_kgf``, read after the valves' settling hold): what
@@ -313,13 +320,7 @@ def found_at_resume(testdir: str | Path, after_s: float) -> dict | None:
     resume after it, or the first one wrote no record (killed before it loaded: what it found is
     not known, and a later resume's forces are not the hold's but the next stop's)."""
     testdir = Path(testdir)
-    records = []
-    for path in sorted((testdir / "sessions").glob("*.json")):
-        try:
-            records.append(json.loads(path.read_text()))
-        except (OSError, ValueError):
-            continue
-    later = sorted((r for r in records if r.get("kind") == "resume" and (r.get("started_at") or 0) > after_s),
+    later = sorted((r for r in session_records(testdir) if r.get("kind") == "resume" and (r.get("started_at") or 0) > after_s),
                    key=lambda r: r["started_at"])
     first = _first_start_after(testdir, after_s)
     if first is not None:           # a record's start (the command's) comes before its journal's
