@@ -16,7 +16,6 @@ from gateway.offline import emulated_truth, run_offline_pass
 
 from . import run
 from .journal import Journal
-from .monitors import after_inspection
 from .testfile import load_test_file
 
 
@@ -60,23 +59,15 @@ def fly(testdir: str | Path, test_file: str | Path, station: OfflineStation, fli
         max_s: float = 5000.0, on_flight=None, hook=None, found: str | None = None) -> run.SessionResult:
     """A session offline: a new test in ``testdir`` (its journal made as ``stand test start``
     makes it; ``flights`` its target instead of the file's) or the one there resumed (``found``:
-    what the inspection after the trend's alarm found, as :func:`endurance.run.resume` takes it)."""
+    what the inspection after the trend's alarm found, as :func:`endurance.run.run_session` takes it)."""
     test = load_test_file(test_file)
     testdir = Path(testdir)
     if (testdir / "journal.sqlite").exists():
         journal, kind = Journal.open(testdir, write=True), "resume"
-        try:
-            inspection = after_inspection(test, journal, found)
-        except BaseException:
-            journal.close()
-            raise
     else:
         fp = test.fingerprint()
         journal = Journal.create(testdir, test.name, flights or test.flights, test.station.names, fp.digest,
                                  fp.to_json(), test.path.read_text())
         kind = "start"
-        inspection = None
-    result = run.run_session(test, testdir, journal, kind, time.time(),
-                             station.drive(test.station.force_limits_kgf, max_s), on_flight, hook)
-    result.inspection = inspection
-    return result
+    return run.run_session(test, testdir, journal, kind, time.time(),
+                           station.drive(test.station.force_limits_kgf, max_s), on_flight, hook, found=found)

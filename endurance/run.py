@@ -620,8 +620,7 @@ def resume(testdir: str | Path, config, test_file: "str | Path | EnduranceTest |
            progress: bool | None = False, on_flight=None, hook=None,
            started_at: float | None = None, publisher=None, found: str | None = None) -> SessionResult:
     """The session that takes the test in ``testdir`` up again (module docstring). ``found``:
-    what the inspection after the trend's alarm found (:func:`endurance.monitors.after_inspection`:
-    ``inspected`` or ``repaired``; a test the alarm stopped is not resumed without it)."""
+    what the inspection after the trend's alarm found (:func:`run_session`)."""
     started_at = time.time() if started_at is None else started_at
     testdir = Path(testdir)
     with Journal.open(testdir) as peek:
@@ -641,14 +640,11 @@ def resume(testdir: str | Path, config, test_file: "str | Path | EnduranceTest |
         if journal.state() == "finished":
             raise JournalError(f"{testdir}: the test is finished ({journal.flights_done} flights); "
                                "resume --flights N raises its target")
-        inspection = after_inspection(test, journal, found)
     except BaseException:
         journal.close()
         raise
-    result = run_session(test, testdir, journal, "resume", started_at, gateway_drive(test, config, progress),
-                         on_flight, hook, config.lockstep, config.limits.command_limit_pct, publisher)
-    result.inspection = inspection
-    return result
+    return run_session(test, testdir, journal, "resume", started_at, gateway_drive(test, config, progress),
+                       on_flight, hook, config.lockstep, config.limits.command_limit_pct, publisher, found)
 
 
 def _read(test_file: "str | Path | EnduranceTest") -> EnduranceTest:
@@ -712,15 +708,17 @@ def gateway_drive(test: EnduranceTest, config, progress: bool | None = False) ->
 
 def run_session(test: EnduranceTest, testdir: Path, journal: Journal, kind: str, started_at: float,
                 drive: Drive, on_flight=None, hook=None, lockstep: bool = True,
-                command_limit_pct: float = 100.0, publisher=None) -> SessionResult:
+                command_limit_pct: float = 100.0, publisher=None, found: str | None = None) -> SessionResult:
     """One session: the flights from the journal's position on, back to back, until a stop,
     the target, an inspection or a fault (module docstring). ``journal`` is open for writing
     (the test's lock held) and is closed here. ``lockstep``: the stand waits for the loop (the
     first cycle may wait for the first flight's piece; in real time the valves hold meanwhile).
     ``command_limit_pct``: the valves' (time scaling's minimum counts on it). ``publisher``: the
     live view's, opened with ``open(testdir, channels, period_s)`` before the run and closed after
-    it."""
+    it. ``found``: a resume's answer after the trend's alarm (:func:`endurance.monitors.after_inspection`:
+    ``inspected`` or ``repaired``; a test the alarm stopped is not resumed without it)."""
     try:
+        answer = after_inspection(test, journal, found) if kind == "resume" else None
         (testdir / STOP_FILE).unlink(missing_ok=True)
         names = test.station.names
         rig = test.station.kind == "rig"
@@ -746,7 +744,8 @@ def run_session(test: EnduranceTest, testdir: Path, journal: Journal, kind: str,
                           stop, test.station.period_s, test.controller.command_limit_pct, wait_first=lockstep)
     recorder = SessionRecorder(window, testdir, lambda: player.number, publisher,
                                _interlock_event(writer, stop, lambda: player.number))
-    result = SessionResult(testdir, kind, "running", None, journal.flights_done, journal.flights_target, pos.flight)
+    result = SessionResult(testdir, kind, "running", None, journal.flights_done, journal.flights_target, pos.flight,
+                           inspection=answer)
     outcome = None
     failure: BaseException | None = None
     try:
