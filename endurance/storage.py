@@ -553,11 +553,16 @@ class SignalWindow:
         t = continuous_time(table.column("t").to_numpy(), clock, self.period_s) if table.num_rows else np.array([])
         truncated = True
         if table.num_rows:
-            at = int(np.clip(row - max(lo, parts[0][0].start), 0, table.num_rows - 1))
-            # the event after every row (marked at the end of a session): the last row's time
-            t_event = t[at] if row < self._rows_on_disk() else t[-1] + self.period_s
-            upto = int(np.clip(end - max(lo, parts[0][0].start), 0, table.num_rows - 1))
-            t_end = max(t[upto] if end < self._rows_on_disk() else t[-1] + self.period_s, t_event)
+            first = max(lo, parts[0][0].start)          # the row the table begins with
+
+            def time_of(r: int) -> float:
+                """Row ``r``'s continuous time; a row after every row on disk (an event marked at
+                the end of a session) a period after the last."""
+                if r >= self._rows_on_disk():
+                    return float(t[-1] + self.period_s)
+                return float(t[int(np.clip(r - first, 0, table.num_rows - 1))])
+            t_event = time_of(row)
+            t_end = max(time_of(end), t_event)
             half = self.period_s / 2
             inside = (t >= t_event - self.event_window_s - half) & (t <= t_end + self.event_window_s + half)
             truncated = bool(t[-1] < t_end + self.event_window_s - half)
