@@ -333,8 +333,8 @@ def storage_wide(root: Path, channels: int = EXTRAPOLATE_CHANNELS, first: int = 
 
 def stop_rows(testdir: Path, test) -> tuple[list[Row], list[float]]:
     """Each stop's and trip's largest deviation from the load ratios, from its event window
-    (the readings after the stand was acted on) and across the hold to the forces the next
-    resume found (its window's first reading)."""
+    (the readings after the stand was acted on) and across the hold to the forces the resume
+    right after it found (its session's record)."""
     from endurance.report import found_at_resume, held_deviation, stop_deviation
     from endurance.storage import event_windows
     ranges = np.array(test.station.ranges_kgf, float)
@@ -447,9 +447,9 @@ def run(quick: bool, seed: int | None = None) -> list[Row]:
         rows = quick_run(Path(tmp), seed) if quick else full_run(Path(tmp), seed)
         if any(r.ratio == "not met" for r in rows) and (Path(tmp) / "T").is_dir():
             # a goal missed: the test's directory kept for a look (journal, sessions, windows)
-            kept = Path(tempfile.gettempdir()) / f"hydrostand-bench-endurance-{os.getpid()}"
-            shutil.copytree(Path(tmp) / "T", kept, dirs_exist_ok=True)
-            rows.append(Row("endurance: a goal not met: the test directory kept", str(kept)))
+            keep = Path(tempfile.gettempdir()) / f"hydrostand-bench-endurance-{os.getpid()}"
+            shutil.copytree(Path(tmp) / "T", keep, dirs_exist_ok=True)
+            rows.append(Row("endurance: a goal not met: the test directory kept", str(keep)))
         return rows
 
 
