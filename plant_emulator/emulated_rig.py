@@ -21,8 +21,9 @@ Time:
   before); the steps within the shortest transport delay are computed ahead in blocks as in
   lockstep (:class:`~plant_emulator.lockstep_plant.LockstepRig` with one step a period: the
   coupled plant of 8 channels cost 0.75 ms per advance call, made at every SYNC and every
-  command); each SYNC on a bus samples the forces of that bus's channels
-  at that instant and sends that bus's TPDOs.
+  command), the next block at a quiet moment between a cycle's commands and its next SYNC,
+  before the blocks ahead run out (:meth:`EmulatedRig._when_quiet`); each SYNC on a bus
+  samples the forces of that bus's channels at that instant and sends that bus's TPDOs.
 
 Each valve keeps its own RPDO watchdog (event timer 0x1400:05), counted on the stand's time:
 the wall clock in real time (one thread polls every valve), in lockstep the stand's own time,
@@ -61,6 +62,13 @@ log = logging.getLogger(__name__)
 _STALL_S = 0.02
 #: how long the watchdog waits for frames already in the socket before declaring a timeout, s
 _MAX_DEFERRAL_S = 0.02
+#: real time: the buses this long without a frame are quiet (a cycle's frames are in), s
+_QUIET_S = 0.0002
+#: real time: the plant's next block is computed at a quiet moment once fewer than this many
+#: cycles are computed ahead (the next quiet moment is a cycle away)
+_PREFETCH_CYCLES = 3
+#: the cycle period assumed for that before the master has written one (0x1006), s
+_PREFETCH_UNKNOWN_PERIOD_S = 0.01
 
 
 @dataclass
@@ -156,6 +164,10 @@ class EmulatedRig:
         self.faults = FaultSchedule(options.faults)
         #: a scheduled spike per channel index, added to its next reading (kgf)
         self._spikes: dict[int, float] = {}
+        #: real time: the wall-clock stamp of the last SYNC, and what a prefetch of the plant
+        #: took lately (s): :meth:`_when_quiet`
+        self._last_sync_stamp = 0.0
+        self._prefetch_s = 0.0
         self._stop = threading.Event()
         self._watchdog: threading.Thread | None = None
         self._reader: threading.Thread | None = None
@@ -202,10 +214,10 @@ class EmulatedRig:
             for ch in b.channels:
                 for node in ch.nodes:
                     node.fast_rx = notifier.fast
-            notifiers = [b.network.notifier for b in self.buses]
-            self._reader = threading.Thread(target=self._read_buses, args=(notifiers, spin),
-                                            name="emulator-buses", daemon=True)
-            self._reader.start()
+        notifiers = [b.network.notifier for b in self.buses]
+        self._reader = threading.Thread(target=self._read_buses, args=(notifiers, spin),
+                                        name="emulator-buses", daemon=True)
+        self._reader.start()
         self._t_plant = time.monotonic()
         for ch in self.channels:
             ch.valve.boot()
@@ -215,10 +227,19 @@ class EmulatedRig:
             self._watchdog.start()
 
     def _read_buses(self, notifiers: list[HandoverNotifier], spin_s: float) -> None:
+        """Receive and handle every bus's frames; in real time, once the frames stop for
+        :data:`_QUIET_S` (a cycle's commands are in, its next SYNC not yet), do the plant's
+        work that can wait (:meth:`_when_quiet`)."""
+        quiet = None if self.options.lockstep else self._when_quiet
         try:
             with handover_many(notifiers, spin_s) as pump:
+                busy = False
                 while not self._stop.is_set():
-                    pump(0.05)
+                    if pump(_QUIET_S if busy else 0.05) is not None:
+                        busy = quiet is not None
+                    elif busy:
+                        busy = False
+                        quiet()
         except Exception as exc:  # never silently: the rig would stop answering
             log.exception("reading the buses failed")
             self.errors.append(repr(exc))
@@ -264,6 +285,31 @@ class EmulatedRig:
             self.realtime_plant.hold(steps, self._plant_dt, self._commands())
             self._t_plant += steps * self._plant_dt
 
+    def _when_quiet(self) -> None:
+        """Real time, between a cycle's frames and its next SYNC: compute the plant's next
+        block now if the periods computed ahead would run out within :data:`_PREFETCH_CYCLES`
+        cycles (:meth:`LockstepRig.prefetch`), so that no SYNC waits for one: computed at the
+        SYNC that found none ahead, a 16-channel rig's block (0.5-1.7 ms) made that SYNC's
+        answers miss its synchronous window, 1-2 % of the cycles stale."""
+        with self.lock:
+            self._catch_up()
+            period = self._cycle_period()
+            if not (period > 0 and math.isfinite(period)):
+                period = _PREFETCH_UNKNOWN_PERIOD_S
+            steps = math.ceil(_PREFETCH_CYCLES * period / self._plant_dt)
+            if len(self.realtime_plant._ahead) >= steps:
+                return
+            # not where the next SYNC would come before it is done: at the next quiet moment
+            # (what it takes is expected smaller each time it waits, so it does not wait for
+            # ever after one that was preempted)
+            if self._last_sync_stamp + period - time.time() < 1.5 * self._prefetch_s + _QUIET_S:
+                self._prefetch_s *= 0.7
+                return
+            start = time.perf_counter()
+            if self.realtime_plant.prefetch(self._commands(), steps):
+                took = time.perf_counter() - start
+                self._prefetch_s += 0.3 * (took - self._prefetch_s)
+
     def _cycle_period(self) -> float:
         """The communication cycle period 0x1006 the master wrote, s."""
         return int(self._period_node.value(P.COMM_CYCLE_PERIOD)) * 1e-6
@@ -300,7 +346,7 @@ class EmulatedRig:
                     self._lockstep_watchdog()
                 else:
                     answering = (on_bus,)
-                    stamp = timestamp
+                    stamp = self._last_sync_stamp = timestamp
                     self.advance_plant()
                 self._make_faults()
                 spikes = self._spikes

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from plant import Dynamometer, PlantModel
-from plant_emulator.lockstep_plant import LockstepPlant
+from plant_emulator.lockstep_plant import REBASE_BLOCKS, LockstepPlant
 
 STEP = 0.0005
 
@@ -119,3 +119,75 @@ def test_holding_a_command_over_several_steps_is_stepping_them_one_by_one(spec, 
     assert np.max(np.abs(got - want)) < 1e-9 * max(1.0, np.abs(want).max())
     if model.delay_steps(STEP) >= 8:          # the steps inside τ were computed together
         assert held.periods_per_block > 5
+
+
+@pytest.mark.parametrize("spec", ["base", "base+reversal", "base+lag+deadzone+backlash",
+                                  "base+gain_drift"])
+@pytest.mark.parametrize("tau", [0.0, 0.0031, 0.05])
+def test_a_block_prefetched_at_a_quiet_moment_changes_no_force(spec, tau):
+    """The real-time emulator computes the next block between a cycle's commands and its next
+    SYNC (``prefetch``), from the present, with the present command standing in: the forces
+    are those of stepping each step, whatever commands follow, a restart and a long gap
+    included; and the steps after a prefetch compute nothing."""
+    rng = np.random.default_rng(int(tau * 1e4) + 2)
+    drift = {"gain_drift.rate": 0.04, "gain_drift.time_constant": 3.0} if "drift" in spec else {}
+    model = PlantModel.from_spec(spec, {"tau": tau, "g": 110.0, **drift})
+    gaps = np.concatenate([rng.integers(0, 5, 300), [400], rng.integers(0, 5, 100)])
+    commands = np.repeat(rng.normal(0, 10, 80), 6)[:len(gaps)]
+    ahead, stepped = LockstepPlant(model, 50.0, STEP), LockstepPlant(model, 50.0, STEP)
+    got, want, fetched = [], [], 0
+    for j, (k, c) in enumerate(zip(gaps, commands)):
+        if j == 350:
+            ahead.restart_clock()
+            stepped.restart_clock()
+        got.append(ahead.hold(int(k), STEP, [c])[0])
+        for _ in range(int(k)):
+            stepped.step(STEP, c)
+        want.append(stepped.force)
+        if rng.random() < 0.3:      # at some quiet moments: some blocks run out to their end
+            fetched += ahead.prefetch([c], 12)
+        # what an undo would replay stays bounded, however long the blocks are extended
+        assert len(ahead._commands) <= (REBASE_BLOCKS + 1) * (model.delay_steps(STEP) + 1)
+        assert ahead.stand_time_s == pytest.approx(stepped.stand_time_s, abs=1e-12)
+    got, want = np.array(got), np.array(want)
+    assert np.max(np.abs(got - want)) < 1e-9 * max(1.0, np.abs(want).max())
+    B = model.delay_steps(STEP) + 1
+    if B - 1 > 12:
+        assert fetched >= 3
+        ahead.prefetch([1.0], 12)
+        calls = []
+        advance = ahead.model.advance
+        ahead.model.advance = lambda *a, **kw: calls.append(1) or advance(*a, **kw)
+        ahead.hold(12, STEP, [1.0])
+        del ahead.model.advance
+        assert calls == []
+    else:
+        assert fetched == 0          # a block no longer than the margin is not worth it
+
+
+def test_a_prefetched_block_of_a_coupled_rig_takes_each_channels_own_commands():
+    """Three coupled channels, each its own τ and commands changing at different steps: with
+    prefetches the forces are those of stepping the rig step by step."""
+    from plant.rig import RigModel
+    from plant_emulator.lockstep_plant import LockstepRig
+    models = [PlantModel.from_spec("base+reversal", {"tau": tau, "g": 110.0})
+              for tau in (0.02, 0.035, 0.05)]
+    G = np.array([[110.0, -20.0, 0.0], [-20.0, 110.0, -20.0], [0.0, -20.0, 110.0]])
+    rig = RigModel(models, G)
+    rng = np.random.default_rng(11)
+    gaps = rng.integers(0, 6, 500)
+    commands = rng.normal(0, 10, (len(gaps), 3))
+    commands[rng.random(commands.shape) < 0.7] = 0.0      # most channels hold between steps
+    ahead = LockstepRig(rig, [0.0, 100.0, -50.0], STEP)
+    stepped = LockstepRig(rig, [0.0, 100.0, -50.0], STEP)
+    got, want, fetched = [], [], 0
+    for k, c in zip(gaps, commands.tolist()):
+        got.append(ahead.hold(int(k), STEP, c))
+        for _ in range(int(k)):
+            stepped.step(STEP, c)
+        want.append(stepped.forces)
+        if rng.random() < 0.3:
+            fetched += ahead.prefetch(c, 8)
+    got, want = np.array(got), np.array(want)
+    assert fetched >= 5
+    assert np.max(np.abs(got - want)) < 1e-9 * np.abs(want).max()
