@@ -297,7 +297,7 @@ class EmulatedRig:
             if not (period > 0 and math.isfinite(period)):
                 period = _PREFETCH_UNKNOWN_PERIOD_S
             steps = math.ceil(_PREFETCH_CYCLES * period / self._plant_dt)
-            if len(self.realtime_plant._ahead) >= steps:
+            if self.realtime_plant.periods_ahead >= steps:
                 return
             # not where the next SYNC would come before it is done: at the next quiet moment
             # (what it takes is expected smaller each time it waits, so it does not wait for

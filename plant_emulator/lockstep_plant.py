@@ -78,6 +78,9 @@ class LockstepRig:
         self._commands: list[list[float]] = []  # real commands of the block's ended periods
         self._assumed: deque[list[float]] = deque()   # the stand-ins of the periods ahead
         self._blocks = self._periods = 0
+        #: blocks computed by :meth:`prefetch` (the others were computed when a step found
+        #: none ahead: :attr:`blocks_on_demand`)
+        self.prefetched_blocks = 0
 
     @property
     def stand_time_s(self) -> float:
@@ -94,6 +97,17 @@ class LockstepRig:
         y = self.model.advance(self.states, u, self.dt, self._clock_s())
         self._steps += u.shape[1]
         return y
+
+    @property
+    def periods_ahead(self) -> int:
+        """Periods computed ahead of the present."""
+        return len(self._ahead)
+
+    @property
+    def blocks_on_demand(self) -> int:
+        """Blocks computed when a step found no period ahead (in real time: at a SYNC or a
+        command, which then waited for it)."""
+        return self._blocks - self.prefetched_blocks
 
     @property
     def periods_per_block(self) -> float:
@@ -154,6 +168,7 @@ class LockstepRig:
         self._ahead.extend(y[:, self.sub - 1::self.sub].T.tolist())
         self._assumed.extend([commands] * new)
         self._blocks += 1
+        self.prefetched_blocks += 1
         self._periods += new
         return True
 

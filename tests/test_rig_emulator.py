@@ -201,3 +201,36 @@ def test_an_emulated_structure_that_is_not_physical_is_refused_at_start(tmp_path
     assert res.returncode == 2 and "Traceback" not in res.stderr
     assert "cannot be emulated" in res.stderr and "not positive definite" in res.stderr
     assert res.stdout == ""                               # refused before any bus was served
+
+
+@pytest.mark.serial
+def test_in_real_time_the_plants_blocks_are_computed_between_cycles_not_at_a_sync(tmp_path, channel):
+    """Real time: the coupled plant's blocks (a transport delay's steps computed at once) are
+    computed at the quiet moments between a cycle's commands and its next SYNC, so no SYNC's
+    answers wait for one; the forces still follow the commands. In process, on the rig's
+    loopback buses, a master sending a SYNC and every command each 2 ms for 1.2 s."""
+    from plant_emulator.emulated_rig import EmulatedRig, EmulatorOptions
+    from standbus import open_bus
+    rig = load_rig_file(write_rig(tmp_path / "rig.toml", example_rig_text(channel, quiet=True)))
+    buses = {b.name: open_bus(b.spec) for b in rig.buses}
+    try:
+        emu = EmulatedRig.from_rig(buses, rig, EmulatorOptions(lockstep=False, seed=1))
+        with emu, RigMaster(rig) as master:
+            master.start(T)
+            start = time.perf_counter()
+            for k in range(600):
+                master.sync()
+                master.drain(0.0003)
+                master.command({"root": 20.0, "inner": 0.0, "outer": 0.0, "tip": 0.0})
+                time.sleep(max(0.0, start + (k + 1) * T - time.perf_counter()))
+            master.sync()
+            answers = master.answers(timeout_s=0.5)
+        plant = emu.realtime_plant
+    finally:
+        for bus in buses.values():
+            bus.shutdown()
+    assert plant.prefetched_blocks >= 10
+    # most of them (without: none prefetched, 32 on demand; on a host busy with three
+    # spinning processes: 27 and 8)
+    assert plant.blocks_on_demand < plant.prefetched_blocks
+    assert answers["root"].force_kgf > 100.0      # root's valve open: its force rose
