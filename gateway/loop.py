@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import contextlib
 import gc
+import itertools
 import logging
 import math
 import queue
@@ -358,12 +359,15 @@ class ControlLoop:
         nets = self.networks
         if not all(hasattr(net, "handover") for net in nets):
             return
-        # lockstep: each answer follows its SYNC within ~0.1 ms, so poll for it before sleeping
+        # lockstep: each answer follows its SYNC within ~0.1 ms, so poll for it before sleeping,
+        # writing the captures' frames between polls (the capture threads do what is left)
         spin = LOCKSTEP_BUSY_POLL_S if self.lockstep else 0.0
+        idle = _captures_writer(nets) if self.lockstep else None
         if len(nets) == 1:
-            self._pump = stack.enter_context(nets[0].handover(spin))
+            self._pump = stack.enter_context(nets[0].handover(spin, idle=idle))
         else:
-            self._pump = stack.enter_context(handover_many([net.notifier for net in nets], spin))
+            self._pump = stack.enter_context(handover_many([net.notifier for net in nets], spin,
+                                                           idle=idle))
 
     # -- the loop --------------------------------------------------------------------------------
     def run(self, experiment: Experiment, recorder: RunRecorder | None, progress=None,
@@ -864,6 +868,24 @@ def steady_heap():
         yield
     finally:
         gc.unfreeze()
+
+
+def _captures_writer(networks):
+    """``idle()`` for the lockstep loop's polls: write one queued item of the networks'
+    captures (:meth:`gateway.capture.BusCapture.write_one`, the next capture each time);
+    whether one was written. None without captures."""
+    captures = [c for c in (getattr(net, "capture", None) for net in networks) if c is not None]
+    if not captures:
+        return None
+    turn = itertools.cycle(captures)
+    count = len(captures)
+
+    def idle() -> bool:
+        for _ in range(count):
+            if next(turn).write_one():
+                return True
+        return False
+    return idle
 
 
 def _sleep_until(target: float, pump=None) -> None:

@@ -121,14 +121,16 @@ class HandoverNotifier(can.Notifier):
         super().stop(timeout)
 
     @contextlib.contextmanager
-    def handover(self, spin_s: float = 0.0,
-                 wait_s: float | None = None) -> Iterator[Callable[[float], can.Message | None]]:
+    def handover(self, spin_s: float = 0.0, wait_s: float | None = None,
+                 idle: Callable[[], bool] | None = None) -> Iterator[Callable[[float], can.Message | None]]:
         """Park the reader thread and yield ``pump(timeout)``: receive one frame, or one
         datagram's frames where the bus hands them over raw (waiting at most ``timeout`` s),
         hand them on (:meth:`receive`), return the last (or a count; None on timeout). ``spin_s``:
         poll the bus (``recv(0)``, yielding the core between polls) up to that long before
         sleeping in ``recv``: a sleeping thread takes ~15 µs to wake, most of a lockstep round
-        trip. The bus is given back when the block ends, even on an exception."""
+        trip. ``idle()``: a small piece of the caller's own work, done between polls instead of
+        yielding the core (True: it did some). The bus is given back when the block ends, even
+        on an exception."""
         if self._stopped:
             raise RuntimeError("the notifier is stopped")
         with self._handover_lock:
@@ -148,7 +150,7 @@ class HandoverNotifier(can.Notifier):
                         stop = start + min(spin_s, timeout)
                         while msg is None and clock() < stop:
                             msg = receive(bus, 0)
-                            if msg is None:
+                            if msg is None and not (idle is not None and idle()):
                                 yield_cpu()     # a peer waiting for this core runs first
                         if msg is None:
                             msg = receive(bus, max(0.0, timeout - (clock() - start)))
@@ -165,12 +167,14 @@ class HandoverNotifier(can.Notifier):
 
 @contextlib.contextmanager
 def handover_many(notifiers: "list[HandoverNotifier]", spin_s: float = 0.0,
-                  idle_poll_s: float = 0.001) -> Iterator[Callable[[float], can.Message | None]]:
+                  idle_poll_s: float = 0.001,
+                  idle: Callable[[], bool] | None = None) -> Iterator[Callable[[float], can.Message | None]]:
     """:meth:`HandoverNotifier.handover` over several buses at once (a rig's buses): every
     reader thread parks, and the one ``pump(timeout)`` receives a frame from whichever bus has
     one (round robin, so no bus starves), handing it to that bus's listeners. It polls all buses
-    for ``spin_s`` before it sleeps, then waits on the buses' file descriptors (at most
-    ``idle_poll_s`` at a time, so a bus whose frames do not wake its descriptor, e.g. one
+    for ``spin_s`` before it sleeps (doing a piece of ``idle()`` work between polls where
+    given, as :meth:`HandoverNotifier.handover`), then waits on the buses' file descriptors (at
+    most ``idle_poll_s`` at a time, so a bus whose frames do not wake its descriptor, e.g. one
     delaying frames on purpose, is still polled); a bus without a descriptor is polled. Where
     every descriptor can be watched, one epoll tells which buses to ask, in the spin too."""
     with contextlib.ExitStack() as stack:
@@ -247,7 +251,8 @@ def handover_many(notifiers: "list[HandoverNotifier]", spin_s: float = 0.0,
                 if now >= end:
                     return None
                 if now < spin_end:
-                    yield_cpu()
+                    if idle is None or not idle():
+                        yield_cpu()
                 elif waitable:      # (select: epoll's timeout is rounded up to whole milliseconds)
                     try:
                         select.select(descriptors, [], [], min(end - now, idle_poll_s))
