@@ -435,7 +435,7 @@ class EmulatedRig:
         now = self.stand_time_s
         for ch in self.channels:
             valve = ch.valve
-            if valve.last_rpdo_time is not None and valve.check_rpdo_timeout(now):
+            if valve.rpdo_timeout_due(now) and valve.check_rpdo_timeout(now):
                 valve.fault(P.EMCY_RPDO_TIMEOUT)
 
     def _watch(self) -> None:

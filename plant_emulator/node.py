@@ -176,6 +176,7 @@ class EmulatedNode:
         with self.lock:
             if command in (NMT_RESET_NODE, NMT_RESET_COMM):
                 self._stored.clear()
+                self.stored_changed()
                 if command == NMT_RESET_NODE:
                     self.local.data_store.clear()    # application parameters back to EDS values
                     self._rpdo_values.clear()
@@ -376,6 +377,10 @@ class EmulatedNode:
 
     def rpdo_timeout_due(self, now: float) -> bool:
         """True if an RPDO with an event timer is overdue (without reporting it)."""
+        last, timers = self.last_rpdo_time, self._rpdo_timers
+        if last is None or (timers is not None and timers[0] is self.rpdos
+                            and (timers[1] is None or now - last <= timers[1] + 1e-9)):
+            return False             # (the usual answer, without the lock: every SYNC asks)
         with self.lock:
             if self.last_rpdo_time is None or self.local.nmt._state != 5:   # not OPERATIONAL
                 return False
@@ -414,6 +419,7 @@ class EmulatedNode:
         """Store a value received by PDO (the device is told by the caller): it is the object's
         value for :meth:`value` and for an SDO read, until an SDO write or a reset."""
         self._rpdo_values[index, sub] = self._stored[index, sub] = value
+        self.stored_changed()
 
     def _read_live(self, index: int, subindex: int, od: Any) -> Any:
         key = (index, subindex)
@@ -429,8 +435,13 @@ class EmulatedNode:
             if index >= 0x2000:
                 self.on_object_written(index, subindex, value)
             self._stored[index, subindex] = value
+            self.stored_changed()
 
     # -- device hooks -------------------------------------------------------------------------
+    def stored_changed(self) -> None:
+        """A stored object changed (an SDO write, a PDO's stored value, a reset): a device
+        drops what it derived from them."""
+
     def on_boot(self) -> None:
         """After boot-up (power-on or reset)."""
 

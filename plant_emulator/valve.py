@@ -53,22 +53,34 @@ class ServoValveNode(EmulatedNode):
         #: hooks for the stand: integrate up to now before, re-read the command after a change
         self.before_change = lambda: None
         self.after_change = lambda: None
+        #: (position mode, lower and upper limit, hold setpoint), read from the objects once
+        #: after they change (the spool command is asked after every command)
+        self._spool_objects: tuple[bool, int, int, int] | None = None
+        #: the spool command the outputs were last set for
+        self._outputs_of: float | None = None
         self._refresh()
 
     # -- what the hydraulics see ----------------------------------------------------------------
     def spool_command_percent(self) -> float:
         """The command the valve applies now, in % (positive: force rising)."""
         S = P.ValveState
-        if self.state is S.ACTIVE and int(self.value(P.DEVICE_MODE)) == 1:
-            upper = int(self.value(P.UPPER_LIMIT))
-            lower = int(self.value(P.LOWER_LIMIT))
+        objects = self._spool_objects
+        if objects is None:
+            objects = self._spool_objects = (
+                int(self.value(P.DEVICE_MODE)) == 1, int(self.value(P.LOWER_LIMIT)),
+                int(self.value(P.UPPER_LIMIT)), int(self.value(P.HOLD_SETPOINT)))
+        position, lower, upper, hold = objects
+        if self.state is S.ACTIVE and position:
             counts = min(max(self.setpoint_counts, lower), upper)
             self.limit_reached = counts != self.setpoint_counts
             return P.counts_to_percent(counts)
         self.limit_reached = False
         if self.state in (S.HOLD, S.FAULT_HOLD):
-            return P.counts_to_percent(int(self.value(P.HOLD_SETPOINT)))
+            return P.counts_to_percent(hold)
         return 0.0
+
+    def stored_changed(self) -> None:
+        self._spool_objects = None
 
     # -- state machine ------------------------------------------------------------------------
     def on_boot(self) -> None:
@@ -167,4 +179,6 @@ class ServoValveNode(EmulatedNode):
     def update_outputs(self, spool_percent: float) -> None:
         """Refresh the values the TPDO carries (status word, actual spool position)."""
         self._refresh()
-        self.live[_ACTUAL_VALUE] = percent_to_counts(spool_percent)
+        if spool_percent != self._outputs_of:
+            self._outputs_of = spool_percent
+            self.live[_ACTUAL_VALUE] = percent_to_counts(spool_percent)
