@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import can
 import canopen
@@ -17,6 +17,7 @@ from plant.sensor import Dynamometer
 from standbus import wire
 
 from .dynamometer import DynamometerNode
+from .heartbeats import PeriodicFrames
 from .node import slave_frame_filter
 from .valve import ServoValveNode
 
@@ -33,15 +34,31 @@ class ChannelSetup:
     initial_force_kgf: float = 0.0
 
 
+class _Network(canopen.Network):
+    """A canopen network whose periodic frames (the nodes' heartbeats) go out from the
+    emulator's one thread (:mod:`plant_emulator.heartbeats`), not a thread each."""
+
+    def __init__(self, bus: can.BusABC, periodic: PeriodicFrames, send: Callable[[list], None]) -> None:
+        super().__init__(bus)
+        self._periodic, self._send = periodic, send
+
+    def send_periodic(self, can_id: int, data, period: float, remote: bool = False):
+        if remote:
+            return super().send_periodic(can_id, data, period, remote)
+        return self._periodic.task(self._send, can_id, data, period)
+
+
 class EmulatedBus:
     """One CAN bus: its canopen network behind an acceptance filter for the nodes on it, the
-    channels on it, and (lockstep) its SYNCs not yet matched by every other bus's."""
+    channels on it, and (lockstep) its SYNCs not yet matched by every other bus's.
+    ``periodic``: where the nodes' heartbeats are sent from (default: a thread of its own)."""
 
     def __init__(self, name: str, bus: can.BusABC, node_ids: Sequence[int],
-                 cyclic_flags: int = 0) -> None:
+                 cyclic_flags: int = 0, periodic: PeriodicFrames | None = None) -> None:
         self.name = name
         self.bus = bus
-        self.network = canopen.Network(bus)
+        self.periodic = periodic if periodic is not None else PeriodicFrames()
+        self.network = _Network(bus, self.periodic, self.send_frames)
         #: the wire flags of the synchronous TPDOs: classic, or on a CAN FD bus FD frames
         self.cyclic_flags = cyclic_flags
         #: frames dropped before the stack (wrong DLC on NMT/SYNC/SDO, error/remote/ext frames,

@@ -53,6 +53,7 @@ from standbus import LOCKSTEP_BUSY_POLL_S, HandoverNotifier, prefer_busy_poll, w
 from standbus.handover import handover_many
 
 from .channel import ChannelSetup, EmulatedBus, EmulatedChannel
+from .heartbeats import PeriodicFrames
 from .lockstep_plant import LockstepRig
 from .scheduled_faults import FaultSchedule, ScheduledFault
 
@@ -126,7 +127,9 @@ class EmulatedRig:
         self.rig_model = model
         self.lock = threading.RLock()         # one lock for the whole rig
         flags = dict(cyclic_flags or {})
-        self.buses = [EmulatedBus(name, bus, ids[name], flags.get(name, 0))
+        #: every node's heartbeat, from one thread (:mod:`plant_emulator.heartbeats`)
+        self.periodic = PeriodicFrames()
+        self.buses = [EmulatedBus(name, bus, ids[name], flags.get(name, 0), self.periodic)
                       for name, bus in buses.items()]
         by_name = {b.name: b for b in self.buses}
         self.channels = [EmulatedChannel(i, c, by_name[c.bus], options.lockstep)
@@ -253,6 +256,7 @@ class EmulatedRig:
         for ch in self.channels:
             for node in ch.nodes:
                 node.local.nmt.stop_heartbeat()
+        self.periodic.close()
         for b in self.buses:
             if b.network.notifier is not None:
                 b.network.notifier.stop(1.0)
