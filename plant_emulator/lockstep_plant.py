@@ -163,13 +163,9 @@ class LockstepRig:
             self._start = (_copy_states(self.states), self._steps)
             self._commands = []
         new = periods - len(self._ahead)
-        u = np.repeat(np.asarray(commands, float)[:, None], new * self.sub, axis=1)
-        y = self._advance(u)
-        self._ahead.extend(y[:, self.sub - 1::self.sub].T.tolist())
+        self._ahead.extend(self._periods_of(commands, new))
         self._assumed.extend([commands] * new)
-        self._blocks += 1
         self.prefetched_blocks += 1
-        self._periods += new
         return True
 
     def restart_clock(self, channels: Sequence[int] | None = None) -> None:
@@ -202,18 +198,23 @@ class LockstepRig:
         return cached[1]
 
     def _block(self, commands: list[float]) -> list[float]:
-        sub = self.sub
         periods = self._block_periods_now()
         self._start = (_copy_states(self.states), self._steps) if periods > 1 else None
         self._commands = [commands]
         self._assumed = deque([commands] * (periods - 1))
+        ends = self._periods_of(commands, periods)
+        self._ahead.extend(ends[1:])
+        return ends[0]
+
+    def _periods_of(self, commands: list[float], periods: int) -> list[list[float]]:
+        """The states advanced ``periods`` periods with ``commands`` in one call (a block, or
+        a prefetch's new periods): the forces at each period's end."""
+        sub = self.sub
         u = np.repeat(np.asarray(commands, float)[:, None], periods * sub, axis=1)
         y = self._advance(u)
-        ends = y[:, sub - 1::sub].T.tolist()
-        self._ahead.extend(ends[1:])
         self._blocks += 1
         self._periods += periods
-        return ends[0]
+        return y[:, sub - 1::sub].T.tolist()
 
     def _confirm(self, commands: list[float]) -> None:
         """The next period ahead ended with ``commands``: put each in its channel's delay line
