@@ -142,17 +142,21 @@ class BusCapture(can.Listener):
         if not self._writing.acquire(blocking=False):
             return False
         try:
-            try:
-                item = self._queue.get_nowait()
-            except queue.Empty:
-                return False
-            try:
-                self.frames += self._write(item)
-            except Exception:          # one odd frame must not stop the capture
-                self.write_errors += 1
-            return True
+            return self._write_next()
         finally:
             self._writing.release()
+
+    def _write_next(self) -> bool:
+        """Write the oldest queued item (the caller holds ``_writing``); whether there was one."""
+        try:
+            item = self._queue.get_nowait()
+        except queue.Empty:
+            return False
+        try:
+            self.frames += self._write(item)
+        except Exception:          # one odd frame must not stop the capture
+            self.write_errors += 1
+        return True
 
     def _write(self, item) -> int:
         """One queued item into the file's lines (or python-can's writer); its frame count."""
@@ -179,15 +183,8 @@ class BusCapture(can.Listener):
         while True:
             closing = self._closed.wait(self._batch_s)
             with self._writing:
-                while True:
-                    try:
-                        msg = self._queue.get_nowait()
-                    except queue.Empty:
-                        break
-                    try:
-                        self.frames += self._write(msg)
-                    except Exception:          # one odd frame must not stop the capture
-                        self.write_errors += 1
+                while self._write_next():
+                    pass
             now = time.monotonic()
             if closing or now - last_flush >= self._flush_s:
                 self._flush()
