@@ -376,20 +376,24 @@ class EmulatedNode:
             self.on_objects_written(changes)
 
     def rpdo_timeout_due(self, now: float) -> bool:
-        """True if an RPDO with an event timer is overdue (without reporting it)."""
-        last, timers = self.last_rpdo_time, self._rpdo_timers
-        if last is None or (timers is not None and timers[0] is self.rpdos
-                            and (timers[1] is None or now - last <= timers[1] + 1e-9)):
-            return False             # (the usual answer, without the lock: every SYNC asks)
-        with self.lock:
-            if self.last_rpdo_time is None or self.local.nmt._state != 5:   # not OPERATIONAL
-                return False
-            timers = self._rpdo_timers
-            if timers is None or timers[0] is not self.rpdos:    # the RPDOs as configured now
+        """True if an RPDO with an event timer is overdue (without reporting it). Asked at every
+        SYNC, so the lock is taken only to read the timers again after the RPDOs changed."""
+        last = self.last_rpdo_time
+        if last is None:
+            return False
+        timeout = self._rpdo_timeout_s()
+        # (1 ns of slack: the stand's time in lockstep is a sum of periods in floats)
+        return (timeout is not None and now - last > timeout + 1e-9
+                and self.local.nmt._state == 5)                    # OPERATIONAL
+
+    def _rpdo_timeout_s(self) -> float | None:
+        """The shortest event timer of the RPDOs as configured now (s), None without one."""
+        timers = self._rpdo_timers
+        if timers is None or timers[0] is not self.rpdos:
+            with self.lock:
                 ms = [c.event_timer_ms for c in self.rpdos.values() if c.event_timer_ms]
                 timers = self._rpdo_timers = (self.rpdos, min(ms) / 1000.0 if ms else None)
-            # (1 ns of slack: the stand's time in lockstep is a sum of periods in floats)
-            return timers[1] is not None and now - self.last_rpdo_time > timers[1] + 1e-9
+        return timers[1]
 
     def check_rpdo_timeout(self, now: float) -> bool:
         """True once if an RPDO with an event timer has not arrived within it."""
