@@ -51,14 +51,13 @@ class _Network(canopen.Network):
 class EmulatedBus:
     """One CAN bus: its canopen network behind an acceptance filter for the nodes on it, the
     channels on it, and (lockstep) its SYNCs not yet matched by every other bus's.
-    ``periodic``: where the nodes' heartbeats are sent from (default: a thread of its own)."""
+    ``periodic``: where the nodes' heartbeats are sent from (the emulator's one thread)."""
 
     def __init__(self, name: str, bus: can.BusABC, node_ids: Sequence[int],
-                 cyclic_flags: int = 0, periodic: PeriodicFrames | None = None) -> None:
+                 cyclic_flags: int, periodic: PeriodicFrames) -> None:
         self.name = name
         self.bus = bus
-        self.periodic = periodic if periodic is not None else PeriodicFrames()
-        self.network = _Network(bus, self.periodic, self.send_frames)
+        self.network = _Network(bus, periodic, self.send_frames)
         #: the wire flags of the synchronous TPDOs: classic, or on a CAN FD bus FD frames
         self.cyclic_flags = cyclic_flags
         #: frames dropped before the stack (wrong DLC on NMT/SYNC/SDO, error/remote/ext frames,
