@@ -3,7 +3,6 @@ between its polls (``BusCapture.write_one``): whoever writes, every frame is in 
 in the order it was queued, exactly as python-can's candump writer writes it."""
 from __future__ import annotations
 
-import threading
 
 import can
 
