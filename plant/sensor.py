@@ -89,3 +89,46 @@ class Dynamometer:
             raise ModelError(f"[sensor] has no key(s) {', '.join(sorted(unknown))}; "
                              f"known: {', '.join(sorted(known))}")
         return cls(seed=seed, **values)
+
+
+class SensorBank:
+    """Many dynamometers read together, one reading each per call: a rig's channels at a SYNC
+    in lockstep. The law of :meth:`Dynamometer.measure` over arrays, each sensor's own noise
+    stream taken from it in blocks, so the readings are bit for bit those of
+    :meth:`Dynamometer.read` one sensor at a time (16 channels: ~3 µs a call instead of ~8).
+    Once a bank reads them, the sensors' noise streams are the bank's: a sensor read on its own
+    meanwhile would take values the bank has already drawn."""
+
+    def __init__(self, sensors, block: int = _NOISE_BLOCK) -> None:
+        self.sensors = list(sensors)
+        self._block = int(block)
+        self._noisy = np.array([i for i, s in enumerate(self.sensors) if s.noise_kgf], int)
+        self._all_noisy = len(self._noisy) == len(self.sensors)
+        res = np.array([s.resolution_kgf for s in self.sensors], float)
+        self._rounded = res > 0
+        self._all_rounded = bool(self._rounded.all())
+        self._res = np.where(self._rounded, res, 1.0)
+        self._range = np.array([s.range_kgf for s in self.sensors], float)
+        self._noise = np.empty((0, len(self._noisy)))
+        self._next = 0
+
+    def read(self, forces) -> tuple[np.ndarray, np.ndarray]:
+        """``(readings_kgf, over_range)`` for the true forces (one per sensor, in order)."""
+        y = np.array(forces, float)
+        if len(self._noisy):
+            k = self._next
+            if k >= len(self._noise):
+                self._noise = np.stack([self.sensors[i]._draw(self._block) for i in self._noisy],
+                                       axis=1)
+                k = 0
+            self._next = k + 1
+            if self._all_noisy:
+                y += self._noise[k]
+            else:
+                y[self._noisy] += self._noise[k]
+        if self._all_rounded:
+            y = np.round(y / self._res) * self._res
+        elif self._rounded.any():
+            y = np.where(self._rounded, np.round(y / self._res) * self._res, y)
+        over = np.abs(y) > self._range
+        return np.clip(y, -self._range, self._range), over

@@ -47,6 +47,7 @@ import numpy as np
 
 from dbc import profile as P
 from plant.rig import RigModel
+from plant.sensor import SensorBank
 from rig.config import RigConfig
 from rig.emulated import channel_seed, emulated_plant
 from standbus import LOCKSTEP_BUSY_POLL_S, HandoverNotifier, prefer_busy_poll, wire
@@ -167,6 +168,8 @@ class EmulatedRig:
         self.faults = FaultSchedule(options.faults)
         #: a scheduled spike per channel index, added to its next reading (kgf)
         self._spikes: dict[int, float] = {}
+        #: lockstep: every channel's dynamometer read at once, each its own noise stream
+        self._sensor_bank = SensorBank([ch.sensor for ch in self.channels])
         #: real time: the wall-clock stamp of the last SYNC, and what a prefetch of the plant
         #: took lately (s): :meth:`_when_quiet`
         self._last_sync_stamp = 0.0
@@ -354,25 +357,40 @@ class EmulatedRig:
                     self.advance_plant()
                 self._make_faults()
                 spikes = self._spikes
-                if type(self).measure is EmulatedRig.measure:   # the plant's forces, read here
-                    forces = self.lockstep_plant.forces if self.options.lockstep else self.realtime_plant.forces
-
-                    def measure(ch):
-                        return ch.sensor.read(forces[ch.index])
-                else:
-                    measure = self.measure
+                readings, overs = self._readings(answering)
                 for b in answering:          # a bus's answers in one batch
                     frames: list = []
                     counter = b.counter
                     for ch in b.channels:
-                        reading, over = measure(ch)
+                        i = ch.index
+                        reading = readings[i]
                         if spikes:
-                            reading += spikes.pop(ch.index, 0.0)
-                        ch.answer_sync(reading, over, counter, stamp, frames)
+                            reading += spikes.pop(i, 0.0)
+                        ch.answer_sync(reading, overs[i], counter, stamp, frames)
                     b.send_frames(frames)
         except Exception as exc:  # never let the notifier swallow it silently
             log.exception("SYNC handling failed")
             self.errors.append(repr(exc))
+
+    def _readings(self, answering: Sequence[EmulatedBus]) -> tuple[list, list]:
+        """The dynamometers' readings (kgf) and over-range flags at this SYNC, by channel index,
+        of the channels on the ``answering`` buses: in lockstep (every channel answers every
+        cycle) all at once from the :class:`~plant.sensor.SensorBank`, in real time one bus's,
+        each by :meth:`measure` (or its override: a replayed capture's forces)."""
+        if type(self).measure is EmulatedRig.measure:   # the plant's forces, read here
+            if self.options.lockstep:
+                readings, overs = self._sensor_bank.read(self.lockstep_plant.forces)
+                return readings.tolist(), overs.tolist()
+            forces = self.realtime_plant.forces
+            measure = lambda ch: ch.sensor.read(forces[ch.index])   # noqa: E731
+        else:
+            measure = self.measure
+        readings: list = [0.0] * len(self.channels)
+        overs: list = [False] * len(self.channels)
+        for b in answering:
+            for ch in b.channels:
+                readings[ch.index], overs[ch.index] = measure(ch)
+        return readings, overs
 
     def _complete_cycle(self, on_bus: EmulatedBus) -> Sequence[EmulatedBus]:
         """Lockstep: count this bus's SYNC; the buses to answer when every bus's SYNC of the
