@@ -40,8 +40,9 @@ The TPDOs are taken raw by their own handlers in each bus's notifier, before can
 python-can Message, no dispatch), decoded with the precompiled PDO layouts and handed over
 through a queue; a cycle's commands go out as one send per bus (on udp_loopback one datagram:
 :mod:`standbus.wire`), FD frames on a CAN FD bus. In lockstep they go out with the next
-cycle's SYNC, in the same send, before it: the stand takes them before that SYNC all the same,
-and a cycle costs one datagram a bus fewer (16 channels on 4 buses: ~8 % faster). A rig's supervisors are asked together in a
+cycle's SYNC, in the same send, before it, as soon as they are made: the stand takes them
+before that SYNC all the same, a cycle costs one datagram a bus fewer, and the stand computes
+the next cycle while the loop records this one. A rig's supervisors are asked together in a
 quiet cycle (:class:`~gateway.supervisor.SupervisorBank`), one by one in any other. In lockstep, and in real time on a rig, the loop takes its buses over for the run
 (:class:`standbus.HandoverNotifier`) and receives on its own thread: no thread hand-off, no
 wake-up of a reader thread and no GIL hand-off per frame (a rig's 16 answers a cycle on 2
@@ -449,8 +450,32 @@ class ControlLoop:
         percent_to_counts, counts_to_percent = P.percent_to_counts, P.counts_to_percent
         CW_ACTIVE = P.CW_ACTIVE
         wall_stamps: bool | None = None
-        #: lockstep: the commands in ``out_frames`` wait for the next SYNC
-        held = False
+        #: lockstep: the next cycle's SYNC, sent after this cycle's commands (its counter,
+        #: wall-clock stamp and freshness bound)
+        sent_ahead: tuple[int, float, float] | None = None
+
+        def send_sync(counter: int, last_wall: float, with_commands: bool) -> tuple[int, float, float]:
+            """The next cycle's SYNC on every bus, the frames that came late drained first;
+            ``with_commands`` (lockstep): each bus's commands in ``out_frames`` in the same
+            send, before it (the stand takes them before that SYNC all the same, and a cycle
+            costs one datagram a bus fewer). Returns the SYNC's counter, its wall-clock stamp
+            and the stamp before which an answer is old."""
+            self._drain()
+            counter = counter % P.SYNC_COUNTER_OVERFLOW + 1
+            now_wall = time.time()
+            fresh_from = now_wall - STAMP_SKEW_S
+            if window and last_wall + window > fresh_from:
+                fresh_from = last_wall + window
+            if with_commands:
+                sync = (sync_flags, SYNC_COB_ID, 1, bytes((counter,)))
+                for net, frames in zip(networks, out_frames):
+                    frames.append(sync)
+                    net.send_frames(frames)
+            elif one_bus:
+                networks[0].send_frames([(sync_flags, SYNC_COB_ID, 1, bytes((counter,)))])
+            else:                         # every bus's SYNC, back to back
+                send_together(networks, SYNC_COB_ID, bytes((counter,)))
+            return counter, now_wall, fresh_from
         # a TPDO stamped before ``fresh_from`` answers an earlier SYNC: before this SYNC (less
         # the stamps' tolerance), or within the nodes' synchronous window after the one before
         # (a late SYNC follows its predecessor by less than a period; real time only)
@@ -523,23 +548,11 @@ class ControlLoop:
                 else:
                     t = cycle * T
                     deadline = time.perf_counter() + self.lockstep_timeout_s
-                self._drain()
-                counter = counter % P.SYNC_COUNTER_OVERFLOW + 1
-                now_wall = time.time()
-                fresh_from = now_wall - STAMP_SKEW_S
-                if window and sync_wall + window > fresh_from:
-                    fresh_from = sync_wall + window
-                sync_wall = now_wall
-                if held:       # lockstep: the last cycle's commands, then the SYNC, one send a bus
-                    sync = (sync_flags, SYNC_COB_ID, 1, bytes((counter,)))
-                    for net, frames in zip(networks, out_frames):
-                        frames.append(sync)
-                        net.send_frames(frames)
-                    held = False
-                elif one_bus:
-                    networks[0].send_frames([(sync_flags, SYNC_COB_ID, 1, bytes((counter,)))])
-                else:                         # every bus's SYNC, back to back
-                    send_together(networks, SYNC_COB_ID, bytes((counter,)))
+                if sent_ahead is not None:     # lockstep: sent with the last cycle's commands
+                    counter, sync_wall, fresh_from = sent_ahead
+                    sent_ahead = None
+                else:
+                    counter, sync_wall, fresh_from = send_sync(counter, sync_wall, False)
                 got_force = [False] * n
                 got_valve = [False] * n
                 missing = expected
@@ -673,8 +686,7 @@ class ControlLoop:
                         us = [0.0] * n
                         # a bus's commands in one batch; in real time sent as soon as they are
                         # shaped (the stand takes the first bus's while the next bus's are
-                        # made), in lockstep held for the next SYNC's send (the stand takes
-                        # them before that SYNC all the same, one datagram a bus fewer)
+                        # made), in lockstep with the next cycle's SYNC, at once
                         for net, frames, on_bus in zip(networks, out_frames, channels_of_bus):
                             frames.clear()
                             for i in on_bus:
@@ -687,7 +699,8 @@ class ControlLoop:
                                 us[i] = shaped_pct[i]
                             if frames and not lockstep:
                                 net.send_frames(frames)
-                        held = lockstep
+                        if lockstep:     # the stand works on the next cycle while this one's row is kept
+                            sent_ahead = send_sync(counter, sync_wall, True)
                 if trip is None and new is not None:
                     trip = new
                     log.warning("cycle %d (t = %.3f s): %s%s: %s -> %s", cycle, t,

@@ -268,7 +268,8 @@ def test_force_limit_actions(bus_spec, start_emulator, tmp_path, action):
         after = run.u[k:]
         assert np.all(np.abs(after) <= SafetyLimits().unload_max_pct + 1e-9) and after[-1] == 0.0
         assert np.all(np.diff(run.r[k:]) <= 0) and run.r[-1] == 0.0, "reference ramps down"
-        active = [ts for ts, cw, sp in rpdos(result.path) if ts >= syncs[k].timestamp and cw == int(P.CW_ACTIVE)]
+        # (after SYNC k's stamp: in lockstep the command of cycle k - 1 goes with it, stamped the same)
+        active = [ts for ts, cw, sp in rpdos(result.path) if ts > syncs[k].timestamp and cw == int(P.CW_ACTIVE)]
         measured = active[0] - tpdo.timestamp
         assert rpdos(result.path)[-1][1] == int(P.CW_HOLD)
     else:
