@@ -235,25 +235,20 @@ class LockstepRig:
     def _write_confirmed(self) -> None:
         """The confirmed commands into the delay lines: a period ``back`` sub-steps before the
         line's end (the periods still ahead at its confirmation) takes the ``sub`` entries
-        before that."""
+        before that. The pending periods are consecutive: between two writes the periods ahead
+        only end, one per step (what adds periods ahead advances the states, and writes first)."""
         pending = self._unconfirmed
         if not pending:
             return
         self._unconfirmed = []
         sub = self.sub
         first, last = pending[0][0], pending[-1][0]
-        if first - last != (len(pending) - 1) * sub:      # not one run: period by period
-            runs = [[item] for item in pending]
-        else:
-            runs = [pending]
-        for run in runs:
-            first, last = run[0][0], run[-1][0]
-            real = np.asarray([c for _, c, _ in run], float)
-            changed = (real != np.asarray([a for _, _, a in run], float)).any(axis=0)
-            for j in np.flatnonzero(changed):
-                h = self.states[j].history
-                end = h.shape[1]
-                h[:, end - first - sub:end - last] = np.repeat(real[:, j], sub)
+        real = np.asarray([c for _, c, _ in pending], float)
+        changed = (real != np.asarray([a for _, _, a in pending], float)).any(axis=0)
+        for j in np.flatnonzero(changed):
+            h = self.states[j].history
+            end = h.shape[1]
+            h[:, end - first - sub:end - last] = np.repeat(real[:, j], sub)
 
     def _undo(self) -> None:
         """Forget the periods computed ahead: back to the block's start, replay the ended ones."""
