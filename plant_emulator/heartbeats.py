@@ -37,8 +37,11 @@ class PeriodicTask:
         self.due = time.monotonic() + period_s
 
     def update(self, data) -> None:
-        """The frame's data from its next send on (a heartbeat's new NMT state)."""
-        self.data = bytes(data)
+        """The frame's data from its next send on (a heartbeat's new NMT state). Waits for a
+        batch being sent: one that carries the old data goes out before this returns, so
+        before anything the caller sends next (the node's heartbeat at its state change)."""
+        with self._sender._lock:
+            self.data = bytes(data)
 
     def stop(self) -> None:
         self._sender.remove(self)
@@ -101,11 +104,12 @@ class PeriodicFrames:
                             # the next one a period on; after a stall, a period from now
                             t.due = t.due + t.period_s if t.due + t.period_s > now else now + t.period_s
                     first = min(t.due for t in self._tasks)
-            for send, frames in due.items():
-                try:
-                    send(frames)
-                except (can.CanError, OSError, ValueError) as exc:   # a closed bus at shutdown
-                    log.debug("periodic frames not sent: %s", exc)
+                # sent under the lock: a frame's data cannot change between here and the bus
+                for send, frames in due.items():
+                    try:
+                        send(frames)
+                    except (can.CanError, OSError, ValueError) as exc:   # a closed bus at shutdown
+                        log.debug("periodic frames not sent: %s", exc)
             wait = 1.0 if first is None else max(0.0, first - time.monotonic())
             if self._changed.wait(wait):
                 self._changed.clear()

@@ -52,3 +52,33 @@ def test_frames_due_together_leave_in_one_batch_at_their_period_until_stopped():
     assert len(sent) == count                              # none after close
     with pytest.raises(can.CanOperationError):
         periodic.task(can0, 0x704, [5], 0.05)
+
+
+def test_a_state_change_while_a_batch_is_sent_never_lets_the_old_state_follow_the_new():
+    """A node's NMT state changes (its heartbeat's ``update``, then a heartbeat at once) while
+    the thread sends the batch that carries its old state: the old one goes first, never
+    after the new one (a master took a late PRE-OPERATIONAL for a node that had just been
+    started, and tripped the run at its first cycle)."""
+    log = []
+    sending = threading.Event()
+
+    def slow_bus(frames):              # another bus's frames, sent before this node's
+        if not sending.is_set():
+            sending.set()
+            time.sleep(0.1)
+
+    def node_bus(frames):
+        log.append(("beat", frames[0][3]))
+
+    periodic = PeriodicFrames()
+    try:
+        periodic.task(slow_bus, 0x701, [5], 0.05)
+        beat = periodic.task(node_bus, 0x702, [0x7F], 0.05)
+        assert sending.wait(2.0)
+        beat.update([5])                       # the node started ...
+        log.append(("at the change", b"\x05"))  # ... and sent its new state at once
+        time.sleep(0.15)
+    finally:
+        periodic.close()
+    after = log[log.index(("at the change", b"\x05")) + 1:]
+    assert after and all(data == b"\x05" for kind, data in after if kind == "beat"), log
