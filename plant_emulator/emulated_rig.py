@@ -377,14 +377,10 @@ class EmulatedRig:
         of the channels on the ``answering`` buses: in lockstep (every channel answers every
         cycle) all at once from the :class:`~plant.sensor.SensorBank`, in real time one bus's,
         each by :meth:`measure` (or its override: a replayed capture's forces)."""
-        if type(self).measure is EmulatedRig.measure:   # the plant's forces, read here
-            if self.options.lockstep:
-                readings, overs = self._sensor_bank.read(self.lockstep_plant.forces)
-                return readings.tolist(), overs.tolist()
-            forces = self.realtime_plant.forces
-            measure = lambda ch: ch.sensor.read(forces[ch.index])   # noqa: E731
-        else:
-            measure = self.measure
+        if self.options.lockstep and type(self).measure is EmulatedRig.measure:
+            readings, overs = self._sensor_bank.read(self.lockstep_plant.forces)
+            return readings.tolist(), overs.tolist()
+        measure = self.measure
         readings: list = [0.0] * len(self.channels)
         overs: list = [False] * len(self.channels)
         for b in answering:
