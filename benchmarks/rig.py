@@ -166,6 +166,17 @@ def grid_jitter_ms(sync_time: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.abs(dev - np.median(dev)) * 1e3
 
 
+def missed_slots(sync_time: np.ndarray, t: np.ndarray) -> list[tuple[float, float]]:
+    """Where the loop missed slots of its grid (the slot skipped, a row's ``t`` jumping by more
+    than a period): ``(wall-clock time the first skipped SYNC was due, how much later the next
+    SYNC went)`` each, s, to place against the host's stalls
+    (:func:`benchmarks.wakeup.at_host_stalls`)."""
+    slots = np.round(np.asarray(t) / PERIOD_S)
+    after = np.flatnonzero(np.diff(slots) > 1) + 1
+    due = np.asarray(sync_time)[after - 1] + PERIOD_S
+    return [(float(d), float(s - d)) for d, s in zip(due, np.asarray(sync_time)[after])]
+
+
 def answer_lag_ms(capture: Path) -> np.ndarray:
     """Per SYNC of a capture, how long after it the emulator's first TPDO came (ms)."""
     import can
@@ -222,8 +233,13 @@ def realtime_rig(channels: int, buses: int, duration_s: float,
     skew_at_host = np.zeros(len(skew), bool)
     skew_at_host[skewed] = [wakeup.at_host_stalls([(t, d * 1e-3)], stalls) > 0
                             for t, d in zip(first_sync[skewed], skew[skewed])]
+    # the missed slots: each while a bare thread a priority above the loop was late too (the
+    # host did not run it), or the loop's own
+    gaps = missed_slots(np.asarray(run.sync_time), np.asarray(run.t))
+    gaps_at_host = sum(wakeup.at_host_stalls([g], stalls) > 0 for g in gaps)
     per_cycle = 1e6 / max(s.cycles, 1)
-    return {"loop_cpu_us": s.loop_cpu_s * per_cycle, "gateway_cpu_us": cpu["gateway_s"] * per_cycle,
+    return {"missed_gaps": len(gaps), "missed_gaps_at_host": gaps_at_host,
+            "loop_cpu_us": s.loop_cpu_s * per_cycle, "gateway_cpu_us": cpu["gateway_s"] * per_cycle,
             "emulator_cpu_us": cpu["emulator_s"] * per_cycle,
             "jitter": jitter, "skew": skew, "lag": lag, "cycles": s.cycles, "overruns": s.overruns,
             "stale": s.stale_cycles, "status": result.status,
@@ -391,7 +407,10 @@ def realtime_rows(channels: int, buses: int, duration_s: float, load_before: flo
             f"goal 0 missed, stale < {100 * STALE_GOAL:g} %",
             "met" if rt["overruns"] == 0 and stale_share < STALE_GOAL else "not met",
             f"{rt['stale']:,} of {rt['cycles']:,} cycles with a reading not in time (the run not "
-            f"stopped for them); host floor p99 {rt['host_p99']:.2f} ms"),
+            f"stopped for them); the missed slots in {rt['missed_gaps']} gap(s), "
+            f"{rt['missed_gaps_at_host']} of them at one of the host's stalls (a bare real-time "
+            f"thread a priority above the loop late then too); host floor p99 "
+            f"{rt['host_p99']:.2f} ms"),
         Row(f"{what}: CPU per cycle",
             f"loop {rt['loop_cpu_us']:.0f} µs, gateway {rt['gateway_cpu_us']:.0f} µs, emulator "
             f"{rt['emulator_cpu_us']:.0f} µs",
