@@ -28,8 +28,9 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from core.durable import write_json
 from gateway.errors import DataError
-from gateway.recorder import prepare_run_dir, versions, write_json
+from gateway.recorder import prepare_run_dir, versions
 from gateway.runs import FORMAT, META_FILE, SCHEMA, SIGNALS_FILE
 
 from .cycles import COLUMNS, CycleAssembler, RunInfo, StandSignals

@@ -71,6 +71,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
+from core.durable import fsync_dir
 from core.errors import StandError
 
 SCHEMA_VERSION = 2
@@ -335,7 +336,7 @@ class Journal:
             except BaseException:
                 db.close()
                 raise
-            _fsync_dir(testdir)
+            fsync_dir(testdir)
             return cls(testdir, db, lock_fd, clock)
         except BaseException:
             _release(lock_fd)
@@ -998,19 +999,6 @@ def _acquire(testdir: Path) -> int:
 def _release(fd: int) -> None:
     try:
         fcntl.flock(fd, fcntl.LOCK_UN)
-    finally:
-        os.close(fd)
-
-
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
     finally:
         os.close(fd)
 

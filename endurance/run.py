@@ -75,7 +75,6 @@ import collections
 import hashlib
 import json
 import math
-import os
 import queue
 import threading
 import time
@@ -88,6 +87,7 @@ from typing import Any, Callable
 import numpy as np
 
 from core.errors import ParameterError, StandError
+from core.durable import write_json
 from gateway.load import ERROR_LIMIT_SHARE
 from gateway.load_experiment import LoadProgramme
 from loading.compensation import ChannelCompensation, Compensation
@@ -448,7 +448,7 @@ class JournalWriter:
         # the session's record, begun now and completed at its end: a session killed later
         # still says where it found the stand (what the stop before it left)
         self.record_path = session_record_path(self.testdir)
-        _write_json(self.record_path, {"kind": self.kind, "state": "running", "first_flight": info["flight"],
+        write_json(self.record_path, {"kind": self.kind, "state": "running", "first_flight": info["flight"],
                                        "started_at": self.started_at, "loading": info})
         if self.window.last_time_s is not None:        # its event window: the approach before it
             self.window.mark_event(self.kind, message, flight=info["flight"])
@@ -563,12 +563,6 @@ def session_record_path(testdir: Path) -> Path:
     return sessions / f"{len(list(sessions.glob('*.json'))) + 1:04d}.json"
 
 
-def _write_json(path: Path, data: dict) -> None:
-    tmp = path.parent / f".{path.name}.tmp"
-    tmp.write_text(json.dumps(data, indent=2, default=str) + "\n")
-    os.replace(tmp, path)
-
-
 def request_stop(testdir: str | Path, at_once: bool = False) -> dict:
     """Ask the session running ``testdir`` to stop (module docstring); returns its holder
     ({pid, host, since}). Refused when no session runs it."""
@@ -578,7 +572,7 @@ def request_stop(testdir: str | Path, at_once: bool = False) -> dict:
     holder = lock_holder(testdir)
     if holder is None or state != "running":
         raise StandError(f"{testdir}: no session runs the test (it is {state}); nothing to stop")
-    _write_json(testdir / STOP_FILE, {"at_once": bool(at_once), "requested": time.time()})
+    write_json(testdir / STOP_FILE, {"at_once": bool(at_once), "requested": time.time()})
     return holder
 
 
@@ -609,7 +603,7 @@ def start(test_file: "str | Path | EnduranceTest", testdir: str | Path, config, 
     fp = test.fingerprint()
     journal = Journal.create(testdir, test.name, target, test.station.names, fp.digest, fp.to_json(),
                              test.path.read_text())
-    _write_json(testdir / TEST_RECORD, {"test_file": str(test.path.resolve()),
+    write_json(testdir / TEST_RECORD, {"test_file": str(test.path.resolve()),
                                         "gateway_args": list(gateway_args or [])})
     return run_session(test, testdir, journal, "start", started_at, gateway_drive(test, config, progress),
                        on_flight, hook, config.lockstep, config.limits.command_limit_pct, publisher)
@@ -850,6 +844,6 @@ def _end_session(result: SessionResult, journal: Journal, log: TurningPointLog, 
     result.state, result.reason = status["state"], status["reason"]
     result.flights_done, result.flights_target = status["flights_done"], status["flights_target"]
     result.path = writer.record_path or session_record_path(result.testdir)
-    _write_json(result.path, {**result.to_dict(), "started_at": writer.started_at, "ended_at": time.time(),
+    write_json(result.path, {**result.to_dict(), "started_at": writer.started_at, "ended_at": time.time(),
                               "stats": meta.get("stats"), "safety": meta.get("safety"),
                               "pieces": {"built": player.pieces.built, "reused": player.pieces.reused}})

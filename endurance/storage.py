@@ -44,7 +44,6 @@ from the sizes measured by writing real data through these classes (:func:`calib
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 import re
@@ -61,6 +60,7 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
 from core.errors import DataError, ParameterError
+from core.durable import fsync_dir, fsync_file, write_json
 from gateway.rowbuffer import RowBuffer
 from gateway.runs import FORMAT, META_FILE, SCHEMA, SIGNALS_FILE, rig_schema
 
@@ -96,9 +96,9 @@ def write_parquet_atomic(table: pa.Table, path: Path) -> Path:
         # by a third more than dictionaries would; everything else by dictionary
         pq.write_table(table, tmp, compression=COMPRESSION, use_byte_stream_split=floats or False,
                        use_dictionary=others or False)
-        _fsync_file(tmp)
+        fsync_file(tmp)
         os.replace(tmp, path)
-        _fsync_dir(path.parent)
+        fsync_dir(path.parent)
     except (OSError, pa.ArrowException) as exc:
         try:
             tmp.unlink()
@@ -106,41 +106,6 @@ def write_parquet_atomic(table: pa.Table, path: Path) -> Path:
             pass
         raise DataError(f"cannot write {path}: {exc}; nothing of it was written") from None
     return path
-
-
-def _write_json_atomic(path: Path, data: Mapping[str, Any]) -> None:
-    tmp = path.parent / f".{path.name}.tmp"
-    with open(tmp, "w") as fh:
-        fh.write(json.dumps(data, indent=2, default=_json_default) + "\n")
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-
-
-def _json_default(obj: Any) -> Any:
-    if hasattr(obj, "item"):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
-
-
-def _fsync_file(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 def event_windows(testdir: str | Path) -> list[Path]:
@@ -275,7 +240,7 @@ class TurningPointLog:
         for _, _, p in parts:
             if p != path:
                 p.unlink(missing_ok=True)
-        _fsync_dir(d)
+        fsync_dir(d)
         return path
 
 
@@ -584,10 +549,10 @@ class SignalWindow:
                           "stand_window_s": self.event_window_s, "truncated": truncated,
                           "first_sync_time": float(clock.min()) if len(clock) else None}}
         meta.setdefault("experiment", {"name": "endurance event window", "params": {}})
-        _write_json_atomic(tmp / META_FILE, meta)
-        _fsync_dir(tmp)
+        write_json(tmp / META_FILE, meta)
+        fsync_dir(tmp)
         os.rename(tmp, event.path)
-        _fsync_dir(event.path.parent)
+        fsync_dir(event.path.parent)
 
 
 @dataclass(frozen=True)

@@ -65,6 +65,7 @@ from tqdm import tqdm
 
 import numpy as np
 
+from core.durable import write_json
 from rig.excitation import OneRunDesign, swings_kgf
 
 from .errors import ParameterError, StandError
@@ -72,7 +73,6 @@ from .experiments import Meander, make_experiment
 from .experiments.each_channel import EachChannel
 from .experiments.one_run import OneRun
 from .experiments.phases import FORCE_NEAR_LIMIT, SET_POINT_NOT_REACHED
-from .recorder import write_json
 from .runs import TRUTH_FILE
 from .session import Gateway
 

@@ -200,7 +200,7 @@ def test_a_kill_while_an_event_window_is_written_leaves_no_window_without_its_ru
     def killed(path, data):                               # the process dies before run.json is in
         raise OSError("killed")
 
-    monkeypatch.setattr(storage, "_write_json_atomic", killed)
+    monkeypatch.setattr(storage, "write_json", killed)
     with pytest.raises((OSError, DataError)):
         w.close()
     left = [p for p in (tmp_path / "events").iterdir()]

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from gateway import Gateway, GatewayConfig, SafetyLimits
 from gateway.experiments import EXPERIMENTS
-from gateway.recorder import write_json
+from core.durable import write_json
 from gateway.runs import TRUTH_FILE
 from plant.config import load_plant_config
 from plant_emulator.process import EmulatorProcess

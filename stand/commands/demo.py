@@ -63,7 +63,7 @@ def main(args: argparse.Namespace) -> int:
     refuse_rig_options(args)
     from analysis import estimate_meander, read_run
     from gateway import Gateway, GatewayConfig
-    from gateway.recorder import write_json
+    from core.durable import write_json
     from gateway.runs import TRUTH_FILE
     from plant.config import load_plant_config
     from plant_emulator.process import EmulatorProcess
@@ -155,7 +155,7 @@ def _rig(args: argparse.Namespace) -> int:
     from analysis.rig.estimate import estimate_rig
     from analysis.rig.load import read_rig_run
     from gateway import Gateway, GatewayConfig
-    from gateway.recorder import write_json
+    from core.durable import write_json
     from gateway.runs import TRUTH_FILE
     from plant_emulator.process import RigEmulatorProcess
     from rig.files import write_as_run
