@@ -17,6 +17,8 @@ import os
 import time
 from pathlib import Path
 
+from core.durable import write_json
+
 from .journal import Journal, TestLocked, lock_holder
 
 INBOX_DIR = "inbox"
@@ -45,10 +47,7 @@ def record_event(testdir: str | Path, kind: str, message: str, channel: str | No
 def _drop(testdir: Path, event: dict) -> None:
     inbox = testdir / INBOX_DIR
     inbox.mkdir(exist_ok=True)
-    name = f"{time.time_ns():020d}-{os.getpid()}"
-    tmp = inbox / f".{name}.tmp"
-    tmp.write_text(json.dumps(event))
-    os.replace(tmp, inbox / f"{name}.json")
+    write_json(inbox / f"{time.time_ns():020d}-{os.getpid()}.json", event)
 
 
 def take_in(testdir: str | Path, journal: Journal) -> int:
