@@ -19,7 +19,9 @@ with a meander on the first channel, the others at a zero command.
   process's and the emulator process's over the run, per cycle and as a share of one core. SYNC jitter: each cycle's SYNC send time (the run's
   ``sync_time``) against the ideal 2 ms grid. Skew: each cycle's SYNC on the second bus minus
   the first's, both from the runs' captures (udp_loopback stamps every frame with its send
-  time), paired by cycle (the SYNC counters agree).
+  time), paired by cycle (the SYNC counters agree). The 16-channel rig again on a busy host:
+  4 processes beside it that only compute (ordinary scheduling, as a user's analysis or a build
+  would), from before the run to its end.
 
 * Unload keeping the ratios (the issue's case): the example rig (4 channels, neighbours
   coupled 30 %, each its own g, τ and reversal boost; outer's and tip's ranges raised to 10 t so
@@ -35,6 +37,8 @@ A shared 2-core VM: the load average before and after is in the note.
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -45,6 +49,8 @@ from .table import Row
 
 ORDER = 12
 PERIOD_S = 0.002
+#: the busy host's real-time rows: this many processes that only compute, beside the run
+BUSY_PROCESSES = 4
 SYNC_ID = 0x80
 #: (channels, buses, CAN FD data bit rate or None) of the lockstep rows
 SIZES = ((1, 1, None), (4, 2, None), (8, 2, None), (16, 4, None), (32, 8, None), (32, 4, 5_000_000))
@@ -191,30 +197,37 @@ def answer_lag_ms(capture: Path) -> np.ndarray:
 
 
 def realtime_rig(channels: int, buses: int, duration_s: float,
-                 emulator_priority: int = LOOP_PRIORITY - 1) -> dict:
+                 emulator_priority: int = LOOP_PRIORITY - 1, busy: int = 0) -> dict:
     """A real-time run of a chain rig at 2 ms (module docstring): jitter and skew, ms. The
     stale readings do not stop the run (the emulator's answers are measured, not judged).
     Bare real-time threads in other processes, one pinned to each CPU
     (:mod:`benchmarks.wakeup`), sleep on their own 2 ms grids meanwhile: the host's floor in
-    the same seconds, and which late cycles fell on one of its stalls."""
+    the same seconds, and which late cycles fell on one of its stalls. ``busy``: that many
+    processes that only compute beside the run (ordinary scheduling), a busy host."""
     from gateway import SafetyLimits, load_run
 
     from . import wakeup
     floors = []
     cpu: dict = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp) / "run"
-        result, rig = drive(chain_file(Path(tmp), channels, buses), out, False, duration_s,
-                            emulator_args=["--rt-priority", str(emulator_priority)],
-                            limits=SafetyLimits(stale_cycles=100_000),
-                            beside=lambda: floors.extend(wakeup.start_on_every_cpu(duration_s + 3.0)),
-                            cpu=cpu)
-        host = [wakeup.result(f) for f in floors]
-        run = load_run(out)
-        captures = [out / f"capture-{b.name}.log" for b in rig.buses]
-        skew, first_sync = bus_skew_s(captures)
-        skew = skew * 1e3
-        lag = np.concatenate([answer_lag_ms(c) for c in captures])
+    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(busy)]
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            out = Path(tmp) / "run"
+            result, rig = drive(chain_file(Path(tmp), channels, buses), out, False, duration_s,
+                                emulator_args=["--rt-priority", str(emulator_priority)],
+                                limits=SafetyLimits(stale_cycles=100_000),
+                                beside=lambda: floors.extend(wakeup.start_on_every_cpu(duration_s + 3.0)),
+                                cpu=cpu)
+            host = [wakeup.result(f) for f in floors]
+            run = load_run(out)
+            captures = [out / f"capture-{b.name}.log" for b in rig.buses]
+            skew, first_sync = bus_skew_s(captures)
+            skew = skew * 1e3
+            lag = np.concatenate([answer_lag_ms(c) for c in captures])
+    finally:
+        for hog in hogs:
+            hog.kill()
+            hog.wait()
     jitter = grid_jitter_ms(np.asarray(run.sync_time), np.asarray(run.t))
     s = result.outcome.stats
     sched = run.meta.get("realtime", {})
@@ -372,12 +385,15 @@ def _kind(buses: int, data_bitrate: int | None) -> str:
             else f"{buses} bus{'es' if buses > 1 else ''}")
 
 
-def realtime_rows(channels: int, buses: int, duration_s: float, load_before: float) -> list[Row]:
-    """The real-time rows of one rig size (module docstring)."""
-    rt = realtime_rig(channels, buses, duration_s)
+def realtime_rows(channels: int, buses: int, duration_s: float, load_before: float,
+                  busy: int = 0) -> list[Row]:
+    """The real-time rows of one rig size (module docstring), ``busy`` computing processes
+    beside."""
+    rt = realtime_rig(channels, buses, duration_s, busy=busy)
     load_after = os.getloadavg()[0]
     j, k = rt["jitter"], rt["skew"]
-    what = f"rig real time, {channels} channels on {buses} buses at 2 ms"
+    what = (f"rig real time, {channels} channels on {buses} buses at 2 ms"
+            + (f", {busy} busy process{'es' if busy > 1 else ''} beside" if busy else ""))
     stale_share = rt["stale"] / max(rt["cycles"], 1)
     where = (f"{rt['cycles']:,} cycles ({rt['status']}), {rt['overruns']} missed, {rt['stale']} "
              f"stale ({100 * stale_share:.2f} %); {rt['late']} cycles ≥ 0.5 ms late, {rt['late_at_host']} "
@@ -449,11 +465,12 @@ def run(quick: bool) -> list[Row]:
                         f"the factor the demo prints: {d['cycles']:,} cycles ({d['status']}), every "
                         f"channel recorded, a capture per bus, its own emulator process; load "
                         f"average {os.getloadavg()[0]:.1f}"))
-    if quick:
-        rows += realtime_rows(4, 2, 3.0, load_before)
+    if quick:      # (the busy host's path too: one process that only computes beside)
+        rows += realtime_rows(4, 2, 3.0, load_before, busy=1)
     else:
         rows += realtime_rows(16, 4, 30.0, load_before)
         rows += realtime_rows(32, 8, 30.0, os.getloadavg()[0])
+        rows += realtime_rows(16, 4, 30.0, os.getloadavg()[0], busy=BUSY_PROCESSES)
     for dead in (False, True):
         rows.append(unload_row(unload_case(dead), dead))
     return rows
