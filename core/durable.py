@@ -17,7 +17,7 @@ def write_json(path: str | Path, data: Mapping[str, Any]) -> None:
     JSON cannot hold is a TypeError, before the old file is touched."""
     path = Path(path)
     text = json.dumps(data, indent=2, default=_json_default) + "\n"
-    tmp = path.parent / f".{path.name}.tmp"
+    tmp = path.parent / f".{path.name}.{os.getpid()}.tmp"      # (two writers never share one)
     try:
         with open(tmp, "w") as fh:
             fh.write(text)
