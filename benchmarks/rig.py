@@ -172,17 +172,6 @@ def grid_jitter_ms(sync_time: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.abs(dev - np.median(dev)) * 1e3
 
 
-def missed_slots(sync_time: np.ndarray, t: np.ndarray) -> list[tuple[float, float]]:
-    """Where the loop missed slots of its grid (the slot skipped, a row's ``t`` jumping by more
-    than a period): ``(wall-clock time the first skipped SYNC was due, how much later the next
-    SYNC went)`` each, s, to place against the host's stalls
-    (:func:`benchmarks.wakeup.at_host_stalls`)."""
-    slots = np.round(np.asarray(t) / PERIOD_S)
-    after = np.flatnonzero(np.diff(slots) > 1) + 1
-    due = np.asarray(sync_time)[after - 1] + PERIOD_S
-    return [(float(d), float(s - d)) for d, s in zip(due, np.asarray(sync_time)[after])]
-
-
 def answer_lag_ms(capture: Path) -> np.ndarray:
     """Per SYNC of a capture, how long after it the emulator's first TPDO came (ms)."""
     import can
@@ -246,10 +235,16 @@ def realtime_rig(channels: int, buses: int, duration_s: float,
     skew_at_host = np.zeros(len(skew), bool)
     skew_at_host[skewed] = [wakeup.at_host_stalls([(t, d * 1e-3)], stalls) > 0
                             for t, d in zip(first_sync[skewed], skew[skewed])]
-    # the missed slots: each while a bare thread a priority above the loop was late too (the
-    # host did not run it), or the loop's own
-    gaps = missed_slots(np.asarray(run.sync_time), np.asarray(run.t))
-    gaps_at_host = sum(wakeup.at_host_stalls([g], stalls) > 0 for g in gaps)
+    # the missed slots: a cycle that began more than a period late (the loop's own lateness,
+    # before it skipped the slots between), placed as benchmarks/control_loop.py places a late
+    # one: while a bare thread a priority above the loop was late too (the host did not run
+    # it), or the loop's own
+    n = min(len(s.sync_jitter_s), len(run.sync_time))
+    began_late = np.asarray(s.sync_jitter_s[:n])
+    gone = began_late > PERIOD_S
+    gaps = list(zip((np.asarray(run.sync_time)[:n][gone] - began_late[gone]).tolist(),
+                    began_late[gone].tolist()))
+    gaps_at_host = wakeup.at_host_stalls(gaps, stalls)
     per_cycle = 1e6 / max(s.cycles, 1)
     return {"missed_gaps": len(gaps), "missed_gaps_at_host": gaps_at_host,
             "loop_cpu_us": s.loop_cpu_s * per_cycle, "gateway_cpu_us": cpu["gateway_s"] * per_cycle,

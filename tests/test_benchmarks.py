@@ -333,17 +333,3 @@ def test_cycle_spread_reads_the_sync_intervals_of_a_capture_and_their_tail(tmp_p
     assert abs(spread["mean"] - 65) < 2
     assert abs(spread["tail_share"] - 200 / 650) < 0.01
 
-
-def test_missed_slots_are_the_gaps_in_the_grid_with_when_they_were_due_and_how_late():
-    import numpy as np
-    from benchmarks.rig import PERIOD_S, missed_slots
-    t = np.array([0, 1, 2, 5, 6, 8]) * PERIOD_S           # slots 3, 4 and 7 skipped
-    sync = 1000.0 + t + np.array([0, 1, 0, 2, 0, 3]) * 1e-4
-    gaps = missed_slots(sync, t)
-    assert len(gaps) == 2
-    (due1, late1), (due2, late2) = gaps
-    assert due1 == pytest.approx(1000.0 + 3 * PERIOD_S)    # the SYNC after slot 2 was due
-    assert late1 == pytest.approx(2 * PERIOD_S + 2e-4)     # slot 5 went out 4.2 ms after
-    assert due2 == pytest.approx(1000.0 + 7 * PERIOD_S)
-    assert late2 == pytest.approx(PERIOD_S + 3e-4)
-    assert missed_slots(sync[:3], t[:3]) == []
