@@ -86,8 +86,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from core.errors import ParameterError, StandError
 from core.durable import write_json
+from core.errors import ParameterError, StandError
 from gateway.load import ERROR_LIMIT_SHARE
 from gateway.load_experiment import LoadProgramme
 from loading.compensation import ChannelCompensation, Compensation
@@ -449,7 +449,7 @@ class JournalWriter:
         # still says where it found the stand (what the stop before it left)
         self.record_path = session_record_path(self.testdir)
         write_json(self.record_path, {"kind": self.kind, "state": "running", "first_flight": info["flight"],
-                                       "started_at": self.started_at, "loading": info})
+                                      "started_at": self.started_at, "loading": info})
         if self.window.last_time_s is not None:        # its event window: the approach before it
             self.window.mark_event(self.kind, message, flight=info["flight"])
 
@@ -604,7 +604,7 @@ def start(test_file: "str | Path | EnduranceTest", testdir: str | Path, config, 
     journal = Journal.create(testdir, test.name, target, test.station.names, fp.digest, fp.to_json(),
                              test.path.read_text())
     write_json(testdir / TEST_RECORD, {"test_file": str(test.path.resolve()),
-                                        "gateway_args": list(gateway_args or [])})
+                                       "gateway_args": list(gateway_args or [])})
     return run_session(test, testdir, journal, "start", started_at, gateway_drive(test, config, progress),
                        on_flight, hook, config.lockstep, config.limits.command_limit_pct, publisher)
 
@@ -845,5 +845,5 @@ def _end_session(result: SessionResult, journal: Journal, log: TurningPointLog, 
     result.flights_done, result.flights_target = status["flights_done"], status["flights_target"]
     result.path = writer.record_path or session_record_path(result.testdir)
     write_json(result.path, {**result.to_dict(), "started_at": writer.started_at, "ended_at": time.time(),
-                              "stats": meta.get("stats"), "safety": meta.get("safety"),
-                              "pieces": {"built": player.pieces.built, "reused": player.pieces.reused}})
+                             "stats": meta.get("stats"), "safety": meta.get("safety"),
+                             "pieces": {"built": player.pieces.built, "reused": player.pieces.reused}})

@@ -59,8 +59,8 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from core.errors import DataError, ParameterError
 from core.durable import fsync_dir, fsync_file, write_json
+from core.errors import DataError, ParameterError
 from gateway.rowbuffer import RowBuffer
 from gateway.runs import FORMAT, META_FILE, SCHEMA, SIGNALS_FILE, rig_schema
 
