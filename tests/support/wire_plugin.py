@@ -59,7 +59,8 @@ def _basetemp(item) -> Path:
 
 def _entries(base: Path) -> set[str]:
     try:
-        return {e.name for e in os.scandir(base) if e.is_dir()}
+        # not pytest's "<name>current" links to a test's directory: each capture is read once
+        return {e.name for e in os.scandir(base) if e.is_dir(follow_symlinks=False)}
     except FileNotFoundError:
         return set()
 
