@@ -126,6 +126,18 @@ def test_a_transfer_cut_off_and_a_broken_protocol_are_named(tmp_path):
     assert any("toggle bit" in p for p in allowed)          # a fault of the protocol is never allowed
 
 
+def test_frames_too_short_for_their_function_are_malformed_and_named(tmp_path):
+    """What a flood of garbage puts on the bus: an NMT, EMCY and SDO frame too short for what
+    the dissector reads of them."""
+    f, = check_captures([log(tmp_path, ["000#", "081#10", "601#40", "701#"])])
+    assert f.malformed == 3 and dict(f.functions) == {"NMT": 1, "EMCY": 1, "SDO": 1, "NMT error control": 1}
+    assert dict(f.nmt_commands) == {"(none)": 1} and dict(f.nmt_states) == {"(none)": 1}
+    assert f.as_dict()["emcy_codes"] == {"(none)": 1}
+    assert wire_problems([f])[0].endswith("3 malformed frames (frame 1 id 0x0 DLC 0; frame 2 id 0x81 DLC 1; "
+                                          "frame 3 id 0x601 DLC 1)")
+    assert not any("malformed" in p for p in wire_problems([f], WireExpectation(malformed=True)))
+
+
 def test_reading_each_distinct_frame_once_gives_what_reading_every_frame_gives(tmp_path):
     """The dissectors keep no state from frame to frame: the figures of a capture full of
     repeats are the same whether tshark reads every frame or each distinct one once."""
