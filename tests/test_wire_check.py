@@ -127,15 +127,20 @@ def test_a_transfer_cut_off_and_a_broken_protocol_are_named(tmp_path):
 
 
 def test_frames_too_short_for_their_function_are_malformed_and_named(tmp_path):
-    """What a flood of garbage puts on the bus: an NMT, EMCY and SDO frame too short for what
-    the dissector reads of them."""
-    f, = check_captures([log(tmp_path, ["000#", "081#10", "601#40", "701#"])])
-    assert f.malformed == 3 and dict(f.functions) == {"NMT": 1, "EMCY": 1, "SDO": 1, "NMT error control": 1}
+    """What a flood of garbage puts on the bus: NMT, EMCY and SDO frames too short for what the
+    dissector reads of them."""
+    f, = check_captures([log(tmp_path, ["000#", "081#10", "601#40", "701#", "601#2017", "581#6018", "582#80"])])
+    assert f.malformed == 6 and dict(f.functions) == {"NMT": 1, "EMCY": 1, "SDO": 4, "NMT error control": 1}
     assert dict(f.nmt_commands) == {"(none)": 1} and dict(f.nmt_states) == {"(none)": 1}
     assert f.as_dict()["emcy_codes"] == {"(none)": 1}
-    assert wire_problems([f])[0].endswith("3 malformed frames (frame 1 id 0x0 DLC 0; frame 2 id 0x81 DLC 1; "
+    assert wire_problems([f])[0].endswith("6 malformed frames (frame 1 id 0x0 DLC 0; frame 2 id 0x81 DLC 1; "
                                           "frame 3 id 0x601 DLC 1)")
+    # an SDO request too short to name its object: the transfer is followed without one
+    assert [str(t) for t in f.sdo] == ["node 1 upload ?:? (?, frame 3): open",
+                                       "node 1 download ?:? (segmented, frame 5): open",
+                                       "node 2 ? ?:? (?, frame 7): aborted by the server, code ?"]
     assert not any("malformed" in p for p in wire_problems([f], WireExpectation(malformed=True)))
+    assert wire_problems([f], WireExpectation(garbage=True)) == []
 
 
 def test_reading_each_distinct_frame_once_gives_what_reading_every_frame_gives(tmp_path):
@@ -170,5 +175,8 @@ def test_the_marker_says_what_a_test_provokes():
     mark = pytest.mark.wire(sdo_aborts=[0x06020000], cut_off=True).mark
     assert WireExpectation.from_marker(mark) == WireExpectation(frozenset({0x06020000}), cut_off=True)
     assert WireExpectation.from_marker(None) == WireExpectation()
+    flood = WireExpectation.from_marker(pytest.mark.wire(garbage=True, only="noisy/capture.log").mark)
+    assert flood.of(Path("/tmp/t/noisy/capture.log")).garbage
+    assert flood.of(Path("/tmp/t/quiet/capture.log")) == WireExpectation()
     with pytest.raises(TypeError, match="keywords only"):
         WireExpectation.from_marker(pytest.mark.wire("any").mark)

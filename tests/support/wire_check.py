@@ -31,6 +31,7 @@ import subprocess
 import tempfile
 from collections import Counter
 from dataclasses import dataclass, field
+from fnmatch import fnmatch
 from pathlib import Path
 
 import numpy as np
@@ -69,8 +70,8 @@ class SdoTransfer:
 
     node: int
     direction: str              #: "download" (client writes), "upload" (client reads), "?" (a stray abort)
-    index: int
-    subindex: int
+    index: int | None           #: None: the frame was too short to name it
+    subindex: int | None
     first_frame: int            #: frame number in its capture (1-based, as Wireshark counts)
     mode: str = "?"             #: "expedited", "segmented", "block"
     outcome: str = "open"       #: "complete", "aborted", "open" (cut off: never finished)
@@ -84,10 +85,11 @@ class SdoTransfer:
     _last: bool = False
 
     def __str__(self) -> str:
-        what = (f"node {self.node} {self.direction} 0x{self.index:04X}:{self.subindex:02X} "
+        what = (f"node {self.node} {self.direction} {_od(self.index, self.subindex)} "
                 f"({self.mode}, frame {self.first_frame})")
         if self.outcome == "aborted":
-            return f"{what}: aborted by the {self.aborted_by}, code 0x{self.abort_code:08X}"
+            code = "?" if self.abort_code is None else f"0x{self.abort_code:08X}"   # ?: too short to hold one
+            return f"{what}: aborted by the {self.aborted_by}, code {code}"
         return f"{what}: {self.outcome}"
 
 
@@ -124,7 +126,7 @@ class WireFigures:
 
     def downloads(self, first: int, last: int) -> list[SdoTransfer]:
         """The completed downloads to objects ``first``..``last`` (e.g. 0x1400-0x1BFF: the PDO set-up)."""
-        return [t for t in self.sdo if t.direction == "download" and first <= t.index <= last
+        return [t for t in self.sdo if t.direction == "download" and t.index is not None and first <= t.index <= last
                 and t.outcome == "complete"]
 
     def as_dict(self) -> dict:
@@ -154,19 +156,32 @@ class WireExpectation:
     ``sdo_aborts``: the abort codes the test provokes (or ``"any"``); ``cut_off``: a process is
     killed, so an SDO transfer may be left open and the capture's last line be partial;
     ``malformed``: the test sends frames the dissector must call malformed (a wrong DLC);
-    ``skip``: the captures are not checked at all, and why."""
+    ``garbage``: another sender floods the bus with random frames on every id
+    (``standbus.faults``), which make malformed frames, aborts and SDO frames out of step of
+    their own: only that tshark reads every frame is checked; ``skip``: the captures are not
+    checked at all, and why; ``only``: all this holds for the test's captures whose path ends
+    so (a glob, e.g. ``"noisy/capture.log"``), the others are held to the default."""
 
     sdo_aborts: frozenset[int] | str = frozenset()
     cut_off: bool = False
     malformed: bool = False
+    garbage: bool = False
     skip: str | None = None
+    only: str | None = None
+
+    def of(self, capture) -> "WireExpectation":
+        """What is expected of ``capture`` (a path): this, or the default where ``only`` leaves it out."""
+        if self.only is None or fnmatch(str(capture), f"*/{self.only}"):
+            return self
+        return WireExpectation()
 
     @classmethod
     def from_marker(cls, marker) -> "WireExpectation":
         if marker is None:
             return cls()
         if marker.args:
-            raise TypeError("@pytest.mark.wire takes keywords only: sdo_aborts=, cut_off=, malformed=, skip=")
+            raise TypeError("@pytest.mark.wire takes keywords only: sdo_aborts=, cut_off=, malformed=, "
+                            "garbage=, skip=, only=")
         kw = dict(marker.kwargs)
         aborts = kw.pop("sdo_aborts", frozenset())
         if aborts != "any":
@@ -176,7 +191,9 @@ class WireExpectation:
 
 def wire_problems(figures: list[WireFigures], expect: WireExpectation = WireExpectation()) -> list[str]:
     """Everything in ``figures`` that ``expect`` does not allow, one line each."""
-    out = []
+    out: list[str] = []
+    if expect.garbage:
+        return out
     for f in figures:
         where = f"{f.capture} [{f.channel}]"
         if f.malformed and not expect.malformed:
@@ -358,6 +375,12 @@ def _figures(seg: _Segment, readings: _Readings, inverse: np.ndarray) -> WireFig
     return f
 
 
+def _od(index: int | None, sub: int | None) -> str:
+    """An object dictionary entry as CiA 301 writes it, ``0x1018:01`` (``?`` what a frame too
+    short did not say)."""
+    return ("?" if index is None else f"0x{index:04X}") + ":" + ("?" if sub is None else f"{sub:02X}")
+
+
 def _function(row: list[str]) -> str:
     """The frame's CANopen function as the dissector classifies it (its function code and
     node id: canopen_detect_msg_type in packet-canopen.c), or what kind of frame it did not take."""
@@ -405,8 +428,7 @@ class _SdoFollower:
                     self.fault(frame, f"node {node}: a new transfer begins while {t} is open")
                     self.close(t, frame, "open")
                 direction = "download" if ccs in (1, 6) else "upload"
-                t = SdoTransfer(node, direction, index if index is not None else -1,
-                                sub if sub is not None else -1, frame)
+                t = SdoTransfer(node, direction, index, sub, frame)
                 if ccs == 1:
                     t.mode = "expedited" if get("canopen.sdo.e") else "segmented"
                 elif ccs in (5, 6):
@@ -429,8 +451,8 @@ class _SdoFollower:
             elif scs in (2, 3) and self.expect(t, frame, node, "upload" if scs == 2 else "download",
                                                "initiate response"):
                 if (index, sub) != (t.index, t.subindex):
-                    self.fault(frame, f"node {node}: the answer names 0x{index:04X}:{sub:02X}, "
-                                      f"the request 0x{t.index:04X}:{t.subindex:02X}")
+                    self.fault(frame, f"node {node}: the answer names {_od(index, sub)}, "
+                                      f"the request {_od(t.index, t.subindex)}")
                 if scs == 2:
                     t.mode = "expedited" if get("canopen.sdo.e") else "segmented"
                 if t.mode == "expedited":

@@ -77,7 +77,7 @@ def pytest_runtest_teardown(item, nextitem):
     result = yield
     if _e2e(item) and _before in item.stash:
         expect = WireExpectation.from_marker(item.get_closest_marker("wire"))
-        _state.pending += [(path, expect, item.nodeid) for path in _new_captures(item)]
+        _state.pending += [(path, expect.of(path), item.nodeid) for path in _new_captures(item)]
     if _state.pending and (nextitem is None or nextitem.module is not item.module):
         pending, _state.pending = _state.pending, []
         _check(item, pending)
@@ -132,7 +132,8 @@ def _check(item, pending: list[tuple[Path, WireExpectation, str]]) -> None:
         for f in figures:
             e, test = expect[f.capture]
             problems += [f"{line}   [{test}]" for line in wire_problems([f], e)]
-        item.user_properties.append(("wire", {"figures": [f.as_dict() for f in figures]}))
+        item.user_properties.append(("wire", {"figures": [{**f.as_dict(), "garbage": expect[f.capture][0].garbage}
+                                                          for f in figures]}))
     item.user_properties.append(("wire", {"seconds": time.perf_counter() - t0}))
     if problems:
         pytest.fail("the wire, read by tshark's CANopen dissector, shows what these tests do not "
@@ -156,13 +157,15 @@ def wire_summary(reports) -> list[str]:
             seconds += value.get("seconds", 0.0)
     if not checked and not skipped:
         return []
+    garbage = [f for f in checked if f.get("garbage")]         # a flood of random frames: read, not judged
+    checked = [f for f in checked if not f.get("garbage")]
     total = lambda key: sum(f[key] for f in checked)        # noqa: E731
     functions: dict[str, int] = {}
     for f in checked:
         for k, v in f["functions"].items():
             functions[k] = functions.get(k, 0) + v
     aborted = [a for f in checked for a in f["sdo_aborted"]]
-    lines = [f"{len(checked)} captures (bus channels) checked in {seconds:.1f} s: {total('frames'):,} frames, "
+    lines = [f"{len(checked)} captures (bus channels) checked, all in {seconds:.1f} s: {total('frames'):,} frames, "
              f"{total('malformed')} malformed, {total('expert_errors')} expert errors, "
              f"{total('expert_warnings')} warnings",
              "  by function: " + ", ".join(f"{k} {v:,}" for k, v in sorted(functions.items(), key=lambda kv: -kv[1])),
@@ -175,6 +178,10 @@ def wire_summary(reports) -> list[str]:
         codes[code] = codes.get(code, 0) + 1
     if codes:
         lines.append("  abort codes: " + ", ".join(f"{c} ×{n}" for c, n in sorted(codes.items())))
+    if garbage:
+        lines.append(f"  and {len(garbage)} captures of a bus flooded with random frames (read, not judged): "
+                     f"{sum(f['frames'] for f in garbage):,} frames, {sum(f['malformed'] for f in garbage):,} "
+                     "malformed")
     if skipped:
         reasons = sorted({why for _, why in skipped})
         lines.append(f"  not checked: {len(skipped)} captures of {len({t for t, _ in skipped})} tests: "
