@@ -19,6 +19,7 @@ Where tshark is missing the check is skipped and the summary says why;
 from __future__ import annotations
 
 import os
+import resource
 import time
 from fnmatch import fnmatch
 from pathlib import Path
@@ -118,7 +119,7 @@ def _check(item, pending: list[tuple[Path, WireExpectation, str]]) -> None:
     if reason:
         return
     problems = []
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), _cpu_s()
     for cut_off in (False, True):
         group = [(p, e, test) for p, e, test in pending if not e.skip and e.cut_off == cut_off]
         if not group:
@@ -134,17 +135,23 @@ def _check(item, pending: list[tuple[Path, WireExpectation, str]]) -> None:
             problems += [f"{line}   [{test}]" for line in wire_problems([f], e)]
         item.user_properties.append(("wire", {"figures": [{**f.as_dict(), "garbage": expect[f.capture][0].garbage}
                                                           for f in figures]}))
-    item.user_properties.append(("wire", {"seconds": time.perf_counter() - t0}))
+    item.user_properties.append(("wire", {"seconds": time.perf_counter() - t0, "cpu_s": _cpu_s() - cpu0}))
     if problems:
         pytest.fail("the wire, read by tshark's CANopen dissector, shows what these tests do not "
                     "provoke (@pytest.mark.wire says what a test provokes):\n  " + "\n  ".join(problems),
                     pytrace=False)
 
 
+def _cpu_s() -> float:
+    """CPU time of this thread and of the children waited for (tshark), s."""
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.thread_time() + children.ru_utime + children.ru_stime
+
+
 def wire_summary(reports) -> list[str]:
     """The run's totals of the wire check, from the teardown reports."""
     checked, skipped = [], []
-    seconds = 0.0
+    seconds = cpu_s = 0.0
     for report in reports:
         if getattr(report, "when", None) != "teardown":
             continue
@@ -155,6 +162,7 @@ def wire_summary(reports) -> list[str]:
                 skipped.append((value["test"], value["skipped"]))
             checked += value.get("figures", [])
             seconds += value.get("seconds", 0.0)
+            cpu_s += value.get("cpu_s", 0.0)
     if not checked and not skipped:
         return []
     garbage = [f for f in checked if f.get("garbage")]         # a flood of random frames: read, not judged
@@ -165,7 +173,7 @@ def wire_summary(reports) -> list[str]:
         for k, v in f["functions"].items():
             functions[k] = functions.get(k, 0) + v
     aborted = [a for f in checked for a in f["sdo_aborted"]]
-    lines = [f"{len(checked)} captures (bus channels) checked, all in {seconds:.1f} s: {total('frames'):,} frames, "
+    lines = [f"{len(checked)} captures (bus channels) checked, all in {seconds:.1f} s ({cpu_s:.1f} s of CPU): {total('frames'):,} frames, "
              f"{total('malformed')} malformed, {total('expert_errors')} expert errors, "
              f"{total('expert_warnings')} warnings",
              "  by function: " + ", ".join(f"{k} {v:,}" for k, v in sorted(functions.items(), key=lambda kv: -kv[1])),
