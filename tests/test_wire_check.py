@@ -79,7 +79,7 @@ def sdo_capture(tmp_path):
     return client, done
 
 
-def test_expedited_and_segmented_transfers_and_an_abort_are_followed(sdo_capture):
+def test_expedited_and_segmented_transfers_and_aborts_by_server_and_client_are_followed(sdo_capture):
     client, done = sdo_capture
     assert client.sdo.upload(0x1008, 0) == b"Servo-valve drive (CiA 408)"   # segmented upload
     client.sdo.download(0x1017, 0, b"\x64\x00")                             # expedited download
@@ -87,19 +87,25 @@ def test_expedited_and_segmented_transfers_and_an_abort_are_followed(sdo_capture
     assert client.sdo.upload(0x1017, 0) == b"\xc8\x00"                      # expedited upload
     with pytest.raises(canopen.SdoAbortedError):
         client.sdo.upload(0x5FFF, 0)                                        # no such object
+    silent = client.network.add_node(5, str(EDS))                           # no such node
+    silent.sdo.RESPONSE_TIMEOUT = 0.1
+    with pytest.raises(canopen.SdoCommunicationError):
+        silent.sdo.upload(0x1018, 1)
     f, = check_captures([done()])
     assert [(t.direction, t.index, t.mode, t.outcome) for t in f.sdo] == [
         ("upload", 0x1008, "segmented", "complete"), ("download", 0x1017, "expedited", "complete"),
         ("download", 0x1017, "segmented", "complete"), ("upload", 0x1017, "expedited", "complete"),
-        ("upload", 0x5FFF, "?", "aborted")]
+        ("upload", 0x5FFF, "?", "aborted"), ("upload", 0x1018, "?", "aborted")]
     assert f.sdo[0].segments == 4 and f.sdo[2].segments == 1     # 27 bytes in 7-byte segments; 2 bytes
-    assert (f.sdo[4].abort_code, f.sdo[4].aborted_by) == (0x06020000, "server")
+    assert (f.sdo[4].abort_code, f.sdo[4].aborted_by, f.sdo[4].abort_names) == (0x06020000, "server", None)
+    # the client gives up after its timeout with an abort (0x05040000) that names 0000:00
+    assert str(f.sdo[5]).endswith("aborted by the client, code 0x05040000 (the abort names 0x0000:00)")
     assert f.sdo_faults == [] and f.malformed == 0
-    problem, = wire_problems([f])
-    assert "upload 0x5FFF:00" in problem and "aborted by the server, code 0x06020000" in problem
-    assert wire_problems([f], WireExpectation(sdo_aborts=frozenset({0x06020000}))) == []
+    server, client_abort = wire_problems([f])
+    assert "upload 0x5FFF:00" in server and "aborted by the server, code 0x06020000" in server
+    assert wire_problems([f], WireExpectation(sdo_aborts=frozenset({0x06020000, 0x05040000}))) == []
     assert wire_problems([f], WireExpectation(sdo_aborts="any")) == []
-    assert wire_problems([f], WireExpectation(sdo_aborts=frozenset({0x06090011}))) == [problem]
+    assert wire_problems([f], WireExpectation(sdo_aborts=frozenset({0x05040000}))) == [server]
 
 
 def test_a_transfer_cut_off_and_a_broken_protocol_are_named(tmp_path):

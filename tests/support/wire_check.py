@@ -77,6 +77,7 @@ class SdoTransfer:
     outcome: str = "open"       #: "complete", "aborted", "open" (cut off: never finished)
     abort_code: int | None = None
     aborted_by: str | None = None   #: "client" or "server"
+    abort_names: str | None = None  #: the object an abort frame names where it is not the transfer's
     segments: int = 0
     last_frame: int = 0
     # protocol state: what the next frame of this transfer must be
@@ -89,7 +90,8 @@ class SdoTransfer:
                 f"({self.mode}, frame {self.first_frame})")
         if self.outcome == "aborted":
             code = "?" if self.abort_code is None else f"0x{self.abort_code:08X}"   # ?: too short to hold one
-            return f"{what}: aborted by the {self.aborted_by}, code {code}"
+            other = f" (the abort names {self.abort_names})" if self.abort_names else ""
+            return f"{what}: aborted by the {self.aborted_by}, code {code}{other}"
         return f"{what}: {self.outcome}"
 
 
@@ -494,6 +496,9 @@ class _SdoFollower:
         if t is None:                         # an abort of nothing open: still an abort on the wire
             t = SdoTransfer(node, "?", index, sub, frame)
             self.f.sdo.append(t)
+        elif (index, sub) != (t.index, t.subindex):
+            # CiA 301 has the abort name the transfer's object; python canopen's client names 0000:00
+            t.abort_names = _od(index, sub)
         t.abort_code, t.aborted_by = code, by
         self.close(t, frame, "aborted")
 
