@@ -140,6 +140,7 @@ class WireFigures:
                                                 for k, v in self.emcy_codes.items()},
                 "sdo_begun": len(self.sdo), "sdo_complete": self.sdo_complete,
                 "sdo_aborted": [str(t) for t in self.sdo_aborted], "sdo_open": [str(t) for t in self.sdo_open],
+                "sdo_abort_codes": ["?" if t.abort_code is None else f"0x{t.abort_code:08X}" for t in self.sdo_aborted],
                 "sdo_faults": list(self.sdo_faults),
                 "sdo_expedited": sum(t.mode == "expedited" for t in self.sdo),
                 "sdo_segmented": sum(t.mode == "segmented" for t in self.sdo)}

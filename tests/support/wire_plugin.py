@@ -168,30 +168,31 @@ def wire_summary(reports) -> list[str]:
     garbage = [f for f in checked if f.get("garbage")]         # a flood of random frames: read, not judged
     checked = [f for f in checked if not f.get("garbage")]
     total = lambda key: sum(f[key] for f in checked)        # noqa: E731
-    functions: dict[str, int] = {}
-    for f in checked:
-        for k, v in f["functions"].items():
-            functions[k] = functions.get(k, 0) + v
-    aborted = [a for f in checked for a in f["sdo_aborted"]]
-    lines = [f"{len(checked)} captures (bus channels) checked, all in {seconds:.1f} s ({cpu_s:.1f} s of CPU): {total('frames'):,} frames, "
-             f"{total('malformed')} malformed, {total('expert_errors')} expert errors, "
-             f"{total('expert_warnings')} warnings",
-             "  by function: " + ", ".join(f"{k} {v:,}" for k, v in sorted(functions.items(), key=lambda kv: -kv[1])),
-             f"  SDO transfers: {total('sdo_begun')} begun ({total('sdo_expedited')} expedited, "
-             f"{total('sdo_segmented')} segmented), {total('sdo_complete')} complete, {len(aborted)} aborted, "
-             f"{sum(len(f['sdo_open']) for f in checked)} cut off, {sum(len(f['sdo_faults']) for f in checked)} protocol faults"]
-    codes: dict[str, int] = {}
-    for a in aborted:
-        code = a.rsplit("code ", 1)[-1]
-        codes[code] = codes.get(code, 0) + 1
-    if codes:
-        lines.append("  abort codes: " + ", ".join(f"{c} ×{n}" for c, n in sorted(codes.items())))
+    lines = []
+    if checked:
+        functions: dict[str, int] = {}
+        codes: dict[str, int] = {}
+        for f in checked:
+            for k, v in f["functions"].items():
+                functions[k] = functions.get(k, 0) + v
+            for code in f["sdo_abort_codes"]:
+                codes[code] = codes.get(code, 0) + 1
+        lines += [f"{len(checked)} captures (bus channels) checked, all in {seconds:.1f} s ({cpu_s:.1f} s of CPU): "
+                  f"{total('frames'):,} frames, {total('malformed')} malformed, {total('expert_errors')} expert "
+                  f"errors, {total('expert_warnings')} warnings",
+                  "  by function: " + ", ".join(f"{k} {v:,}" for k, v in sorted(functions.items(), key=lambda kv: -kv[1])),
+                  f"  SDO transfers: {total('sdo_begun')} begun ({total('sdo_expedited')} expedited, "
+                  f"{total('sdo_segmented')} segmented), {total('sdo_complete')} complete, "
+                  f"{sum(codes.values())} aborted, {sum(len(f['sdo_open']) for f in checked)} cut off, "
+                  f"{sum(len(f['sdo_faults']) for f in checked)} protocol faults"]
+        if codes:
+            lines.append("  abort codes: " + ", ".join(f"{c} ×{n}" for c, n in sorted(codes.items())))
     if garbage:
-        lines.append(f"  and {len(garbage)} captures of a bus flooded with random frames (read, not judged): "
+        lines.append(f"{len(garbage)} captures of a bus flooded with random frames (read, not judged): "
                      f"{sum(f['frames'] for f in garbage):,} frames, {sum(f['malformed'] for f in garbage):,} "
                      "malformed")
     if skipped:
         reasons = sorted({why for _, why in skipped})
-        lines.append(f"  not checked: {len(skipped)} captures of {len({t for t, _ in skipped})} tests: "
+        lines.append(f"not checked: {len(skipped)} captures of {len({t for t, _ in skipped})} tests: "
                      + "; ".join(reasons))
     return lines
