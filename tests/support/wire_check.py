@@ -1,10 +1,11 @@
 """The wire read by a CANopen implementation no one here wrote: Wireshark's dissector (tshark).
 
-Every capture (any format :mod:`captures` reads; each bus channel in it apart) is written as
-SocketCAN frames (:func:`captures.pcap.pcap_records`) into one pcap per call, and one ``tshark``
-decodes them all with its CANopen dissector (``-d can.subdissector,canopen``), printing chosen
-fields per frame (``-T fields``; the names are checked by tshark itself, which refuses an
-unknown one). From those fields, not from our own decoders, :func:`check_captures` counts:
+Every capture (any format :mod:`captures` reads; each bus channel in it apart) is turned into
+SocketCAN frames (:func:`captures.pcap.socketcan_frames`), each distinct frame goes once into
+one pcap per call, and one ``tshark`` decodes them all with its CANopen dissector (``-d
+can.subdissector,canopen``), printing chosen fields per frame (``-T fields``; the names are
+checked by tshark itself, which refuses an unknown one). From those fields, not from our own
+decoders, :func:`check_captures` counts:
 
 * frames, malformed frames (``_ws.malformed``: the dissector ran out of bytes, e.g. an SDO
   shorter than 8 bytes) and expert infos of severity error or warning (``_ws.expert``);
@@ -20,8 +21,8 @@ unknown one). From those fields, not from our own decoders, :func:`check_capture
 
 :func:`wire_problems` turns the figures into the list of what a test did not expect
 (:class:`WireExpectation`): by default 0 malformed frames, 0 expert errors, every SDO transfer
-complete, no abort, no protocol fault. tests/conftest.py applies it to every capture an
-end-to-end test leaves; ``@pytest.mark.wire(...)`` says what a test provokes instead.
+complete, no abort, no protocol fault. tests/support/wire_plugin.py applies it to every
+capture an end-to-end test leaves; ``@pytest.mark.wire(...)`` says what a test provokes instead.
 """
 from __future__ import annotations
 
@@ -38,10 +39,10 @@ import numpy as np
 
 #: the fields asked of tshark, in this order (tshark 4.0's names: ``tshark -G fields``)
 FIELDS = ("can.id", "can.len", "can.flags.xtd", "can.flags.rtr", "can.flags.err",
-          "canopen.function_code", "canopen.node_id",
-          "canopen.nmt_ctrl.cd", "canopen.em.err_code", "canopen.nmt_guard.state", "canopen.sdo.ccs", "canopen.sdo.scs", "canopen.sdo.e", "canopen.sdo.c",
-          "canopen.sdo.toggle", "canopen.sdo.main_idx", "canopen.sdo.sub_idx", "canopen.sdo.abort_code",
-          "_ws.malformed", "_ws.expert.severity", "_ws.expert.message")
+          "canopen.function_code", "canopen.node_id", "canopen.nmt_ctrl.cd", "canopen.em.err_code",
+          "canopen.nmt_guard.state", "canopen.sdo.ccs", "canopen.sdo.scs", "canopen.sdo.e",
+          "canopen.sdo.c", "canopen.sdo.toggle", "canopen.sdo.main_idx", "canopen.sdo.sub_idx",
+          "canopen.sdo.abort_code", "_ws.malformed", "_ws.expert.severity", "_ws.expert.message")
 _F = {name: i for i, name in enumerate(FIELDS)}
 _SEP = "\x1f"                      #: between occurrences of one field (expert infos can be several)
 PI_WARN, PI_ERROR = 0x00600000, 0x00800000     #: epan/proto.h severities
@@ -128,22 +129,23 @@ class WireFigures:
 
     def downloads(self, first: int, last: int) -> list[SdoTransfer]:
         """The completed downloads to objects ``first``..``last`` (e.g. 0x1400-0x1BFF: the PDO set-up)."""
-        return [t for t in self.sdo if t.direction == "download" and t.index is not None and first <= t.index <= last
-                and t.outcome == "complete"]
+        return [t for t in self.sdo if t.direction == "download" and t.outcome == "complete"
+                and t.index is not None and first <= t.index <= last]
 
     def as_dict(self) -> dict:
+        hex_or_none = lambda v, digits: "(none)" if v is None else f"0x{v:0{digits}X}"   # noqa: E731
         return {"capture": self.capture, "channel": self.channel, "frames": self.frames,
                 "malformed": self.malformed, "expert_errors": self.expert_errors,
                 "expert_warnings": self.expert_warnings, "expert_messages": dict(self.expert_messages),
                 "functions": dict(self.functions), "nmt_commands": dict(self.nmt_commands),
-                "nmt_states": dict(self.nmt_states), "emcy_codes": {"(none)" if k is None else f"0x{k:04X}": v
-                                                for k, v in self.emcy_codes.items()},
+                "nmt_states": dict(self.nmt_states),
+                "emcy_codes": {hex_or_none(k, 4): v for k, v in self.emcy_codes.items()},
                 "sdo_begun": len(self.sdo), "sdo_complete": self.sdo_complete,
-                "sdo_aborted": [str(t) for t in self.sdo_aborted], "sdo_open": [str(t) for t in self.sdo_open],
-                "sdo_abort_codes": ["?" if t.abort_code is None else f"0x{t.abort_code:08X}" for t in self.sdo_aborted],
-                "sdo_faults": list(self.sdo_faults),
                 "sdo_expedited": sum(t.mode == "expedited" for t in self.sdo),
-                "sdo_segmented": sum(t.mode == "segmented" for t in self.sdo)}
+                "sdo_segmented": sum(t.mode == "segmented" for t in self.sdo),
+                "sdo_aborted": [str(t) for t in self.sdo_aborted],
+                "sdo_abort_codes": [hex_or_none(t.abort_code, 8) for t in self.sdo_aborted],
+                "sdo_open": [str(t) for t in self.sdo_open], "sdo_faults": list(self.sdo_faults)}
 
     def summary(self) -> str:
         kinds = ", ".join(f"{k} {v}" for k, v in sorted(self.functions.items(), key=lambda kv: -kv[1]))
