@@ -21,6 +21,7 @@ import can
 import pytest
 
 from endurance.journal import Journal, lock_holder
+from endurance.live.feed import LIVE_FILE
 from endurance.report import _duration
 from standbus import open_bus
 from tests.support.browser import chromium, wait_until
@@ -74,7 +75,7 @@ def test_the_page_of_a_running_test_in_a_browser(tmp_path, start_rig_emulator, c
         session = subprocess.Popen([sys.executable, "-m", "stand", "test", "start", str(test_file), "--out",
                                     str(testdir), "--flights", "200", *GATEWAY],
                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        wait_for(lambda: (testdir / "live.json").exists(), 120, "the session's live feed")
+        wait_for(lambda: (testdir / LIVE_FILE).exists(), 120, "the session's live feed")
         watch, url = serving("test", "watch", testdir, "--serve", "127.0.0.1:0", "--operator-token-file", token)
         driver = chromium()
         driver.get(url)

@@ -1,4 +1,4 @@
-"""``stand test plan|start|status|stop|resume|report``: an endurance test, flight by flight, on a
+"""``stand test plan|start|status|stop|resume|report|watch|token``: an endurance test, flight by flight, on a
 station (endurance.run; docs/endurance.md)."""
 from __future__ import annotations
 
@@ -170,7 +170,7 @@ def start_main(args: argparse.Namespace) -> int:
     test = load_test_file(args.test_file)
     config = _config(args, test)
     feed = LiveFeed()
-    with sigterm_as_interrupt(), live_page(args, args.out, feed, "session"):
+    with sigterm_as_interrupt(), live_page(args, args.out, "session"):
         result = start(test, args.out, config, flights, on_flight=_on_flight(args), started_at=started,
                        publisher=feed, gateway_args=gateway_args(args, _gateway_options))
     return _finish(result)
@@ -187,7 +187,7 @@ def resume_main(args: argparse.Namespace) -> int:
     test = load_test_file(args.test_file or test_file_of(Path(args.testdir)))
     config = _config(args, test)
     feed = LiveFeed()
-    with sigterm_as_interrupt(), live_page(args, args.testdir, feed, "session"):
+    with sigterm_as_interrupt(), live_page(args, args.testdir, "session"):
         result = resume(args.testdir, config, test, flights, on_flight=_on_flight(args), started_at=started,
                         publisher=feed, found=args.found)
     return _finish(result)
