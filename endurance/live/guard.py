@@ -242,9 +242,10 @@ def printable(text: str, limit: int = 80) -> str:
 
 
 class TornadoRefusals(logging.Filter):
-    """tornado's log line for each malformed request (it answers 400 and closes) counted as a
-    refusal of its client instead; its line for a request it refused (``400 GET /%ff: Invalid
-    unicode``) left out (the application counts those)."""
+    """tornado's log line for each malformed request (it answers 400 and closes) and each failed
+    TLS handshake (plain HTTP on an HTTPS page, say) counted as a refusal of its client instead;
+    its line for a request it refused (``400 GET /%ff: Invalid unicode``) left out (the
+    application counts those)."""
 
     COUNTED = {"Malformed HTTP message from": "malformed request", "Timeout reading body from": "body too slow"}
 
@@ -256,9 +257,13 @@ class TornadoRefusals(logging.Filter):
         if record.msg == "%d %s: %s" and isinstance(record.args, tuple) and record.args \
                 and 400 <= record.args[0] < 500:
             return False
+        args = record.args if isinstance(record.args, tuple) else ()
+        if record.msg == "SSL Error on %s %s: %s" and len(args) == 3:     # not TLS, or a TLS it refuses
+            self.tally.refuse(client_of(args[1]), "a connection", "TLS handshake failed")
+            return False
         for start, why in self.COUNTED.items():
             if isinstance(record.msg, str) and record.msg.startswith(start):
-                context = record.args[0] if isinstance(record.args, tuple) and record.args else None
+                context = args[0] if args else None
                 self.tally.refuse(str(getattr(context, "remote_ip", "?")), "a request", why)
                 return False
         return True

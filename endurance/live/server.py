@@ -236,6 +236,7 @@ class _Handler(tornado.web.RequestHandler):
         self.reply(status, {"refused": message or why})
 
     def set_default_headers(self) -> None:
+        self.clear_header("Server")                  # what it runs on is nobody's business
         for name, value in SECURITY_HEADERS.items():
             self.set_header(name, value)
 
