@@ -22,7 +22,7 @@ from core.errors import ParameterError
 from endurance.inbox import INBOX_DIR, record_event, take_in
 from endurance.journal import Journal, MonitorStep
 from endurance.live.binding import Address, Binding, serve_address
-from endurance.live.feed import LIVE_FILE, FeedReader, LiveFeed
+from endurance.live.feed import LIVE_FILE, RING_DIR, RING_PREFIX, FeedReader, LiveFeed
 from endurance.live.operator import Operator, read_token_file, resume_command, write_token_file
 from endurance.live.ring import MARGIN, RingFile
 from endurance.live.viewer import StreamViewer
@@ -69,6 +69,9 @@ def test_a_session_feed_decimates_the_loop_and_the_reader_follows_it_from_sessio
     feed = LiveFeed(sample_hz=50.0)
     feed.open(tmp_path, ["a", "b"], 0.002)
     assert feed.hello == {"channels": ["a", "b"], "period_s": 0.002, "sample_hz": 50.0, "pid": os.getpid()}
+    ring = Path(json.loads((tmp_path / LIVE_FILE).read_text())["ring"])
+    assert ring.parent == RING_DIR and stat.S_IMODE(ring.stat().st_mode) == 0o600    # in memory, not on disk
+    assert stat.S_IMODE((tmp_path / LIVE_FILE).stat().st_mode) == 0o600
     for k in range(200):                           # 0.4 s of 2 ms cycles: a row every 20 ms
         feed.cycle(1000.0 + k * 0.002, np.array([k, -k]), [k + 1, -k - 1], [0.5, -0.5])
     for k in range(20):                            # slow lockstep cycles of 7 ms: every 3rd
@@ -80,7 +83,8 @@ def test_a_session_feed_decimates_the_loop_and_the_reader_follows_it_from_sessio
     assert rows[20:, 1].tolist() == [0, 3, 6, 9, 12, 15, 18]
     feed.close()                                   # the session ends: its ring goes
     reader.poll(11.0)
-    assert reader.hello is None and not (tmp_path / LIVE_FILE).exists() and reader.count == 27
+    assert reader.hello is None and reader.count == 27
+    assert not (tmp_path / LIVE_FILE).exists() and not ring.exists()
     feed = LiveFeed()                              # the next session: numbering goes on
     feed.open(tmp_path, ["a"], 0.002)
     feed.cycle(2000.0, [1.0], [2.0], [3.0])
@@ -88,10 +92,19 @@ def test_a_session_feed_decimates_the_loop_and_the_reader_follows_it_from_sessio
     seq2, rows = reader.since(seq)
     assert seq2 == 28 and rows.tolist() == [[2000.0, 1.0, 2.0, 3.0]] and reader.channels == ["a"]
     feed.close()
-    # a session killed leaves its ring: a reader passes it over (its process is gone)
-    RingFile.create(tmp_path / LIVE_FILE, 4, 100, {"channels": ["a"], "pid": 2 ** 22 + 12345, "sample_hz": 50.0})
+    # a session killed leaves its ring: a reader passes it over (its process is gone), the next
+    # session of the test removes it
+    dead = 2 ** 22 + 12345
+    left = RING_DIR / f"{RING_PREFIX}{dead}-test.ring"
+    RingFile.create(left, 4, 100, {"channels": ["a"], "pid": dead, "sample_hz": 50.0})
+    (tmp_path / LIVE_FILE).write_text(json.dumps({"ring": str(left), "pid": dead}))
     reader.poll(13.0)
     assert reader.hello is None
+    feed.open(tmp_path, ["a"], 0.002)
+    assert not left.exists()
+    reader.poll(14.0)
+    assert reader.hello == feed.hello
+    feed.close()
     reader.close()
 
 

@@ -26,6 +26,10 @@ from core.errors import ParameterError
 LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
 #: connections the kernel keeps waiting for the server (while it starts again, say)
 BACKLOG = 128
+#: the kernel's send buffer of each connection (inherited from the listening socket), bytes: a
+#: client that stops reading holds at most this of the host's memory (Linux doubles it) until
+#: the write timeout closes it, not the megabytes autotuning would grow to
+SEND_BUFFER_BYTES = 256 * 1024
 #: what a certificate is made with, for the messages
 CERT_HINT = ("openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:P-256 -nodes -days 825 "
              "-subj /CN=HOST -addext subjectAltName=DNS:HOST -keyout key.pem -out cert.pem; chmod 600 key.pem")
@@ -206,7 +210,11 @@ def bind_listeners(address: Address) -> list[socket.socket]:
     starts: the port stays while a server is started again."""
     import tornado.netutil
     try:
-        return tornado.netutil.bind_sockets(address.port, address.host, family=socket.AF_UNSPEC, backlog=BACKLOG)
+        sockets = tornado.netutil.bind_sockets(address.port, address.host, family=socket.AF_UNSPEC,
+                                               backlog=BACKLOG)
     except (OSError, socket.gaierror) as exc:
         raise ParameterError(f"--serve {address.host}:{address.port}: cannot listen there "
                              f"({exc.strerror or exc})") from None
+    for sock in sockets:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER_BYTES)
+    return sockets

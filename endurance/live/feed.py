@@ -4,27 +4,35 @@ r"""The live rows a running session publishes, and the page server's end of them
 
     test process                                      the page's server (a process of its own)
     control loop ──cycle()──▶ LiveFeed                FeedReader (every tick of the server)
-      a row every 1/SAMPLE_HZ s of the wall clock       follows TESTDIR/live.ring from session
-      into TESTDIR/live.ring (ring.py: a few stores     to session, copies the rows that are new
-      into a mapped file, never a wait)  ─────────▶     (read-only mapping)
+      a row every 1/SAMPLE_HZ s of the wall clock       follows TESTDIR/live.json from session
+      into its ring (ring.py: a few stores into a       to session, copies the rows that are new
+      mapped file, never a wait)  ────────────────▶     (a read-only mapping of the ring)
 
 A row is ``(sync_time, forces..., references..., commands...)`` in the channels' order (kgf,
 kgf, %); ``sync_time`` is the cycle's SYNC on the wall clock (epoch s). The session holds no
 descriptor, thread or buffer for a reader: whatever the server does (or however many servers
-read), the loop's part is the same few stores. The file's mode (600) keeps it to the test's
-user. Why a mapped file rather than a socket: docs/decisions.md (the live page in a process of
-its own).
+read), the loop's part is the same few stores. The ring lives in memory, not on the test's
+disk (:data:`RING_DIR`, a tmpfs: no page of it is ever written back, so a store never waits
+for the disk), named in ``TESTDIR/live.json``; both are mode 600 (the test's user). A ring a
+killed session left is removed by the next session of the test. Why a mapped file rather than
+a socket: docs/decisions.md (the live page in a process of its own).
 """
 from __future__ import annotations
 
+import json
 import os
+import secrets
 from pathlib import Path
 
 import numpy as np
 
 from .ring import MARGIN, RingFile
 
-LIVE_FILE = "live.ring"
+#: the file in TESTDIR that names the running session's ring
+LIVE_FILE = "live.json"
+#: where rings are made: memory (Linux's tmpfs), else the test's directory
+RING_DIR = Path("/dev/shm")
+RING_PREFIX = "hydrostand-live-"
 #: rows per second the live view gets (the loop's cycles decimated to it on the wall clock: in
 #: lockstep a cycle may take longer than its period)
 SAMPLE_HZ = 50.0
@@ -60,20 +68,55 @@ class LiveFeed:
 
     # -- the session's --------------------------------------------------------------------------------
     def open(self, testdir: str | Path, channels: list[str], period_s: float) -> None:
-        """The session begins: its channels and period; ``TESTDIR/live.ring`` is made."""
+        """The session begins: its channels and period; its ring is made and named in
+        ``TESTDIR/live.json`` (a killed session's left removed first)."""
+        testdir = Path(testdir)
         self.channels = list(channels)
         self.period_s = float(period_s)
         hello = {"channels": self.channels, "period_s": self.period_s, "sample_hz": self.sample_hz,
                  "pid": os.getpid()}
-        self._ring = RingFile.create(Path(testdir) / LIVE_FILE, 1 + 3 * len(self.channels),
-                                     int(RING_S * self.sample_hz) + MARGIN, hello)
+        _remove_stale(testdir)
+        where = RING_DIR if RING_DIR.is_dir() and os.access(RING_DIR, os.W_OK) else testdir
+        path = where / f"{RING_PREFIX}{os.getpid()}-{secrets.token_hex(6)}.ring"
+        self._ring = RingFile.create(path, 1 + 3 * len(self.channels), int(RING_S * self.sample_hz) + MARGIN, hello)
+        self._pointer = testdir / LIVE_FILE
+        tmp = testdir / f".{LIVE_FILE}.{os.getpid()}.tmp"
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w") as fh:
+            json.dump({"ring": str(path), "pid": os.getpid()}, fh)
+        os.replace(tmp, self._pointer)
         self.hello = hello
 
     def close(self) -> None:
         self.hello = None
         ring, self._ring = self._ring, None
-        if ring is not None:
-            ring.close()
+        if ring is None:
+            return
+        ring.close()                                  # closed, and its file removed
+        try:
+            if _pointer(self._pointer).get("ring") == str(ring.path):
+                self._pointer.unlink()
+        except OSError:
+            pass
+
+
+def _pointer(path: Path) -> dict:
+    """``TESTDIR/live.json`` ({ring, pid}); OSError or ValueError if it is not there or not one."""
+    info = json.loads(path.read_text())
+    if not isinstance(info, dict) or not isinstance(info.get("ring"), str):
+        raise ValueError(f"{path}: not a live ring's name")
+    return info
+
+
+def _remove_stale(testdir: Path) -> None:
+    """The ring a killed session of this test left (its process gone), removed."""
+    try:
+        info = _pointer(testdir / LIVE_FILE)
+    except (OSError, ValueError):
+        return
+    ring = Path(info["ring"])
+    if not _alive(int(info.get("pid") or 0)) and ring.name.startswith(RING_PREFIX):
+        ring.unlink(missing_ok=True)
 
 
 def _alive(pid: int) -> bool:
@@ -94,6 +137,7 @@ class FeedReader:
 
     def __init__(self, testdir: str | Path) -> None:
         self.path = Path(testdir) / LIVE_FILE
+        self._named: int | None = None    # the inode of the live.json that named the ring taken
         self.hello: dict | None = None
         self.channels: list[str] = []
         self._ring: RingFile | None = None
@@ -121,34 +165,35 @@ class FeedReader:
         return self._end, rows
 
     def poll(self, now: float = 0.0) -> None:
-        """Look at ``TESTDIR/live.ring``: a new session's, the last one gone or closed, its
+        """Look at ``TESTDIR/live.json``: a new session's ring, the last one gone or closed, its
         process dead (every :data:`ALIVE_EVERY_S` of ``now``, a monotonic time)."""
         try:
             inode = os.stat(self.path).st_ino
         except OSError:
             inode = None
         ring = self._ring
-        if ring is not None and (inode != ring.inode or ring.closed):
+        if ring is not None and (inode != self._named or ring.closed):
             self._drop()
         if self._ring is None and inode is not None and inode != self._passed:
             self._take(inode)
         if self._ring is not None and now - self._alive_at >= ALIVE_EVERY_S:
             self._alive_at = now
             if not _alive(int(self._ring.hello.get("pid", 0) or 0)):
-                self._passed = self._ring.inode   # killed: its file stays until the next session
+                self._passed = self._named          # killed: its files stay until the next session
                 self._drop()
 
     def _take(self, inode: int) -> None:
+        self._passed = inode                        # unless it is taken below
         try:
-            ring = RingFile.open(self.path)
+            ring = RingFile.open(_pointer(self.path)["ring"])
         except (OSError, ValueError):
-            self._passed = inode
             return
         if ring.closed or not _alive(int(ring.hello.get("pid", 0) or 0)) \
                 or ring.width != 1 + 3 * len(ring.hello.get("channels", [])):
-            self._passed = ring.inode
             ring.close()
             return
+        self._passed = None
+        self._named = inode
         self._offset = self._end
         self._ring = ring
         self.hello = dict(ring.hello)

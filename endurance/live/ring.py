@@ -2,8 +2,8 @@ r"""The live rows of a running session in a file that both processes map: the se
 page's server reads, and nothing else passes between them (docs/decisions.md, the live page in a
 process of its own).
 
-``TESTDIR/live.ring`` (mode 600), made by each session under a temporary name and renamed into
-place, so a reader that has the last session's mapped sees a new file::
+One file per session (mode 600; where: :mod:`endurance.live.feed`), made under a temporary
+name and renamed into place::
 
     header  4096 bytes: magic, row width, capacity, the hello's length; at 64 the count of rows
             put, at 72 the closed flag; at 128 the session's hello (JSON: channels, period,
@@ -79,7 +79,7 @@ class RingFile:
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_TRUNC, 0o600)
         try:
-            os.ftruncate(fd, size)
+            os.pwrite(fd, bytes(size), 0)             # every page there now: no fault in the loop
             os.pwrite(fd, struct.pack("<8sIII", MAGIC, width, capacity, len(text)), 0)
             os.pwrite(fd, text, _HELLO_AT)
             mm = mmap.mmap(fd, size)
