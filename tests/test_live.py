@@ -55,6 +55,8 @@ def test_a_ring_gives_each_reader_what_came_since_it_looked_and_the_newest_when_
     assert reader.closed and not (tmp_path / "r").exists()
     with pytest.raises(ValueError):
         RingFile.create(tmp_path / "q", 3, MARGIN, {})
+    big = RingFile.create(tmp_path / "big", 1 + 3 * 500, 100, {"channels": [f"channel-{i:04d}" for i in range(500)]})
+    assert RingFile.open(tmp_path / "big").hello == big.hello                 # a hello of 7 kB: two pages
     (tmp_path / "junk").write_bytes(b"x" * 5000)
     with pytest.raises(ValueError, match="not a ring"):
         RingFile.open(tmp_path / "junk")
@@ -106,6 +108,15 @@ def test_a_session_feed_decimates_the_loop_and_the_reader_follows_it_from_sessio
     assert reader.hello == feed.hello
     feed.close()
     reader.close()
+
+
+def test_a_feed_that_cannot_publish_leaves_the_session_running_without_signals(tmp_path, caplog):
+    feed = LiveFeed()
+    feed.open(tmp_path / "not-there", ["a"], 0.002)           # TESTDIR/live.json cannot be written
+    feed.cycle(1000.0, [1.0], [2.0], [3.0])                    # nothing to do, nothing raised
+    assert feed.hello is None and "this session publishes no signals (FileNotFoundError" in caplog.text
+    assert not list(RING_DIR.glob(f"{RING_PREFIX}{os.getpid()}-*"))         # its ring removed
+    feed.close()
 
 
 # -- events from outside a session ----------------------------------------------------------------------------

@@ -25,7 +25,7 @@ import pytest
 from endurance.journal import Journal
 from endurance.live.viewer import StreamViewer
 from tests.support.endurance_run import copy_short_test
-from tests.support.live import GATEWAY, events_of, flights_done, stand, token_file, wait_for
+from tests.support.live import GATEWAY, events_of, flights_done, page_server, stand, token_file, wait_for
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow, pytest.mark.serial]
 
@@ -42,24 +42,6 @@ def rss_mb(pid: int) -> float:
             if line.startswith("VmRSS:"):
                 return int(line.split()[1]) / 1024.0
     raise AssertionError(f"no VmRSS for {pid}")
-
-
-def page_server(session: int) -> int | None:
-    """The pid of the session's page server (a child of one of its threads)."""
-    for task in os.listdir(f"/proc/{session}/task"):
-        try:
-            with open(f"/proc/{session}/task/{task}/children") as fh:
-                children = fh.read().split()
-        except OSError:
-            continue
-        for child in children:
-            try:
-                with open(f"/proc/{child}/cmdline", "rb") as fh:
-                    if b"endurance.live.process" in fh.read():
-                        return int(child)
-            except OSError:
-                continue
-    return None
 
 
 def limited() -> None:

@@ -221,6 +221,7 @@ def test_a_killed_server_is_started_again_on_the_same_port_and_a_viewer_comes_ba
     viewer = None
     try:
         first = page.pid
+        assert oom_score_adj(first) == 1000                 # the kernel's first choice, not the session
         viewer = StreamViewer(url, reconnect_s=0.2)
         wait_for(lambda: viewer.opened, 10, "the stream")
         os.kill(first, signal.SIGKILL)
@@ -259,6 +260,11 @@ def test_the_server_ends_with_the_process_that_started_it(tmp_path):
     finally:
         if parent.poll() is None:
             parent.kill()
+
+
+def oom_score_adj(pid: int | str) -> int:
+    with open(f"/proc/{pid}/oom_score_adj") as fh:
+        return int(fh.read())
 
 
 def _zombie(pid: int) -> bool:

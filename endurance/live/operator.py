@@ -32,6 +32,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 from core.errors import ParameterError, StandError
 from endurance.inbox import record_event
@@ -144,10 +145,14 @@ class Operator:
     ``can_resume``: False where the page is served by the running session itself (it ends with
     it: a resume is for ``stand test watch``)."""
 
-    def __init__(self, testdir: str | Path, token: str | None, can_resume: bool = True) -> None:
+    def __init__(self, testdir: str | Path, token: str | None, can_resume: bool = True,
+                 child_setup: Callable[[], None] | None = None) -> None:
         self.testdir = Path(testdir)
         self._token = token.encode() if token else None
         self.can_resume = can_resume
+        #: run in a resume's process before it starts (the page's server undoes what it set for
+        #: itself: the test's session is not the kernel's first choice when memory runs out)
+        self.child_setup = child_setup
 
     @property
     def read_only(self) -> bool:
@@ -208,7 +213,7 @@ class Operator:
                      f"{' '.join(command[2:])}; its output in {log.name}")
         with open(log, "ab") as out:
             proc = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
-                                    start_new_session=True)
+                                    start_new_session=True, preexec_fn=self.child_setup)
         return Done("resume", f"resume started (process {proc.pid}; its output in sessions/{log.name})")
 
 

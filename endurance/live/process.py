@@ -18,6 +18,7 @@ started again only every :data:`DOWN_RETRY_S`, and the session says the page is 
 from __future__ import annotations
 
 import collections
+import functools
 import json
 import os
 import selectors
@@ -202,13 +203,25 @@ def _end(proc: subprocess.Popen) -> None:
 
 
 # -- the server's process ------------------------------------------------------------------------------------
-def _oom_first() -> None:
-    """The kernel's first choice when memory runs out (the session stays)."""
+OOM_SCORE_ADJ = "/proc/self/oom_score_adj"
+
+
+def _oom_score_adj(value: int | None = None) -> int | None:
+    """This process's OOM score adjustment (Linux), set to ``value`` if given; None if there is
+    none to read. Only system calls: it also runs in a child between fork and exec."""
     try:
-        with open("/proc/self/oom_score_adj", "w") as fh:
-            fh.write("1000")
+        fd = os.open(OOM_SCORE_ADJ, os.O_RDWR)
     except OSError:
-        pass
+        return None
+    try:
+        if value is not None:
+            os.write(fd, str(value).encode())
+            return value
+        return int(os.read(fd, 16) or 0)
+    except (OSError, ValueError):
+        return None
+    finally:
+        os.close(fd)
 
 
 def main() -> int:
@@ -221,14 +234,16 @@ def main() -> int:
               "or stand test watch, with its configuration on stdin", file=sys.stderr)
         return 2
     config = json.loads(line)
-    _oom_first()
+    was = _oom_score_adj()
+    _oom_score_adj(1000)                     # the kernel's first choice when memory runs out, not the session
     limits = Limits(**config["limits"])
     log_to_stderr(limits)
     binding = Binding.check(config["serve"], config["allow_hosts"], config["tls_cert"], config["tls_key"],
                             token=config["token"] is not None)
     sockets = [socket.socket(fileno=fd) for fd in config["fds"]]
     testdir = Path(config["testdir"])
-    operator = Operator(testdir, config["token"], can_resume=config["kind"] == "watch")
+    operator = Operator(testdir, config["token"], can_resume=config["kind"] == "watch",
+                        child_setup=None if was is None else functools.partial(_oom_score_adj, was))
     server = LiveServer(testdir, operator, config["kind"], binding, limits)
 
     def ready() -> None:

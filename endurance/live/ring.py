@@ -5,9 +5,9 @@ process of its own).
 One file per session (mode 600; where: :mod:`endurance.live.feed`), made under a temporary
 name and renamed into place::
 
-    header  4096 bytes: magic, row width, capacity, the hello's length; at 64 the count of rows
-            put, at 72 the closed flag; at 128 the session's hello (JSON: channels, period,
-            sample rate, pid)
+    header  whole pages: magic, row width, capacity, the hello's length; at 64 the count of
+            rows put, at 72 the closed flag; at 128 the session's hello (JSON: channels,
+            period, sample rate, pid)
     seqs    capacity × uint64: 1 + the sequence number of the row in each slot (0: being written)
     rows    capacity × width float64
 
@@ -32,7 +32,7 @@ from typing import Sequence
 import numpy as np
 
 MAGIC = b"HSRING01"
-HEADER_BYTES = 4096
+PAGE_BYTES = 4096
 _HELLO_AT = 128
 _COUNT_AT = 64
 _CLOSED_AT = 72
@@ -40,8 +40,9 @@ _CLOSED_AT = 72
 MARGIN = 64
 
 
-def _layout(width: int, capacity: int) -> tuple[int, int, int]:
-    seqs_at = HEADER_BYTES
+def _layout(width: int, capacity: int, hello_bytes: int) -> tuple[int, int, int]:
+    """Where the sequence numbers and the rows begin, and the file's size."""
+    seqs_at = -(-(_HELLO_AT + hello_bytes) // PAGE_BYTES) * PAGE_BYTES
     rows_at = seqs_at + 8 * capacity
     return seqs_at, rows_at, rows_at + 8 * capacity * width
 
@@ -49,8 +50,8 @@ def _layout(width: int, capacity: int) -> tuple[int, int, int]:
 class RingFile:
     """One session's ring (module docstring): :meth:`create` to write, :meth:`open` to read."""
 
-    def __init__(self, path: Path, mm: mmap.mmap, width: int, capacity: int, hello: dict, writable: bool,
-                 inode: int) -> None:
+    def __init__(self, path: Path, mm: mmap.mmap, width: int, capacity: int, hello: dict, hello_bytes: int,
+                 writable: bool, inode: int) -> None:
         self.path = path
         #: the file's inode: a reader sees a new session's ring by another one at ``path``
         self.inode = inode
@@ -58,7 +59,7 @@ class RingFile:
         self.capacity = capacity
         self.hello = hello
         self._mm = mm
-        seqs_at, rows_at, _ = _layout(width, capacity)
+        seqs_at, rows_at, _ = _layout(width, capacity, hello_bytes)
         self._count = np.frombuffer(mm, np.uint64, 1, _COUNT_AT)
         self._closed = np.frombuffer(mm, np.uint64, 1, _CLOSED_AT)
         self._seqs = np.frombuffer(mm, np.uint64, capacity, seqs_at)
@@ -73,9 +74,7 @@ class RingFile:
         if capacity <= MARGIN:
             raise ValueError(f"capacity {capacity}: give more than {MARGIN} rows")
         text = json.dumps(hello, separators=(",", ":")).encode()
-        if _HELLO_AT + len(text) > HEADER_BYTES:
-            raise ValueError(f"the hello takes {len(text)} bytes; at most {HEADER_BYTES - _HELLO_AT}")
-        size = _layout(width, capacity)[2]
+        size = _layout(width, capacity, len(text))[2]
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_TRUNC, 0o600)
         try:
@@ -84,10 +83,13 @@ class RingFile:
             os.pwrite(fd, text, _HELLO_AT)
             mm = mmap.mmap(fd, size)
             inode = os.fstat(fd).st_ino
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
         finally:
             os.close(fd)
         os.replace(tmp, path)
-        return cls(path, mm, width, capacity, hello, writable=True, inode=inode)
+        return cls(path, mm, width, capacity, hello, len(text), writable=True, inode=inode)
 
     @classmethod
     def open(cls, path: str | Path) -> "RingFile":
@@ -98,13 +100,13 @@ class RingFile:
         try:
             info = os.fstat(fd)
             size = info.st_size
-            if not stat.S_ISREG(info.st_mode) or size < HEADER_BYTES:
+            if not stat.S_ISREG(info.st_mode) or size < PAGE_BYTES:
                 raise ValueError(f"{path}: not a ring ({size} bytes)")
             mm = mmap.mmap(fd, size, access=mmap.ACCESS_READ)
         finally:
             os.close(fd)
         magic, width, capacity, n = struct.unpack_from("<8sIII", mm, 0)
-        if magic != MAGIC or _layout(width, capacity)[2] != size or _HELLO_AT + n > HEADER_BYTES:
+        if magic != MAGIC or _layout(width, capacity, n)[2] != size:
             mm.close()
             raise ValueError(f"{path}: not a ring of this version")
         try:
@@ -112,7 +114,7 @@ class RingFile:
         except ValueError:
             mm.close()
             raise
-        return cls(path, mm, width, capacity, hello, writable=False, inode=info.st_ino)
+        return cls(path, mm, width, capacity, hello, n, writable=False, inode=info.st_ino)
 
     # -- the writer's -------------------------------------------------------------------------------------
     def put(self, time_s: float, *parts: Sequence[float]) -> None:

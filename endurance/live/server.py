@@ -204,6 +204,8 @@ class Hub:
 
     def close(self) -> None:
         for q in list(self.viewers):
+            while not q.empty():
+                q.get_nowait()
             q.put_nowait(None)
         self.viewers.clear()
         self.by_address.clear()
@@ -434,6 +436,7 @@ class LiveServer:
         refusals = TornadoRefusals(tally)
         general = logging.getLogger("tornado.general")
         general.addFilter(refusals)
+        level = general.level
         general.setLevel(logging.INFO)
         self.hub = Hub(JournalView(self.testdir), FeedReader(self.testdir), self.operator, self.kind, self.limits)
         server = self.server = GuardedHTTPServer(make_app(self.hub, self.binding, tally), limits=self.limits,
@@ -464,6 +467,7 @@ class LiveServer:
             self.hub.view.close()
             self.hub.source.close()
             general.removeFilter(refusals)
+            general.setLevel(level)
             loop.run_until_complete(asyncio.sleep(0.05))
             loop.close()
 

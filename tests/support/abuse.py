@@ -66,13 +66,20 @@ async def _until_closed(sock: socket.socket, deadline: float) -> None:
             return
 
 
+async def _connected(port: int, client: str, seen: collections.Counter) -> socket.socket | None:
+    """A connection, or None a second after it failed (counted)."""
+    try:
+        return await _connect(port, client)
+    except (OSError, asyncio.TimeoutError):
+        seen["connect failed"] += 1
+        await asyncio.sleep(1.0)
+        return None
+
+
 async def held(port: int, client: str, deadline: float, seen: collections.Counter) -> None:
     while time.monotonic() < deadline:
-        try:
-            sock = await _connect(port, client)
-        except (OSError, asyncio.TimeoutError):
-            seen["connect failed"] += 1
-            await asyncio.sleep(1.0)
+        sock = await _connected(port, client, seen)
+        if sock is None:
             continue
         seen["connected"] += 1
         opened = time.monotonic()
@@ -98,11 +105,8 @@ async def stream(port: int, client: str, deadline: float, seen: collections.Coun
 async def slowloris(port: int, client: str, deadline: float, seen: collections.Counter) -> None:
     loop = asyncio.get_running_loop()
     while time.monotonic() < deadline:
-        try:
-            sock = await _connect(port, client)
-        except (OSError, asyncio.TimeoutError):
-            seen["connect failed"] += 1
-            await asyncio.sleep(1.0)
+        sock = await _connected(port, client, seen)
+        if sock is None:
             continue
         opened = time.monotonic()
         try:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import subprocess
 import sys
 import time
@@ -148,3 +149,22 @@ def serve_page(tmp_path: Path, limits=None):
             server.stop()
             for sock in server.sockets:
                 sock.close()
+
+
+def page_server(session: int) -> int | None:
+    """The pid of the page server ``session`` (a session or ``stand test watch``) started (a
+    child of one of its threads), or None."""
+    for task in os.listdir(f"/proc/{session}/task"):
+        try:
+            with open(f"/proc/{session}/task/{task}/children") as fh:
+                children = fh.read().split()
+        except OSError:
+            continue
+        for child in children:
+            try:
+                with open(f"/proc/{child}/cmdline", "rb") as fh:
+                    if b"endurance.live.process" in fh.read():
+                        return int(child)
+            except OSError:
+                continue
+    return None
