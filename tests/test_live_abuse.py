@@ -77,10 +77,10 @@ def test_nothing_on_the_network_stops_a_running_test(tmp_path, start_rig_emulato
         baseline = rss_mb(session.pid)
 
         # -- all at once, and the server killed in the middle of it ---------------------------------------
-        abuser = subprocess.Popen([sys.executable, "-m", "tests.support.abuse", str(port), "--seconds", "16"],
+        abuser = subprocess.Popen([sys.executable, "-m", "tests.support.abuse", str(port), "--seconds", "12"],
                                   stdout=subprocess.PIPE, text=True)
-        time.sleep(7.0)
-        figures["viewer_updates_per_s_under_abuse"] = round(viewer.updates_per_s(last_s=4.0), 1)
+        time.sleep(5.0)
+        figures["viewer_updates_per_s_under_abuse"] = round(viewer.updates_per_s(last_s=3.0), 1)
         flights_at_kill = flights_done(testdir)
         os.kill(server, signal.SIGKILL)
         killed = time.time()
@@ -100,7 +100,7 @@ def test_nothing_on_the_network_stops_a_running_test(tmp_path, start_rig_emulato
         def summary():
             return [e for e in events_of(testdir, "refused") if "requests refused" in e["message"]]
         wait_for(summary, 30, "the summary of the refusals")
-        wait_for(lambda: flights_done(testdir) > flights_at_kill + 1, 120, "flights after the kill")
+        wait_for(lambda: flights_done(testdir) > flights_at_kill, 120, "a flight after the kill")
         assert session.poll() is None
         assert stand("test", "stop", testdir, timeout=300).returncode == 0
         session.communicate(timeout=120)
@@ -133,7 +133,8 @@ def test_nothing_on_the_network_stops_a_running_test(tmp_path, start_rig_emulato
     assert "Traceback" not in stderr_path.read_text()
     # what the abuse met: answers (no server error), bounded streams and slow headers
     bad = report["bad"]
+    assert report["bad_not_sent"] == 0 and sum(bad.values()) == 5000, report
     assert not any(code.startswith("5") for code in bad), bad
-    assert sum(n for code, n in bad.items() if code.startswith("4")) >= 500, bad
+    assert sum(n for code, n in bad.items() if code.startswith("4")) >= 3000, bad
     assert report["slowloris"].get("longest held s", 0) <= 12, report
     print(json.dumps(figures))

@@ -8,9 +8,11 @@ on loopback only. Prints what it saw as one JSON line at the end.
   buffer, so the server's output waits at once);
 * ``--slowloris``: that many connections from ``--client`` sending their headers a byte a
   second (opened again when closed);
-* ``--bad``: that many bad requests from ``--bad-client``, 40 at a time: bad paths, wrong
-  tokens, bodies over the limit, foreign Hosts, methods an action does not take, garbage;
-  each answer's status counted (``closed``: none).
+* ``--bad``: that many bad requests from ``--bad-client``, 30 at a time (within the server's
+  32 connections an address): bad paths, wrong tokens, bodies over the limit, foreign Hosts,
+  methods an action does not take, garbage; each answer's status counted (``closed``: none).
+
+All go on for ``--seconds`` and until every bad request is sent (60 s at most).
 """
 from __future__ import annotations
 
@@ -22,6 +24,10 @@ import resource
 import socket
 import time
 
+#: bad requests in flight at once (the server takes 32 connections from an address)
+BAD_AT_ONCE = 30
+#: how long it goes on at most, s
+LONGEST_S = 60.0
 BAD = [
     b"GET /static/x%00 HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n",
     b"GET /static/../../../../etc/passwd HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n",
@@ -142,15 +148,22 @@ async def bad(port: int, client: str, todo: list[int], deadline: float, seen: co
 
 
 async def main(args: argparse.Namespace) -> dict:
-    deadline = time.monotonic() + args.seconds
+    started = time.monotonic()
+    hard = started + LONGEST_S
     seen = {k: collections.Counter() for k in ("connections", "streams", "slowloris", "bad")}
     todo = list(range(args.bad))
-    tasks = [stream(args.port, args.client, deadline, seen["streams"]) for _ in range(args.streams)]
-    tasks += [held(args.port, args.client, deadline, seen["connections"]) for _ in range(args.connections)]
-    tasks += [slowloris(args.port, args.client, deadline, seen["slowloris"]) for _ in range(args.slowloris)]
-    tasks += [bad(args.port, args.bad_client, todo, deadline, seen["bad"]) for _ in range(40)]
-    started = time.monotonic()
-    await asyncio.gather(*tasks)
+    workers = [bad(args.port, args.bad_client, todo, hard, seen["bad"]) for _ in range(BAD_AT_ONCE)]
+    bad_done = asyncio.ensure_future(asyncio.gather(*workers))
+    await asyncio.sleep(0)
+    deadline = started + args.seconds
+    others = [stream(args.port, args.client, deadline, seen["streams"]) for _ in range(args.streams)]
+    others += [held(args.port, args.client, deadline, seen["connections"]) for _ in range(args.connections)]
+    others += [slowloris(args.port, args.client, deadline, seen["slowloris"]) for _ in range(args.slowloris)]
+    await asyncio.gather(*others)
+    while todo and time.monotonic() < hard:              # the rest of the bad ones, and the others with them
+        more = min(hard, time.monotonic() + 2.0)
+        await asyncio.gather(*[held(args.port, args.client, more, seen["connections"]) for _ in range(100)])
+    await bad_done
     return {"seconds": round(time.monotonic() - started, 1), **{k: dict(v) for k, v in seen.items()},
             "bad_not_sent": len(todo)}
 
