@@ -2,8 +2,8 @@
 bounded (:class:`endurance.live.limits.Limits`).
 
 * **Accepting.** A connection over the limits (in all, per client address) is closed as it is
-  accepted and counted as a refusal; when the process is out of descriptors anyway (another
-  process took them: the limit is shared with nothing, but a resume's pipes, the journal...), it
+  accepted and counted as a refusal. When accepting fails all the same (out of descriptors:
+  the journal, a resume's pipes and the imports take some of the process's limit), the server
   stops accepting for :data:`ACCEPT_PAUSE_S` instead of failing in a loop.
 * **Counting.** A connection counts from its acceptance until its socket is closed, whatever
   closes it (the stream's ``close_fd``): so the count is the descriptors it holds.
@@ -153,12 +153,11 @@ class GuardedHTTPServer(tornado.httpserver.HTTPServer):
                     return
                 except ConnectionAbortedError:
                     continue
-                except OSError as exc:
-                    if exc.errno not in (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM):
-                        raise
-                    self.out_of_descriptors += 1
-                    log.warning("live page: out of descriptors (%s); not accepting for %.2f s",
-                                exc.strerror, ACCEPT_PAUSE_S)
+                except OSError as exc:             # out of descriptors (or worse): a pause, never a busy loop
+                    if exc.errno in (errno.EMFILE, errno.ENFILE):
+                        self.out_of_descriptors += 1
+                    log.warning("live page: cannot accept (%s); not accepting for %.2f s",
+                                exc.strerror or exc, ACCEPT_PAUSE_S)
                     loop.remove_handler(sock)
                     state["on"] = False
                     loop.call_later(ACCEPT_PAUSE_S, again)

@@ -170,7 +170,7 @@ class PageProcess:
                 return
             try:
                 self._spawn()
-            except StandError as exc:
+            except Exception as exc:               # the watch goes on whatever the start did
                 self._say(f"{what}; starting it again failed: {exc}")
                 continue
             self._say(f"{what}; served again by process {self._proc.pid}, "
@@ -178,13 +178,15 @@ class PageProcess:
 
     def _say(self, message: str) -> None:
         from endurance.inbox import record_event
-        if self.out is not None:
-            print(f"live page: {message}", file=self.out, flush=True)
         try:
             record_event(self.testdir, "live_page", message)
-        except Exception as exc:                   # no journal yet: the line above says it
-            if self.out is not None:
-                print(f"live page: (not journalled: {exc})", file=self.out, flush=True)
+        except Exception as exc:                   # no journal yet: the line below says it
+            message += f" (not journalled: {exc})"
+        if self.out is not None:
+            try:
+                print(f"live page: {message}", file=self.out, flush=True)
+            except (OSError, ValueError):          # a closed terminal: the journal has it
+                pass
 
 
 def _end(proc: subprocess.Popen) -> None:

@@ -357,23 +357,20 @@ class ActionHandler(_Handler):
     get = head = options = put = delete = patch = _not_post     # type: ignore[assignment]
 
 
-REASONS = {400: "bad request", 403: "forbidden", 404: "no such page", 405: "method not allowed",
-           413: "body too large", 503: "unavailable"}
-
-
 def _log_request(tally: RefusalTally) -> Callable[[tornado.web.RequestHandler], None]:
-    """Every request at its end: a refused one (4xx but 409, 503) counted for its client."""
+    """Every request at its end: a refused one counted for its client (a handler's
+    :attr:`_Handler.refusal`, tornado's own 400 and 405); not a 409 (the operator's action
+    that cannot be taken now) nor a server's error (tornado logs those)."""
     def logged(handler: tornado.web.RequestHandler) -> None:
         status = handler.get_status()
-        if status < 400 or status == 409:
-            if status >= 500:
-                log.warning("live page: %s %s answered %d", handler.request.method,
-                            printable(handler.request.path), status)
-            return
         why = getattr(handler, "refusal", None)
         if why is None:
-            why = "an action is a POST" if isinstance(handler, ActionHandler) and status == 405 else \
-                REASONS.get(status, f"status {status}")
+            if status == 405:
+                why = "an action is a POST" if isinstance(handler, ActionHandler) else "method not allowed"
+            elif status == 400:
+                why = "bad request"
+            else:
+                return
         request = handler.request
         tally.refuse(request.remote_ip or "?", f"{request.method} {printable(request.path)}", why)
     return logged
