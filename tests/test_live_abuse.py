@@ -82,6 +82,8 @@ def test_nothing_on_the_network_stops_a_running_test(tmp_path, start_rig_emulato
         time.sleep(5.0)
         figures["viewer_updates_per_s_under_abuse"] = round(viewer.updates_per_s(last_s=3.0), 1)
         flights_at_kill = flights_done(testdir)
+        figures["server_rss_mb_under_abuse"] = round(rss_mb(server), 1)
+        figures["server_descriptors_under_abuse"] = len(os.listdir(f"/proc/{server}/fd"))
         os.kill(server, signal.SIGKILL)
         killed = time.time()
         restarted = wait_for(lambda: "served again by process" in stderr_path.read_text() and time.time(), 30,
