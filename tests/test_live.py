@@ -7,6 +7,7 @@ summary) and moving nothing; /status.json is stand test status --json's text; th
 nothing from elsewhere. The server's bounds: tests/test_live_limits.py."""
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import re
@@ -382,19 +383,35 @@ def test_the_command_line_says_what_is_wrong_with_a_live_option(tmp_path):
         port = taken.getsockname()[1]
         res = stand("test", "watch", testdir, "--serve", f"127.0.0.1:{port}")
     assert res.returncode == 2 and f"--serve 127.0.0.1:{port}: cannot listen there" in res.stderr
-    # beyond loopback: the names it answers to, and HTTPS for a token; nothing listens before
+    # beyond loopback, HTTPS for a token: refused before anything listens or starts
     good = token_file(tmp_path / "good")
-    res = stand("test", "watch", testdir, "--serve", "0.0.0.0:0")
-    assert res.returncode == 2 and "--allow-host NAME" in res.stderr
     res = stand("test", "start", "examples/test.toml", "--out", tmp_path / "X", "--serve", "0.0.0.0:0",
                 "--allow-host", "rig-pc", "--operator-token-file", good)
     assert res.returncode == 2 and "the token would cross the network in clear" in res.stderr
     assert "--tls-cert CERT.pem --tls-key KEY.pem" in res.stderr and "openssl req -x509" in res.stderr
-    res = stand("test", "start", "examples/test.toml", "--out", tmp_path / "X", "--allow-host", "rig-pc")
-    assert res.returncode == 2 and "--allow-host: give --serve HOST:PORT too" in res.stderr
-    res = stand("test", "watch", testdir, "--serve", "0", "--tls-cert", good, "--tls-key", good)
-    assert res.returncode == 2 and "cannot use them" in res.stderr
     assert not (tmp_path / "X").exists()
+
+
+def test_the_live_options_are_checked_together(tmp_path):
+    from stand.commands.live_page import check_live_options
+
+    def check(serve=None, token=None, allow=None, cert=None, key=None):
+        return check_live_options(argparse.Namespace(serve=serve, operator_token_file=token, allow_host=allow,
+                                                     tls_cert=cert, tls_key=key))
+    good = token_file(tmp_path / "good")
+    assert check() == (None, None)
+    with pytest.raises(ParameterError, match="--allow-host: give --serve HOST:PORT too"):
+        check(allow=["rig-pc"])
+    with pytest.raises(ParameterError, match="--tls-cert: give --serve"):
+        check(cert="c.pem", key="k.pem")
+    with pytest.raises(ParameterError, match="--allow-host NAME"):
+        check("0.0.0.0:0")
+    with pytest.raises(ParameterError, match="--tls-cert c.pem: No such file"):
+        check("0", cert="c.pem", key="k.pem")
+    with pytest.raises(ParameterError, match="cannot use them"):
+        check("0", cert=str(good), key=str(good))
+    binding, token = check("127.0.0.1:0", str(good))
+    assert token == TOKEN and binding.address.loopback and not binding.tls
 
 
 def test_every_file_the_page_loads_ships_in_the_package():
