@@ -288,3 +288,19 @@ def test_the_run_page_names_every_key_of_a_recorded_run(start_emulator, bus_spec
     assert set(meta["limits"]) == limits.names
     assert set(meta["stats"]) <= stats.names
     assert set(meta["nodes"]) == {"valve", "dynamometer"}
+
+
+def test_stand_diagnose_help_names_every_verdict_the_diagnosis_gives():
+    """The verdicts are written in the code as literals; the help is built from
+    analysis.defaults.VERDICTS: every literal must be one of them (stepwise also ends at
+    max_effects, which its option's help names)."""
+    from analysis.defaults import VERDICTS
+    from stand.cli import build_parser
+    given = set()
+    for module in ("verdict", "stepwise"):
+        source = (ROOT / "analysis" / "diagnosis" / f"{module}.py").read_text()
+        given |= set(re.findall(r'Conclusion\("(\w+)"', source))
+        given |= set(re.findall(r'verdict = "(\w+)"', source))
+    assert given - {"max_effects"} == set(VERDICTS), given
+    help_text = build_parser()._subparsers._group_actions[0].choices["diagnose"].format_help()
+    assert all(v in " ".join(help_text.split()) for v in VERDICTS)

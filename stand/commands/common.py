@@ -10,7 +10,7 @@ from typing import Iterator
 from dbc import profile as P
 from core.errors import ParameterError
 from gateway.config import GatewayConfig
-from gateway.limits import ACTIONS, SafetyLimits
+from gateway.limits import ACTIONS, ERROR_LIMIT_MIN_KGF, ERROR_LIMIT_SHARE, SafetyLimits
 from standbus.realtime import DEFAULT_PRIORITY
 from standbus.spec import DEFAULT_BUS
 
@@ -28,7 +28,9 @@ def add_node_ids(p: argparse.ArgumentParser) -> None:
                    help="dynamometer node id (default %(default)s)")
 
 
-def add_gateway(p: argparse.ArgumentParser) -> None:
+def add_gateway(p: argparse.ArgumentParser, error_limit: str = "off") -> None:
+    """The gateway's options; ``error_limit``: what the error detector is without --error-limit
+    (as the help says it)."""
     add_bus(p)
     add_node_ids(p)
     p.add_argument("--period-ms", type=float, default=None, metavar="MS",
@@ -41,7 +43,13 @@ def add_gateway(p: argparse.ArgumentParser) -> None:
                    help="how long to wait for a node's SDO answer while setting up, ms "
                         "(default %(default)g; raise it on a slow host)")
     add_rt_priority(p, "real time: run the control loop and bus reader threads")
-    add_safety(p)
+    add_safety(p, error_limit)
+
+
+def programme_error_limit(of: str) -> str:
+    """The error detector's default for a loading programme, as the help says it (``of``: whose
+    range: gateway.limits.programme_error_limit_kgf)."""
+    return f"{100 * ERROR_LIMIT_SHARE:g} %% of {of}, at least {ERROR_LIMIT_MIN_KGF:g} kgf"
 
 
 def add_rt_priority(p: argparse.ArgumentParser, what: str) -> None:
@@ -50,8 +58,9 @@ def add_rt_priority(p: argparse.ArgumentParser, what: str) -> None:
                         "root or CAP_SYS_NICE); 0: ordinary scheduling (default %(default)s)")
 
 
-def add_safety(p: argparse.ArgumentParser) -> None:
-    """The supervisor's limits and reactions (docs/safety.md)."""
+def add_safety(p: argparse.ArgumentParser, error_limit: str = "off") -> None:
+    """The supervisor's limits and reactions (docs/safety.md); ``error_limit``: the error
+    detector's default as the help says it."""
     d = SafetyLimits()
     g = p.add_argument_group("safety (see docs/safety.md)")
     g.add_argument("--force-limit", type=float, default=None, metavar="KGF",
@@ -67,7 +76,7 @@ def add_safety(p: argparse.ArgumentParser) -> None:
                    help="limit the command's rate of change, %%/s (default: none)")
     g.add_argument("--error-limit", type=float, default=d.error_limit_kgf, metavar="KGF",
                    help="error detector: |reference - force| beyond KGF for --error-time trips "
-                        "(closed-loop experiments; default: off)")
+                        f"(closed-loop experiments; default: {error_limit})")
     g.add_argument("--error-time", type=float, default=d.error_time_s, metavar="S",
                    help="how long the error must persist, s (default %(default)s)")
     g.add_argument("--error-action", choices=ACTIONS, default=d.error_action,
