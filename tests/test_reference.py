@@ -304,3 +304,18 @@ def test_stand_diagnose_help_names_every_verdict_the_diagnosis_gives():
     assert given - {"max_effects"} == set(VERDICTS), given
     help_text = build_parser()._subparsers._group_actions[0].choices["diagnose"].format_help()
     assert all(v in " ".join(help_text.split()) for v in VERDICTS)
+
+
+def test_the_shipped_sample_tables_read_alike_in_both_loggers_styles():
+    """examples/meander.csv (English) and examples/meander-logger.csv (a Russian logger:
+    Windows-1251, semicolons, decimal commas, ms, V, kN) are one recording: read by the rules of
+    docs/reference/tables.md they give the same samples in s, %, kgf, each conversion noted."""
+    from analysis.records.load import load
+    english, russian = load(ROOT / "examples" / "meander.csv"), load(ROOT / "examples" / "meander-logger.csv")
+    for rec in (english, russian):
+        assert len(rec.t) == 3000 and rec.dt == pytest.approx(0.004)
+        assert np.allclose(np.abs(rec.u), 4.999, atol=1e-3) and 800 < np.abs(rec.y).max() < 900
+    assert np.array_equal(english.t, russian.t) and np.array_equal(english.u, russian.u)
+    assert np.array_equal(english.y, russian.y)
+    assert any("Windows-1251" in n for n in russian.notes) and not any("UTF-8" in n for n in english.notes)
+    assert sum("read as" in n for n in russian.notes) == 4 and sum("read as" in n for n in english.notes) == 3
