@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import math
 import re
 import tomllib
 from pathlib import Path
@@ -15,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stand.reference import pages, stale
+from stand.reference import stale
 from stand.reference import controller_file, endurance_file, model_files, outputs, rig_file, run_dir
 from stand.reference.cli_page import commands, help_text, invocation
 
@@ -30,11 +29,22 @@ def test_the_reference_pages_are_what_the_code_writes():
                         "`python -m stand.reference docs/reference` and commit the pages")
 
 
-def test_the_pages_depend_on_the_code_alone_not_the_terminal(monkeypatch):
-    monkeypatch.setenv("COLUMNS", "40")
-    narrow = pages()
-    monkeypatch.setenv("COLUMNS", "300")
-    assert pages() == narrow
+def test_the_pages_depend_on_the_code_alone_not_the_terminal_the_locale_or_the_directory(tmp_path):
+    """`python -m stand.reference --check` from elsewhere, on a narrow terminal in the C locale
+    with another loopback namespace, finds the committed pages current (and says which differ
+    once one does)."""
+    import os
+    import subprocess
+    import sys
+    env = dict(os.environ, COLUMNS="33", LANG="C", LC_ALL="C", HYDROSTAND_LOOPBACK_NAMESPACE="elsewhere")
+    check = [sys.executable, "-m", "stand.reference", "--check"]
+    done = subprocess.run(check + [str(REFERENCE)], cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    (tmp_path / "ref").mkdir()
+    (tmp_path / "ref" / "cli.md").write_text((REFERENCE / "cli.md").read_text().replace("--lockstep", "--lock"))
+    done = subprocess.run(check + ["ref"], cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert done.returncode == 1 and "ref/cli.md: differs from the code" in done.stderr
+    assert "ref/README.md" in done.stderr and "python -m stand.reference ref" in done.stderr
 
 
 def _plain(s: str) -> str:
@@ -233,7 +243,6 @@ def test_the_load_summary_page_names_every_key_of_the_summary(tmp_path):
     from loading.gain_monitor import GainMonitor, MonitorOptions
     from loading.programme import sine
     from loading.report import tracking_report
-    from loading.time_scaling import Schedule
     from plant import PlantModel
     from plant.rig import RigModel
     p = sine(3000, 2000, 0.5, 2, 0.002)

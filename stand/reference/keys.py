@@ -110,14 +110,12 @@ class Undescribed(RuntimeError):
 
 
 def dataclass_keys(cls: type, described: Mapping[str, str] | None = None,
-                   skip: Iterable[str] = (), rename: Mapping[str, str] | None = None,
-                   show_defaults: bool = True) -> tuple[Key, ...]:
+                   skip: Iterable[str] = (), show_defaults: bool = True) -> tuple[Key, ...]:
     """A key per field of ``cls`` (less ``skip``), in the class's order: its meaning from
     ``described`` (Markdown) or else the field's ``#:`` comment, its default from the class. A field with
     neither raises :class:`Undescribed`, so a field added to the code cannot be left out of the
     reference unnoticed; a description of a field the class no longer has raises it too."""
     described = dict(described or {})
-    rename = dict(rename or {})
     docs = field_docs(cls)
     defaults = field_defaults(cls)
     skip = set(skip)
@@ -134,5 +132,5 @@ def dataclass_keys(cls: type, described: Mapping[str, str] | None = None,
             raise Undescribed(f"{cls.__module__}.{cls.__qualname__}.{name} has no description: "
                               "give it a #: comment in the code or one in stand/reference/")
         shown = "" if default is dataclasses.MISSING or not show_defaults else value(default)
-        out.append(Key(rename.get(name, name), meaning, shown))
+        out.append(Key(name, meaning, shown))
     return tuple(out)
