@@ -328,3 +328,19 @@ def test_the_shipped_sample_tables_read_alike_in_both_loggers_styles():
     assert np.array_equal(english.y, russian.y)
     assert any("Windows-1251" in n for n in russian.notes) and not any("UTF-8" in n for n in english.notes)
     assert sum("read as" in n for n in russian.notes) == 4 and sum("read as" in n for n in english.notes) == 3
+
+
+def test_every_link_of_the_reference_goes_to_a_page_and_heading_that_exist():
+    from stand.reference.markdown import anchor
+    for page in sorted(REFERENCE.glob("*.md")):
+        for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text()):
+            if target.startswith(("http://", "https://")):
+                continue
+            path, _, heading = target.partition("#")
+            file = (page.parent / path).resolve() if path else page
+            if file.is_dir():
+                file = file / "README.md"
+            assert file.exists(), f"{page.name}: {target}: no such file"
+            if heading:
+                anchors = {anchor(h) for h in re.findall(r"^#+ (.*)$", file.read_text(), re.M)}
+                assert heading in anchors, f"{page.name}: {target}: no such heading"

@@ -37,8 +37,8 @@ def index_page() -> str:
     rows = [[f"[{name}]({name})", what] for name, (what, _) in _pages().items()]
     intro = ("What every command takes and every file holds, generated from the code (`python -m "
              "stand.reference docs/reference`; the suite fails when a page differs from what the "
-             "code would write). How to use them: [the README](../../README.md) and the pages of "
-             "[docs/](..).")
+             "code would write). How to use them: the [README](../../README.md) and the how-to pages "
+             "it links to.")
     return md.page("Reference", intro, md.table(["page", "what it documents"], rows))
 
 
