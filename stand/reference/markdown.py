@@ -30,8 +30,9 @@ _ROLE = re.compile(r":(?:mod|class|func|meth|attr|data|obj):`~?([^`]+)`")
 
 
 def rst(s: str) -> str:
-    """A docstring's reST as Markdown: ``literal`` and :role:`target` as code spans."""
-    return _ROLE.sub(r"`\1`", s).replace("``", "`")
+    """A docstring's reST as Markdown: ``literal`` and :role:`target` as code spans; Python's
+    None as the files' null."""
+    return re.sub(r"\bNone\b", "null", _ROLE.sub(r"`\1`", s).replace("``", "`"))
 
 
 def code(s: str) -> str:

@@ -49,7 +49,8 @@ def load_tables() -> tuple[Table, ...]:
             Key("gain", "with `--gain`: the gain monitor, below"),
         ), "The top level's figures are the last pass's worst channel's."),
         Table("gain", (
-            Key("alarm", "`fall` or `rise` once it fired, else null"),
+            Key("alarm", "`fall`, `rise` or `margins` (the loop's margins at the estimated g below the "
+                "design's) once it fired, else null"),
             Key("alarm_channel", "the channel whose g moved"),
             Key("alarm_message", "the alarm in a sentence"),
             Key("action", "what the alarm did: `note`, `hold`, `unload`"),

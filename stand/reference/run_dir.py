@@ -34,7 +34,8 @@ def signal_rows() -> list[list[str]]:
 
 
 def tables() -> tuple[Table, ...]:
-    from gateway.limits import ACTIONS, SafetyLimits
+    from gateway.limits import (ACTIONS, HEARTBEAT_TIMEOUT_LOCKSTEP_S, HEARTBEAT_TIMEOUT_REALTIME_S,
+                                SafetyLimits)
     from gateway.loop import LoopStats
     actions = ", ".join(f"`{a}`" for a in ACTIONS)
     return (
@@ -89,6 +90,9 @@ def tables() -> tuple[Table, ...]:
             "error_time_s": "how long the error must persist, s",
             "error_action": f"what the error detector does: {actions}",
             "stale_cycles": "safe state after this many cycles without a fresh force reading",
+            "heartbeat_timeout_s": f"a node's heartbeat older than this stops the run, s (unless set: "
+                                   f"{HEARTBEAT_TIMEOUT_REALTIME_S:g} in real time, {HEARTBEAT_TIMEOUT_LOCKSTEP_S:g} "
+                                   "in lockstep)",
             "unload_rate_kgf_per_s": "a controlled unload: the force's ramp rate, kgf/s",
             "unload_gain_pct_per_kgf": "its loop gain, %/kgf",
             "unload_max_pct": "its command bound, ±%",
