@@ -333,8 +333,14 @@ class TappedNetwork(canopen.Network):
         return stamp
 
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
-        msg = can.Message(is_extended_id=can_id > 0x7FF, arbitration_id=can_id, data=data,
-                          is_remote_frame=remote, is_rx=False, channel=self._channel())
+        self.send_raw_message(can.Message(is_extended_id=can_id > 0x7FF, arbitration_id=can_id,
+                                          data=data, is_remote_frame=remote))
+
+    def send_raw_message(self, msg: can.Message) -> None:
+        """A frame made by the caller (a remote frame with its DLC: node guarding), sent and
+        captured as :meth:`send_message`'s."""
+        msg.is_rx = False
+        msg.channel = self._channel()
         capture = self.capture
         with self.send_lock:
             if capture is not None:  # captured as handed to the bus: before the answers to it

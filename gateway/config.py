@@ -16,6 +16,7 @@ from .experiments.base import check_range
 from .limits import SafetyLimits
 
 if TYPE_CHECKING:
+    from devices import DeviceSet
     from rig.config import ChannelConfig, RigConfig
 
 #: how long the master waits for a node's SDO answer (canopen's default is 0.3 s, with no
@@ -51,6 +52,9 @@ class GatewayConfig:
     #: a rig: what a channel's communication or valve fault does to the other channels: hold
     #: them all, or unload them keeping the load ratios (docs/safety.md)
     fault_action: str = "hold"
+    #: the stand's valve drive and amplifier (:mod:`devices`; None: the emulated pair); a rig's
+    #: come from its channels
+    devices: "DeviceSet | None" = None
 
     def __post_init__(self) -> None:
         if self.rig is not None:

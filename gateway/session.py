@@ -127,19 +127,19 @@ class Gateway:
             self.close()
             raise
 
-    def _channels(self) -> list[tuple[str, int, int, int]]:
-        """(name, bus index, valve id, dynamometer id) of every channel."""
+    def _channels(self) -> list[tuple[str, int, int, int, Any]]:
+        """(name, bus index, valve id, dynamometer id, devices) of every channel."""
         rig = self.rig
         if rig is None:
-            return [("", 0, self.config.valve_id, self.config.dynamometer_id)]
+            return [("", 0, self.config.valve_id, self.config.dynamometer_id, self.config.devices)]
         index = {b.name: i for i, b in enumerate(rig.buses)}
-        return [(c.name, index[c.bus], c.valve_id, c.dynamometer_id) for c in rig.channels]
+        return [(c.name, index[c.bus], c.valve_id, c.dynamometer_id, c.devices) for c in rig.channels]
 
     def _connect(self) -> None:
         cfg = self.config
         plan = self._channels()
-        self.masters = [StandMaster(self.networks[bus], valve, dyn, cfg.sdo_timeout_s)
-                        for _, bus, valve, dyn in plan]
+        self.masters = [StandMaster(self.networks[bus], valve, dyn, cfg.sdo_timeout_s, devices)
+                        for _, bus, valve, dyn, devices in plan]
         with self._naming_channel(None):
             boot_all(self.masters, cfg.boot_timeout_s)
         for i, master in enumerate(self.masters):
@@ -155,7 +155,7 @@ class Gateway:
             self.loop = ControlLoop(self.network, self.master, supervisor, cfg.period_s, cfg.lockstep)
             return
         channels = []
-        for (name, bus, _, _), master, ch in zip(plan, self.masters, self.rig.channels):
+        for (name, bus, _, _, _), master, ch in zip(plan, self.masters, self.rig.channels):
             sup = Supervisor(master, cfg.channel_limits(ch), cfg.period_s, cfg.lockstep)
             channels.append(LoopChannel(name, master, sup, bus, ch.range_kgf))
         self.loop = ControlLoop(self.network, self.master, channels[0].supervisor, cfg.period_s,
@@ -189,6 +189,7 @@ class Gateway:
                 master.enter_preoperational()
             except Exception:
                 pass
+            master.close()
         for network in self.networks:
             try:
                 network.disconnect()
@@ -209,6 +210,8 @@ class Gateway:
             "period_s": cfg.period_s,
             "nodes": {link.role: {"id": link.id, "identity": link.identity} for link in m.links},
             "force_scale_kgf_per_count": m.force_scale_kgf,
+            "devices": m.describe(),
+            "device_notes": m.notes(),
             "limits": asdict(cfg.limits.resolved(cfg.lockstep)),
         }
 
@@ -223,7 +226,8 @@ class Gateway:
                 "name": ch.name, "bus": ch.bus,
                 "nodes": {link.role: {"id": link.id, "identity": link.identity} for link in m.links},
                 "range_kgf": ch.range_kgf, "force_limit_kgf": ch.limit_kgf,
-                "force_scale_kgf_per_count": m.force_scale_kgf, "driven": ch.name in driven})
+                "force_scale_kgf_per_count": m.force_scale_kgf, "driven": ch.name in driven,
+                "devices": m.describe(), "device_notes": m.notes()})
         return {
             "experiment": {"name": experiment.name, "params": experiment.params()},
             "clock": "lockstep" if cfg.lockstep else "realtime",

@@ -12,7 +12,8 @@ from typing import Callable, Sequence
 import can
 import canopen
 
-from dbc import DYNAMOMETER_EDS, VALVE_EDS
+from dbc import profile as P
+from devices import DeviceSet, default_devices
 from plant.sensor import Dynamometer
 from standbus import wire
 
@@ -32,6 +33,8 @@ class ChannelSetup:
     dynamometer_id: int
     sensor: Dynamometer            #: the dynamometer's noise, resolution and range
     initial_force_kgf: float = 0.0
+    #: which devices the two nodes are (their EDS and roles; default: the emulated pair)
+    devices: DeviceSet | None = None
 
 
 class _Network(canopen.Network):
@@ -94,10 +97,13 @@ class EmulatedChannel:
         self.name = setup.name
         self.on_bus = on_bus
         self.sensor = setup.sensor
-        self.valve = ServoValveNode(on_bus.network, setup.valve_id, VALVE_EDS, lockstep)
-        self.dynamometer = DynamometerNode(on_bus.network, setup.dynamometer_id, DYNAMOMETER_EDS)
+        devices = setup.devices or default_devices()
+        self.valve = ServoValveNode(on_bus.network, setup.valve_id, devices.valve, lockstep)
+        self.dynamometer = DynamometerNode(on_bus.network, setup.dynamometer_id, devices.dynamometer)
         for node in self.nodes:
             node.cyclic_flags = on_bus.cyclic_flags
+            if node.guarding is not None:       # the master's guard requests: remote frames
+                on_bus.frame_filter.accept_remote(P.HEARTBEAT_BASE + node.id, node.guarding.on_request)
         #: the spool command the valve applies, % (updated after every change of the valve)
         self.command = 0.0
         on_bus.channels.append(self)

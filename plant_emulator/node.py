@@ -15,7 +15,12 @@ producers. This class adds, per CiA 301:
   stand's own time (advanced by SYNC) in lockstep;
 * an acceptance filter (:func:`slave_frame_filter`) in front of the stack: NMT commands must
   have 2 bytes, SYNC 0 or 1, SDO requests 8; error, remote, extended-id and FD frames never
-  reach it (counted and dropped, as a CAN controller's filter and a careful stack would).
+  reach it (counted and dropped, as a CAN controller's filter and a careful stack would), but
+  for node guarding's remote frames, which go to the node's guarding (:mod:`.guarding`);
+* the object dictionary of any device file's EDS (:class:`devices.Device`); error control as it
+  has it: a heartbeat producer (0x1017), or node guarding (0x100C/0x100D) with life guarding;
+* the SDO server as strict as CiA 301 asks of a PDO's configuration (:mod:`.pdo_rules`), on top
+  of canopen's own aborts (no such object or sub-index, read-only, write-only, wrong length).
 
 Device behaviour (valve, dynamometer) lives in subclasses.
 """
@@ -27,16 +32,21 @@ import struct
 import threading
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import canopen
 from canopen.network import MessageListener
 from canopen.nmt import NMT_STATES
 
+from canopen.nmt import NmtBase
+
 from dbc import profile as P
 from dbc.pdo_codec import PdoLayout, PdoLayoutError
+from devices import Device
 from standbus.faults import FrameFilter
+
+from .guarding import GUARD_TIME, LIFE_TIME_FACTOR, GuardedNode
+from .pdo_rules import check_pdo_write
 
 log = logging.getLogger(__name__)
 
@@ -103,12 +113,18 @@ def slave_frame_filter(network: canopen.Network, node_ids, fd: bool = False) -> 
 
 
 class EmulatedNode:
-    """A CANopen slave on ``network`` with the object dictionary from ``eds``."""
+    """A CANopen slave on ``network``: the device ``device`` describes (its EDS's object
+    dictionary and error control)."""
 
-    def __init__(self, network: canopen.Network, node_id: int, eds: str | Path) -> None:
+    def __init__(self, network: canopen.Network, node_id: int, device: Device) -> None:
         self.id = node_id
         self.network = network
-        self.local = canopen.LocalNode(node_id, str(eds))
+        self.device = device
+        self.local = canopen.LocalNode(node_id, str(device.eds))
+        od = self.local.object_dictionary
+        #: the device's error control: a heartbeat producer, else node guarding
+        self.has_heartbeat = 0x1017 in od
+        self.guarding = GuardedNode(self) if GUARD_TIME in od and LIFE_TIME_FACTOR in od else None
         network.add_node(self.local)
         # We run the NMT state machine ourselves (LocalNode does not reboot on reset).
         network.unsubscribe(0, self.local.nmt.on_command)
@@ -164,7 +180,12 @@ class EmulatedNode:
         with self.lock:
             self._stop_pdos()
             self.local.nmt.send_command(NMT_RESET_NODE)   # INITIALISING, sends boot-up
-            self.local.nmt.send_command(NMT_PREOP)        # PRE-OPERATIONAL, starts heartbeat
+            if self.has_heartbeat:
+                self.local.nmt.send_command(NMT_PREOP)    # PRE-OPERATIONAL, starts heartbeat
+            else:                                         # no producer to start (guarded)
+                NmtBase.send_command(self.local.nmt, NMT_PREOP)
+            if self.guarding is not None:
+                self.guarding.reset()
             self.on_boot()
 
     def _on_nmt(self, can_id: int, data: bytes, timestamp: float) -> None:
@@ -201,7 +222,7 @@ class EmulatedNode:
     def _heartbeat_now(self) -> None:
         """A heartbeat right at a state change (as CANopenNode devices send one), so the master
         sees the new state at once instead of up to one heartbeat period later."""
-        if int(self.value(0x1017)) > 0 and not self.heartbeat_silent:
+        if self.has_heartbeat and int(self.value(0x1017)) > 0 and not self.heartbeat_silent:
             state = NMT_STATE_CODES[self.nmt_state]
             self.network.send_message(P.HEARTBEAT_BASE + self.id, bytes((state,)))
 
@@ -215,7 +236,7 @@ class EmulatedNode:
         def again() -> None:
             with self.lock:
                 self.heartbeat_silent = False
-                period_ms = int(self.value(0x1017))
+                period_ms = int(self.value(0x1017)) if self.has_heartbeat else 0
                 if period_ms > 0:
                     self.local.nmt.start_heartbeat(period_ms)
         timer = threading.Timer(duration_s, again)
@@ -432,9 +453,12 @@ class EmulatedNode:
 
     def _on_sdo_write(self, index: int, subindex: int, od: Any, data: bytes) -> None:
         # canopen calls this before it stores ``data``; the cache takes the new value at once
-        # (under the lock), so no reader can cache the old one in between.
+        # (under the lock), so no reader can cache the old one in between. A write CiA 301
+        # forbids raises its abort here (canopen's server sends it; nothing is stored).
         with self.lock:
             value = od.decode_raw(data)
+            if 0x1400 <= index < 0x1C00:
+                check_pdo_write(self, index, subindex, int(value))
             self._rpdo_values.pop((index, subindex), None)
             if index >= 0x2000:
                 self.on_object_written(index, subindex, value)
@@ -448,6 +472,11 @@ class EmulatedNode:
 
     def on_boot(self) -> None:
         """After boot-up (power-on or reset)."""
+
+    def life_guard_lost(self) -> None:
+        """Node guarding: the master stopped asking within the life time (EMCY 0x8130, life
+        guard error; a device reacts more in its subclass)."""
+        self.local.emcy.send(P.EMCY_HEARTBEAT, 0x10)
 
     def on_operational(self) -> None:
         """After entering OPERATIONAL (PDOs are configured)."""

@@ -48,7 +48,8 @@ class EmulatedStand(EmulatedRig):
         if options.valve_id == options.dynamometer_id:
             raise ValueError("the valve and the dynamometer need different node ids")
         setup = ChannelSetup(BUS_NAME, BUS_NAME, options.valve_id, options.dynamometer_id,
-                             config.dynamometer(options.seed), config.initial_force_kgf)
+                             config.dynamometer(options.seed), config.initial_force_kgf,
+                             options.devices)
         super().__init__({BUS_NAME: bus}, [setup], RigModel([config.model]), options)
         self.bus = bus
         self.config = config

@@ -11,12 +11,14 @@ from dbc import profile as P
 from standbus.realtime import make_realtime, short_gil_slices
 from standbus.spec import DEFAULT_BUS
 
-from .common import add_effects, add_bus, add_node_ids, add_rt_priority, parse_assignments
+from .common import (add_bus, add_effects, add_node_ids, add_rt_priority, device_set,
+                     parse_assignments)
 
 #: the one-channel options a rig file replaces (option, argparse name, default)
 _ONE_CHANNEL = (("--bus", "bus", DEFAULT_BUS), ("--valve-id", "valve_id", P.VALVE_NODE_ID),
                 ("--dynamometer-id", "dynamometer_id", P.DYNAMOMETER_NODE_ID),
-                ("--config", "config", None), ("--model", "model", None), ("--set", "set", None))
+                ("--config", "config", None), ("--model", "model", None), ("--set", "set", None),
+                ("--devices", "devices", None))
 
 
 def register(sub) -> None:
@@ -63,7 +65,8 @@ def main(args: argparse.Namespace) -> int:
     if not (0.01 <= args.step_ms <= 100 and math.isfinite(args.step_ms)):
         raise ModelError(f"--step-ms {args.step_ms:g} is out of range: use 0.01 to 100 ms")
     options = EmulatorOptions(lockstep=args.lockstep, seed=args.seed, valve_id=args.valve_id,
-                              dynamometer_id=args.dynamometer_id, step_s=args.step_ms / 1000.0)
+                              dynamometer_id=args.dynamometer_id, step_s=args.step_ms / 1000.0,
+                              devices=None if args.rig else device_set(args))
     if args.rig:
         given = [opt for opt, name, default in _ONE_CHANNEL if getattr(args, name) != default]
         if given:
@@ -124,7 +127,12 @@ def _serve_stand(args: argparse.Namespace, config, options, clock: str):
         lambda bus: EmulatedStand(bus, config, options), args.bus,
         lambda stand: f"valve node {args.valve_id}, dynamometer node {args.dynamometer_id} on "
                       f"{args.bus} ({clock}); model {config.model.spec}"
+                      + _devices_text(options.devices)
                       + _fault_text(options, [stand.channel.name]))
+
+
+def _devices_text(devices) -> str:
+    return "" if devices is None else f"; devices {devices.name} ({devices.where})"
 
 
 def _serve_rig(rig, options, clock: str):
