@@ -25,7 +25,8 @@ from tqdm import tqdm
 from standbus import BusSpecError, open_bus
 from standbus.realtime import process_threads, realtime_threads, short_gil_slices
 
-from .capture import BATCH_LOCKSTEP_S, BATCH_REALTIME_S, BusCapture, TappedNetwork
+from .capture import (BATCH_LOCKSTEP_S, BATCH_REALTIME_S, BusCapture, StartupCapture,
+                      TappedNetwork)
 from .errors import NodeError, ParameterError, StandError
 from .config import GatewayConfig
 from .experiments import Experiment
@@ -34,7 +35,7 @@ from .loop import (ControlLoop, LoopChannel, LoopOutcome, RigSafety, steady_heap
                    takes_buses_over)
 from .master import StandMaster, boot_all, start_all
 from .recorder import RunRecorder
-from .runs import SIGNALS_FILE, capture_file
+from .runs import CAPTURE_FILE, DBC_FILE, SIGNALS_FILE, capture_file
 from .supervisor import Supervisor
 
 
@@ -68,6 +69,9 @@ class Gateway:
         self.loop: ControlLoop | None = None
         #: a rig: each bus's budget, checked before anything is opened
         self.budgets: list | None = None
+        #: each bus's start-up traffic (boot, identity, configuration): every run's capture
+        #: begins with it (run.json ``startup`` says how many frames)
+        self.startup: list[StartupCapture] = []
 
     @property
     def network(self) -> TappedNetwork | None:
@@ -122,7 +126,14 @@ class Gateway:
                                         bitrate_switch=brs)
                 self.networks.append(network)
                 network.connect()
-            self._connect()
+            self.startup = [StartupCapture() for _ in self.networks]
+            for network, startup in zip(self.networks, self.startup):
+                startup.attach(network)
+            try:
+                self._connect()
+            finally:
+                for network, startup in zip(self.networks, self.startup):
+                    startup.detach(network)
         except BaseException:
             self.close()
             raise
@@ -212,8 +223,17 @@ class Gateway:
             "force_scale_kgf_per_count": m.force_scale_kgf,
             "devices": m.describe(),
             "device_notes": m.notes(),
+            "startup": self._startup_meta(0),
             "limits": asdict(cfg.limits.resolved(cfg.lockstep)),
         }
+
+    def _startup_meta(self, bus: int) -> dict | None:
+        """What of a bus's capture is the start-up: its first ``frames`` frames, up to ``until``
+        (the wall-clock stamp of the last)."""
+        if bus >= len(self.startup):
+            return None
+        s = self.startup[bus]
+        return {"frames": s.frames, "until": s.last_stamp}
 
     def _rig_metadata(self, experiment: Experiment, driven: Sequence[str]) -> dict[str, Any]:
         cfg, rig = self.config, self.rig
@@ -242,7 +262,8 @@ class Gateway:
                 "fault_action": cfg.fault_action,
                 "buses": [{"name": b.name, "spec": b.spec, "bitrate": b.bitrate, "fd": b.fd,
                            "data_bitrate": b.data_bitrate, "capture": capture_file(b.name),
-                           "budget": budgets.get(b.name)} for b in rig.buses],
+                           "budget": budgets.get(b.name), "startup": self._startup_meta(i)}
+                          for i, b in enumerate(rig.buses)],
                 "channels": channels,
                 "driven": list(driven),
             },
@@ -320,16 +341,26 @@ class Gateway:
         if recorder is not None:
             captures = []
         elif self.rig is None:
-            recorder = RunRecorder(out, self.metadata(experiment))
+            dbcs = self._dbc_texts()
+            files = {"signals": SIGNALS_FILE, "capture": CAPTURE_FILE}
+            if dbcs:
+                files["dbc"] = DBC_FILE
+            recorder = RunRecorder(out, self.metadata(experiment), files=files)
+            self._write_dbcs(recorder.dir, {DBC_FILE: text for text in dbcs.values()})
             captures = [BusCapture(recorder.capture_path, batch_s=batch_s)]
         else:
+            dbcs = self._dbc_texts()
             files = {"signals": SIGNALS_FILE,
                      "captures": {b.name: capture_file(b.name) for b in self.rig.buses}}
+            if dbcs:
+                files["dbc"] = {name: f"{name}.dbc" for name in dbcs}
             recorder = RunRecorder(out, self.metadata(experiment, driven), channels=self.rig.names,
                                    files=files)
+            self._write_dbcs(recorder.dir, {f"{name}.dbc": text for name, text in dbcs.items()})
             captures = [BusCapture(recorder.capture_path_of(b.name), batch_s=batch_s)
                         for b in self.rig.buses]
-        for network, capture in zip(self.networks, captures):
+        for network, capture, startup in zip(self.networks, captures, self.startup):
+            capture.write_first(startup)       # the start-up's traffic first
             # first in line, so frames reach the capture in the order they were received
             capture.attach(network)
         bar = None
@@ -379,6 +410,25 @@ class Gateway:
                     capture.stop()
                 self._close_run(recorder, captures, outcome, failure, fault_reset, scheduling)
         return RunResult(recorder.dir, outcome)
+
+    def _dbc_texts(self) -> dict[str, str]:
+        """The stand's DBC for each channel whose devices are not the emulated pair (by channel
+        name; a stand's under ""): a capture of the run is then decoded with it
+        (:func:`captures.decode.run_dbc`)."""
+        from devices.dbcfile import stand_dbc
+        out = {}
+        for i, m in enumerate(self.masters):
+            if m.devices.is_default:
+                continue
+            name = self.rig.channels[i].name if self.rig is not None else ""
+            out[name] = stand_dbc(m.valve.setup.plan, m.dynamometer.setup.plan,
+                                  m.force_scale_kgf, m.setpoint.full_scale)
+        return out
+
+    @staticmethod
+    def _write_dbcs(run_dir: Path, texts: dict[str, str]) -> None:
+        for name, text in texts.items():
+            (run_dir / name).write_text(text)
 
     def _close_run(self, recorder: RunRecorder, captures: list[BusCapture],
                    outcome: LoopOutcome | None, failure: BaseException | None,

@@ -132,7 +132,7 @@ def demo_rig(args: argparse.Namespace):
     from rig.emulated import emulated_plant
     from rig.files import on_private_loopback
     given = [opt for opt, on in (("--config", args.config), ("--set", args.set), ("--bus", args.bus),
-                                 ("--devices", args.devices)) if on]
+                                 ("--devices", getattr(args, "devices", None))) if on]
     if given:
         raise ParameterError(f"--rig takes the plants, buses and devices from the rig file (the "
                              f"demo puts its buses on private loopback channels): leave out "
