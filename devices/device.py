@@ -49,7 +49,8 @@ from .units import FORCE_UNITS
 #: error control: the device's heartbeat (0x1017) or node guarding (0x100C/0x100D)
 ERROR_CONTROLS = ("heartbeat", "guarding")
 HEARTBEAT_TIME, GUARD_TIME, LIFE_TIME_FACTOR = 0x1017, 0x100C, 0x100D
-_OBJECT_RE = re.compile(r"^\s*(0x[0-9A-Fa-f]{1,4}|\d+)\s*(?::\s*(0x[0-9A-Fa-f]{1,2}|\d+))?\s*$")
+#: an object as CANopen writes it, in hex: "0x6300:01", "6300:1", "0x6040"
+_OBJECT_RE = re.compile(r"^\s*(?:0x)?([0-9A-Fa-f]{4})\s*(?::\s*(?:0x)?([0-9A-Fa-f]{1,2}))?\s*$")
 _REVISION_RE = re.compile(r"^\s*(\d+)(?:\.(\d+))?\s*(?:-\s*(\d+)(?:\.(\d+))?)?\s*$")
 _BITS = {od_module.INTEGER8: 8, od_module.UNSIGNED8: 8, od_module.INTEGER16: 16,
          od_module.UNSIGNED16: 16, od_module.INTEGER32: 32, od_module.UNSIGNED32: 32,
@@ -208,7 +209,8 @@ def read_eds(path: Path, where: str, node_id: int = 1) -> od_module.ObjectDictio
 
 
 def parse_object(text: Any, where: str) -> Key | None:
-    """``"0x6300:01"`` → ``(0x6300, 1)``, ``"0x6040"`` → ``(0x6040, 0)``, ``"none"`` → None."""
+    """``"0x6300:01"`` → ``(0x6300, 1)``, ``"0x6040"`` → ``(0x6040, 0)``, ``"none"`` → None
+    (index and sub-index in hex, as CANopen writes them)."""
     if isinstance(text, str) and text.strip().lower() == "none":
         return None
     if isinstance(text, int) and not isinstance(text, bool):
@@ -216,10 +218,10 @@ def parse_object(text: Any, where: str) -> Key | None:
     else:
         m = _OBJECT_RE.match(str(text)) if isinstance(text, str) else None
         if not m:
-            raise DeviceError(f"{where}: {text!r} is not an object: write \"0xINDEX:SUB\" (e.g. "
-                              "\"0x6300:01\"), \"0xINDEX\" for sub-index 0, or \"none\"")
-        index = int(m.group(1), 0)
-        sub = int(m.group(2), 0) if m.group(2) else 0
+            raise DeviceError(f"{where}: {text!r} is not an object: write \"0xINDEX:SUB\" in hex "
+                              "(e.g. \"0x6300:01\"), \"0xINDEX\" for sub-index 0, or \"none\"")
+        index = int(m.group(1), 16)
+        sub = int(m.group(2), 16) if m.group(2) else 0
     if not (0x1000 <= index <= 0xFFFF and 0 <= sub <= 0xFF):
         raise DeviceError(f"{where}: object {text!r} is out of range (index 0x1000-0xFFFF, "
                           "sub-index 0-0xFF)")
@@ -258,6 +260,8 @@ def _resolve_role(role: Role, given: Any, od, where: str, eds: Path) -> tuple[Ke
                 raise DeviceError(f"{what} = \"{key_text(key)}\": {eds.name} has no such object; "
                                   "name one the EDS has (its sections [IIII] and [IIIIsubS])")
             continue
+        if given is None and not role.required and not _fits(role, var):
+            continue          # the profile's object, but not usable for the role here: absent
         if var.data_type not in role.types:
             raise DeviceError(
                 f"{what}: {key_text(key)} in {eds.name} is {TYPE_NAMES.get(var.data_type, var.data_type)}, "
@@ -280,6 +284,13 @@ def _resolve_role(role: Role, given: Any, od, where: str, eds: Path) -> tuple[Ke
                           f"({', '.join(key_text(k) for k in role.candidates)}); name the "
                           f"device's object: {role.name} = \"0xINDEX:SUB\"")
     return None, None
+
+
+def _fits(role: Role, var) -> bool:
+    """The object can play the role: its type, and for a PDO role mappable the right way."""
+    return (var.data_type in role.types
+            and (role.pdo is None or bool(var.pdo_mappable))
+            and (role.pdo != "rpdo" or var.writable) and (role.pdo != "tpdo" or var.readable))
 
 
 def _int(value: Any, what: str, low: int, high: int) -> int:

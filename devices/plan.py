@@ -299,11 +299,12 @@ def _role(device: Device, name: str):
 
 
 def plan_node(device: Device, node_id: int, *, period_s: float, heartbeat_ms: int,
-              rpdo_timeout_ms: int = 0, od: od_module.ObjectDictionary | None = None) -> NodePlan:
+              rpdo_timeout_ms: int = 0, life_time_factor: int = LIFE_TIME_FACTOR_DEFAULT,
+              od: od_module.ObjectDictionary | None = None) -> NodePlan:
     """The configuration of ``device`` at ``node_id`` for a run at ``period_s`` with error
-    control every ``heartbeat_ms`` (heartbeat producer time, or the guard time) and the valve's
-    RPDO timeout ``rpdo_timeout_ms`` (0: none). :class:`DeviceError` when the device cannot
-    be given what the loop needs."""
+    control every ``heartbeat_ms`` (heartbeat producer time, or the guard time, with a life
+    time of ``life_time_factor`` guard times) and the valve's RPDO timeout ``rpdo_timeout_ms``
+    (0: none). :class:`DeviceError` when the device cannot be given what the loop needs."""
     od = od if od is not None else device.od(node_id)
     notes = list(device.notes)
     if device.kind == VALVE:
@@ -322,7 +323,7 @@ def plan_node(device: Device, node_id: int, *, period_s: float, heartbeat_ms: in
         if HEARTBEAT_TIME in od and _writable(od, (HEARTBEAT_TIME, 0)):
             settings.append(SdoWrite(HEARTBEAT_TIME, 0, 0, "no heartbeat: node guarding is used"))
         settings.append(SdoWrite(GUARD_TIME, 0, int(heartbeat_ms), "guard time, ms"))
-        settings.append(SdoWrite(LIFE_TIME_FACTOR, 0, LIFE_TIME_FACTOR_DEFAULT, "life time factor"))
+        settings.append(SdoWrite(LIFE_TIME_FACTOR, 0, int(life_time_factor), "life time factor"))
     if COMM_CYCLE_PERIOD in od and _writable(od, (COMM_CYCLE_PERIOD, 0)):
         settings.append(SdoWrite(COMM_CYCLE_PERIOD, 0, int(round(period_s * 1e6)),
                                  "communication cycle period, µs"))

@@ -4,6 +4,7 @@ the plant; nothing here opens the bus."""
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -64,6 +65,13 @@ class GatewayConfig:
     def channel_limits(self, channel: "ChannelConfig") -> SafetyLimits:
         """A rig channel's limits: the shared ones with the channel's own force limit."""
         return dataclasses.replace(self.limits, force_limit_kgf=channel.limit_kgf)
+
+    def life_time_factor(self) -> int:
+        """Node guarding: a guarded node's life time in guard times (``heartbeat_ms``), as long
+        as the master's own timeout for its answers (the supervisor's heartbeat timeout), at
+        least 3: a node must not give its master up sooner than the master gives it up."""
+        timeout_ms = 1000 * self.limits.resolved(self.lockstep).heartbeat_timeout_s
+        return max(3, min(255, math.ceil(timeout_ms / self.heartbeat_ms)))
 
     def validate(self) -> None:
         if self.fault_action not in FAULT_ACTIONS:

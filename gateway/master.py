@@ -157,10 +157,12 @@ class StandMaster:
             link.identity = link.setup.identity = C.check_identity(link.node, link.role, link.device)
 
     # -- 3./4. configuration ------------------------------------------------------------------------
-    def configure(self, period_s: float, heartbeat_ms: int, rpdo_timeout_ms: int) -> None:
-        """Configure both nodes from their device files (the module doc's steps 3-4)."""
+    def configure(self, period_s: float, heartbeat_ms: int, rpdo_timeout_ms: int,
+                  life_time_factor: int = 3) -> None:
+        """Configure both nodes from their device files (the module doc's steps 3-4); a
+        guarded node's life time is ``life_time_factor`` guard times (``heartbeat_ms``)."""
         for link in self.links:
-            plan = self._plan(link, period_s, heartbeat_ms, rpdo_timeout_ms)
+            plan = self._plan(link, period_s, heartbeat_ms, rpdo_timeout_ms, life_time_factor)
             C.write_plan(link.node, link.label, plan)
             setup = link.setup
             setup.plan = plan
@@ -176,11 +178,12 @@ class StandMaster:
         self.stand_clock = self._stand_clock()
         self.lockstep_capable = self.stand_clock == 1
 
-    def _plan(self, link: NodeLink, period_s: float, heartbeat_ms: int, rpdo_timeout_ms: int):
+    def _plan(self, link: NodeLink, period_s: float, heartbeat_ms: int, rpdo_timeout_ms: int,
+              life_time_factor: int = 3):
         try:
             return plan_node(link.device, link.id, period_s=period_s, heartbeat_ms=heartbeat_ms,
                              rpdo_timeout_ms=rpdo_timeout_ms if link.role == VALVE else 0,
-                             od=link.node.object_dictionary)
+                             life_time_factor=life_time_factor, od=link.node.object_dictionary)
         except NodeError:
             raise
         except Exception as exc:          # a DeviceError: the device cannot give what is needed

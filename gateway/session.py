@@ -156,7 +156,8 @@ class Gateway:
         for i, master in enumerate(self.masters):
             with self._naming_channel(i):
                 master.check_identity()
-                master.configure(cfg.period_s, cfg.heartbeat_ms, cfg.rpdo_timeout_ms)
+                master.configure(cfg.period_s, cfg.heartbeat_ms, cfg.rpdo_timeout_ms,
+                                 cfg.life_time_factor())
         if cfg.lockstep and not all(m.lockstep_capable for m in self.masters):
             raise StandError(
                 "--lockstep needs a stand that advances one period per SYNC (the emulator "
