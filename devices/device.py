@@ -44,7 +44,7 @@ from dbc import DYNAMOMETER_EDS, VALVE_EDS
 
 from .roles import (DEVICE_KINDS, DYNAMOMETER, PROFILE_NAMES, ROLES, TYPE_NAMES, VALVE, Key,
                     Role, key_text)
-from .units import FORCE_UNITS
+from .units import FORCE_UNITS, kgf_per_count, unit_name_of_code
 
 #: error control: the device's heartbeat (0x1017) or node guarding (0x100C/0x100D)
 ERROR_CONTROLS = ("heartbeat", "guarding")
@@ -151,6 +151,19 @@ class Device:
 
     def key(self, role: str) -> Key | None:
         return self.objects.get(role)
+
+    def nominal_kgf_per_count(self) -> float:
+        """An amplifier's kgf per count as its file says, else as its EDS's defaults of
+        0x6131/0x6132 say (offline: the device itself may say otherwise at start-up)."""
+        od = self.od(1)
+        unit = self.unit
+        if unit is None:
+            unit = unit_name_of_code(int(find_variable(od, self.key("pv_unit")).default))
+        decimals = self.decimals
+        if decimals is None:
+            key = self.key("pv_decimals")
+            decimals = int(find_variable(od, key).default) if key is not None else 0
+        return kgf_per_count(unit, decimals, self.types["process_value"] != od_module.REAL32)
 
     def type_bits(self, role: str) -> int:
         """The size of a role's object, bits."""

@@ -36,8 +36,7 @@ from canopen.objectdictionary import REAL32
 from dbc import profile as P
 from dbc.pdo_codec import PdoLayout
 from devices import DYNAMOMETER, VALVE, Device, DeviceSet, default_devices, plan_node
-from devices.device import find_variable
-from devices.units import SetpointScale, kgf_per_count, unit_name_of_code
+from devices.units import SetpointScale
 
 from . import configure as C
 from .capture import TappedNetwork
@@ -208,15 +207,7 @@ class StandMaster:
             link.setup.tpdo = plan.tpdo.layout()
             link.setup.rpdo = plan.rpdo.layout() if plan.rpdo else None
         self._set_layouts()
-        dyn = self.devices.dynamometer
-        od = self.dynamometer.node.object_dictionary
-        unit, decimals = dyn.unit, dyn.decimals
-        if unit is None:
-            unit = unit_name_of_code(int(find_variable(od, dyn.key("pv_unit")).default))
-        if decimals is None:
-            key = dyn.key("pv_decimals")
-            decimals = int(find_variable(od, key).default) if key is not None else 0
-        self.force_scale_kgf = kgf_per_count(unit, decimals, dyn.types["process_value"] != REAL32)
+        self.force_scale_kgf = self.devices.dynamometer.nominal_kgf_per_count()
         self._set_counts_per_unit()
         self.setpoint = SetpointScale(self.devices.valve.setpoint_full_scale or 16384,
                                       self.devices.valve.type_bits("setpoint"))

@@ -31,8 +31,9 @@ _INT32 = 2**31 - 1
 
 
 class DynamometerNode(EmulatedNode):
-    def __init__(self, network, node_id: int, device: Device) -> None:
-        super().__init__(network, node_id, device)
+    def __init__(self, network, node_id: int, device: Device,
+                 unconfigured_serial: int | None = None) -> None:
+        super().__init__(network, node_id, device, unconfigured_serial)
         od = self.local.object_dictionary
         #: the process value's forms the device has: key → (REAL32?, limit of an integer form);
         #: the device file's (mapped, sent every cycle) is kept live, the others made when read

@@ -50,7 +50,7 @@ from dbc import profile as P
 from devices import DeviceSet
 from plant.rig import RigModel
 from plant.sensor import SensorBank
-from rig.config import RigConfig
+from rig.config import RigConfig, RigError
 from rig.emulated import channel_seed, emulated_plant
 from standbus import LOCKSTEP_BUSY_POLL_S, HandoverNotifier, prefer_busy_poll, wire
 from standbus.handover import handover_many
@@ -92,6 +92,8 @@ class EmulatorOptions:
     faults: tuple[ScheduledFault, ...] = ()
     #: the one-channel stand's devices (a rig's come from its file; None: the emulated pair)
     devices: "DeviceSet | None" = None
+    #: the channels whose nodes start without a node id (LSS only: :mod:`plant_emulator.lss`)
+    unconfigured: tuple[str, ...] = ()
 
 
 def fd_flags(rig: RigConfig) -> dict[str, int]:
@@ -197,9 +199,13 @@ class EmulatedRig:
         (a channel without a plant, a structure no stiffness gives). Each channel's
         dynamometer draws its own noise stream from ``options.seed``."""
         plant = emulated_plant(rig)
+        unknown = set(options.unconfigured) - set(rig.names)
+        if unknown:
+            raise RigError(f"--unconfigured {', '.join(sorted(unknown))}: no such channel; the "
+                           f"rig has {', '.join(rig.names)}")
         setups = [ChannelSetup(c.name, c.bus, c.valve_id, c.dynamometer_id,
                                p.dynamometer(channel_seed(options.seed, i)), p.initial_force_kgf,
-                               c.devices)
+                               c.devices, c.name in options.unconfigured)
                   for i, (c, p) in enumerate(zip(rig.channels, plant.plants))]
         return cls(buses, setups, plant.model, options, cyclic_flags=fd_flags(rig))
 

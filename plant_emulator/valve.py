@@ -61,10 +61,10 @@ def add_clock_object(od) -> None:
 class ServoValveNode(EmulatedNode):
     """A CiA 408 valve drive: its roles' objects from its device file (:mod:`devices.roles`)."""
 
-    def __init__(self, network, node_id: int, device: Device, lockstep: bool) -> None:
-        super().__init__(network, node_id, device)
+    def __init__(self, network, node_id: int, device: Device, lockstep: bool,
+                 unconfigured_serial: int | None = None) -> None:
+        super().__init__(network, node_id, device, unconfigured_serial)
         od = self.local.object_dictionary
-        add_clock_object(od)
         self._status_key = device.key("status_word")
         self._spool_key = device.key("actual_spool")
         self._mode_key = device.key("device_mode")
@@ -94,6 +94,9 @@ class ServoValveNode(EmulatedNode):
         #: the spool command the outputs were last set for
         self._outputs_of: float | None = None
         self._refresh()
+
+    def prepare_od(self, od) -> None:
+        add_clock_object(od)
 
     # -- what the hydraulics see ----------------------------------------------------------------
     def spool_command_percent(self) -> float:
