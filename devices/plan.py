@@ -329,6 +329,13 @@ def plan_node(device: Device, node_id: int, *, period_s: float, heartbeat_ms: in
                                  "communication cycle period, µs"))
     else:
         notes.append("no communication cycle period (0x1006): the device is not told the period")
+    hold = device.key("hold_setpoint") if device.kind == VALVE else None
+    if hold is not None:
+        if _writable(od, hold):
+            settings.append(SdoWrite(hold[0], hold[1], 0, "hold setpoint: zero flow"))
+        else:
+            notes.append(f"the hold setpoint ({key_text(hold)}) is read-only: check on the bench "
+                         "that the drive's HOLD is zero flow")
     mode = device.key("device_mode") if device.kind == VALVE else None
     if mode is not None:
         if _writable(od, mode):

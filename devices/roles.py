@@ -78,7 +78,7 @@ VALVE_ROLES = (
     Role("setpoint_reference", "setpoint reference, counts at 100 % (CiA 408 0x6311)",
          ((0x6311, 0),), _INTEGERS, None, False, "100 % is taken as 16384 counts"),
     Role("hold_setpoint", "hold setpoint (CiA 408 0x6314)", ((0x6314, 0),), _SIGNED, None, False,
-         "the valve's HOLD position is the drive's own (the gateway cannot check it is zero flow)"),
+         "the valve holds at its drive's own HOLD position: check on the bench that it is zero flow"),
 )
 
 DYNAMOMETER_ROLES = (

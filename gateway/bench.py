@@ -16,6 +16,7 @@ Nothing is configured but the node ids LSS gives; no node is started.
 from __future__ import annotations
 
 import logging
+import os
 import struct
 import threading
 import time
@@ -239,9 +240,11 @@ def result_table(result: ScanResult) -> str:
     return "\n".join(lines)
 
 
-def skeleton_rig(result: ScanResult, bus_spec: str, name: str = "bench") -> tuple[str, list[str]]:
+def skeleton_rig(result: ScanResult, bus_spec: str, name: str = "bench",
+                 base: Path | None = None) -> tuple[str, list[str]]:
     """A rig file of the channels the scan found: each valve with the next amplifier of the same
-    device set, by node id; returns its text and what could not be paired."""
+    device set, by node id; device files named relative to ``base`` (the rig file's directory;
+    default the working directory). Returns its text and what could not be paired."""
     valves = [n for n in result.nodes if n.kind == VALVE]
     amps = [n for n in result.nodes if n.kind == DYNAMOMETER]
     lines = [f"# found by stand bench scan on {bus_spec}: {len(result.nodes)} node(s)",
@@ -261,7 +264,8 @@ def skeleton_rig(result: ScanResult, bus_spec: str, name: str = "bench") -> tupl
         lines += ["", "[[channel]]", f"name = \"ch{k}\"", "bus = \"can0\"",
                   f"valve_id = {valve.node_id}", f"dynamometer_id = {amp.node_id}"]
         if not valve.devices.is_default:
-            lines.append(f"devices = \"{Path(valve.devices.path).resolve()}\"")
+            where = os.path.relpath(Path(valve.devices.path).resolve(), (base or Path.cwd()).resolve())
+            lines.append(f"devices = \"{Path(where).as_posix()}\"")
     for amp in amps:
         left.append(f"amplifier node {amp.node_id} ({amp.device.name}): no valve of its device "
                     f"set ({amp.devices.where}) was found")

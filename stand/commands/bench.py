@@ -89,13 +89,15 @@ def scan_main(args: argparse.Namespace) -> int:
     finally:
         network.disconnect()
     if not result.nodes:
-        print(f"no node answered on {args.bus} within {args.timeout_ms:g} ms: is the bus right "
-              "(and the bit rate), are the devices powered?", file=sys.stderr)
+        print(f"no node answered on {args.bus} within {args.timeout_ms:g} ms"
+              + ("" if args.no_lss else ", and no device without a node id answered LSS")
+              + ": is the bus right (and its bit rate), are the devices powered?", file=sys.stderr)
         return 1
     print(result_table(result))
     print(f"{len(result.nodes)} node(s), {result.lss_found} given a node id by LSS, in "
           f"{result.seconds:.1f} s")
-    text, left = skeleton_rig(result, args.bus)
+    text, left = skeleton_rig(result, args.bus,
+                              base=Path(args.rig_out).resolve().parent if args.rig_out else None)
     if args.rig_out:
         Path(args.rig_out).write_text(text)
         print(f"skeleton rig file: {args.rig_out} (stand rig check {args.rig_out})")
