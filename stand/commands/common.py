@@ -26,6 +26,31 @@ def add_node_ids(p: argparse.ArgumentParser) -> None:
     p.add_argument("--valve-id", type=int, default=P.VALVE_NODE_ID, metavar="ID", help="servo-valve node id (default %(default)s)")
     p.add_argument("--dynamometer-id", type=int, default=P.DYNAMOMETER_NODE_ID, metavar="ID",
                    help="dynamometer node id (default %(default)s)")
+    p.add_argument("--devices", metavar="DEVICES.toml",
+                   help="which valve drive and force amplifier the stand has: a device file naming "
+                        "each one's EDS and the objects it uses (docs/devices.md; examples in "
+                        "examples/devices/). Default: the emulated pair (dbc/)")
+
+
+def id_args(args: argparse.Namespace) -> list[str]:
+    """The node ids of ``args`` as options for an emulator started with them (none where they
+    are the defaults)."""
+    out = []
+    if args.valve_id != P.VALVE_NODE_ID:
+        out += ["--valve-id", str(args.valve_id)]
+    if args.dynamometer_id != P.DYNAMOMETER_NODE_ID:
+        out += ["--dynamometer-id", str(args.dynamometer_id)]
+    return out
+
+
+def device_set(args: argparse.Namespace):
+    """The device set of ``--devices`` (None: the emulated pair); a clear error if it cannot
+    be used."""
+    path = getattr(args, "devices", None)
+    if path is None:
+        return None
+    from devices import load_device_set
+    return load_device_set(path)
 
 
 def add_gateway(p: argparse.ArgumentParser, error_limit: str = "off") -> None:
@@ -144,6 +169,9 @@ def gateway_config(args: argparse.Namespace) -> GatewayConfig:
             raise ParameterError(f"--period-ms {period_ms:g}: the rig {rig_path} runs at "
                                  f"{rig.period_s * 1e3:g} ms (period_ms in the file); leave "
                                  "--period-ms out or change the file")
+        if getattr(args, "devices", None) is not None:
+            raise ParameterError(f"--devices: a rig's devices are in its file (devices = \"FILE\" "
+                                 f"in {rig_path}, for the rig or per channel); leave --devices out")
         if getattr(args, "force_limit", None) is not None:
             raise ParameterError("--force-limit: a rig's force limits are per channel "
                                  f"(force_limit_kgf of each [[channel]] in {rig_path}, default 95 % "
@@ -158,7 +186,8 @@ def gateway_config(args: argparse.Namespace) -> GatewayConfig:
                          rt_priority=getattr(args, "rt_priority", DEFAULT_PRIORITY),
                          rpdo_timeout_ms=getattr(args, "rpdo_timeout", GatewayConfig.rpdo_timeout_ms),
                          limits=safety_limits(args), rig=rig,
-                         fault_action=getattr(args, "fault_action", "hold"))
+                         fault_action=getattr(args, "fault_action", "hold"),
+                         devices=None if rig is not None else device_set(args))
 
 
 def add_effects(p: argparse.ArgumentParser) -> None:
