@@ -318,7 +318,8 @@ def device_from_mapping(kind: str, table: Mapping[str, Any], where: str,
     if not isinstance(table, Mapping):
         raise DeviceError(f"{where}: [{kind}] must be a table with eds = \"FILE.eds\"")
     roles = ROLES[kind]
-    known = _TABLE_KEYS | {r.name for r in roles} | _SCALING_KEYS[kind]
+    known = (_TABLE_KEYS - ({"rpdo"} if kind != VALVE else set())) | {r.name for r in roles} \
+        | _SCALING_KEYS[kind]
     unknown = set(table) - known
     if unknown:
         raise DeviceError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}; [{kind}] "
@@ -353,10 +354,7 @@ def device_from_mapping(kind: str, table: Mapping[str, Any], where: str,
                  if "revision" in table else None)
     error_control = _error_control(table.get("error_control"), od, where, eds)
     rpdo = tpdo = None
-    if "rpdo" in table:
-        if kind != VALVE:
-            raise DeviceError(f"{where}: rpdo: the amplifier receives no PDO from the gateway; "
-                              "leave rpdo out")
+    if "rpdo" in table:           # (the valve's only: the amplifier receives no PDO)
         rpdo = _pdo_number(table["rpdo"], od, 0x1400, f"{where}: rpdo", eds)
     if "tpdo" in table:
         tpdo = _pdo_number(table["tpdo"], od, 0x1800, f"{where}: tpdo", eds)

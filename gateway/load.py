@@ -46,7 +46,6 @@ from .limits import programme_error_limit_kgf
 from .load_experiment import LoadProgramme
 from .runs import load_run
 
-#: the supervisor's tracking-error limit when none is set: this share of the programme's range
 #: time scaling: at most this many stretches of the segments the valve cannot follow, per pass
 STRETCH_TRIES = 6
 #: the corrections the fastest pass that met the accuracy ran with, beside ``schedule.toml``

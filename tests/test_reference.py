@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from stand.reference import stale
-from stand.reference import controller_file, endurance_file, model_files, outputs, rig_file, run_dir
+from stand.reference import (controller_file, devices_file, endurance_file, model_files, outputs,
+                             rig_file, run_dir)
 from stand.reference.cli_page import commands, help_text, invocation
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -127,6 +128,20 @@ def test_the_rig_file_page_names_every_key_the_loader_takes():
     for name, at in [("", lambda d: d), ("[[bus]]", lambda d: d["bus"][0]),
                      ("[[channel]]", lambda d: d["channel"][0]), ("[structure]", lambda d: d["structure"]),
                      ("[[structure.change]]", lambda d: d["structure"]["change"][0])]:
+        _check_table(load, data, at, name, _documented(tables, name))
+
+
+def test_the_devices_file_page_names_every_key_the_loader_takes():
+    from devices import device_set_from_mapping
+    folder = ROOT / "examples" / "devices" / "servotek"
+    data = tomllib.loads((folder / "devices.toml").read_text())
+    tables = devices_file.tables()
+
+    def load(d):
+        return device_set_from_mapping(d, "devices.toml", folder)
+    load(data)
+    for name, at in [("", lambda d: d), ("[valve]", lambda d: d["valve"]),
+                     ("[dynamometer]", lambda d: d["dynamometer"])]:
         _check_table(load, data, at, name, _documented(tables, name))
 
 

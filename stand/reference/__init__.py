@@ -18,7 +18,8 @@ from . import markdown as md
 
 def _pages() -> dict[str, tuple[str, Callable[[], str]]]:
     """file name -> (what it documents, its generator), in the index's order."""
-    from . import cli_page, controller_file, endurance_file, model_files, outputs, rig_file, run_dir, tables_page
+    from . import (cli_page, controller_file, devices_file, endurance_file, model_files, outputs,
+                   rig_file, run_dir, tables_page)
     return {
         "cli.md": ("every command and option of `stand`, with its default", cli_page.cli_page),
         "run.md": ("the run directory: `run.json`, the signals, the captures", run_dir.page),
@@ -27,6 +28,8 @@ def _pages() -> dict[str, tuple[str, Callable[[], str]]]:
         "controller-toml.md": ("controller files, a stand's and a rig's (`stand design`)",
                                controller_file.page),
         "rig-toml.md": ("the rig file: buses, channels, structure", rig_file.page),
+        "devices-toml.md": ("a device file: a maker's valve drive and amplifier, their EDS and roles",
+                            devices_file.page),
         "test-toml.md": ("an endurance test's file", endurance_file.page),
         "load-json.md": ("`stand load --json`: the loading summary (`hydrostand-load/1`)", outputs.load_page),
         "test-status-json.md": ("`stand test status --json`: an endurance test's status", outputs.status_page),

@@ -20,6 +20,9 @@ def tables() -> tuple[Table, ...]:
                 "`stand rig check` says when a bus would exceed it", value(100 * DEFAULT_LOAD_LIMIT), "number"),
             Key("heartbeat_ms", "the nodes' heartbeat period, ms (10 to 10000)", value(RigConfig.heartbeat_ms),
                 "integer"),
+            Key("devices", "the device file of every channel's valve drive and amplifier, relative "
+                "to the rig file ([device files](devices-toml.md)); a channel may name its own",
+                "the emulated pair", "string"),
             Key("bus", "the CAN buses, at least one", "required", "`[[bus]]`"),
             Key("channel", "the loading channels, at least one, in the order of G's rows", "required",
                 "`[[channel]]`"),
@@ -45,6 +48,8 @@ def tables() -> tuple[Table, ...]:
             Key("range_kgf", "the dynamometer's range, kgf", value(DEFAULT_RANGE_KGF), "number"),
             Key("force_limit_kgf", "the supervisor's force limit, kgf (at most `range_kgf`)",
                 f"{100 * DEFAULT_LIMIT_SHARE:g} % of `range_kgf`", "number"),
+            Key("devices", "this channel's device file ([device files](devices-toml.md))",
+                "the rig's `devices`", "string"),
             Key("plant", "the emulated plant behind the two nodes (`stand emulate --rig` only): a plant "
                 "file's tables, or the path of a plant file ([model files](model-toml.md#plant-files)); "
                 "its g is the structure's diagonal", "", "table or string"),

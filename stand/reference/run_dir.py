@@ -54,8 +54,15 @@ def tables() -> tuple[Table, ...]:
             Key("period_s", "the control period, s"),
             Key("nodes", "`valve` and `dynamometer`: each one's `id` and `identity` (its 0x1018 object)"),
             Key("force_scale_kgf_per_count", "kgf per count of the dynamometer's process value"),
+            Key("devices", "`valve` and `dynamometer`: each one's device file, EDS, identity, roles' "
+                "objects and the `configuration` the gateway gave it (its PDOs, error control, notes; "
+                "[device files](devices-toml.md))"),
+            Key("device_notes", "what the devices lack and what the run then cannot do, a line each"),
+            Key("startup", "the capture's first `frames` frames are the start-up (boot, identity, "
+                "configuration), up to the wall time `until`"),
             Key("limits", "the supervisor's settings (below)"),
-            Key("files", "the run's files: `signals`, `capture` (a rig: `captures`, one per bus)"),
+            Key("files", "the run's files: `signals`, `capture` (a rig: `captures`, one per bus), "
+                "`dbc` for devices other than the emulated pair (a rig: per channel)"),
             Key("rows", "the signals' rows"),
             Key("end_reason", "why it ended early, a word (`force_limit`, `error_limit`, `heartbeat_lost`, "
                 "`interrupted`, ...; [docs/safety.md](../safety.md)); null when complete"),
