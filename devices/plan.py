@@ -40,6 +40,14 @@ COMM_CYCLE_PERIOD, SYNC_WINDOW = 0x1006, 0x1007
 TPDO_TRANS_TYPE, RPDO_TRANS_TYPE = 1, 255
 #: node guarding: the device's life time = guard time × this (CiA 301 0x100D)
 LIFE_TIME_FACTOR_DEFAULT = 3
+#: the valve's objects the master sets once where the device has them: role, value, why, and
+#: what to do where the device does not let it
+VALVE_SETTINGS = (
+    ("hold_setpoint", 0, "the hold setpoint: zero flow",
+     "check on the bench that the drive's HOLD is zero flow"),
+    ("device_mode", 1, "the device mode: setpoint via the bus",
+     "set the drive to take its setpoint from the bus by its own tool"),
+)
 #: a classic CAN frame carries at most 64 bits of data
 MAX_PDO_BITS = 64
 #: the predefined connection set's PDO COB-IDs (PDOs 1-4) without the node id
@@ -329,20 +337,14 @@ def plan_node(device: Device, node_id: int, *, period_s: float, heartbeat_ms: in
                                  "communication cycle period, µs"))
     else:
         notes.append("no communication cycle period (0x1006): the device is not told the period")
-    hold = device.key("hold_setpoint") if device.kind == VALVE else None
-    if hold is not None:
-        if _writable(od, hold):
-            settings.append(SdoWrite(hold[0], hold[1], 0, "hold setpoint: zero flow"))
+    for role, value, what, otherwise in VALVE_SETTINGS if device.kind == VALVE else ():
+        key = device.key(role)
+        if key is None:
+            continue
+        if _writable(od, key):
+            settings.append(SdoWrite(key[0], key[1], value, what))
         else:
-            notes.append(f"the hold setpoint ({key_text(hold)}) is read-only: check on the bench "
-                         "that the drive's HOLD is zero flow")
-    mode = device.key("device_mode") if device.kind == VALVE else None
-    if mode is not None:
-        if _writable(od, mode):
-            settings.append(SdoWrite(mode[0], mode[1], 1, "device mode: setpoint via the bus"))
-        else:
-            notes.append(f"the device mode ({key_text(mode)}) is read-only: the drive must be "
-                         "set to take its setpoint from the bus by its own tool")
+            notes.append(f"{what.split(':')[0]} ({key_text(key)}) is read-only: {otherwise}")
     disable = []
     used = tpdo.number
     for n in _pdo_numbers(od, "tpdo"):
