@@ -455,6 +455,10 @@ def wait_links(links, state: int, timeout_s: float, keepalive=None, keepalive_s:
         time.sleep(0.001)
     for link in links:
         if link.nmt_state != state:
-            raise NodeError(link.id, f"{link.role} node {link.id} did not report "
+            hint = (": the device does not take the master's NMT start; look for its EMCY in the "
+                    "run's capture (it begins with the start-up), and whether it must be enabled by "
+                    "its own tool or input first" if state == 5 else "")
+            raise NodeError(link.id, f"{link.label} did not report "
                                      f"{_NMT_NAMES.get(state, state)} within {timeout_s:g} s "
-                                     f"(last heartbeat state: {_NMT_NAMES.get(link.nmt_state, link.nmt_state)})")
+                                     f"(last heartbeat state: {_NMT_NAMES.get(link.nmt_state, link.nmt_state)})"
+                                     + hint)

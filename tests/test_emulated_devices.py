@@ -15,8 +15,12 @@ import canopen
 import pytest
 from canopen.sdo import SdoAbortedError
 
+from core.errors import NodeError
 from devices import load_device_set
+from gateway import Gateway, GatewayConfig
+from gateway.experiments import Meander
 from plant_emulator import EmulatedStand, EmulatorOptions
+from standbus import open_bus
 from tests.support.stand import plant
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "devices"
@@ -174,3 +178,32 @@ def test_an_rpdo_timeout_is_an_emcy_with_the_error_register_set(emulated):
     emcy = [m for m in frames if m.arbitration_id == 0x081]
     assert emcy, "no EMCY after the RPDO timeout"
     assert struct.unpack_from("<H", bytes(emcy[0].data))[0] == 0x8250 and emcy[0].data[2] & 0x01
+
+
+def test_a_device_that_never_leaves_pre_operational_stops_the_run_before_anything_moves(tmp_path):
+    """An amplifier that ignores the master's NMT start: the run is refused with the node, its
+    device and what to look at; the valve never got an ACTIVE command."""
+    devices = load_device_set(EXAMPLES / "servotek" / "devices.toml")
+    spec = f"udp_loopback:preop-{uuid.uuid4().hex[:8]}"
+    bus = open_bus(spec)
+    stand = EmulatedStand(bus, plant(), EmulatorOptions(lockstep=True, seed=1, devices=devices))
+    net, dyn = stand.network, stand.dynamometer
+    net.unsubscribe(0, dyn._on_nmt)
+
+    def stubborn(can_id, data, timestamp):
+        if data[:1] != b"\x01":                  # every NMT command but start
+            dyn._on_nmt(can_id, data, timestamp)
+    net.subscribe(0, stubborn)
+    stand.start()
+    try:
+        with Gateway(GatewayConfig(bus=spec, lockstep=True, devices=devices)) as gw:
+            with pytest.raises(NodeError) as err:
+                gw.run(Meander(5.0, 2.0, 1), tmp_path / "run", progress=False)
+        text = str(err.value)
+        assert "dynamometer node 2 (Servotek LCA-4, " in text and "devices.toml [dynamometer]" in text
+        assert "did not report OPERATIONAL" in text and "PRE-OPERATIONAL" in text
+        assert "look for its EMCY" in text
+        assert stand.channel.command == 0.0 and stand.valve.state.name != "ACTIVE"
+    finally:
+        stand.stop()
+        bus.shutdown()
