@@ -15,13 +15,17 @@ from core.errors import ParameterError
 DEFAULT_WATCH = "127.0.0.1:8080"
 
 
-def add_live_options(q: argparse.ArgumentParser, serve_default: str | None = None, resume: bool = False) -> None:
+def add_live_options(q: argparse.ArgumentParser, serve_default: str | None = None,
+                     can_resume: bool = False) -> None:
+    """--serve, --operator-token-file, --allow-host, --tls-cert, --tls-key; ``can_resume``: the
+    page outlives the session (``stand test watch``'s), so its operator can resume a stopped test."""
     g = q.add_argument_group("the live page (docs/endurance.md)")
     g.add_argument("--serve", metavar="HOST:PORT", default=serve_default,
                    help="serve the live page on HOST:PORT (PORT alone: 127.0.0.1; 0: any free port; the URL "
                         "is printed); another address than loopback needs --allow-host"
                         + (" (default %(default)s)" if serve_default else ""))
-    actions = "pause, stop, resume" if resume else "pause, stop (a resume is stand test watch's)"
+    actions = ("pause, stop, resume" if can_resume else
+               "pause, stop; a stopped test is resumed from the page of stand test watch")
     g.add_argument("--operator-token-file", metavar="FILE",
                    help=f"allow the operator's actions ({actions}) to requests with Authorization: Bearer TOKEN, "
                         "the token being this file's one line (stand test token FILE makes one); without it the "
@@ -41,7 +45,7 @@ def register_watch(tsub) -> None:
                                     "the sessions, and with --operator-token-file it can resume the test "
                                     "(stand test resume with the options it was started with).")
     q.add_argument("testdir", metavar="TESTDIR")
-    add_live_options(q, DEFAULT_WATCH, resume=True)
+    add_live_options(q, DEFAULT_WATCH, can_resume=True)
     q.set_defaults(func=watch_main)
 
     q = tsub.add_parser("token", help="make an operator's token file for the live page",
