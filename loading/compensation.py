@@ -66,7 +66,8 @@ A station's :class:`Compensation` keeps one :class:`ChannelCompensation` per cha
 learning from its own channel's turning points, in one file: a one-channel stand's as the
 tables ``[peak]`` and ``[valley]`` (:data:`SCHEMA`), a rig's with a table per channel
 (``[channel.NAME.peak]``, ``[channel.NAME.valley]``; by load case ``[channel.NAME.case]``,
-``"K" = {level, correction, sensitivity}`` for the K-th load case, ``[channel.NAME.shape]``,
+``"K" = {level, correction, sensitivity[, unreached]}`` for the K-th load case,
+``[channel.NAME.shape]``,
 ``"K" = [modes]`` for the segment from load case K, and ``[stretch]``, the segments run
 longer: :data:`STATION_SCHEMA`).
 """
@@ -118,6 +119,9 @@ class CaseLearning:
     correction_kgf: float = 0.0    #: commanded = level + correction
     sensitivity: float = 1.0       #: ŝ: force moved per kgf of correction
     gain: float = LEARNING_GAIN    #: γ, halved each time it goes back
+    #: the force did not follow the level here: the correction stays at its best, the segment
+    #: arriving here learns (module docstring)
+    unreached: bool = False
     #: the pass before: (the correction it ran with, its error), None before the second pass
     before: tuple[float, float] | None = field(default=None, repr=False)
     #: the smallest |error| seen and the correction then
@@ -226,15 +230,15 @@ class ChannelCompensation:
                 if abs(ran - c0) >= SECANT_BANDS * band:
                     s = (err - e0) / (ran - c0)
                     if s < SENSITIVITY_MIN:
-                        status = "unreached"
+                        case.unreached = True
                     else:
                         case.sensitivity, trusted = min(s, SENSITIVITY_MAX), True
             if abs(err) < case.best[0]:
                 case.best = (abs(err), ran)
-            if status == "unreached":
-                new = case.best[1]
-            elif abs(err) <= band:
+            if abs(err) <= band:
                 new, status = ran, "band"
+            elif case.unreached:
+                new, status = case.best[1], "unreached"
             elif abs(err) > case.best[0] + band and not trusted:
                 new, status = case.best[1], "back"
                 case.gain /= 2
@@ -294,7 +298,8 @@ class ChannelCompensation:
         if self.cases:
             out.append(("case", ["# load case (1: the first) = its level, correction (kgf) and sensitivity"] + [
                 f'"{j + 1}" = {{level = {c.level_kgf!r}, correction = {c.correction_kgf!r}, '
-                f'sensitivity = {c.sensitivity!r}}}' for j, c in sorted(self.cases.items())]))
+                f'sensitivity = {c.sensitivity!r}' + (", unreached = true" if c.unreached else "") + "}"
+                for j, c in sorted(self.cases.items())]))
         if self.shapes:
             out.append(("shape", ["# the segment from load case K to K + 1 = its shape's modes (kgf)"] + [
                 f'"{k + 1}" = [{", ".join(repr(float(x)) for x in a)}]' for k, a in sorted(self.shapes.items())]))
@@ -328,7 +333,8 @@ class ChannelCompensation:
                     comp.table[kind] = {float(k): float(v) for k, v in (data.get(kind) or {}).items()}
             for k, v in (data.get("case") or {}).items():
                 comp.cases[int(k) - 1] = CaseLearning(float(v["level"]), float(v["correction"]),
-                                                      float(v.get("sensitivity", 1.0)), comp.learning_gain)
+                                                      float(v.get("sensitivity", 1.0)), comp.learning_gain,
+                                                      unreached=bool(v.get("unreached", False)))
             for k, v in (data.get("shape") or {}).items():
                 comp.shapes[int(k) - 1] = np.array([float(x) for x in v])
         except (TypeError, ValueError, AttributeError, KeyError) as exc:

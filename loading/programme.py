@@ -214,7 +214,9 @@ def shape_basis(samples: int, modes: int) -> np.ndarray:
     waves: features down to :data:`SHAPE_HALF_WAVE_S` (:func:`shape_modes`), the noise above
     that left out."""
     s = np.linspace(0.0, 1.0, max(int(samples), 2))
-    return np.sin(np.pi * s[:, None] * np.arange(1, modes + 1)[None, :])
+    out = np.sin(np.pi * s[:, None] * np.arange(1, modes + 1)[None, :])
+    out[[0, -1]] = 0.0                   # exactly (sin(mπ) is not, in floating point)
+    return out
 
 
 # -- making programmes ----------------------------------------------------------------------------
