@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import ParameterError
-from loading.compensation import SENSITIVITY_MIN, Compensation
+from loading.compensation import UNREACHED_BELOW, Compensation
 from loading.design import ControllerDesign
 from loading.gain_monitor import GainMonitor, MonitorOptions
 from loading.minimum_time import FEEDFORWARD_SHARE, minimum_durations_s, programme_flow_limit
@@ -405,8 +405,8 @@ def learned_text(learned: dict) -> str:
     for w in learned["not_learning"]:
         why = {"bound": "its correction is at the bound (5 % of the range)",
                "back": "worse than its best, no sensitivity to trust: back to the best correction",
-               "unreached": f"the force did not follow the level (sensitivity under "
-                            f"{SENSITIVITY_MIN:g}): the segment arriving there runs longer"}[w["status"]]
+               "unreached": f"the force did not follow the level (it moved under {UNREACHED_BELOW:.0%} of "
+                            "a correction): the segment arriving there runs longer"}[w["status"]]
         lines.append(f"  {w['channel']} at case {w['case']} ({w['error_kgf']:+.0f} kgf): {why}")
     if learned.get("stretched_segments"):
         lines.append("  segments lengthened: " + ", ".join(f"{k} x{f:.2f}" for k, f in learned["stretched_segments"].items()))

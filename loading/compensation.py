@@ -39,13 +39,15 @@ load case: what the neighbours do there differs). The law divides by the case's
 (``ŝ = 1`` until two passes ran with corrections :data:`SECANT_BANDS` tolerance bands apart:
 the feedforward makes the model follow its reference one to one). If the force answers by
 ``s``, the error after the next pass is ``(1 − γ·s/ŝ)·e_j``: with ``ŝ`` within a factor ``β`` of
-``s`` the error contracts by at least ``max(1 − γ/β, γβ − 1)`` per pass (γ = 0.8, the secant
-read to ``β ≈ 1.3``: ≤ 0.4; the first step, ``ŝ = 1``, contracts wherever ``0 < s < 2/γ``),
-down to the tolerance band, which bounds it with the sensor's noise. What the law cannot do it
+``s`` the error contracts by at least ``max(1 − γ/β, γβ − 1)`` per pass (γ = 0.8; with ``s``
+and ``ŝ`` both within [``s_min``, ``s_max``] = [0.5, 2], whatever the secant read: ≤ 0.6; the
+first step, ``ŝ = 1``, contracts wherever ``0 < s < 2/γ``), down to the tolerance band, which
+bounds it with the sensor's noise. What the law cannot do it
 says, per case (:attr:`ChannelCompensation.last`): ``band`` (within the band: kept), ``learning``,
 ``bound`` (the correction stopped at :data:`MAX_CORRECTION_SHARE`), ``back`` (worse than its
 best with no sensitivity to trust: back to the best correction, its gain halved) and
-``unreached`` (the force did not follow the level: the secant below ``s_min``; the correction
+``unreached`` (the force did not follow the level: the secant below
+:data:`UNREACHED_BELOW`, or of the other sign; the correction
 is kept at its best and what can reach the case learns instead: the segment arriving there
 runs :data:`STRETCH_STEP` times longer each pass, up to :data:`STRETCH_MAX`,
 :meth:`Compensation.timed`).
@@ -98,7 +100,12 @@ KINDS = ("peak", "valley", "rising", "falling")
 #: a rig's file: a table per channel
 STATION_SCHEMA = "hydrostand-rig-compensation/1"
 #: by load case: the sensitivity the law divides by stays within these
-SENSITIVITY_MIN, SENSITIVITY_MAX = 0.25, 4.0
+SENSITIVITY_MIN, SENSITIVITY_MAX = 0.5, 2.0
+#: by load case: a force that moved less than this share of its correction (or the other way)
+#: did not follow its level there (``unreached``), where its error is beyond this many tolerance
+#: bands (0.5 % of the range: a smaller one does not make a segment longer)
+UNREACHED_BELOW = 0.1
+UNREACHED_BANDS = 10
 #: by load case: a sensitivity is read from two passes whose corrections differ by at least this
 #: many tolerance bands (closer, the noise would be most of it)
 SECANT_BANDS = 4
@@ -229,10 +236,10 @@ class ChannelCompensation:
                 c0, e0 = case.before
                 if abs(ran - c0) >= SECANT_BANDS * band:
                     s = (err - e0) / (ran - c0)
-                    if s < SENSITIVITY_MIN:
+                    if s < UNREACHED_BELOW and abs(err) > UNREACHED_BANDS * band:
                         case.unreached = True
                     else:
-                        case.sensitivity, trusted = min(s, SENSITIVITY_MAX), True
+                        case.sensitivity, trusted = min(max(s, SENSITIVITY_MIN), SENSITIVITY_MAX), True
             if abs(err) < case.best[0]:
                 case.best = (abs(err), ran)
             if abs(err) <= band:
