@@ -85,14 +85,14 @@ import numpy as np
 from core.errors import ParameterError
 
 from .programme import SHAPE_MODES, STAND, shape_basis
-from .report import CASE_BAND_PCT, GATE_PCT
+from .report import GATE_PCT
 
 LEARNING_GAIN = 0.8
 #: a correction is at most this share of the programme's range: compensation trims turning
 #: points, it does not rewrite the programme (a larger error is the controller's or the model's)
 MAX_CORRECTION_SHARE = 0.05
 #: errors within this share of the programme's range leave their correction as it is
-TOLERANCE_SHARE = CASE_BAND_PCT / 100
+TOLERANCE_SHARE = 0.0005
 SCHEMA = "hydrostand-compensation/1"
 #: the turning points corrected: a channel's own peaks and valleys, and the levels it passes
 #: on the way at a station's load cases (rising or falling)

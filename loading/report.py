@@ -67,9 +67,9 @@ SCHEMA = "hydrostand-load/1"
 #: extra cycles are counted above this share of the programme's range (%)
 GATE_PCT = 0.5
 #: a load case is worse (or closer) than in the pass before when its largest deviation moved by
-#: more than this (% of a channel's range): the peak detector's noise, the learning's tolerance
-#: band (loading.compensation)
-CASE_BAND_PCT = 0.05
+#: more than this (% of a channel's range): what noise alone moves it by (a deviation reads two
+#: channels; the same pass again with other noise moved a case by up to 0.08 %, sd 0.03 %)
+CASE_BAND_PCT = 0.1
 
 
 @dataclass
