@@ -37,20 +37,19 @@ load case: what the neighbours do there differs). The law divides by the case's
            s_{min}, s_{max}\Big)
 
 (``ŝ = 1`` until two passes ran with corrections :data:`SECANT_BANDS` tolerance bands apart:
-the feedforward makes the model follow its reference one to one). If the force answers by
-``s``, the error after the next pass is ``(1 − γ·s/ŝ)·e_j``: with ``ŝ`` within a factor ``β`` of
-``s`` the error contracts by at least ``max(1 − γ/β, γβ − 1)`` per pass (γ = 0.8; with ``s``
-and ``ŝ`` both within [``s_min``, ``s_max``] = [0.5, 2], whatever the secant read: ≤ 0.6; the
-first step, ``ŝ = 1``, contracts wherever ``0 < s < 2/γ``), down to the tolerance band, which
-bounds it with the sensor's noise. What the law cannot do it
-says, per case (:attr:`ChannelCompensation.last`): ``band`` (within the band: kept), ``learning``,
-``bound`` (the correction stopped at :data:`MAX_CORRECTION_SHARE`), ``back`` (worse than its
-best with no sensitivity to trust: back to the best correction, its gain halved) and
-``unreached`` (the force did not follow the level: the secant below
-:data:`UNREACHED_BELOW`, or of the other sign; the correction
-is kept at its best and what can reach the case learns instead: the segment arriving there
-runs :data:`STRETCH_STEP` times longer each pass, up to :data:`STRETCH_MAX`,
-:meth:`Compensation.timed`).
+the feedforward makes the model follow its reference one to one). If the force answers a
+correction by ``s``, the error after the next pass is ``(1 − γ·s/ŝ)·e_j``: with ``ŝ`` within a
+factor ``β`` of ``s`` it shrinks by a factor of at most ``max(1 − γ/β, γβ − 1)`` per pass
+(γ = 0.8; with ``s`` and ``ŝ`` both within [``s_min``, ``s_max``] = [0.5, 2], whatever the
+secant read: 0.6; the first step, ``ŝ = 1``, wherever ``0 < s < 2/γ``), down to the tolerance
+band, the sensor's noise. What the law cannot do it says, per case
+(:attr:`ChannelCompensation.last`): ``band`` (within the band: kept), ``learning``, ``bound``
+(the correction stopped at :data:`MAX_CORRECTION_SHARE`), ``back`` (worse than its best with no
+sensitivity to trust: back to the best correction, its gain halved) and ``unreached`` (the force
+moved under :data:`UNREACHED_BELOW` of its correction, or the other way, while the case was off
+by more than :data:`UNREACHED_BANDS` bands): its correction is kept at its best and what can
+reach the case learns instead, the segment arriving there runs :data:`STRETCH_STEP` times longer
+each pass, up to :data:`STRETCH_MAX` (:meth:`Compensation.timed`).
 
 **The shape between load cases.** A level is reached at its load case's moment; between two
 the force can still run ahead and come back (a channel that moves little while its neighbours
@@ -69,9 +68,8 @@ learning from its own channel's turning points, in one file: a one-channel stand
 tables ``[peak]`` and ``[valley]`` (:data:`SCHEMA`), a rig's with a table per channel
 (``[channel.NAME.peak]``, ``[channel.NAME.valley]``; by load case ``[channel.NAME.case]``,
 ``"K" = {level, correction, sensitivity[, unreached]}`` for the K-th load case,
-``[channel.NAME.shape]``,
-``"K" = [modes]`` for the segment from load case K, and ``[stretch]``, the segments run
-longer: :data:`STATION_SCHEMA`).
+``[channel.NAME.shape]``, ``"K" = [modes]`` for the segment from load case K, and
+``[stretch]``, the segments run longer: :data:`STATION_SCHEMA`).
 """
 from __future__ import annotations
 
