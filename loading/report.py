@@ -377,7 +377,7 @@ class TrackingReport:
         lines.append(f"worst channel: {self.worst_channel}")
         if self.cases is not None:
             worst = sorted(self.cases, key=lambda c: -c.largest_pct)[:3]
-            lines.append(f"load cases: {len(self.cases)}, ratio deviation at a turning point: largest "
+            lines.append(f"load cases: {len(self.cases)}, deviation from the distribution: largest "
                          f"{self.ratio_error_pct:.3f} % of a channel's range"
                          + (f", p95 {np.percentile([c.largest_pct for c in self.cases], 95):.3f} %"
                             if self.cases else ""))
