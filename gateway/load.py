@@ -20,7 +20,7 @@ the pre-roll and the unload) beside that minimum, and the time spent pacing
 pass writes its blocks (``pass-N/gain.json``), the summary has ``gain``.
 
 Every channel's supervisor keeps its own tracking-error limit for these passes, unless one is
-given: :data:`ERROR_LIMIT_SHARE` of that channel's programme range (at least 100 kgf), so a
+given: :func:`~gateway.limits.programme_error_limit_kgf` of that channel's programme range, so a
 pass that cannot track stops safely (on a rig every channel with it) and says why. Everything
 that can be checked is checked before anything moves (:meth:`LoadProgramme.check`).
 """
@@ -42,11 +42,10 @@ from loading.programme import ChannelProgramme, Programme, as_programme
 from loading.report import TrackingReport, cases_table, load_summary, plot_tracking, tracking_report
 from loading.time_scaling import ScalingOptions, Schedule, TimeScaler, meets, stretch_to_valve
 
+from .limits import programme_error_limit_kgf
 from .load_experiment import LoadProgramme
 from .runs import load_run
 
-#: the supervisor's tracking-error limit when none is set: this share of the programme's range
-ERROR_LIMIT_SHARE = 0.10
 #: time scaling: at most this many stretches of the segments the valve cannot follow, per pass
 STRETCH_TRIES = 6
 #: the corrections the fastest pass that met the accuracy ran with, beside ``schedule.toml``
@@ -184,7 +183,8 @@ def run_load(gw, programme: Programme | ChannelProgramme, controller: Controller
              pacing: PacingOptions | None = None) -> LoadResult:
     """Run ``repeat`` passes of ``programme`` on the station behind ``gw`` (module docstring).
     ``error_limit_kgf``: every channel's tracking-error limit for these passes (default: each
-    supervisor's own, else :data:`ERROR_LIMIT_SHARE` of the channel's programme range).
+    supervisor's own, else :func:`~gateway.limits.programme_error_limit_kgf` of the channel's
+    programme range).
     ``schedule``: the load cases' segment durations to run (a ``schedule.toml``). ``scaling``:
     time scaling, at most ``repeat`` passes (:mod:`loading.time_scaling`). ``monitor``: every
     channel's gain estimated block by block, followed by the feedforward and watched for a fall
@@ -210,7 +210,7 @@ def run_load(gw, programme: Programme | ChannelProgramme, controller: Controller
     for s, lim, rng in zip(supervisors, own, programme.ranges_kgf):
         limit = error_limit_kgf if error_limit_kgf is not None else lim.error_limit_kgf
         if limit is None:
-            limit = max(ERROR_LIMIT_SHARE * rng, 100.0)
+            limit = programme_error_limit_kgf(rng)
         s.limits = replace(lim, error_limit_kgf=limit)
     out.mkdir(parents=True, exist_ok=True)
     (out / "controller.toml").write_text(controller.to_toml(out / "controller.toml"))

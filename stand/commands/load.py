@@ -21,7 +21,7 @@ DEFAULT_ACCURACY_PCT = 0.5
 #: then given its durations
 PLACEHOLDER_RATE_KGF_S = 1000.0
 
-from .common import add_effects, add_gateway, gateway_config, sigterm_as_interrupt
+from .common import add_effects, add_gateway, gateway_config, programme_error_limit, sigterm_as_interrupt
 
 
 def register(sub) -> None:
@@ -98,7 +98,7 @@ def register(sub) -> None:
                    help="force to unload to at the end, kgf (default %(default)s)")
     p.add_argument("--json", action="store_true",
                    help="print the tracking summary as JSON (schema hydrostand-load/1)")
-    add_gateway(p)
+    add_gateway(p, programme_error_limit("each channel's programme range"))
     g = p.add_argument_group("a rig of many channels (docs/loading.md, \"Loading a rig\")")
     g.add_argument("--rig", metavar="RIG.toml",
                    help="load every channel of a rig at once: PROGRAM is a load-case CSV (a column "
