@@ -219,7 +219,7 @@ class Planner:
         """A flight type's programme with its timing (the nominal: what its end points are
         judged against) and with its corrections (what is run)."""
         nominal = self.timing.programme(flight_type)
-        return nominal, nominal.with_levels(self.compensations[flight_type].levels(nominal))
+        return nominal, self.compensations[flight_type].commanded(nominal)
 
     def start(self, number: int, load_case: int, begun: bool, y0: np.ndarray) -> None:
         self.futures[number] = self.pool.submit(self._first, number, load_case, begun, np.array(y0, float))
