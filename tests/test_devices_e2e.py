@@ -130,3 +130,24 @@ def test_a_mapping_the_device_refuses_is_named_with_its_abort_code(start_emulato
     text = str(err.value)
     assert "the device refused 0x1A01:02 = 0x63010110 (TPDO2 mapping entry 2: 0x6301:01)" in text
     assert "SDO abort 0x06040041" in text and "cannot map this object" in text
+
+
+@pytest.mark.slow
+def test_the_pdo_set_up_is_on_the_wire_as_wireshark_reads_it(meander_runs):
+    """Wireshark's CANopen dissector (tshark) reads, in the capture's start-up, every SDO write
+    of the PDO set-up the plan made, in its order, each one complete, none aborted."""
+    from devices import plan_node
+    from tests.support.wire_check import check_captures, tshark_missing_reason
+    reason = tshark_missing_reason()
+    if reason:
+        pytest.skip(reason)
+    run = meander_runs["servotek"].path
+    figures = check_captures([run / "capture.log"])[0]
+    assert figures.malformed == 0 and not figures.sdo_aborted and not figures.sdo_open
+    devices = load_device_set(device_file("servotek"))
+    for device, node in ((devices.valve, 1), (devices.dynamometer, 2)):
+        plan = plan_node(device, node, period_s=0.002, heartbeat_ms=100,
+                         rpdo_timeout_ms=100 if device is devices.valve else 0)
+        wanted = [(w.index, w.sub) for w in plan.writes() if 0x1400 <= w.index <= 0x1BFF]
+        seen = [(t.index, t.subindex) for t in figures.downloads(0x1400, 0x1BFF) if t.node == node]
+        assert seen == wanted, (node, seen, wanted)
