@@ -22,8 +22,12 @@ Two guards, as commercial compensators have (a tolerance band, and never worse):
   whose error at a level is worse than that by more than the band goes back to that correction
   and halves the level's learning gain. So a stand whose response to a correction is larger
   than one to one, or a correction that upsets the segments beside it, costs at most one pass
-  at that level. This memory lives with the object (across ``stand load --repeat`` passes);
-  a file loaded later starts it afresh.
+  at that level. A pass run with the best correction measures the best anew: the same
+  correction can miss by more another time (an endurance test's flights start from what the
+  flight before left; a session's first glides in), and a best that cannot be had again would
+  send every later pass back to it, its gain halved each time, learning nothing. This memory
+  lives with the object (across ``stand load --repeat`` passes); a file loaded later starts it
+  afresh.
 
 **The pass's own corrections.** Each step starts from the corrections the pass ran with.
 ``stand load --repeat`` learns before it builds the next pass, so those are the object's. An
@@ -219,7 +223,7 @@ class ChannelCompensation:
             err = float(np.mean(errs))
             ran = applied[kind, key]
             best, best_c, gain = self.history.get((kind, key), (math.inf, ran, self.learning_gain))
-            if abs(err) < best:
+            if abs(err) < best or ran == best_c:       # better, or the best run again
                 best, best_c = abs(err), ran
             if abs(err) <= band:                       # within the tolerance band: keep it
                 new = ran
@@ -251,7 +255,7 @@ class ChannelCompensation:
                         case.unreached = True
                     else:
                         case.sensitivity, trusted = min(max(s, SENSITIVITY_MIN), SENSITIVITY_MAX), True
-            if abs(err) < case.best[0]:
+            if abs(err) < case.best[0] or ran == case.best[1]:     # better, or the best run again
                 case.best = (abs(err), ran)
             if abs(err) <= band:
                 new, status = ran, "band"
