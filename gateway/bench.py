@@ -4,7 +4,9 @@ found by LSS and given a node id, each matched against the device files the user
 1. **LSS** (CiA 305, canopen's LSS master): every device to waiting; then fastscan finds, bit
    by bit, the LSS address (vendor, product, revision, serial) of a device without a node id,
    which is given the next free node id and stores it; back to waiting it boots with it. Again
-   until none answers.
+   until none answers. A scan that found nothing while a device without a node id still answers
+   (identify non-configured slave, 0x4C) missed an answer (a slow device or host): it is scanned
+   again with a timeout four times longer, twice at the most.
 2. **SDO scan**: an expedited upload of the device type 0x1000 to every node id at once (1-127),
    the answers collected for a bounded time; then the identity 0x1018:01-04 of every node that
    answered, again all at once.
@@ -17,6 +19,7 @@ from __future__ import annotations
 
 import logging
 import os
+import queue
 import struct
 import threading
 import time
@@ -157,12 +160,11 @@ def lss_assign(network: canopen.Network, free_ids, timeout_s: float = 0.05,
     """Find every device without a node id by LSS fastscan and give each the next of
     ``free_ids``; returns (node id, LSS address) of each. The devices boot with their ids."""
     lss = network.lss
-    lss.RESPONSE_TIMEOUT = timeout_s
     lss.send_switch_state_global(lss.WAITING_STATE)
     out = []
     free = iter(free_ids)
     while True:
-        found, address = lss.fast_scan()
+        found, address = _fast_scan(lss, timeout_s)
         if not found:
             return out
         nid = next(free, None)
@@ -180,6 +182,38 @@ def lss_assign(network: canopen.Network, free_ids, timeout_s: float = 0.05,
             lss.send_switch_state_global(lss.WAITING_STATE)
         out.append((nid, tuple(address)))
         time.sleep(0.05)                        # its boot-up
+
+
+#: a fastscan that missed an answer is tried again this many times, each timeout this many times longer
+FASTSCAN_RETRIES, FASTSCAN_BACKOFF = 2, 4.0
+
+
+def _fast_scan(lss, timeout_s: float) -> tuple[bool, list | None]:
+    """One device's LSS address by fastscan (module doc); again with longer timeouts while a
+    device without a node id still answers."""
+    for attempt in range(FASTSCAN_RETRIES + 1):
+        lss.RESPONSE_TIMEOUT = timeout_s * FASTSCAN_BACKOFF ** attempt
+        found, address = lss.fast_scan()
+        if found:
+            return True, address
+        if attempt == FASTSCAN_RETRIES or not _unconfigured_answer(lss, max(0.2, lss.RESPONSE_TIMEOUT)):
+            return False, None
+        log.info("LSS: a device without a node id answers, but the fastscan missed it; scanning again")
+    return False, None
+
+
+def _unconfigured_answer(lss, timeout_s: float) -> bool:
+    """Whether any device without a node id answers *identify non-configured slave* (0x4C -> 0x50)."""
+    lss.responses = queue.Queue()                  # late answers of the scan are not this one's
+    lss.send_identify_non_configured_remote_slave()
+    deadline = time.monotonic() + timeout_s
+    while (left := deadline - time.monotonic()) > 0:
+        try:
+            if lss.responses.get(timeout=left)[0] == 0x50:
+                return True
+        except queue.Empty:
+            break
+    return False
 
 
 def match(nodes: list[FoundNode], device_sets: list[DeviceSet]) -> None:

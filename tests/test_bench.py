@@ -73,3 +73,41 @@ def test_each_nodes_dcf_is_the_configuration_the_gateway_sets(tmp_path):
         assert od[0x100C].value == 50
     assert (tmp_path / "stand.dbc").exists()
     assert "note: TPDO1's static mapping does not carry the actual spool position" in res.stdout
+
+
+class SlowDevice:
+    """A fresh device whose LSS answers come ``delay_s`` late (a slow device or a busy host):
+    the device side of the emulator (plant_emulator.lss) on a network of its own."""
+
+    def __init__(self, network, delay_s: float) -> None:
+        import threading
+
+        from plant_emulator.lss import LSS_MASTER, LssDevice
+        self.network, self.lock, self.took = network, threading.RLock(), None
+        self.lss = LssDevice(self, (0x0A17, 0x4080, 0x00010000, 0x1234))
+        send = self.lss._send
+        self.lss._send = lambda *p: threading.Timer(delay_s, send, p).start()
+        network.subscribe(LSS_MASTER, self.lss.on_request)
+
+    def take_node_id(self, node_id: int) -> None:
+        self.took = node_id
+
+
+def test_a_fastscan_that_missed_a_slow_devices_answers_scans_again_with_longer_timeouts():
+    import time
+    import uuid
+
+    from gateway.bench import lss_assign
+    from standbus import open_bus
+    spec = f"udp_loopback:lss-{uuid.uuid4().hex[:8]}"
+    master, device = canopen.Network(open_bus(spec)), canopen.Network(open_bus(spec))
+    master.connect(), device.connect()
+    try:
+        slow = SlowDevice(device, 0.12)                # later than 50 ms, within 4 x 50 = 200 ms
+        assigned = lss_assign(master, [5], timeout_s=0.05)
+        deadline = time.monotonic() + 2
+        while slow.took is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert assigned == [(5, (0x0A17, 0x4080, 0x00010000, 0x1234))] and slow.took == 5
+    finally:
+        master.disconnect(), device.disconnect()

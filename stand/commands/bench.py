@@ -98,6 +98,10 @@ def scan_main(args: argparse.Namespace) -> int:
           f"{result.seconds:.1f} s")
     text, left = skeleton_rig(result, args.bus,
                               base=Path(args.rig_out).resolve().parent if args.rig_out else None)
+    if "[[channel]]" not in text:
+        print("no channel: no valve drive was found with an amplifier of its device set ("
+              + "; ".join(left) + "); no rig file written", file=sys.stderr)
+        return 1
     if args.rig_out:
         Path(args.rig_out).write_text(text)
         print(f"skeleton rig file: {args.rig_out} (stand rig check {args.rig_out})")
