@@ -620,9 +620,11 @@ def start(test_file: "str | Path | EnduranceTest", testdir: str | Path, config, 
 def resume(testdir: str | Path, config, test_file: "str | Path | EnduranceTest | None" = None,
            flights: int | None = None,
            progress: bool | None = False, on_flight=None, hook=None,
-           started_at: float | None = None, publisher=None, found: str | None = None) -> SessionResult:
+           started_at: float | None = None, publisher=None, found: str | None = None,
+           more_flights: int | None = None) -> SessionResult:
     """The session that takes the test in ``testdir`` up again (module docstring). ``found``:
-    what the inspection after the trend's alarm found (:func:`run_session`)."""
+    what the inspection after the trend's alarm found (:func:`run_session`). ``flights``: a new
+    target; ``more_flights``: the target raised to that many flights more than are done."""
     started_at = time.time() if started_at is None else started_at
     testdir = Path(testdir)
     with Journal.open(testdir) as peek:
@@ -637,11 +639,13 @@ def resume(testdir: str | Path, config, test_file: "str | Path | EnduranceTest |
     check_test(test, config)
     journal = Journal.open(testdir, write=True)
     try:
+        if more_flights is not None:
+            flights = journal.flights_done + more_flights
         if flights is not None:
             journal.set_target(flights)
         if journal.state() == "finished":
             raise JournalError(f"{testdir}: the test is finished ({journal.flights_done} flights); "
-                               "resume --flights N raises its target")
+                               "resume --flights N (or +N) raises its target")
     except BaseException:
         journal.close()
         raise

@@ -222,6 +222,10 @@ def test_what_is_refused_before_anything_moves(tmp_path):
     assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
     assert "flight type C's load cases changed" in res.stderr
     assert "the rig file's ranges or force limits changed" in res.stderr
+    # a target that is not a whole number of flights, or fewer than one more
+    for bad in ("+0", "ten", "+x"):
+        res = stand("test", "resume", testdir, "--lockstep", "--flights", bad)
+        assert res.returncode == 2 and f"--flights {bad}: give a whole number >= 1" in res.stderr, res.stderr
     # a stop of a test no session runs; a status and a report of a directory without a test
     res = stand("test", "stop", testdir)
     assert res.returncode == 2 and "no session runs the test" in res.stderr

@@ -54,7 +54,8 @@ def register(sub) -> None:
     q.add_argument("testdir", metavar="TESTDIR")
     q.add_argument("--test", metavar="TEST.toml", dest="test_file",
                    help="the test file, if it moved since the start (default: the one it was started from)")
-    q.add_argument("--flights", type=int, metavar="N", help="a new target (at least the flights done)")
+    q.add_argument("--flights", metavar="N|+N",
+                   help="a new target (at least the flights done), or +N: N flights more than done")
     found = q.add_mutually_exclusive_group()
     found.add_argument("--inspected", dest="found", action="store_const", const="inspected",
                        help="after the trend's alarm: inspected, nothing to repair (the alarmed channels are "
@@ -148,6 +149,20 @@ def _flights(args) -> int | None:
     return args.flights
 
 
+def _resume_flights(text: str | None) -> tuple[int | None, int | None]:
+    """resume's ``--flights``: (a new target, None) for ``N``, (None, more) for ``+N``."""
+    if text is None:
+        return None, None
+    more = text.startswith("+")
+    try:
+        n = int(text[1:] if more else text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise ParameterError(f"--flights {text}: give a whole number >= 1 (a target), or +N (N flights more)")
+    return (None, n) if more else (n, None)
+
+
 def _finish(result) -> int:
     print(result.text())
     print(f"-> {result.testdir} (stand test status|report {result.testdir})")
@@ -194,14 +209,14 @@ def resume_main(args: argparse.Namespace) -> int:
     from endurance.testfile import load_test_file
     from pathlib import Path
     started = time.time()
-    flights = _flights(args)
+    flights, more = _resume_flights(args.flights)
     check_live_options(args)
     test = load_test_file(args.test_file or test_file_of(Path(args.testdir)))
     config = _config(args, test)
     feed = LiveFeed()
     with sigterm_as_interrupt(), live_page(args, args.testdir, "session"):
         result = resume(args.testdir, config, test, flights, on_flight=_on_flight(args), started_at=started,
-                        publisher=feed, found=args.found)
+                        publisher=feed, found=args.found, more_flights=more)
     return _finish(result)
 
 
