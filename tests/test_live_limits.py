@@ -159,7 +159,8 @@ def test_streams_are_bounded_per_address_and_a_viewer_that_stops_reading_loses_i
         try:
             stalled = connect(url, rcvbuf=4096)
             stalled.sendall(b"GET /live HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")   # and never reads
-            wait_for(lambda: guard.connections.total == 1, 10, "the stream open")
+            hub = serve.servers[0].hub                              # the stream, not only its connection
+            wait_for(lambda: hub is not None and hub.by_address["127.0.0.1"] == 1, 10, "the stream open")
             status, head, body = request(url + "live")              # the address has its one stream
             assert status == 503 and head["Retry-After"] == "10" and b"has 1 live streams open" in body
             good = StreamViewer(url, source="127.0.0.2")            # another address has its own
