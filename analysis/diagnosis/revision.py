@@ -11,8 +11,9 @@ the others warm) and judged against the current model on all windows. It is *kep
 * it has fewer parameters and the current model does not help over it (the criteria of
   :mod:`.significance`, k = the parameters saved): it explains as much with less;
 * it has as many parameters and a BIC lower by more than :data:`~.candidates.BIC_TIE`
-  (equal parameters: lower error); an alternative within that, neither helping over the other,
-  is an ambiguity these data leave (reported, with the experiment that would separate them);
+  (equal parameters: lower error); an alternative within that that leaves about as little
+  (within :data:`~plant.evidence.AMBIGUITY_RATIO`), neither helping over the other, is an
+  ambiguity these data leave (reported, with the experiment that would separate them);
 * it has more parameters, helps over the current model and lowers the BIC: it earns them;
 
 and only if the effect it brings in shows its own evidence
@@ -31,7 +32,7 @@ import numpy as np
 from plant import CATALOGUE, PlantModel
 from plant.catalogue import look_alikes
 from plant.contract import separating_experiment
-from plant.evidence import Ambiguity
+from plant.evidence import AMBIGUITY_RATIO, Ambiguity
 
 from ..identification.fit import REFIT_TOL, FitOptions, FitResult, fit_model
 from ..identification.windows import Piece, errors, residual
@@ -214,8 +215,11 @@ def _decide(a: Alternative, cur: Alternative, floor: float, n: int) -> None:
                  f"leaves more error ({ratio}: the current model helps over it)")
     elif extra == 0:
         a.kept = a.bic < cur.bic - BIC_TIE
-        tie = not (error_cut(a.window_sse, cur.window_sse, floor, n, 1).helps
-                   or error_cut(cur.window_sse, a.window_sse, floor, n, 1).helps)
+        # a tie: neither helps over the other, and each leaves about as little as the other
+        close = max(a.objective_rmse, cur.objective_rmse) <= AMBIGUITY_RATIO * min(
+            a.objective_rmse, cur.objective_rmse)
+        tie = close and not (error_cut(a.window_sse, cur.window_sse, floor, n, 1).helps
+                             or error_cut(cur.window_sse, a.window_sse, floor, n, 1).helps)
         a.why = (f"explains more with as many parameters ({ratio})" if a.kept else
                  f"a tie: as little error with as many parameters ({ratio})" if tie else
                  f"leaves more error ({ratio})")

@@ -175,8 +175,6 @@ REFIT_EVALS = 60
 ALTERNATIVE_RATIO = 0.8
 #: screening windows of a diagnosis, at most (:func:`.verdict.diagnose`'s default)
 MAX_SCREEN_WINDOWS = 150
-#: the build-up goes on from a model the end's revision changed at most this often
-MAX_REVISED_ENDS = 2
 
 
 @one_blas_thread
@@ -214,25 +212,17 @@ def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
                      + ("kept, it ends closer to the noise" if better else "dropped, it ends no closer"))
             if better:
                 up = other
-    # the end: every added effect tried in place of its look-alikes and left out; when that
-    # changes a model that was not adequate, the build-up goes on from there
+    # the end: every added effect tried in place of its look-alikes (left out, each is refitted
+    # by the backward check below); a build-up stuck above the noise did it already
     revision = None
     final_fit = up.steps[-1].diagnosis.base_fit
-    for _ in range(MAX_REVISED_ENDS):
-        checked = run.added(final_fit.model)
-        if not checked:
-            break
+    checked = run.added(final_fit.model)
+    if checked and up.verdict != "unexplained":
         say("trying each added effect in place of its look-alikes")
-        # left out, each is refitted by the backward check below
         revision = revise(final_fit, checked, windows.full, windows.screen,
                           up.steps[-1].diagnosis.objective_floor, jobs, say, drops=False,
                           tried=run.tried)
         final_fit = revision.fit
-        if not revision.kept or up.verdict == "adequate":
-            break
-        up.steps[-1].revision = revision
-        up = run.forward(final_fit.model, up.steps)
-        final_fit, revision = up.steps[-1].diagnosis.base_fit, None
     steps, verdict = up.steps, up.verdict
     last = steps[-1].diagnosis
     needed: list[Needed] = []
@@ -294,6 +284,8 @@ class _BuildUpRun:
     windows: Windows
     #: the revisions' changes tried so far (:func:`.revision.revise`)
     tried: set = field(default_factory=set)
+    #: the models a build-up was stuck at and tried to get past (revised, fitted afresh)
+    unstuck: set = field(default_factory=set)
 
     def added(self, model: PlantModel) -> list[str]:
         """The effects of ``model`` a build-up added (or carried from an earlier one)."""
@@ -303,7 +295,8 @@ class _BuildUpRun:
         """The build-up from ``current`` (reached by ``steps``) to its end. After each effect
         added, the effects added before it that it looks like are revised
         (:func:`.revision.revise`): tried in place of their look-alikes and left out, with it
-        in place."""
+        in place. Stuck above the noise (no candidate helps), every added effect is revised so,
+        and if that changes nothing, every candidate is fitted afresh (once per model)."""
         steps = list(steps)
         verdict = "max_effects"
         while True:
@@ -319,9 +312,21 @@ class _BuildUpRun:
                         diagnosis=d)
             steps.append(step)
             c, why = pick(d)
-            if c is None and d.verdict == "unexplained" and self.added(current):
-                # stuck above the noise: the effects in may have settled where a missing one
-                # should be (a boost that took up a resonance's ringing with a longer delay)
+            stuck = c is None and d.verdict == "unexplained" and self.added(current)
+            if stuck and current.spec not in self.unstuck:
+                self.unstuck.add(current.spec)
+                # stuck above the noise: first every added effect tried in place of its
+                # look-alikes and left out; if nothing changes, every candidate fitted afresh
+                # (the effects in may have settled where a missing one should be: a boost that
+                # took up a resonance's ringing with a longer delay)
+                self.say("stuck: trying each added effect in place of its look-alikes")
+                step.why = why
+                step.revision = revise(d.base_fit, self.added(current), self.windows.full,
+                                       self.windows.screen, floor, self.jobs, self.say,
+                                       tried=self.tried)
+                if step.revision.kept:
+                    current = step.revision.fit.model
+                    continue
                 self.say(f"fitting every candidate to {current.spec} afresh")
                 again = diagnose(self.records, d.base_fit.model, window_s=self.window_s,
                                  effects=todo, progress=self.say, jobs=self.jobs, fitted=True,
@@ -342,7 +347,8 @@ class _BuildUpRun:
             # the diagnosis weighed +c against the other candidates and against the model
             # without it: the revisions need not fit those changes again
             have = frozenset(e.name for e in c.fit.model.effects)
-            self.tried.update((have, c.effect, x.effect) for x in d.candidates if x is not c)
+            self.tried.update((have, c.effect, x.effect) for x in step.diagnosis.candidates
+                              if x is not c)
             self.tried.add((have, c.effect, None))
             current = c.fit.model
             # the earlier effects whose role the new one may have taken: its look-alikes
