@@ -312,6 +312,7 @@ class _BuildUpRun:
                         diagnosis=d)
             steps.append(step)
             c, why = pick(d)
+            afresh = False
             stuck = c is None and d.verdict == "unexplained" and self.added(current)
             if stuck and current.spec not in self.unstuck:
                 self.unstuck.add(current.spec)
@@ -334,6 +335,7 @@ class _BuildUpRun:
                 c, why = pick(again)
                 if c is not None:
                     step.diagnosis, why = again, f"fitted afresh (every parameter searched): {why}"
+                    afresh = True
             if c is not None and len(self.added(current)) >= self.max_effects:
                 step.why = (f"stopped after {self.max_effects} added effects (--max-effects); "
                             f"next: {c.effect}")
@@ -351,9 +353,10 @@ class _BuildUpRun:
                               if x is not c)
             self.tried.add((have, c.effect, None))
             current = c.fit.model
-            # the earlier effects whose role the new one may have taken: its look-alikes
+            # the earlier effects whose role the new one may have taken: its look-alikes (all
+            # of them after a candidate fitted afresh: the others may have settled for it)
             earlier = [e for e in self.added(current) if e != c.effect
-                       and c.effect in look_alikes(e)]
+                       and (afresh or c.effect in look_alikes(e))]
             if earlier:
                 self.say(f"revising {', '.join('+' + e for e in earlier)} with +{c.effect} in place")
                 step.revision = revise(c.fit, earlier, self.windows.full, self.windows.screen,

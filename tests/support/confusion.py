@@ -26,10 +26,12 @@ from tests.support.records import EQUIVALENT
 
 #: the simulator's law for each catalogue effect: another parameterization or mechanism with
 #: the same physics (a play in the rod's travel for the seal's play in force, a sensor lag ahead
-#: of the noise, a supply that sags with its own time constant, a drift linear in time, ...)
+#: of the noise, a supply that sags with its own time constant, a drift linear in time, two
+#: delays for a delay and its extra one, ...). Not ``dirdelay``: its queue of changes is other
+#: physics under a smooth command (a rise waits behind the falls queued before it)
 LAW = {"null_drift": "nulldrift", "lag": "lag", "resonance": "res", "slew": "slew",
        "deadzone": "deadzone", "saturation": "saturation", "backlash": "backlash",
-       "direction_delay": "dirdelay", "flow_curve": "flownl", "asymmetry": "asymmetry",
+       "direction_delay": "dirlatch", "flow_curve": "flownl", "asymmetry": "asymmetry",
        "supply": "supply", "gain_drift": "gaindrift", "reversal": "rev_flow",
        "command_reversal": "rev_cmd", "travel_reversal": "rev_force", "load_pressure": "loadpress",
        "stiffness": "stiffening", "unloading": "softload", "leakage": "leakage",

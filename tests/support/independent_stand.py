@@ -38,6 +38,11 @@ One hidden effect per simulation (or "none"), or several joined by "+":
              zero force: rate x 0.85 when sign(q) = sign(y)
   dirdelay   the command reaches the valve 35 ms after it steps up and 70 ms after it steps down
              (each change of the held command is applied after its own delay, in order; replaces tau)
+  dirlatch   the valve follows a rising command 35 ms late and a falling one 70 ms late, the
+             earlier one first (no queue: a fall that reaches it before the rise before it ends
+             the rise): it sits at the highest command that reached it within the fall's
+             extra 35 ms (replaces tau). Under steps it is dirdelay; under a smooth command
+             dirdelay's queue holds a rise back behind the falls still in it
   slew       the spool moves at most 400 %/s (a rate limit after the delay, instead of a lag)
   res        second-order valve/actuator after the delay: 6 Hz, damping 0.2 (rings)
   supply     supply pressure sags with the flow drawn: dps/dt = (1 - ps)/T - c*|q|/100, flow x
@@ -92,6 +97,7 @@ EFFECT_PARAMS = {
     "stiction": dict(w=200.0),
     "softload": dict(soft=0.15),
     "dirdelay": dict(up=0.035, down=0.070),
+    "dirlatch": dict(up=0.035, down=0.070),
     "slew": dict(rate=400.0),
     "res": dict(f=6.0, zeta=0.2),
     "supply": dict(T=1.0, c=1.5),
@@ -211,6 +217,12 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
                 while applied and applied[0][0] <= i:
                     valve_in = applied.pop(0)[1]
                 v = valve_in
+            if "dirlatch" in es:         # the extreme that reached the valve in the extra delay
+                dl = P["dirlatch"]
+                first = i - int(round(min(dl["up"], dl["down"]) / H))
+                spread = int(round(abs(dl["down"] - dl["up"]) / H))
+                held = ucmd[max(first - spread, 0) // SUB:first // SUB + 1] if first >= 0 else [0.0]
+                v = (max if dl["down"] > dl["up"] else min)(held)
             if "nulldrift" in es:
                 v += P["nulldrift"]["b"] * t
             # valve chain

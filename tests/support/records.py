@@ -67,4 +67,4 @@ EQUIVALENT = {"rev_flow": {"reversal"}, "rev_cmd": {"command_reversal"},
               "valve2nd": {"resonance"},        # the same law at 25 Hz, ζ = 0.5
               "slew": {"slew"}, "supply": {"supply"}, "gaindrift": {"gain_drift"},
               "nulldrift": {"null_drift"},
-              "lostmotion": {"stiction"}}       # a play in the rod's travel: one in force
+              "lostmotion": {"stiction"}, "dirlatch": {"direction_delay"}}       # a play in the rod's travel: one in force
