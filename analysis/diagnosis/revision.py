@@ -107,13 +107,15 @@ def _fit_alternative(shared: tuple, change: tuple[str, str | None]) -> FitResult
 def revise(fit: FitResult, effects: Sequence[str], full: Sequence[Piece],
            screen: Sequence[Piece], floor: float, jobs: int | None = None,
            say: Callable[[str], None] | None = None, drops: bool = True,
-           tried: set | None = None) -> Revision:
+           tried: set | None = None, idle: Sequence[str] = ()) -> Revision:
     """Try every effect of ``effects`` (in ``fit``'s model) in place of each of its look-alikes
     and left out (``drops``), keep what the module docstring says, and repeat from the model
     kept. ``full``: all windows (the judging ones); ``screen``: those a look-alike is fitted on
     (the diagnosis's screening windows); ``floor``: the objective's noise floor. ``tried``:
     the changes tried before (the effects of the model, the change), skipped here and added to:
-    a change rejected for a model with the same effects is not fitted again."""
+    a change rejected for a model with the same effects is not fitted again. ``idle``: effects
+    that did not help added to ``fit``'s model; one of them is not tried in place of an effect
+    with as few parameters (it could only explain more there, and does not on top of it)."""
     say = say or (lambda msg: None)
     tried = set() if tried is None else tried
     n = sum(p.n_eval for p in full)
@@ -128,7 +130,9 @@ def revise(fit: FitResult, effects: Sequence[str], full: Sequence[Piece],
         changes = [(e, alike) for e in effects if e in have
                    for alike in look_alikes(e) + ([None] if drops else []) if alike not in have]
         changes = [c for c in changes if _spec(current.model, c) not in visited
-                   and (frozenset(have), *c) not in tried]
+                   and (frozenset(have), *c) not in tried
+                   and not (current is fit and c[1] in idle
+                            and len(CATALOGUE[c[1]].params) >= len(CATALOGUE[c[0]].params))]
         tried.update((frozenset(have), *c) for c in changes)
         if not changes:
             break

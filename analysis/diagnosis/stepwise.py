@@ -219,9 +219,10 @@ def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
     checked = run.added(final_fit.model)
     if checked and up.verdict != "unexplained":
         say("trying each added effect in place of its look-alikes")
-        revision = revise(final_fit, checked, windows.full, windows.screen,
-                          up.steps[-1].diagnosis.objective_floor, jobs, say, drops=False,
-                          tried=run.tried)
+        last = up.steps[-1].diagnosis
+        revision = revise(final_fit, checked, windows.full, windows.screen, last.objective_floor,
+                          jobs, say, drops=False, tried=run.tried,
+                          idle=[c.effect for c in last.candidates if not c.helps])
         final_fit = revision.fit
     steps, verdict = up.steps, up.verdict
     last = steps[-1].diagnosis
