@@ -24,6 +24,7 @@ left), until none is kept.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -57,6 +58,8 @@ class Alternative:
     bic: float
     kept: bool = False
     why: str = ""                 #: why it was kept, or not
+    #: as many parameters and about as little error, neither helping over the other
+    tie: bool = False
     fit: FitResult | None = field(default=None, repr=False)
     window_sse: np.ndarray | None = field(default=None, repr=False)
 
@@ -93,10 +96,9 @@ def _fit_alternative(shared: tuple, change: tuple[str, str | None]) -> FitResult
     the effect polished on all windows (a task for :func:`run_each`)."""
     full, screen, model = shared
     removed, added = change
-    names = [e.name for e in model.effects if e.name != removed] + ([added] if added else [])
     values = {k: v for k, v in model.params().items() if not k.startswith(removed + ".")}
     try:
-        m0 = PlantModel.from_spec("+".join(["base"] + names), values)
+        m0 = PlantModel.from_spec(_spec(model, change), values)
     except Exception:  # noqa: BLE001 - a look-alike that cannot start from here is skipped
         return None
     if added is None:
@@ -146,7 +148,7 @@ def revise(fit: FitResult, effects: Sequence[str], full: Sequence[Piece],
             alternatives.append(_judged(f, w, n, *change))
         for a in alternatives:
             _decide(a, cur, floor, n)
-            if not a.kept and a.added and a.free_params == cur.free_params and "tie" in a.why:
+            if a.tie:
                 pair = [a.removed, a.added]
                 if not any(set(t.effects) == set(pair) for t in ties):
                     ties.append(Ambiguity(pair, (
@@ -179,6 +181,7 @@ def revise(fit: FitResult, effects: Sequence[str], full: Sequence[Piece],
 
 
 def _spec(model: PlantModel, change: tuple[str, str | None]) -> str:
+    """The spec of ``model`` with ``change`` (effect removed, look-alike added or None)."""
     removed, added = change
     names = [e.name for e in model.effects if e.name != removed] + ([added] if added else [])
     return PlantModel.from_spec("+".join(["base"] + names)).spec
@@ -186,7 +189,6 @@ def _spec(model: PlantModel, change: tuple[str, str | None]) -> str:
 
 def _fit_all(changes, full, screen, model, jobs):
     """Every change fitted, in worker processes when the work is worth it."""
-    import time
     t0 = time.perf_counter()
     residual(model, screen)
     work = (time.perf_counter() - t0) * EVALS_PER_ALTERNATIVE * len(changes)
@@ -222,10 +224,11 @@ def _decide(a: Alternative, cur: Alternative, floor: float, n: int) -> None:
         # a tie: neither helps over the other, and each leaves about as little as the other
         close = max(a.objective_rmse, cur.objective_rmse) <= AMBIGUITY_RATIO * min(
             a.objective_rmse, cur.objective_rmse)
-        tie = close and not (error_cut(a.window_sse, cur.window_sse, floor, n, 1).helps
-                             or error_cut(cur.window_sse, a.window_sse, floor, n, 1).helps)
+        a.tie = not a.kept and close and not (
+            error_cut(a.window_sse, cur.window_sse, floor, n, 1).helps
+            or error_cut(cur.window_sse, a.window_sse, floor, n, 1).helps)
         a.why = (f"explains more with as many parameters ({ratio})" if a.kept else
-                 f"a tie: as little error with as many parameters ({ratio})" if tie else
+                 f"a tie: as little error with as many parameters ({ratio})" if a.tie else
                  f"leaves more error ({ratio})")
     else:
         cut = error_cut(a.window_sse, cur.window_sse, floor, n, extra)
