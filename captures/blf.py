@@ -41,7 +41,7 @@ from can.io.blf import (CAN_ERROR_EXT, CAN_FD_MESSAGE, CAN_FD_MESSAGE_64, CAN_ME
 from can.util import dlc2len
 
 from .candump import open_binary
-from .frames import ERROR, EXTENDED, FD, REMOTE, TX, CaptureError, Damage, FrameChunk, ReadStats
+from .frames import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, TX, CaptureError, Damage, FrameChunk, ReadStats
 
 DEFAULT_CHUNK_BYTES = 1 << 20
 _SIG = np.frombuffer(b"LOBJ", "<u4")[0]
@@ -359,7 +359,8 @@ def _decode_run(b, p, stride, m, hsize, osize, otype, start_ts, stats) -> FrameC
         length = np.minimum(valid, 64).astype(np.uint8)
         data = np.where(np.arange(64)[None, :] < length[:, None], data, 0).astype(np.uint8)
         flags = (np.where(ident & 0x80000000, EXTENDED, 0) | np.where(mflags & 0x80, REMOTE, 0)
-                 | np.where(mflags & 0x1, TX, 0) | np.where(fd_flags & 0x1, FD, 0)).astype(np.uint8)
+                 | np.where(mflags & 0x1, TX, 0) | np.where(fd_flags & 0x1, FD, 0)
+                 | np.where(fd_flags & 0x2, BRS, 0) | np.where(fd_flags & 0x4, ESI, 0)).astype(np.uint8)
     else:  # CAN_FD_MESSAGE_64
         channel = _field(b, p, stride, m, h, "u1").astype(np.uint16)
         valid = _field(b, p, stride, m, h + 2, "u1")
@@ -376,7 +377,8 @@ def _decode_run(b, p, stride, m, hsize, osize, otype, start_ts, stats) -> FrameC
         data = np.where(np.arange(64)[None, :] < length[:, None], data, 0).astype(np.uint8)
         length = valid.astype(np.uint8)      # python-can pads missing bytes with zeros
         flags = (np.where(ident & 0x80000000, EXTENDED, 0) | np.where(fd_flags & 0x0010, REMOTE, 0)
-                 | np.where(direction, TX, 0) | np.where(fd_flags & 0x1000, FD, 0)).astype(np.uint8)
+                 | np.where(direction, TX, 0) | np.where(fd_flags & 0x1000, FD, 0)
+                 | np.where(fd_flags & 0x2000, BRS, 0) | np.where(fd_flags & 0x4000, ESI, 0)).astype(np.uint8)
     chans = np.unique(channel)
     names = [str(int(c) - 1) for c in chans]
     return FrameChunk(ts, ident & 0x1FFFFFFF, flags, length, data,

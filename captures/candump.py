@@ -33,7 +33,7 @@ from typing import Iterator
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from .frames import (CAN_ERR_FLAG, ERROR, EXTENDED, FD, REMOTE, TX, CaptureError, Damage,
+from .frames import (BRS, CAN_ERR_FLAG, ERROR, ESI, EXTENDED, FD, REMOTE, TX, CaptureError, Damage,
                      FrameChunk, ReadStats)
 
 DEFAULT_CHUNK_BYTES = 1 << 20
@@ -488,7 +488,8 @@ def parse_line(line: bytes) -> tuple | None:
     if data.startswith("#"):
         if len(data) < 2 or data[1] not in "0123456789ABCDEFabcdef":
             raise ValueError(f"CAN FD frame {frame[:40]!r} lacks its flags digit")
-        flags |= FD
+        fd_flags = int(data[1], 16)          # CANFD_BRS 1, CANFD_ESI 2 (linux/can.h)
+        flags |= FD | BRS * bool(fd_flags & 1) | ESI * bool(fd_flags & 2)
         data = data[2:]
     payload = b""
     if data[:1] in ("R", "r"):

@@ -105,6 +105,13 @@ class RunInfo:
         return dict(self.__dict__)
 
 
+def _take(values: np.ndarray, index: np.ndarray, has: np.ndarray, fill):
+    """``values[index]`` where ``has``, else ``fill`` (also where there are no values at all)."""
+    if not len(values):
+        return np.full(len(index), fill, dtype=np.result_type(values.dtype, np.asarray(fill).dtype))
+    return np.where(has, values[np.maximum(index, 0)], fill)
+
+
 def empty_rows() -> dict[str, np.ndarray]:
     return {c: np.empty(0, _DTYPES[c]) for c in COLUMNS}
 
@@ -191,9 +198,11 @@ class CycleAssembler:
         self.command_msg = decoder.find_signal(self.sig.command)
         self.sync_msg = decoder.message(self.sig.sync_message)
         self.has_force_status = any(x.name == self.sig.force_status for x in self.force_msg.signals)
+        #: a valve that does not send its spool position (its run's spool column is NaN)
+        self.has_spool = any(x.name == self.sig.spool for x in self.valve_msg.signals)
         self.wanted = {
             self.force_msg.name: [self.sig.force] + ([self.sig.force_status] if self.has_force_status else []),
-            self.valve_msg.name: [self.sig.status_word, self.sig.spool],
+            self.valve_msg.name: [self.sig.status_word] + ([self.sig.spool] if self.has_spool else []),
             self.command_msg.name: [self.sig.control_word, self.sig.command],
             self.sync_msg.name: [],
         }
@@ -235,7 +244,7 @@ class CycleAssembler:
         if self.valve_msg.name in decoded:
             d = decoded[self.valve_msg.name]
             self.V.add(base + d.index, d.ts, status=d.raw[self.sig.status_word].astype(np.int64),
-                       f_spool=d.phys[self.sig.spool])
+                       f_spool=d.phys[self.sig.spool] if self.has_spool else np.full(len(d.index), np.nan))
         if self.command_msg.name in decoded:
             d = decoded[self.command_msg.name]
             self.R.add(base + d.index, d.ts, cw=d.raw[self.sig.control_word].astype(np.int64),
@@ -472,7 +481,7 @@ class CycleAssembler:
         sel = r_first[(r_seg[r_first] >= lo) & (r_seg[r_first] < hi)]
         r_map[r_seg[sel] - lo] = sel
         has_r = r_map >= 0
-        cw = np.where(has_r, self.R.v["cw"][np.maximum(r_map, 0)], -1)
+        cw = _take(self.R.v["cw"], r_map, has_r, -1)
         is_row = has_r & (cw == self.sig.active_control_word)
         if closing and len(g) and has_r[-1] and not is_row[-1]:
             # a trip: the gateway recorded its last cycle with the safe command it sent
@@ -481,8 +490,8 @@ class CycleAssembler:
             if int(safe.sum()) >= SAFE_REPEATS and safe[r_map[-1]]:
                 is_row[-1] = True
                 run.trip_cycle = True
-        r_order = np.where(has_r, self.R.order[np.maximum(r_map, 0)], np.iinfo(np.int64).max)
-        r_ts = np.where(has_r, self.R.ts[np.maximum(r_map, 0)], np.inf)
+        r_order = _take(self.R.order, r_map, has_r, np.iinfo(np.int64).max)
+        r_ts = _take(self.R.ts, r_map, has_r, np.inf)
         realtime = run.clock == "realtime"
 
         def fresh_values(ev: _Events, assigned: np.ndarray):

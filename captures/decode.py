@@ -18,6 +18,7 @@ run directory per run (``OUT`` for one run, ``OUT/run-000``, ``OUT/run-001``, ..
 from __future__ import annotations
 
 import datetime as _dt
+import json
 import os
 import shutil
 import sys
@@ -316,6 +317,28 @@ class _NoCycles:
         return []
 
 
+def run_dbc(capture: Path, nodes: tuple[int, int] | None = None) -> Path | None:
+    """The DBC a run directory keeps beside its capture for devices other than the emulated
+    pair (run.json ``files.dbc``: one file, or a rig's file per channel, found by its node
+    ids ``nodes``); None: the stand's DBC."""
+    meta_path = capture.parent / META_FILE
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, ValueError):
+        return None
+    files = meta.get("files") or {}
+    dbc = files.get("dbc")
+    if isinstance(dbc, str):
+        return capture.parent / dbc
+    if isinstance(dbc, dict):
+        for ch in (meta.get("rig") or {}).get("channels", []):
+            ids = ((ch.get("nodes") or {}).get("valve", {}).get("id"),
+                   (ch.get("nodes") or {}).get("dynamometer", {}).get("id"))
+            if (nodes is None or tuple(nodes) == ids) and ch.get("name") in dbc:
+                return capture.parent / dbc[ch["name"]]
+    return None
+
+
 def decode_capture(path: str | Path, out: str | Path | None = None, *, collect: bool = True,
                    partition_rows: int | None = None, frames_dir: str | Path | None = None,
                    progress: bool = False, trace: bool = False, options: DecodeOptions | None = None,
@@ -334,6 +357,8 @@ def decode_capture(path: str | Path, out: str | Path | None = None, *, collect: 
     opts = options or DecodeOptions(**option_kwargs)
     opts.validate()
     path = Path(path)
+    if opts.dbc is None:
+        opts.dbc = run_dbc(path, opts.nodes)
     reader = open_capture(path, opts.chunk_bytes, opts.on_damage)
     fmt = capture_format(path)
     decoder = FrameDecoder(opts.dbc, channel=opts.channel)

@@ -18,6 +18,8 @@ REMOTE = 0x02
 ERROR = 0x04
 FD = 0x08
 TX = 0x10          #: the capturing station sent the frame (candump " T", BLF direction Tx)
+BRS = 0x20         #: CAN FD: bit rate switch (candump flags digit 1, BLF, python-can)
+ESI = 0x40         #: CAN FD: error state indicator of the sender (candump flags digit 2, ...)
 
 CAN_ERR_FLAG = 0x20000000   #: SocketCAN error-frame flag in a candump id
 
@@ -71,6 +73,7 @@ class FrameChunk:
     ts : float64 (n,)      timestamp, s (absolute when the format has it: candump, BLF)
     can_id : uint32 (n,)   arbitration id without flag bits (11 or 29 bits)
     flags : uint8 (n,)     :data:`EXTENDED` | :data:`REMOTE` | :data:`ERROR` | :data:`FD` | :data:`TX`
+                           | :data:`BRS` | :data:`ESI` (the last two on CAN FD frames only)
     dlc : uint8 (n,)       number of data bytes
     data : uint8 (n, w)    payload, zero-padded; w = 8 (classic CAN) or 64 (CAN FD)
     channel : int16 (n,)   index into :attr:`channels`

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
-from .frames import ERROR, EXTENDED, FD, REMOTE, TX, CaptureError, Damage, FrameChunk, ReadStats
+from .frames import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, TX, CaptureError, Damage, FrameChunk, ReadStats
 
 if TYPE_CHECKING:
     import can
@@ -88,7 +88,8 @@ def messages_to_chunk(messages: list[can.Message]) -> FrameChunk:
             names.append(name)
         chan[i] = names.index(name)
         flags[i] = (EXTENDED * m.is_extended_id | REMOTE * m.is_remote_frame | ERROR * m.is_error_frame
-                    | FD * m.is_fd | TX * (not m.is_rx))
+                    | FD * m.is_fd | TX * (not m.is_rx)
+                    | BRS * (m.is_fd and m.bitrate_switch) | ESI * (m.is_fd and m.error_state_indicator))
     return FrameChunk(np.array([m.timestamp for m in messages], np.float64),
                       np.array([m.arbitration_id for m in messages], np.uint32), flags,
                       np.array([m.dlc if m.is_remote_frame else len(m.data) for m in messages], np.uint8),

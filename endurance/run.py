@@ -88,7 +88,7 @@ import numpy as np
 
 from core.durable import write_json
 from core.errors import ParameterError, StandError
-from gateway.load import ERROR_LIMIT_SHARE
+from gateway.limits import programme_error_limit_kgf
 from gateway.load_experiment import LoadProgramme
 from loading.compensation import ChannelCompensation, Compensation
 from loading.report import tracking_report
@@ -219,7 +219,7 @@ class Planner:
         """A flight type's programme with its timing (the nominal: what its end points are
         judged against) and with its corrections (what is run)."""
         nominal = self.timing.programme(flight_type)
-        return nominal, nominal.with_levels(self.compensations[flight_type].levels(nominal))
+        return nominal, self.compensations[flight_type].commanded(nominal)
 
     def start(self, number: int, load_case: int, begun: bool, y0: np.ndarray) -> None:
         self.futures[number] = self.pool.submit(self._first, number, load_case, begun, np.array(y0, float))
@@ -782,14 +782,14 @@ def _interlock_event(writer: JournalWriter, stop: StopRequest, flight: Callable[
 
 def _error_limits(gw, test: EnduranceTest) -> Callable[[], None]:
     """Every channel's tracking-error limit for the session, unless the gateway's options set
-    one: :data:`gateway.load.ERROR_LIMIT_SHARE` of the channel's largest range over the flight
-    types (at least 100 kgf). Returns what puts them back."""
+    one: :func:`gateway.limits.programme_error_limit_kgf` of the channel's largest range over the
+    flight types. Returns what puts them back."""
     sups = [ch.supervisor for ch in gw.loop.channels]
     own = [s.limits for s in sups]
     ranges = np.max([ft.programme.ranges_kgf for ft in test.flight_types.values()], axis=0)
     for s, lim, rng in zip(sups, own, ranges):
         if lim.error_limit_kgf is None:
-            s.limits = replace(lim, error_limit_kgf=max(ERROR_LIMIT_SHARE * float(rng), 100.0))
+            s.limits = replace(lim, error_limit_kgf=programme_error_limit_kgf(rng))
 
     def restore() -> None:
         for s, lim in zip(sups, own):

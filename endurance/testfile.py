@@ -47,8 +47,8 @@ which order, how far, and what watches it.
 
 **A stand** is a station of one channel: ``station = "stand"`` with an optional ``[stand]``
 table (``period_ms`` 2, ``range_kgf`` 10,000, ``force_limit_kgf`` 9,500: the stand's defaults);
-its channel is named ``level``, the column of a one-channel turning-point CSV, so a flight
-type's CSV is ``level`` (or ``case,level``) as for ``stand load``.
+its one channel is named ``stand`` (:data:`STAND_CHANNEL`, as the emulator names it), and a
+flight type's CSV names its column ``level`` (or ``case,level``) as for ``stand load``.
 
 Everything is checked on reading: the station's file, the controller (for the station's
 channels and period), every flight type's load cases (within each channel's force limit), the

@@ -92,7 +92,60 @@ class CandumpLines:
         return "".join(out)
 
 
-class BusCapture(can.Listener):
+class CaptureTap(can.Listener):
+    """Something that takes a network's frames, received and sent: attached first in line to
+    its notifier (so frames come in the order received) and as its capture."""
+
+    def attach(self, network: "TappedNetwork") -> None:
+        """Capture every frame ``network`` receives (first, in the order received) and sends."""
+        notifier = network.notifier
+        if isinstance(notifier, HandoverNotifier):
+            notifier.tap = self.on_frames
+        else:
+            notifier.listeners.insert(0, self)
+        network.capture = self
+
+    def detach(self, network: "TappedNetwork") -> None:
+        network.capture = None
+        notifier = network.notifier
+        if isinstance(notifier, HandoverNotifier) and notifier.tap is not None:
+            notifier.tap = None
+        else:
+            notifier.remove_listener(self)
+
+
+class StartupCapture(CaptureTap):
+    """The frames of the start-up (boot-ups, identity, the configuration's SDO transfers, node
+    guarding), kept in memory while the gateway connects, so that each run's capture can begin
+    with them (:meth:`BusCapture.write_first`): the traffic a user needs when a device will not
+    start. Attached and detached as a :class:`BusCapture` is."""
+
+    def __init__(self) -> None:
+        self.items: list = []
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.items.append(msg)
+
+    def on_sent(self, msg: can.Message) -> None:
+        self.items.append(msg)
+
+    def on_frames(self, stamp: float, frames, received: bool, channel=None) -> None:
+        self.items.append((stamp, tuple(frames), received, channel))
+
+    @property
+    def frames(self) -> int:
+        return sum(len(i[1]) if isinstance(i, tuple) else 1 for i in self.items)
+
+    @property
+    def last_stamp(self) -> float | None:
+        if not self.items:
+            return None
+        last = self.items[-1]
+        return last[0] if isinstance(last, tuple) else last.timestamp
+
+
+
+class BusCapture(CaptureTap):
     """Queue frames and write them from a background thread: formatted every ``batch_s``,
     flushed to the file every ``flush_s``. Frames come as Messages (:meth:`on_message_received`,
     :meth:`on_sent`) or raw, a datagram's worth at a time (:meth:`on_frames`)."""
@@ -126,6 +179,11 @@ class BusCapture(can.Listener):
 
     def on_sent(self, msg: can.Message) -> None:
         self._queue.put(msg)
+
+    def write_first(self, startup: StartupCapture | None) -> None:
+        """Begin the file with the start-up's frames (call before :meth:`attach`)."""
+        for item in startup.items if startup is not None else ():
+            self._queue.put(item)
 
     def on_frames(self, stamp: float, frames, received: bool, channel=None) -> None:
         """Raw frames (:mod:`standbus.wire`) received or sent at ``stamp`` on ``channel``. The
@@ -227,24 +285,6 @@ class BusCapture(can.Listener):
         else:
             self._writer.stop()
 
-    def attach(self, network: "TappedNetwork") -> None:
-        """Capture every frame ``network`` receives (first, in the order received) and sends."""
-        notifier = network.notifier
-        if isinstance(notifier, HandoverNotifier):
-            notifier.tap = self.on_frames
-        else:
-            notifier.listeners.insert(0, self)
-        network.capture = self
-
-    def detach(self, network: "TappedNetwork") -> None:
-        network.capture = None
-        notifier = network.notifier
-        if isinstance(notifier, HandoverNotifier) and notifier.tap is not None:
-            notifier.tap = None
-        else:
-            notifier.remove_listener(self)
-
-
 def read_capture(path: str | Path) -> Iterator[can.Message]:
     """The frames of a candump ``.log`` capture, tolerating what a crash leaves behind: a last
     line without its newline is dropped instead of being parsed as a shorter frame."""
@@ -333,8 +373,14 @@ class TappedNetwork(canopen.Network):
         return stamp
 
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
-        msg = can.Message(is_extended_id=can_id > 0x7FF, arbitration_id=can_id, data=data,
-                          is_remote_frame=remote, is_rx=False, channel=self._channel())
+        self.send_raw_message(can.Message(is_extended_id=can_id > 0x7FF, arbitration_id=can_id,
+                                          data=data, is_remote_frame=remote))
+
+    def send_raw_message(self, msg: can.Message) -> None:
+        """A frame made by the caller (a remote frame with its DLC: node guarding), sent and
+        captured as :meth:`send_message`'s."""
+        msg.is_rx = False
+        msg.channel = self._channel()
         capture = self.capture
         with self.send_lock:
             if capture is not None:  # captured as handed to the bus: before the answers to it

@@ -4,6 +4,7 @@ the plant; nothing here opens the bus."""
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -16,6 +17,7 @@ from .experiments.base import check_range
 from .limits import SafetyLimits
 
 if TYPE_CHECKING:
+    from devices import DeviceSet
     from rig.config import ChannelConfig, RigConfig
 
 #: how long the master waits for a node's SDO answer (canopen's default is 0.3 s, with no
@@ -51,6 +53,9 @@ class GatewayConfig:
     #: a rig: what a channel's communication or valve fault does to the other channels: hold
     #: them all, or unload them keeping the load ratios (docs/safety.md)
     fault_action: str = "hold"
+    #: the stand's valve drive and amplifier (:mod:`devices`; None: the emulated pair); a rig's
+    #: come from its channels
+    devices: "DeviceSet | None" = None
 
     def __post_init__(self) -> None:
         if self.rig is not None:
@@ -60,6 +65,13 @@ class GatewayConfig:
     def channel_limits(self, channel: "ChannelConfig") -> SafetyLimits:
         """A rig channel's limits: the shared ones with the channel's own force limit."""
         return dataclasses.replace(self.limits, force_limit_kgf=channel.limit_kgf)
+
+    def life_time_factor(self) -> int:
+        """Node guarding: a guarded node's life time in guard times (``heartbeat_ms``), as long
+        as the master's own timeout for its answers (the supervisor's heartbeat timeout), at
+        least 3: a node must not give its master up sooner than the master gives it up."""
+        timeout_ms = 1000 * self.limits.resolved(self.lockstep).heartbeat_timeout_s
+        return max(3, min(255, math.ceil(timeout_ms / self.heartbeat_ms)))
 
     def validate(self) -> None:
         if self.fault_action not in FAULT_ACTIONS:

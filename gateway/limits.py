@@ -14,6 +14,16 @@ ACTIONS = ("indicate", "hold", "unload", "zero")
 #: the heartbeat consumer's timeout unless set, in real time and in lockstep
 HEARTBEAT_TIMEOUT_REALTIME_S = 0.35
 HEARTBEAT_TIMEOUT_LOCKSTEP_S = 1.0
+#: a loading programme's tracking-error limit unless one is given (``stand load``, ``stand
+#: test``): this share of the channel's programme range, at least :data:`ERROR_LIMIT_MIN_KGF`
+ERROR_LIMIT_SHARE = 0.10
+ERROR_LIMIT_MIN_KGF = 100.0
+
+
+def programme_error_limit_kgf(range_kgf: float) -> float:
+    """The tracking-error limit of a channel whose programme spans ``range_kgf`` when none is
+    given: :data:`ERROR_LIMIT_SHARE` of it, at least :data:`ERROR_LIMIT_MIN_KGF`."""
+    return max(ERROR_LIMIT_SHARE * float(range_kgf), ERROR_LIMIT_MIN_KGF)
 
 
 @dataclass

@@ -20,7 +20,7 @@ the pre-roll and the unload) beside that minimum, and the time spent pacing
 pass writes its blocks (``pass-N/gain.json``), the summary has ``gain``.
 
 Every channel's supervisor keeps its own tracking-error limit for these passes, unless one is
-given: :data:`ERROR_LIMIT_SHARE` of that channel's programme range (at least 100 kgf), so a
+given: :func:`~gateway.limits.programme_error_limit_kgf` of that channel's programme range, so a
 pass that cannot track stops safely (on a rig every channel with it) and says why. Everything
 that can be checked is checked before anything moves (:meth:`LoadProgramme.check`).
 """
@@ -33,20 +33,19 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import ParameterError
-from loading.compensation import Compensation
+from loading.compensation import UNREACHED_BELOW, Compensation
 from loading.design import ControllerDesign
 from loading.gain_monitor import GainMonitor, MonitorOptions
 from loading.minimum_time import FEEDFORWARD_SHARE, minimum_durations_s, programme_flow_limit
 from loading.pacing import PacingOptions
 from loading.programme import ChannelProgramme, Programme, as_programme
-from loading.report import TrackingReport, load_summary, plot_tracking, tracking_report
+from loading.report import TrackingReport, cases_table, load_summary, plot_tracking, tracking_report
 from loading.time_scaling import ScalingOptions, Schedule, TimeScaler, meets, stretch_to_valve
 
+from .limits import programme_error_limit_kgf
 from .load_experiment import LoadProgramme
 from .runs import load_run
 
-#: the supervisor's tracking-error limit when none is set: this share of the programme's range
-ERROR_LIMIT_SHARE = 0.10
 #: time scaling: at most this many stretches of the segments the valve cannot follow, per pass
 STRETCH_TRIES = 6
 #: the corrections the fastest pass that met the accuracy ran with, beside ``schedule.toml``
@@ -107,10 +106,18 @@ class LoadResult:
     converged: bool | None = None
     #: the gain monitor of the passes (None: not watched)
     monitor: GainMonitor | None = None
+    #: per channel, what the first pass's feedforward inverts of its model and what it does
+    #: not (left to the feedback and the learning)
+    feedforward: dict | None = None
+    #: per pass, what the compensation learnt from it by load case (Compensation.learned)
+    learned: list = field(default_factory=list)
 
     def summary(self) -> dict:
-        d = load_summary(self.passes, self.end_reason or "complete",
-                         [t.figures() for t in self.timings[:len(self.passes)]])
+        extras = [t.figures() for t in self.timings[:len(self.passes)]]
+        for x, learned in zip(extras, self.learned):
+            if learned is not None:
+                x["learned"] = learned
+        d = load_summary(self.passes, self.end_reason or "complete", extras)
         d["runs"] = [str(p) for p in self.run_dirs]
         if self.end_message:
             d["end_message"] = self.end_message
@@ -122,6 +129,8 @@ class LoadResult:
             d["converged"] = self.converged
         if self.monitor is not None:
             d["gain"] = self.monitor.summary()
+        if self.feedforward is not None:
+            d["feedforward"] = self.feedforward
         return d
 
 
@@ -174,7 +183,8 @@ def run_load(gw, programme: Programme | ChannelProgramme, controller: Controller
              pacing: PacingOptions | None = None) -> LoadResult:
     """Run ``repeat`` passes of ``programme`` on the station behind ``gw`` (module docstring).
     ``error_limit_kgf``: every channel's tracking-error limit for these passes (default: each
-    supervisor's own, else :data:`ERROR_LIMIT_SHARE` of the channel's programme range).
+    supervisor's own, else :func:`~gateway.limits.programme_error_limit_kgf` of the channel's
+    programme range).
     ``schedule``: the load cases' segment durations to run (a ``schedule.toml``). ``scaling``:
     time scaling, at most ``repeat`` passes (:mod:`loading.time_scaling`). ``monitor``: every
     channel's gain estimated block by block, followed by the feedforward and watched for a fall
@@ -200,11 +210,11 @@ def run_load(gw, programme: Programme | ChannelProgramme, controller: Controller
     for s, lim, rng in zip(supervisors, own, programme.ranges_kgf):
         limit = error_limit_kgf if error_limit_kgf is not None else lim.error_limit_kgf
         if limit is None:
-            limit = max(ERROR_LIMIT_SHARE * rng, 100.0)
+            limit = programme_error_limit_kgf(rng)
         s.limits = replace(lim, error_limit_kgf=limit)
     out.mkdir(parents=True, exist_ok=True)
     (out / "controller.toml").write_text(controller.to_toml(out / "controller.toml"))
-    result = LoadResult(out, compensation=comp, monitor=watcher)
+    result = LoadResult(out, compensation=comp, monitor=watcher, feedforward=first.feedforward_covers())
     passes = _Passes(gw, controller, unload_kgf, learn, progress, result, pacing)
     try:
         if scaling is not None:
@@ -212,12 +222,14 @@ def run_load(gw, programme: Programme | ChannelProgramme, controller: Controller
         else:
             last = None
             for i in range(1, repeat + 1):
-                experiment = first if i == 1 else check_load(gw.config, programme, controller, comp,
-                                                             unload_kgf, watcher, pacing)
-                done = passes.run(experiment, programme, minimum, i)
+                # where a level was not reached, its segment runs longer (not under a schedule)
+                current = comp.timed(programme) if comp is not None and schedule is None else programme
+                experiment = first if i == 1 and current is programme else check_load(
+                    gw.config, current, controller, comp, unload_kgf, watcher, pacing)
+                done = passes.run(experiment, current, minimum, i)
                 if done is None:
                     break
-                last = (programme, done)
+                last = (current, done)
     finally:
         for s, lim in zip(supervisors, own):
             s.limits = lim
@@ -270,9 +282,13 @@ class _Passes:
         result.passes.append(report)
         (res.path / "tracking.json").write_text(json.dumps(report.to_dict(), indent=1) + "\n")
         comp = result.compensation
+        learned = None
         if comp is not None and self.learn:
             comp.learn(report.channels, programme.ranges_kgf)
             comp.save(result.out / "compensation.toml")
+            if report.cases is not None:
+                learned = comp.learned(programme.case_labels)
+        result.learned.append(learned)
         return t, Y
 
 
@@ -371,10 +387,41 @@ def segment_peaks(e: LoadProgramme) -> np.ndarray:
     return peaks
 
 
+def feedforward_text(covers: dict) -> str:
+    """Per channel, what the feedforward inverts of the controller's model and what it leaves
+    to the feedback and the learning (``LoadProgramme.feedforward_covers``)."""
+    lines = ["feedforward from the controller's model (what it inverts; what it does not, left to the "
+             "feedback and the learning):"]
+    for name, c in covers.items():
+        lines.append(f"  {name}: inverts {', '.join(c['inverts']) or 'nothing'}"
+                     + (f"; not {', '.join(c['does_not_invert'])}" if c["does_not_invert"] else ""))
+    return "\n".join(lines)
+
+
+def learned_text(learned: dict) -> str:
+    """One pass's learning by load case in a few lines (``Compensation.learned``)."""
+    counts = ", ".join(f"{k} {v}" for k, v in learned["statuses"].items() if v)
+    lines = [f"learnt by load case (channel and case): {counts}"]
+    for w in learned["not_learning"]:
+        why = {"bound": "its correction is at the bound (5 % of the range)",
+               "back": "worse than its best, no sensitivity to trust: back to the best correction",
+               "unreached": f"the force did not follow the level (it moved under {UNREACHED_BELOW:.0%} of "
+                            "a correction): the segment arriving there runs longer"}[w["status"]]
+        lines.append(f"  {w['channel']} at case {w['case']} ({w['error_kgf']:+.0f} kgf): {why}")
+    if learned.get("stretched_segments"):
+        lines.append("  segments lengthened: " + ", ".join(f"{k} x{f:.2f}" for k, f in learned["stretched_segments"].items()))
+    return "\n".join(lines)
+
+
 def _write_reports(result: LoadResult, programme: Programme, last) -> None:
     out = result.out
-    lines = [f"pass {i}:\n{t.text()}\n{p.text()}" for i, (p, t) in enumerate(zip(result.passes, result.timings),
-                                                                               start=1)]
+    lines = [feedforward_text(result.feedforward)] if result.feedforward is not None else []
+    for i, (p, t) in enumerate(zip(result.passes, result.timings), start=1):
+        learned = result.learned[i - 1] if i - 1 < len(result.learned) else None
+        lines.append(f"pass {i}:\n{t.text()}\n{p.text()}" + (f"\n{learned_text(learned)}" if learned else ""))
+    table = cases_table(result.passes)
+    if table:
+        lines.append(table)
     if result.end_reason not in (None, "complete"):
         lines.append(f"pass {len(result.run_dirs)} stopped ({result.end_reason}): {result.end_message}")
     if result.monitor is not None:

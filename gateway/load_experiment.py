@@ -324,8 +324,7 @@ class LoadProgramme(RigExperiment):
         self.names = list(programme.names)
         self.n = programme.n
         T = programme.period_s
-        self.commanded = (programme.with_levels(compensation.levels(programme))
-                          if compensation is not None else programme)
+        self.commanded = compensation.commanded(programme) if compensation is not None else programme
         model = controller.model
         self.trends = np.array([m.delta for m in model.channels])
         R = self.commanded.r_kgf
@@ -356,7 +355,8 @@ class LoadProgramme(RigExperiment):
         self.max_command_pct = controller.command_limit_pct
         self.law = PIFeedforward([c.kp_pct_per_kgf for c in controller.channels],
                                  [c.ti_s for c in controller.channels], T,
-                                 controller.command_limit_pct, controller.M)
+                                 controller.command_limit_pct, controller.M,
+                                 share_integral=controller.feedforward == "rig")
         if self.n == 1:
             self.approach = SetPointLine(self.reference[:, 0], settle_gain, settle_limit_pct,
                                          settle_tolerance_kgf, settle_max_s)
@@ -449,6 +449,13 @@ class LoadProgramme(RigExperiment):
                 **({"pacing_min_speed": self.pacing.min_speed, "pacing_timeout_s": self.pacing.timeout_s}
                    if self.pacing.on else {}),
                 **({"gain_monitor": dict(vars(self.monitor.options))} if self.monitor is not None else {})}
+
+    def feedforward_covers(self) -> dict:
+        """Per channel (by name): ``inverts``, what the feedforward inverts of the controller's
+        model (its trend and force terms, G⁻¹ on a rig, its FLOW and invertible VALVE effects),
+        and ``does_not_invert``, what it cannot (left to the feedback and the learning)."""
+        return {n: {"inverts": list(f.inverted), "does_not_invert": list(f.not_inverted)}
+                for n, f in zip(self.names, self.ff[1.0].channels)}
 
     @property
     def feedforward_pct(self) -> np.ndarray:

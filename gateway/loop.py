@@ -213,9 +213,9 @@ class ControlLoop:
             for layout, is_force in ((m.force_tpdo, True), (m.valve_tpdo, False)):
                 self._route[layout.cob_id + ch.bus * KEY_STRIDE] = (i, is_force)
                 self._layouts[ch.bus][layout.cob_id] = layout
-            self._force_pos.append(m.force_tpdo.position(*P.PV_INT32))
-            self._status_pos.append(m.valve_tpdo.position(P.STATUS_WORD, 0))
-            self._spool_pos.append(m.valve_tpdo.position(*P.ACTUAL_VALUE))
+            self._force_pos.append(m.force_pos)
+            self._status_pos.append(m.status_pos)
+            self._spool_pos.append(m.spool_pos)
         self._callbacks = [self._tpdo_callback(b) for b in range(len(self.networks))]
         #: per bus, the TPDOs' own handlers for the bus's notifier (raw frames, no Message)
         self._fast = [{cob: self._fast_tpdo(b, cob, layout) for cob, layout in layouts.items()}
@@ -282,9 +282,10 @@ class ControlLoop:
     # -- helpers ---------------------------------------------------------------------------------
     def send_command(self, control_word: int, u_pct: float, channel: int = 0) -> float:
         """Send a valve RPDO; returns the command as it went on the wire (quantized, %)."""
-        counts = P.percent_to_counts(u_pct)
+        setpoint = self.channels[channel].master.setpoint
+        counts = setpoint.counts(u_pct)
         self.channels[channel].master.send_valve_command(control_word, counts)
-        return P.counts_to_percent(counts)
+        return setpoint.percent(counts)
 
     def safe_state(self, action: str = "hold", channels=None) -> float:
         """Zero setpoint and every valve (or those of ``channels``) to HOLD (its hold setpoint:
@@ -447,7 +448,12 @@ class ControlLoop:
         next_arrival = self._next_arrival
         take_arrival = self._arrivals.get_nowait
         overrun_limit = sups[0].limits.overrun_limit_s
-        percent_to_counts, counts_to_percent = P.percent_to_counts, P.counts_to_percent
+        #: each channel's setpoint scale (counts at 100 %) and, for a REAL32 process value,
+        #: its counts of one last digit (y_counts)
+        to_counts = [c.master.setpoint.counts for c in chans]
+        to_percent = [c.master.setpoint.percent for c in chans]
+        real_counts = [c.master.force_counts_per_unit for c in chans]
+        spool_scale = [c.master.setpoint.percent_per_count for c in chans]
         CW_ACTIVE = P.CW_ACTIVE
         wall_stamps: bool | None = None
         #: lockstep: the next cycle's SYNC, sent after this cycle's commands (its counter,
@@ -580,14 +586,16 @@ class ControlLoop:
                         continue
                     i, is_force = route[key]
                     if is_force:
-                        y_counts[i] = c = values[force_pos[i]]
+                        c = values[force_pos[i]]
                         ys[i] = c * scales[i]
+                        y_counts[i] = c if real_counts[i] is None else _real_counts(c, real_counts[i])
                         if not got_force[i]:
                             got_force[i] = True
                             missing -= watched[i]
                     else:
                         statuses[i] = values[status_pos[i]]
-                        spools[i] = counts_to_percent(values[spool_pos[i]])
+                        if spool_pos[i] is not None:
+                            spools[i] = values[spool_pos[i]] * spool_scale[i]
                         if not got_valve[i]:
                             got_valve[i] = True
                             missing -= watched[i]
@@ -693,8 +701,8 @@ class ControlLoop:
                                 v = sups[i].shape_command(us_req[i])
                                 if v != shaped[i]:       # (a held command: its counts as before)
                                     shaped[i] = v
-                                    shaped_counts[i] = percent_to_counts(v)
-                                    shaped_pct[i] = counts_to_percent(shaped_counts[i])
+                                    shaped_counts[i] = to_counts[i](v)
+                                    shaped_pct[i] = to_percent[i](shaped_counts[i])
                                 frames.append(masters[i].valve_frame(CW_ACTIVE, shaped_counts[i]))
                                 us[i] = shaped_pct[i]
                             if frames and not lockstep:
@@ -930,3 +938,14 @@ def _sleep_until(target: float, pump=None) -> None:
             return
         if remaining > _SPIN_S:
             time.sleep(remaining - _SPIN_S)
+
+
+_INT32_MAX = 2**31 - 1
+
+
+def _real_counts(value: float, per_unit: float) -> int:
+    """A REAL32 process value as the run's ``y_counts``: in its unit's last digit, rounded and
+    clipped to INT32 (NaN or infinite: 0)."""
+    if not math.isfinite(value):
+        return 0
+    return int(max(-_INT32_MAX, min(_INT32_MAX, round(value * per_unit))))

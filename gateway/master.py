@@ -1,17 +1,23 @@
-"""The gateway as CANopen master of the stand: NMT, identity check, PDO set-up (CiA 301).
+"""The gateway as CANopen master of a channel: NMT, identity check, configuration (CiA 301/302).
 
-Start-up, in the order a careful master does it:
+Each node is the device its device file describes (:mod:`devices`: the EDS and the role
+table; by default the emulated valve and dynamometer of dbc/). Start-up, in the order a careful
+master does it:
 
-1. reset both nodes (NMT reset node) and wait for their boot-up messages;
-2. read the identity object 0x1018 over SDO and compare it with the EDS (wrong node id, wrong
-   device or wrong EDS are refused with a message naming the node);
-3. write the communication cycle period 0x1006, the heartbeat producer time 0x1017 and the RPDO
-   timeout, and read back the PDO mappings (canopen's ``tpdo.read()``/``rpdo.read()``), checking
-   that they carry the objects the control loop needs;
-4. read the dynamometer's unit and decimals (0x6131/0x6132) to scale its process value to kgf;
-5. NMT start, and confirm OPERATIONAL from the heartbeats; meanwhile a hold command (zero
-   setpoint) goes to the valve every 20 ms, so its RPDO timeout (armed when it enters
-   OPERATIONAL) never fires before the control loop's first command.
+1. reset the nodes (NMT reset node) and wait for their boot-up messages;
+2. read the identity object 0x1018 over SDO and compare it with the device's EDS and the
+   revisions its file accepts (a wrong node id or device is refused with a message naming the
+   node and what was expected);
+3. configure each node from its plan (:func:`devices.plan.plan_node`, carried out by
+   :mod:`gateway.configure`): error control (heartbeat producer, or node guarding where the
+   device has no heartbeat: :mod:`gateway.guarding`), the period, the device mode, the cyclic
+   PDOs written where the mapping is dynamic and checked where it is static, every one read
+   back; the RPDO timeout where the valve has one;
+4. read the amplifier's unit and decimals (or take its device file's) to scale its process value
+   to kgf, and the valve's setpoint reference;
+5. NMT start, and confirm OPERATIONAL from the heartbeats (or guard answers); meanwhile a hold
+   command (zero setpoint) goes to the valve every 20 ms, so its RPDO timeout (armed when it
+   enters OPERATIONAL) never fires before the control loop's first command.
 
 Only frames from the two nodes reach the canopen stack: the master declares their ids and data
 lengths to the network's acceptance filter (EMCY 8, SDO 8, heartbeat 1, each TPDO its mapped
@@ -19,22 +25,24 @@ size once read); anything else is counted and dropped (:class:`gateway.capture.T
 """
 from __future__ import annotations
 
-import contextlib
 import logging
 import threading
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import canopen
+from canopen.objectdictionary import REAL32
 
-from dbc import DYNAMOMETER_EDS, VALVE_EDS
 from dbc import profile as P
-from dbc.pdo_codec import PdoLayout, PdoLayoutError
+from dbc.pdo_codec import PdoLayout
+from devices import DYNAMOMETER, VALVE, Device, DeviceSet, default_devices, plan_node
+from devices.units import SetpointScale
 
+from . import configure as C
 from .capture import TappedNetwork
 from .config import SDO_TIMEOUT_S
 from .errors import NodeError
+from .guarding import NodeGuarding
 
 log = logging.getLogger(__name__)
 
@@ -49,10 +57,26 @@ class NodeLink:
 
     role: str                     #: "valve" or "dynamometer"
     node: canopen.RemoteNode
+    device: Device = field(default_factory=lambda: default_devices().valve)
     identity: dict = field(default_factory=dict)
-    last_heartbeat: float | None = None   #: monotonic time of the last heartbeat
+    last_heartbeat: float | None = None   #: monotonic time of the last heartbeat (or guard answer)
     nmt_state: int | None = None
     booted: threading.Event = field(default_factory=threading.Event)
+    #: what the start-up set on the node and what it lacks (:class:`gateway.configure.NodeSetup`)
+    setup: C.NodeSetup = field(default_factory=C.NodeSetup)
+    #: node guarding: ask the node for its state now (None: it sends heartbeats)
+    poll: object = None
+    #: node guarding: the last answer's toggle bit, and answers whose toggle did not alternate
+    toggle: int | None = None
+    toggle_errors: int = 0
+
+    @property
+    def guarded(self) -> bool:
+        return self.device.error_control == "guarding"
+
+    @property
+    def label(self) -> str:
+        return C.node_label(self.role, self.id, self.device)
 
     @property
     def id(self) -> int:
@@ -60,18 +84,21 @@ class NodeLink:
 
 
 class StandMaster:
-    """Master of the valve and dynamometer nodes on one :class:`TappedNetwork`."""
+    """Master of the valve and dynamometer nodes of one channel on one :class:`TappedNetwork`;
+    ``devices``: which devices they are (default: the emulated pair of dbc/)."""
 
     def __init__(self, network: TappedNetwork, valve_id: int, dynamometer_id: int,
-                 sdo_timeout_s: float = SDO_TIMEOUT_S) -> None:
+                 sdo_timeout_s: float = SDO_TIMEOUT_S, devices: DeviceSet | None = None) -> None:
         if valve_id == dynamometer_id:
             raise NodeError(valve_id, "the valve and the dynamometer cannot have the same node id")
         for nid in (valve_id, dynamometer_id):
             if not 1 <= nid <= 127:
                 raise NodeError(nid, f"node id {nid} is outside 1..127")
         self.network = network
-        self.valve = NodeLink("valve", canopen.RemoteNode(valve_id, str(VALVE_EDS)))
-        self.dynamometer = NodeLink("dynamometer", canopen.RemoteNode(dynamometer_id, str(DYNAMOMETER_EDS)))
+        self.devices = devices = devices or default_devices()
+        self.valve = NodeLink(VALVE, canopen.RemoteNode(valve_id, str(devices.valve.eds)), devices.valve)
+        self.dynamometer = NodeLink(DYNAMOMETER, canopen.RemoteNode(dynamometer_id, str(devices.dynamometer.eds)),
+                                    devices.dynamometer)
         self.links = (self.valve, self.dynamometer)
         for link in self.links:
             link.node.sdo.RESPONSE_TIMEOUT = sdo_timeout_s
@@ -88,9 +115,18 @@ class StandMaster:
         self.valve_tpdo: PdoLayout | None = None
         self.valve_rpdo: PdoLayout | None = None
         self.force_tpdo: PdoLayout | None = None
+        #: the positions in those layouts of what the loop reads and writes (``spool_pos`` None:
+        #: the valve's actual spool position is not received)
+        self.force_pos = self.status_pos = self.cw_pos = self.setpoint_pos = 0
+        self.spool_pos: int | None = None
+        #: a REAL32 process value: counts of one last digit per unit (y_counts), else None
+        self.force_counts_per_unit: float | None = None
+        #: the valve's setpoint (and actual spool position) in counts: 100 % = its full scale
+        self.setpoint = SetpointScale()
         self.lockstep_capable: bool | None = None
         #: the stand's clock object 0x2100 (0 real time, 1 lockstep), None if it has none
         self.stand_clock: int | None = None
+        self.guarding: NodeGuarding | None = None
 
     def _heartbeat_callback(self, link: NodeLink):
         def on_heartbeat(can_id: int, data: bytes, timestamp: float) -> None:
@@ -100,7 +136,13 @@ class StandMaster:
             link.last_heartbeat = time.monotonic()
             link.nmt_state = state
             if state == 0:
+                link.toggle = None      # a boot-up: guarding's toggle starts again at 0
                 link.booted.set()
+            elif link.poll is not None:                 # a guard answer: its toggle alternates
+                toggle = data[0] >> 7
+                if link.toggle is not None and toggle == link.toggle:
+                    link.toggle_errors += 1
+                link.toggle = toggle
         return on_heartbeat
 
     # -- 1. boot ----------------------------------------------------------------------------------
@@ -111,95 +153,119 @@ class StandMaster:
     # -- 2. identity --------------------------------------------------------------------------------
     def check_identity(self) -> None:
         for link in self.links:
-            info = link.node.object_dictionary.device_information
-            with sdo_errors(link, "cannot read its identity (0x1018) over SDO"):
-                vendor = link.node.sdo[P.IDENTITY][1].raw
-                product = link.node.sdo[P.IDENTITY][2].raw
-                revision = link.node.sdo[P.IDENTITY][3].raw
-                serial = link.node.sdo[P.IDENTITY][4].raw
-            link.identity = dict(vendor=vendor, product=product, revision=revision, serial=serial)
-            if (vendor, product) != (info.vendor_number, info.product_number):
-                raise NodeError(
-                    link.id,
-                    f"node {link.id} is not the expected {link.role}: identity vendor 0x{vendor:08X} "
-                    f"product 0x{product:08X}, but {link.node.object_dictionary.device_information.product_name!r} "
-                    f"has vendor 0x{info.vendor_number:08X} product 0x{info.product_number:08X}. "
-                    "Check --valve-id/--dynamometer-id (swapped node ids?) and the EDS files.")
+            link.identity = link.setup.identity = C.check_identity(link.node, link.role, link.device)
 
     # -- 3./4. configuration ------------------------------------------------------------------------
-    def configure(self, period_s: float, heartbeat_ms: int, rpdo_timeout_ms: int) -> None:
-        period_us = int(round(period_s * 1e6))
+    def configure(self, period_s: float, heartbeat_ms: int, rpdo_timeout_ms: int,
+                  life_time_factor: int = 3) -> None:
+        """Configure both nodes from their device files (the module doc's steps 3-4); a
+        guarded node's life time is ``life_time_factor`` guard times (``heartbeat_ms``)."""
         for link in self.links:
-            sdo = link.node.sdo
-            with sdo_errors(link, "configuration over SDO failed"):
-                sdo[P.COMM_CYCLE_PERIOD].raw = period_us
-                sdo[P.PRODUCER_HEARTBEAT].raw = heartbeat_ms
-                link.node.tpdo.read()
-                if link is self.valve:
-                    sdo[0x1400][5].raw = rpdo_timeout_ms
-                    link.node.rpdo.read()
+            plan = self._plan(link, period_s, heartbeat_ms, rpdo_timeout_ms, life_time_factor)
+            C.write_plan(link.node, link.label, plan)
+            setup = link.setup
+            setup.plan = plan
+            setup.tpdo = C.read_back(link.node, link.label, plan.tpdo)
+            setup.rpdo = C.read_back(link.node, link.label, plan.rpdo) if plan.rpdo else None
+            setup.notes = list(plan.notes)
+        guarded = [link for link in self.links if link.guarded]
+        if guarded:
+            self.guarding = NodeGuarding(self.network, guarded, heartbeat_ms / 1000.0).start()
         self._set_layouts()
-        dyn = self.dynamometer.node.sdo
-        with sdo_errors(self.dynamometer, "cannot read its unit/decimals (0x6131/0x6132)"):
-            unit = dyn[P.PV_UNIT[0]][P.PV_UNIT[1]].raw
-            decimals = dyn[P.PV_DECIMALS[0]][P.PV_DECIMALS[1]].raw
-        try:
-            self.force_scale_kgf = P.force_scale_kgf(unit, decimals)
-        except ValueError as exc:
-            raise NodeError(self.dynamometer.id, f"dynamometer node {self.dynamometer.id}: {exc}") from None
-        try:
-            self.stand_clock = int(self.valve.node.sdo[P.EMULATOR_CLOCK].raw)
-        except (*_SDO_ERRORS, KeyError):
-            self.stand_clock = None  # a real valve: no such object
+        self.force_scale_kgf = C.force_scale(self.dynamometer.node, DYNAMOMETER, self.devices.dynamometer)
+        self.setpoint = C.setpoint_scale(self.valve.node, VALVE, self.devices.valve)
+        self.stand_clock = self._stand_clock()
         self.lockstep_capable = self.stand_clock == 1
 
-    def configure_from_eds(self) -> None:
-        """Set up the PDO layouts and the force scale from the EDS defaults, without talking to
-        the nodes (offline use: fuzzing the frame handling, replaying captures)."""
+    def _plan(self, link: NodeLink, period_s: float, heartbeat_ms: int, rpdo_timeout_ms: int,
+              life_time_factor: int = 3):
+        try:
+            return plan_node(link.device, link.id, period_s=period_s, heartbeat_ms=heartbeat_ms,
+                             rpdo_timeout_ms=rpdo_timeout_ms if link.role == VALVE else 0,
+                             life_time_factor=life_time_factor, od=link.node.object_dictionary)
+        except NodeError:
+            raise
+        except Exception as exc:          # a DeviceError: the device cannot give what is needed
+            raise NodeError(link.id, f"{link.label}: {exc}") from None
+
+    def _stand_clock(self) -> int | None:
+        """The emulator's clock object 0x2100 (0 real time, 1 lockstep), read whether or not
+        the device's EDS lists it (the emulator adds it to whatever device it impersonates); None
+        for a device without it (a real one)."""
+        try:
+            data = self.valve.node.sdo.upload(P.EMULATOR_CLOCK, 0)
+        except (*_SDO_ERRORS, KeyError):
+            return None
+        return data[0] if len(data) == 1 else None
+
+    def configure_from_eds(self, period_s: float = 0.002, heartbeat_ms: int = 100) -> None:
+        """Set up the PDO layouts and the scales from the device files' defaults, without
+        talking to the nodes (offline use: fuzzing the frame handling, replaying captures)."""
         for link in self.links:
-            link.node.tpdo.read(from_od=True)
-        self.valve.node.rpdo.read(from_od=True)
+            plan = self._plan(link, period_s, heartbeat_ms, 0)
+            link.setup.plan = plan
+            link.setup.tpdo = plan.tpdo.layout()
+            link.setup.rpdo = plan.rpdo.layout() if plan.rpdo else None
         self._set_layouts()
-        od = self.dynamometer.node.object_dictionary
-        self.force_scale_kgf = P.force_scale_kgf(od[P.PV_UNIT[0]][P.PV_UNIT[1]].default,
-                                                 od[P.PV_DECIMALS[0]][P.PV_DECIMALS[1]].default)
+        self.force_scale_kgf = self.devices.dynamometer.nominal_kgf_per_count()
+        self._set_counts_per_unit()
+        self.setpoint = SetpointScale(self.devices.valve.setpoint_full_scale or 16384,
+                                      self.devices.valve.type_bits("setpoint"))
         self.lockstep_capable = False
 
+    def _set_counts_per_unit(self) -> None:
+        dyn = self.devices.dynamometer
+        if dyn.types["process_value"] == REAL32:     # y_counts: the value in its unit's last digit
+            decimals = dyn.decimals if dyn.decimals is not None else 3
+            self.force_counts_per_unit = 10.0 ** decimals
+        else:
+            self.force_counts_per_unit = None
+
     def _set_layouts(self) -> None:
-        """The control loop's PDO layouts from the PDO maps just read, checked for what it
-        needs; the frame filter then accepts exactly those TPDOs."""
-        self.valve_tpdo = self._layout(self.valve, self.valve.node.tpdo[1],
-                                       [(P.STATUS_WORD, 0), P.ACTUAL_VALUE], synchronous=True)
-        self.valve_rpdo = self._layout(self.valve, self.valve.node.rpdo[1],
-                                       [(P.CONTROL_WORD, 0), P.SETPOINT], synchronous=False)
-        self._rpdo_cw = self.valve_rpdo.position(P.CONTROL_WORD, 0)
-        self._rpdo_sp = self.valve_rpdo.position(*P.SETPOINT)
-        self._rpdo_two = self.valve_rpdo.keys == ((P.CONTROL_WORD, 0), tuple(P.SETPOINT))
+        """The control loop's PDO layouts as read back, and the positions of the roles in them;
+        the frame filter then accepts exactly those TPDOs."""
+        valve, dyn = self.devices.valve, self.devices.dynamometer
+        self.valve_tpdo = self._checked(self.valve, self.valve.setup.tpdo, ("status_word",))
+        self.valve_rpdo = self._checked(self.valve, self.valve.setup.rpdo, ("control_word", "setpoint"))
+        self.force_tpdo = self._checked(self.dynamometer, self.dynamometer.setup.tpdo, ("process_value",))
+        self.status_pos = self.valve_tpdo.position(*valve.key("status_word"))
+        spool = valve.key("actual_spool")
+        self.spool_pos = (self.valve_tpdo.position(*spool)
+                          if spool is not None and spool in self.valve_tpdo.keys else None)
+        self.cw_pos = self.valve_rpdo.position(*valve.key("control_word"))
+        self.setpoint_pos = self.valve_rpdo.position(*valve.key("setpoint"))
+        self.force_pos = self.force_tpdo.position(*dyn.key("process_value"))
+        self._set_counts_per_unit()
+        self._rpdo_two = len(self.valve_rpdo.keys) == 2 and (self.cw_pos, self.setpoint_pos) == (0, 1)
         self._cyclic_flags = getattr(self.network, "cyclic_flags", 0)
         self._last_command = self._last_frame = None
-        self.force_tpdo = self._layout(self.dynamometer, self.dynamometer.node.tpdo[1], [P.PV_INT32],
-                                       synchronous=True)
         if hasattr(self.network, "expect"):
             for layout in (self.valve_tpdo, self.force_tpdo):
                 self.network.expect(layout.cob_id, layout.size)
 
-    def _layout(self, link: NodeLink, pdo_map, needed, synchronous: bool) -> PdoLayout:
-        if not pdo_map.enabled:
-            raise NodeError(link.id, f"{link.role} node {link.id}: {pdo_map.name} is disabled; "
-                                     "enable it (see its EDS)")
-        try:
-            layout = PdoLayout.from_map(pdo_map)
-        except PdoLayoutError as exc:
-            raise NodeError(link.id, f"{link.role} node {link.id}: {pdo_map.name}: {exc}") from None
-        for key in needed:
+    def _checked(self, link: NodeLink, layout: PdoLayout | None, roles) -> PdoLayout:
+        if layout is None:
+            raise NodeError(link.id, f"{link.label}: no PDO was set up for {', '.join(roles)}")
+        for role in roles:
+            key = link.device.key(role)
             if tuple(key) not in layout.keys:
-                raise NodeError(link.id, f"{link.role} node {link.id}: {pdo_map.name} does not map "
+                raise NodeError(link.id, f"{link.label}: PDO 0x{layout.cob_id:X} does not map "
                                          f"0x{key[0]:04X}:{key[1]:02X}, which the control loop needs")
-        tt = pdo_map.trans_type
-        if synchronous and not (tt == 0 or 1 <= tt <= 240):
-            raise NodeError(link.id, f"{link.role} node {link.id}: {pdo_map.name} has transmission "
-                                     f"type {tt}; the loop needs a synchronous TPDO (type 1)")
         return layout
+
+    def notes(self) -> list[str]:
+        """What the devices lack and what the run then cannot do (one line each, named)."""
+        return [f"{link.role} node {link.id}: {note}" for link in self.links for note in link.setup.notes]
+
+    def describe(self) -> dict:
+        """For run.json: each node's device file, identity and the configuration it was given."""
+        out = {}
+        for link in self.links:
+            entry = link.device.describe()
+            if link.setup.plan is not None:
+                entry["configuration"] = link.setup.plan.describe()
+            out[link.role] = entry
+        return out
 
     def declare_run(self, period_s: float, sync_window_s: float = 0.0) -> None:
         """At each run start, make the run's capture self-describing: write the communication
@@ -209,12 +275,13 @@ class StandMaster:
         that discards the answer (CiA 301); a node without the object keeps answering late."""
         for link in self.links:
             with sdo_errors(link, "cannot declare the run (0x1006/0x1007) over SDO"):
-                link.node.sdo[P.COMM_CYCLE_PERIOD].raw = int(round(period_s * 1e6))
+                if P.COMM_CYCLE_PERIOD in link.node.object_dictionary:
+                    link.node.sdo[P.COMM_CYCLE_PERIOD].raw = int(round(period_s * 1e6))
                 if P.SYNC_WINDOW in link.node.object_dictionary:
                     link.node.sdo[P.SYNC_WINDOW].raw = int(round(sync_window_s * 1e6))
         if self.stand_clock is not None:  # only a stand that has the object (the emulator)
             with sdo_errors(self.valve, "cannot read its clock (0x2100) over SDO"):
-                self.valve.node.sdo[P.EMULATOR_CLOCK].raw
+                self.valve.node.sdo.upload(P.EMULATOR_CLOCK, 0)
 
     # -- 5. start / stop ------------------------------------------------------------------------
     def start(self, timeout_s: float = 2.0, keepalive_s: float = 0.02) -> None:
@@ -230,10 +297,17 @@ class StandMaster:
             send_frames([self.valve_frame(control_word, setpoint_counts)])
             return
         rpdo = self.valve_rpdo
+        self.network.send_message(rpdo.cob_id, self._command_data(control_word, setpoint_counts))
+
+    def _command_data(self, control_word: int, setpoint_counts: int) -> bytes:
+        """The command RPDO's data: control word and setpoint, every other mapped object 0."""
+        rpdo = self.valve_rpdo
+        if self._rpdo_two:               # control word, setpoint (the profile's order)
+            return rpdo.codec.pack(control_word, setpoint_counts)
         values = [0] * len(rpdo.keys)
-        values[self._rpdo_cw] = int(control_word)
-        values[self._rpdo_sp] = setpoint_counts
-        self.network.send_message(rpdo.cob_id, rpdo.encode(*values))
+        values[self.cw_pos] = int(control_word)
+        values[self.setpoint_pos] = setpoint_counts
+        return rpdo.encode(*values)
 
     def valve_frame(self, control_word: int, setpoint_counts: int) -> tuple[int, int, int, bytes]:
         """One valve RPDO as a raw frame (:mod:`standbus.wire`) for
@@ -242,16 +316,9 @@ class StandMaster:
         key = (control_word, setpoint_counts)
         if key == self._last_command:    # a held command: the same frame again
             return self._last_frame
-        rpdo = self.valve_rpdo
-        if self._rpdo_two:               # the default mapping: control word, setpoint
-            data = rpdo.codec.pack(control_word, setpoint_counts)
-        else:
-            values = [0] * len(rpdo.keys)
-            values[self._rpdo_cw] = int(control_word)
-            values[self._rpdo_sp] = setpoint_counts
-            data = rpdo.encode(*values)
+        data = self._command_data(control_word, setpoint_counts)
         self._last_command = key
-        self._last_frame = frame = (self._cyclic_flags, rpdo.cob_id, len(data), data)
+        self._last_frame = frame = (self._cyclic_flags, self.valve_rpdo.cob_id, len(data), data)
         return frame
 
     def hold_command(self) -> None:
@@ -262,11 +329,18 @@ class StandMaster:
         for link in self.links:
             link.node.nmt.send_command(NMT_PREOP)
 
+    def close(self) -> None:
+        """Stop guarding the nodes (a guarded node then goes to its own safe state once its
+        life time passes, as when the master dies)."""
+        if self.guarding is not None:
+            self.guarding.stop()
+            self.guarding = None
+
     # -- 6. faults ------------------------------------------------------------------------------
     def valve_state(self) -> P.ValveState | None:
         """The valve's device state from its status word 0x6041 (read by SDO; None if unknown)."""
-        with sdo_errors(self.valve, "cannot read its status word (0x6041) over SDO"):
-            state = int(self.valve.node.sdo[P.STATUS_WORD].raw) & 0xF
+        with sdo_errors(self.valve, "cannot read its status word over SDO"):
+            state = int(C.sdo_variable(self.valve.node, self.devices.valve.key("status_word")).raw) & 0xF
         return P.ValveState(state) if state in P.ValveState._value2member_map_ else None
 
     def reset_valve_fault(self) -> str | None:
@@ -277,11 +351,11 @@ class StandMaster:
         before = self.valve_state()
         if before is None or not before.is_fault:
             return None
-        sdo = self.valve.node.sdo
-        with sdo_errors(self.valve, "cannot write its control word (0x6040) over SDO"):
-            sdo[P.CONTROL_WORD].raw = 0                       # the edge needs the bit low first
-            sdo[P.CONTROL_WORD].raw = int(P.ControlBit.RESET_FAULT)
-            sdo[P.CONTROL_WORD].raw = int(P.CW_DISABLED)
+        word = C.sdo_variable(self.valve.node, self.devices.valve.key("control_word"))
+        with sdo_errors(self.valve, "cannot write its control word over SDO"):
+            word.raw = 0                       # the edge needs the bit low first
+            word.raw = int(P.ControlBit.RESET_FAULT)
+            word.raw = int(P.CW_DISABLED)
         after = self.valve_state()
         if after is None or after.is_fault:
             raise NodeError(self.valve.id, f"valve node {self.valve.id} stayed in "
@@ -298,17 +372,10 @@ class StandMaster:
         wait_links(self.links, state, timeout_s, keepalive, keepalive_s, since)
 
 
-@contextlib.contextmanager
-def sdo_errors(link: NodeLink, what: str) -> Iterator[None]:
+def sdo_errors(link: NodeLink, what: str):
     """An SDO timeout or abort on ``link`` as a :class:`NodeError` that names the node and
-    says what the master was doing, not canopen's traceback."""
-    try:
-        yield
-    except _SDO_ERRORS as exc:
-        timeout = link.node.sdo.RESPONSE_TIMEOUT
-        hint = (f" within {timeout * 1e3:g} ms: is it powered and on this bus? On a slow host, "
-                "raise --sdo-timeout" if isinstance(exc, canopen.SdoCommunicationError) else "")
-        raise NodeError(link.id, f"{link.role} node {link.id}: {what}: {exc}{hint}") from None
+    says what the master was doing (:func:`gateway.configure.sdo_errors`)."""
+    return C.sdo_errors(link.label, link.node, what)
 
 
 # -- every channel of a bus (or of a rig) at once ------------------------------------------------
@@ -374,15 +441,24 @@ def wait_links(links, state: int, timeout_s: float, keepalive=None, keepalive_s:
     next_keepalive = time.monotonic()
     fresh = (lambda l: True) if since is None else (
         lambda l: l.last_heartbeat is not None and l.last_heartbeat > since)
+    guarded = [l for l in links if l.poll is not None]    # ask them: they send no heartbeat
     while time.monotonic() < deadline:
-        if keepalive is not None and time.monotonic() >= next_keepalive:
-            keepalive()
+        if time.monotonic() >= next_keepalive:
+            if keepalive is not None:
+                keepalive()
+            for link in guarded:
+                if not (link.nmt_state == state and fresh(link)):
+                    link.poll()
             next_keepalive += keepalive_s
         if all(l.nmt_state == state and fresh(l) for l in links):
             return
         time.sleep(0.001)
     for link in links:
         if link.nmt_state != state:
-            raise NodeError(link.id, f"{link.role} node {link.id} did not report "
+            hint = (": the device does not take the master's NMT start; look for its EMCY in the "
+                    "run's capture (it begins with the start-up), and whether it must be enabled by "
+                    "its own tool or input first" if state == 5 else "")
+            raise NodeError(link.id, f"{link.label} did not report "
                                      f"{_NMT_NAMES.get(state, state)} within {timeout_s:g} s "
-                                     f"(last heartbeat state: {_NMT_NAMES.get(link.nmt_state, link.nmt_state)})")
+                                     f"(last heartbeat state: {_NMT_NAMES.get(link.nmt_state, link.nmt_state)})"
+                                     + hint)

@@ -16,7 +16,11 @@
       signals.arrows    the same while the run is going (Arrow IPC stream, flushed at least
                         every 0.5 s); a run cut short by a crash keeps only this file, and
                         :func:`load_run` recovers every complete chunk from it
-      capture.log       raw bus capture (candump -L format, python-can logger)
+      capture.log       raw bus capture (candump -L format, python-can logger); it begins with
+                        the start-up (boot, identity, configuration: its first
+                        ``startup.frames`` frames, run.json)
+      stand.dbc         only for devices other than the emulated pair: the stand's DBC for
+                        them as configured (the capture is decoded with it)
       truth.json        only for emulated runs: the emulator's true parameters. Written by the
                         tool that started the emulator; the analysis never reads it.
 
@@ -29,8 +33,9 @@ u              float64   valve command sent after this cycle's force reading, % 
 y              float64   force read at this cycle's SYNC, kgf
 r              float64   reference force, kgf (NaN for open-loop experiments)
 cycle          int64     cycle number from 0
-y_counts       int32     the dynamometer's raw process value (counts of 0x9130:01)
-spool          float64   the valve's reported actual value at this SYNC, %
+y_counts       int32     the amplifier's raw process value (its counts; a REAL32 value in its
+                         unit's last decimal digit)
+spool          float64   the valve's reported actual value at this SYNC, % (NaN: not sent)
 valve_status   uint16    the valve's status word at this SYNC
 stale          bool      no fresh force PDO this cycle (y repeats the last reading)
 sync_time      float64   wall-clock time the SYNC was sent (s since the epoch)
@@ -64,6 +69,7 @@ META_FILE = "run.json"
 SIGNALS_FILE = "signals.parquet"
 STREAM_FILE = "signals.arrows"
 CAPTURE_FILE = "capture.log"
+DBC_FILE = "stand.dbc"
 TRUTH_FILE = "truth.json"
 
 SCHEMA = pa.schema([

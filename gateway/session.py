@@ -25,7 +25,8 @@ from tqdm import tqdm
 from standbus import BusSpecError, open_bus
 from standbus.realtime import process_threads, realtime_threads, short_gil_slices
 
-from .capture import BATCH_LOCKSTEP_S, BATCH_REALTIME_S, BusCapture, TappedNetwork
+from .capture import (BATCH_LOCKSTEP_S, BATCH_REALTIME_S, BusCapture, StartupCapture,
+                      TappedNetwork)
 from .errors import NodeError, ParameterError, StandError
 from .config import GatewayConfig
 from .experiments import Experiment
@@ -34,7 +35,7 @@ from .loop import (ControlLoop, LoopChannel, LoopOutcome, RigSafety, steady_heap
                    takes_buses_over)
 from .master import StandMaster, boot_all, start_all
 from .recorder import RunRecorder
-from .runs import SIGNALS_FILE, capture_file
+from .runs import CAPTURE_FILE, DBC_FILE, SIGNALS_FILE, capture_file
 from .supervisor import Supervisor
 
 
@@ -68,6 +69,9 @@ class Gateway:
         self.loop: ControlLoop | None = None
         #: a rig: each bus's budget, checked before anything is opened
         self.budgets: list | None = None
+        #: each bus's start-up traffic (boot, identity, configuration): every run's capture
+        #: begins with it (run.json ``startup`` says how many frames)
+        self.startup: list[StartupCapture] = []
 
     @property
     def network(self) -> TappedNetwork | None:
@@ -122,30 +126,38 @@ class Gateway:
                                         bitrate_switch=brs)
                 self.networks.append(network)
                 network.connect()
-            self._connect()
+            self.startup = [StartupCapture() for _ in self.networks]
+            for network, startup in zip(self.networks, self.startup):
+                startup.attach(network)
+            try:
+                self._connect()
+            finally:
+                for network, startup in zip(self.networks, self.startup):
+                    startup.detach(network)
         except BaseException:
             self.close()
             raise
 
-    def _channels(self) -> list[tuple[str, int, int, int]]:
-        """(name, bus index, valve id, dynamometer id) of every channel."""
+    def _channels(self) -> list[tuple[str, int, int, int, Any]]:
+        """(name, bus index, valve id, dynamometer id, devices) of every channel."""
         rig = self.rig
         if rig is None:
-            return [("", 0, self.config.valve_id, self.config.dynamometer_id)]
+            return [("", 0, self.config.valve_id, self.config.dynamometer_id, self.config.devices)]
         index = {b.name: i for i, b in enumerate(rig.buses)}
-        return [(c.name, index[c.bus], c.valve_id, c.dynamometer_id) for c in rig.channels]
+        return [(c.name, index[c.bus], c.valve_id, c.dynamometer_id, c.devices) for c in rig.channels]
 
     def _connect(self) -> None:
         cfg = self.config
         plan = self._channels()
-        self.masters = [StandMaster(self.networks[bus], valve, dyn, cfg.sdo_timeout_s)
-                        for _, bus, valve, dyn in plan]
+        self.masters = [StandMaster(self.networks[bus], valve, dyn, cfg.sdo_timeout_s, devices)
+                        for _, bus, valve, dyn, devices in plan]
         with self._naming_channel(None):
             boot_all(self.masters, cfg.boot_timeout_s)
         for i, master in enumerate(self.masters):
             with self._naming_channel(i):
                 master.check_identity()
-                master.configure(cfg.period_s, cfg.heartbeat_ms, cfg.rpdo_timeout_ms)
+                master.configure(cfg.period_s, cfg.heartbeat_ms, cfg.rpdo_timeout_ms,
+                                 cfg.life_time_factor())
         if cfg.lockstep and not all(m.lockstep_capable for m in self.masters):
             raise StandError(
                 "--lockstep needs a stand that advances one period per SYNC (the emulator "
@@ -155,7 +167,7 @@ class Gateway:
             self.loop = ControlLoop(self.network, self.master, supervisor, cfg.period_s, cfg.lockstep)
             return
         channels = []
-        for (name, bus, _, _), master, ch in zip(plan, self.masters, self.rig.channels):
+        for (name, bus, _, _, _), master, ch in zip(plan, self.masters, self.rig.channels):
             sup = Supervisor(master, cfg.channel_limits(ch), cfg.period_s, cfg.lockstep)
             channels.append(LoopChannel(name, master, sup, bus, ch.range_kgf))
         self.loop = ControlLoop(self.network, self.master, channels[0].supervisor, cfg.period_s,
@@ -189,6 +201,7 @@ class Gateway:
                 master.enter_preoperational()
             except Exception:
                 pass
+            master.close()
         for network in self.networks:
             try:
                 network.disconnect()
@@ -209,8 +222,19 @@ class Gateway:
             "period_s": cfg.period_s,
             "nodes": {link.role: {"id": link.id, "identity": link.identity} for link in m.links},
             "force_scale_kgf_per_count": m.force_scale_kgf,
+            "devices": m.describe(),
+            "device_notes": m.notes(),
+            "startup": self._startup_meta(0),
             "limits": asdict(cfg.limits.resolved(cfg.lockstep)),
         }
+
+    def _startup_meta(self, bus: int) -> dict | None:
+        """What of a bus's capture is the start-up: its first ``frames`` frames, up to ``until``
+        (the wall-clock stamp of the last)."""
+        if bus >= len(self.startup):
+            return None
+        s = self.startup[bus]
+        return {"frames": s.frames, "until": s.last_stamp}
 
     def _rig_metadata(self, experiment: Experiment, driven: Sequence[str]) -> dict[str, Any]:
         cfg, rig = self.config, self.rig
@@ -223,7 +247,8 @@ class Gateway:
                 "name": ch.name, "bus": ch.bus,
                 "nodes": {link.role: {"id": link.id, "identity": link.identity} for link in m.links},
                 "range_kgf": ch.range_kgf, "force_limit_kgf": ch.limit_kgf,
-                "force_scale_kgf_per_count": m.force_scale_kgf, "driven": ch.name in driven})
+                "force_scale_kgf_per_count": m.force_scale_kgf, "driven": ch.name in driven,
+                "devices": m.describe(), "device_notes": m.notes()})
         return {
             "experiment": {"name": experiment.name, "params": experiment.params()},
             "clock": "lockstep" if cfg.lockstep else "realtime",
@@ -238,7 +263,8 @@ class Gateway:
                 "fault_action": cfg.fault_action,
                 "buses": [{"name": b.name, "spec": b.spec, "bitrate": b.bitrate, "fd": b.fd,
                            "data_bitrate": b.data_bitrate, "capture": capture_file(b.name),
-                           "budget": budgets.get(b.name)} for b in rig.buses],
+                           "budget": budgets.get(b.name), "startup": self._startup_meta(i)}
+                          for i, b in enumerate(rig.buses)],
                 "channels": channels,
                 "driven": list(driven),
             },
@@ -316,16 +342,26 @@ class Gateway:
         if recorder is not None:
             captures = []
         elif self.rig is None:
-            recorder = RunRecorder(out, self.metadata(experiment))
+            dbcs = self._dbc_texts()
+            files = {"signals": SIGNALS_FILE, "capture": CAPTURE_FILE}
+            if dbcs:
+                files["dbc"] = DBC_FILE
+            recorder = RunRecorder(out, self.metadata(experiment), files=files)
+            self._write_dbcs(recorder.dir, {DBC_FILE: text for text in dbcs.values()})
             captures = [BusCapture(recorder.capture_path, batch_s=batch_s)]
         else:
+            dbcs = self._dbc_texts()
             files = {"signals": SIGNALS_FILE,
                      "captures": {b.name: capture_file(b.name) for b in self.rig.buses}}
+            if dbcs:
+                files["dbc"] = {name: f"{name}.dbc" for name in dbcs}
             recorder = RunRecorder(out, self.metadata(experiment, driven), channels=self.rig.names,
                                    files=files)
+            self._write_dbcs(recorder.dir, {f"{name}.dbc": text for name, text in dbcs.items()})
             captures = [BusCapture(recorder.capture_path_of(b.name), batch_s=batch_s)
                         for b in self.rig.buses]
-        for network, capture in zip(self.networks, captures):
+        for network, capture, startup in zip(self.networks, captures, self.startup):
+            capture.write_first(startup)       # the start-up's traffic first
             # first in line, so frames reach the capture in the order they were received
             capture.attach(network)
         bar = None
@@ -375,6 +411,25 @@ class Gateway:
                     capture.stop()
                 self._close_run(recorder, captures, outcome, failure, fault_reset, scheduling)
         return RunResult(recorder.dir, outcome)
+
+    def _dbc_texts(self) -> dict[str, str]:
+        """The stand's DBC for each channel whose devices are not the emulated pair (by channel
+        name; a stand's under ""): a capture of the run is then decoded with it
+        (:func:`captures.decode.run_dbc`)."""
+        from devices.dbcfile import stand_dbc
+        out = {}
+        for i, m in enumerate(self.masters):
+            if m.devices.is_default:
+                continue
+            name = self.rig.channels[i].name if self.rig is not None else ""
+            out[name] = stand_dbc(m.valve.setup.plan, m.dynamometer.setup.plan,
+                                  m.force_scale_kgf, m.setpoint.full_scale)
+        return out
+
+    @staticmethod
+    def _write_dbcs(run_dir: Path, texts: dict[str, str]) -> None:
+        for name, text in texts.items():
+            (run_dir / name).write_text(text)
 
     def _close_run(self, recorder: RunRecorder, captures: list[BusCapture],
                    outcome: LoopOutcome | None, failure: BaseException | None,

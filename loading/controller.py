@@ -16,6 +16,13 @@ experiment keeps the feedforward's sign where the model's gain is above ρ: no r
 not plan). For one channel it is the SIMC PI around the feedforward,
 ``u = clip(u_ff + s·K_p·e + i)``, a few float operations a cycle.
 
+With ``share_integral`` (a rig's feedforward through G⁻¹, which holds every valve's sign) the
+integral's output is scaled by the share too, ``u = u_ff + S·(M·K_p·e + i)``: a valve held at 0
+keeps the integral it had, and where the plan then reverses it, right after the reversal at the
+boosted gain, that integral would be sent at once (an integral of −2.7 % wound up on a
+neighbour-driven stretch threw a channel 140 kgf off at a load case its correction had turned
+into a small planned reversal).
+
 While the programme waits for the forces at a load case (null pacing, :mod:`loading.pacing`),
 :meth:`PIFeedforward.wait_step` is a P law through M on the forces predicted past the delay,
 ``u = u_hold + M·K_p·(L − ŷ)``, each valve moving only toward its level; the integral is cleared
@@ -35,7 +42,7 @@ class PIFeedforward:
     forces are per channel (a number for one channel)."""
 
     def __init__(self, kp_pct_per_kgf: Sequence[float] | float, ti_s: Sequence[float] | float, period_s: float,
-                 command_limit_pct: float, M: np.ndarray | None = None) -> None:
+                 command_limit_pct: float, M: np.ndarray | None = None, share_integral: bool = False) -> None:
         kp = np.atleast_1d(np.asarray(kp_pct_per_kgf, float))
         ti = np.atleast_1d(np.asarray(ti_s, float))
         ki = np.array([k * period_s / t if math.isfinite(t) and t > 0 else 0.0 for k, t in zip(kp, ti)])
@@ -44,6 +51,7 @@ class PIFeedforward:
         self.Mki = M * ki[None, :]
         self.limit = float(command_limit_pct)
         self.integral = np.zeros(len(kp))
+        self.share_integral = share_integral
 
     def reset(self, integral_pct: Sequence[float] | None = None) -> None:
         self.integral = (np.zeros(len(self.integral)) if integral_pct is None
@@ -58,7 +66,7 @@ class PIFeedforward:
         p = (share * self.Mkp) @ e
         di = (share * self.Mki) @ e if integrate else np.zeros_like(e)
         integral = self.integral + di
-        u = np.asarray(u_ff_pct, float) + p + integral
+        u = np.asarray(u_ff_pct, float) + p + (share[:, 0] * integral if self.share_integral else integral)
         way = np.broadcast_to(np.asarray(way, float), u.shape)
         keep = np.ones(len(u), bool)
         against = way * u < 0                       # a held sign: hold the valve instead

@@ -120,7 +120,9 @@ class ChannelProgramme:
     def with_levels(self, levels_kgf: np.ndarray) -> "ChannelProgramme":
         """The same programme with its turning points moved to ``levels_kgf`` (peak/valley
         compensation): each segment between two turning points is mapped affinely from its old
-        end levels onto the new ones; times are unchanged."""
+        end levels onto the new ones (a segment that holds a level, a station's channel while
+        the others move, goes from the one correction to the other along a haversine); times
+        are unchanged."""
         new = np.asarray(levels_kgf, float)
         if new.shape != self.turning_idx.shape or not np.isfinite(new).all():
             raise ParameterError(f"{len(self.turning_idx)} finite levels expected, got {new.shape}")
@@ -130,12 +132,30 @@ class ChannelProgramme:
         for j in range(len(new) - 1):
             a, b = self.turning_idx[j], self.turning_idx[j + 1]
             span = old[j + 1] - old[j]
+            if span == 0 and new[j + 1] != new[j]:
+                s = np.arange(b - a + 1) / max(b - a, 1)
+                move = new[j + 1] - new[j]
+                r[a:b + 1] = self.r_kgf[a:b + 1] + (new[j] - old[j]) + move * (1 - np.cos(np.pi * s)) / 2
+                if rate is not None:
+                    rate[a:b + 1] = self._rate[a:b + 1] + move * np.pi / (2 * (b - a) * self.period_s) * np.sin(np.pi * s)
+                continue
             scale = (new[j + 1] - new[j]) / span if span else 1.0
             r[a:b + 1] = new[j] + (self.r_kgf[a:b + 1] - old[j]) * scale
             if rate is not None:
                 rate[a:b + 1] = self._rate[a:b + 1] * scale
         return ChannelProgramme(self.t_s, r, self.turning_idx, self.period_s, self.source, rate,
                          self.haversine)
+
+    def with_offsets(self, offsets_kgf: np.ndarray) -> "ChannelProgramme":
+        """The same programme with ``offsets_kgf`` (one per sample) added to its reference, its
+        rate with theirs (a station's shape correction, :mod:`loading.compensation`: zero at
+        every turning point, so the turning points stay where they are)."""
+        d = np.asarray(offsets_kgf, float)
+        if d.shape != self.r_kgf.shape or not np.isfinite(d).all():
+            raise ParameterError(f"{len(self.r_kgf)} finite offsets expected, got {d.shape}")
+        rate = None if self._rate is None else self._rate + np.gradient(d, self.period_s)
+        return ChannelProgramme(self.t_s, self.r_kgf + d, self.turning_idx, self.period_s, self.source, rate,
+                                self.haversine)
 
     def with_durations(self, durations_s, source: str | None = None) -> "ChannelProgramme":
         """The same turning points with each segment lasting ``durations_s`` (s, one per
@@ -170,6 +190,33 @@ class ChannelProgramme:
         r[-1] = self.r_kgf[-1]
         rate[-1] = old_rate[-1] * (self.turning_idx[-1] - self.turning_idx[-2]) / steps[-1]
         return ChannelProgramme(np.arange(len(r)) * self.period_s, r, idx, self.period_s, label, rate)
+
+
+# -- a segment's shape -------------------------------------------------------------------------------
+#: a segment's shape is told in half waves down to this long (s) (:func:`shape_basis`)
+SHAPE_HALF_WAVE_S = 0.08
+#: and in at least this many, at most this many
+SHAPE_MODES = (4, 40)
+
+
+def shape_modes(duration_s: float) -> int:
+    """How many half waves a segment of ``duration_s`` is told in (:func:`shape_basis`)."""
+    return int(np.clip(round(duration_s / SHAPE_HALF_WAVE_S), *SHAPE_MODES))
+
+
+def shape_basis(samples: int, modes: int) -> np.ndarray:
+    r"""(samples, modes): the shapes a segment's deviation is told in, over its samples from one
+    turning point to the next (both included): the sine series
+
+    .. math::  \phi_m(s) = \sin(m\pi s),\qquad m = 1 \ldots M,\ s \in [0, 1],
+
+    zero at both turning points (a shape moves no turning point's level), the m-th with m half
+    waves: features down to :data:`SHAPE_HALF_WAVE_S` (:func:`shape_modes`), the noise above
+    that left out."""
+    s = np.linspace(0.0, 1.0, max(int(samples), 2))
+    out = np.sin(np.pi * s[:, None] * np.arange(1, modes + 1)[None, :])
+    out[[0, -1]] = 0.0                   # exactly (sin(mπ) is not, in floating point)
+    return out
 
 
 # -- making programmes ----------------------------------------------------------------------------
@@ -535,6 +582,11 @@ class Programme:
         """Each channel's turning points moved to ``levels[i]`` (peak/valley compensation,
         :meth:`ChannelProgramme.with_levels`); the times are kept, so load cases stay load cases."""
         return Programme(self.names, [p.with_levels(lv) for p, lv in zip(self.channels, levels)],
+                         self.load_cases, self.source, self.case_labels)
+
+    def with_offsets(self, offsets_kgf: Sequence[np.ndarray]) -> "Programme":
+        """Each channel's reference plus ``offsets_kgf[i]`` (:meth:`ChannelProgramme.with_offsets`)."""
+        return Programme(self.names, [p.with_offsets(d) for p, d in zip(self.channels, offsets_kgf)],
                          self.load_cases, self.source, self.case_labels)
 
     def check(self, force_limits_kgf: Sequence[float]) -> None:

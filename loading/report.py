@@ -20,14 +20,13 @@ the residue as half cycles) and the extra cycles are the achieved force's count 
 minus the programme's. A lag or an overshoot changes no count; ringing after a reversal adds
 one cycle per swing beyond the gate.
 
-ratios between the channels.
-
 **A station** (:func:`tracking_report`): per channel the report above (:class:`ChannelReport`,
-the error as % of its own programme's range). At a load case where some channel turns, a channel
-that passes its level on the way (no peak or valley of its own) is as much part of the load
-distribution as one that turns there: it is judged too, its achieved level the force at the
-load case's moment (kind 'rising' or 'falling'), in its p95 and max, and its compensation learns
-there (:mod:`loading.compensation`). For several channels on load cases:
+the error as % of its own programme's range). Every load case is part of the load
+distribution, so on a station of load cases every channel is judged at every load case (the
+first and the last left out): at its own peaks and valleys, and where it passes or holds its
+level (no peak or valley of its own, kind 'rising' or 'falling'; its achieved level the force
+at the load case's moment), in its p95 and max; its compensation learns at each
+(:mod:`loading.compensation`, by load case). For several channels on load cases:
 
 Per load case (load-case programmes only, the first and the last left out as the one-channel
 report leaves them), the **ratio deviation**: a load case asks the channels' forces in fixed
@@ -40,26 +39,37 @@ the lead's achieved level asks of it in the load case's ratio,
 in % of channel i's range (as its peak/valley error; with ``A = L + e`` it is
 ``(e_i − e_m·L_i/L_m)/R_i``: a common scaling of the whole case, every channel off in the same
 proportion, does not count). ``A_i`` is the channel's achieved level at the case (the extreme
-near it for a peak or a valley, else the force at the case's moment). ``ratio_error_pct`` is
-the largest ``|d_i|`` of the pass.
+near it for a peak or a valley, else the force at the case's moment, read from a straight line
+through the samples within :data:`PASSING_WINDOW_S`). ``ratio_error_pct`` is the largest
+``|d_i|`` of the pass. Between two load cases each channel's **shape**: the force's deviation
+from the reference less the haversine share of the two ends' (:attr:`ChannelReport.shapes`,
+what a station's compensation learns from), and how far the force went back against the
+reference's way there (:attr:`ChannelReport.retreats`: an extra cycle in the making).
 
 The JSON summary (``hydrostand-load/1``): the worst channel's figures at the top level (the
 one-channel keys: the channel with the largest peak/valley p95, named in ``worst_channel``),
 ``channels`` → per channel the same keys, ``ratio_error_pct`` (null for one channel and for
-per-channel sequences), and ``passes`` with the same for every pass.
+per-channel sequences), ``load_cases`` (load cases: per case its ``case`` label, ``lead``,
+``largest_pct``, every channel's ``deviation_pct`` and level ``error_pct``), and ``passes`` with
+the same for every pass; from the second pass on, how its load cases moved from the pass
+before's (:func:`case_moves`: ``cases_worse``, ``cases_closer``, ``cases_within_band``).
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .programme import ChannelProgramme, Programme, as_programme, turning_points
+from .programme import ChannelProgramme, Programme, as_programme, shape_basis, shape_modes, turning_points
 
 SCHEMA = "hydrostand-load/1"
 #: extra cycles are counted above this share of the programme's range (%)
 GATE_PCT = 0.5
+#: a load case is worse (or closer) than in the pass before when its largest deviation moved by
+#: more than this (% of a channel's range): what noise alone moves it by (a deviation reads two
+#: channels; the same pass again with other noise moved a case by up to 0.08 %, sd 0.03 %)
+CASE_BAND_PCT = 0.1
 
 
 @dataclass
@@ -72,6 +82,9 @@ class TurningPoint:
     error_kgf: float       #: achieved − commanded
     error_pct: float       #: of the programme's range
     overshoot_kgf: float   #: beyond the level in the direction of travel (0 if short of it)
+    #: a station's load case (its position from 0; None for one channel's turning points):
+    #: what a station's compensation learns by (loading.compensation)
+    case: int | None = None
 
 
 @dataclass
@@ -85,6 +98,13 @@ class ChannelReport:
     extra_cycles: float
     largest_extra_cycle_kgf: float
     overshoot_max_pct: float
+    #: a station's load cases: per segment (from load case k to k + 1) the force's deviation
+    #: from the reference between them, less the haversine share of the two ends' (kgf), told in
+    #: :func:`~loading.programme.shape_basis` (least squares): what the shape learns from
+    shapes: dict | None = None
+    #: the same segments: how far the force went back against the reference's way (kgf; a
+    #: segment that holds its level: either way), the start of an extra cycle
+    retreats: dict | None = None
 
     def figures(self) -> dict:
         """The pass's figures as the JSON summary gives them."""
@@ -152,13 +172,14 @@ def channel_report(programme: ChannelProgramme, t_s, y_kgf, gate_pct: float = GA
         if not len(near):
             continue
         if passing:
-            achieved = float(np.interp(programme.t_s[idx[j]], t, y))
+            achieved = _at(programme.t_s[idx[j]], t, y)
         else:
             achieved = float(near.max() if kinds[j] == "peak" else near.min())
         err = achieved - level
         over = max(err, 0.0) if kinds[j] == "peak" else max(-err, 0.0) if kinds[j] == "valley" else 0.0
         points.append(TurningPoint(int(idx[j]), float(programme.t_s[idx[j]]), kinds[j], float(level),
-                                   achieved, float(err), 100 * float(err) / R, float(over)))
+                                   achieved, float(err), 100 * float(err) / R, float(over),
+                                   j if cases is not None else None))
     errs = np.abs([p.error_pct for p in points]) if points else np.zeros(1)
     gate = gate_pct / 100 * R
     got = sorted(_cycle_ranges(y, gate)) if len(y) > 1 else []
@@ -172,12 +193,60 @@ def channel_report(programme: ChannelProgramme, t_s, y_kgf, gate_pct: float = GA
                 break
             largest = rng
             left -= c
+    shapes, retreats = _shapes(programme, t, y, eps, gate) if cases is not None else (None, None)
     return ChannelReport(
-        turning_points=points, range_kgf=R,
+        turning_points=points, range_kgf=R, shapes=shapes, retreats=retreats,
         peak_valley_error_pct={"max": float(errs.max()), "p95": float(np.percentile(errs, 95))},
         rms_error_pct=100 * float(np.sqrt(np.mean((y - r) ** 2))) / R if len(y) else float("nan"),
         extra_cycles=float(extra), largest_extra_cycle_kgf=float(largest),
         overshoot_max_pct=100 * max((p.overshoot_kgf for p in points), default=0.0) / R)
+
+
+#: a station's channel that passes its level at a load case is read there from a straight line
+#: through its force within this time either side (s): a few cycles, the noise averaged
+PASSING_WINDOW_S = 0.01
+
+
+def _at(moment: float, t: np.ndarray, y: np.ndarray) -> float:
+    """The force at ``moment``: a least-squares line through the samples within
+    :data:`PASSING_WINDOW_S` of it (the nearest samples' interpolation with fewer than 3)."""
+    near = np.abs(t - moment) <= PASSING_WINDOW_S + 1e-9
+    if np.count_nonzero(near) < 3 or np.ptp(t[near]) <= 0:
+        return float(np.interp(moment, t, y))
+    slope, at = np.polyfit(t[near] - moment, y[near], 1)
+    return float(at)
+
+
+def _shapes(programme: ChannelProgramme, t: np.ndarray, y: np.ndarray, eps: float,
+            gate_kgf: float) -> tuple[dict, dict]:
+    """Per segment between two turning points: the shape of the force's deviation from the
+    reference (:attr:`ChannelReport.shapes`) and how far the force went back against the
+    reference's way there (:attr:`ChannelReport.retreats`, kgf)."""
+    idx = programme.turning_idx
+    shapes, retreats = {}, {}
+    for k in range(len(idx) - 1):
+        a, b = int(idx[k]), int(idx[k + 1])
+        ts = programme.t_s[a:b + 1]
+        if b - a < 2 or ts[0] < t[0] - eps or ts[-1] > t[-1] + eps:
+            continue
+        f = np.interp(ts, t, y)
+        r = programme.r_kgf[a:b + 1]
+        e = f - r
+        h = (1 - np.cos(np.pi * np.linspace(0.0, 1.0, b - a + 1))) / 2
+        rest = e - (e[0] + (e[-1] - e[0]) * h)
+        shapes[k] = np.linalg.lstsq(shape_basis(b - a + 1, shape_modes(ts[-1] - ts[0])), rest, rcond=None)[0].tolist()
+        ways = [1.0] if r[-1] > r[0] else [-1.0] if r[-1] < r[0] else [1.0, -1.0]
+        retreats[k] = max(_retreat(w * f, gate_kgf / 4) for w in ways)
+    return shapes, retreats
+
+
+def _retreat(x: np.ndarray, noise: float) -> float:
+    """How far ``x`` fell back after rising, from its lowest point on (a late turn at the start
+    is no retreat), its samples smoothed over a few cycles."""
+    if len(x) > 9:
+        x = np.convolve(x, np.ones(5) / 5, mode="valid")
+    x = x[int(np.argmin(x)):]
+    return float(np.max(np.maximum.accumulate(x) - x)) if len(x) else 0.0
 
 
 def _plot_channel(programme: ChannelProgramme, t_s, y_kgf, report: ChannelReport, path: str | Path,
@@ -226,10 +295,19 @@ class LoadCase:
     achieved_kgf: list[float]
     lead: str                     #: the channel the ratios are taken against
     deviation_pct: list[float]    #: d_i per channel (0 for the lead)
+    #: each channel's level error there, % of its range (its turning point's, or the force at
+    #: the load case's moment)
+    error_pct: list[float] = field(default_factory=list)
 
     @property
     def largest_pct(self) -> float:
         return float(np.max(np.abs(self.deviation_pct)))
+
+    def to_summary(self, names: list[str]) -> dict:
+        """The load case as the JSON summary gives it, per pass."""
+        return {"case": self.label, "lead": self.lead, "largest_pct": self.largest_pct,
+                "deviation_pct": dict(zip(names, self.deviation_pct)),
+                "error_pct": dict(zip(names, self.error_pct))}
 
 
 @dataclass
@@ -273,9 +351,12 @@ class TrackingReport:
     def figures(self) -> dict:
         """The pass's figures as the JSON summary gives them (module docstring)."""
         worst = self.worst_channel
-        return {**self.channel(worst).figures(), "worst_channel": worst,
-                "ratio_error_pct": self.ratio_error_pct,
-                "channels": {n: r.figures() for n, r in zip(self.names, self.channels)}}
+        out = {**self.channel(worst).figures(), "worst_channel": worst,
+               "ratio_error_pct": self.ratio_error_pct,
+               "channels": {n: r.figures() for n, r in zip(self.names, self.channels)}}
+        if self.cases is not None:
+            out["load_cases"] = [c.to_summary(self.names) for c in self.cases]
+        return out
 
     def to_dict(self) -> dict:
         d = self.figures()
@@ -296,7 +377,7 @@ class TrackingReport:
         lines.append(f"worst channel: {self.worst_channel}")
         if self.cases is not None:
             worst = sorted(self.cases, key=lambda c: -c.largest_pct)[:3]
-            lines.append(f"load cases: {len(self.cases)}, ratio deviation at a turning point: largest "
+            lines.append(f"load cases: {len(self.cases)}, deviation from the distribution: largest "
                          f"{self.ratio_error_pct:.3f} % of a channel's range"
                          + (f", p95 {np.percentile([c.largest_pct for c in self.cases], 95):.3f} %"
                             if self.cases else ""))
@@ -316,7 +397,7 @@ def tracking_report(programme: Programme | ChannelProgramme, t_s, y_kgf) -> Trac
     programme = as_programme(programme)
     t = np.asarray(t_s, float)
     Y = np.atleast_2d(np.asarray(y_kgf, float))
-    cases = programme.turning_idx[programme.turning_cases()] if programme.load_cases and programme.n > 1 else None
+    cases = programme.turning_idx[1:-1] if programme.load_cases and programme.n > 1 else None
     reports = [channel_report(p, t, y, cases=cases) for p, y in zip(programme.channels, Y)]
     cases = _load_cases(programme, reports, t, Y) if programme.load_cases and programme.n > 1 else None
     return TrackingReport(list(programme.names), reports, cases)
@@ -334,8 +415,7 @@ def _load_cases(programme: Programme, reports: list[ChannelReport], t: np.ndarra
         at = programme.t_s[idx[k]]
         if at < t[0] - 1e-9 or at > t[-1] + 1e-9:
             continue
-        A = np.array([achieved_at[i].get(int(idx[k]), float(np.interp(at, t, Y[i])))
-                      for i in range(programme.n)])
+        A = np.array([achieved_at[i].get(int(idx[k]), _at(at, t, Y[i])) for i in range(programme.n)])
         lv = L[:, k]
         m = int(np.argmax(np.abs(lv) / R))
         if lv[m] == 0:
@@ -343,8 +423,54 @@ def _load_cases(programme: Programme, reports: list[ChannelReport], t: np.ndarra
         d = 100 * (A - A[m] * lv / lv[m]) / R
         d[m] = 0.0
         out.append(LoadCase(labels[k], int(idx[k]), float(at), lv.tolist(), A.tolist(),
-                            programme.names[m], d.tolist()))
+                            programme.names[m], d.tolist(), (100 * (A - lv) / R).tolist()))
     return out
+
+
+def case_moves(before: list[dict], now: list[dict]) -> dict:
+    """How a pass's load cases moved from the pass before's (their ``to_summary``): the cases
+    whose largest deviation grew by more than :data:`CASE_BAND_PCT` (``cases_worse``, their
+    labels), and how many fell by more (``cases_closer``) or stayed within it
+    (``cases_within_band``)."""
+    was = {c["case"]: c["largest_pct"] for c in before}
+    worse, closer, same = [], 0, 0
+    for c in now:
+        d = c["largest_pct"] - was.get(c["case"], c["largest_pct"])
+        if d > CASE_BAND_PCT:
+            worse.append(c["case"])
+        elif d < -CASE_BAND_PCT:
+            closer += 1
+        else:
+            same += 1
+    return {"cases_worse": worse, "cases_closer": closer, "cases_within_band": same}
+
+
+def cases_table(passes: list[TrackingReport]) -> str:
+    """Every pass's load cases side by side: per case its lead and, per pass, the largest
+    deviation from its distribution (% of a channel's range) with the channel it is on, marked
+    ``worse`` where it grew by more than :data:`CASE_BAND_PCT` from the pass before."""
+    if not passes or passes[0].cases is None:
+        return ""
+    rows = {}
+    for i, p in enumerate(passes):
+        for c in p.cases:
+            j = int(np.argmax(np.abs(c.deviation_pct)))
+            rows.setdefault(c.label, {"lead": c.lead})[i] = (c.largest_pct, p.names[j])
+    width = max(len(n) for n in passes[0].names)
+    head = f"{'case':>5}  {'lead':<{width}}" + "".join(f"  {f'pass {i + 1}':<{width + 14}}" for i in range(len(passes)))
+    lines = ["load cases: the largest deviation from the distribution, % of a channel's range, per pass "
+             f"(worse: by more than {CASE_BAND_PCT:g} % than the pass before)", head]
+    for label, row in rows.items():
+        cells = []
+        for i in range(len(passes)):
+            if i not in row:
+                cells.append(" " * (width + 14))
+                continue
+            v, name = row[i]
+            mark = " worse" if i and (i - 1) in row and v - row[i - 1][0] > CASE_BAND_PCT else ""
+            cells.append(f"{v:6.3f} {name:<{width}}{mark:<7}")
+        lines.append(f"{label:>5}  {row['lead']:<{width}}" + "".join(f"  {c}" for c in cells))
+    return "\n".join(lines)
 
 
 def load_summary(passes: list[TrackingReport], end_reason: str | None,
@@ -355,6 +481,9 @@ def load_summary(passes: list[TrackingReport], end_reason: str | None,
     each."""
     extras = list(extras or []) + [{}] * (len(passes) - len(extras or []))
     figures = [{**p.figures(), **x} for p, x in zip(passes, extras)]
+    for before, now in zip(figures, figures[1:]):
+        if "load_cases" in now:
+            now.update(case_moves(before["load_cases"], now["load_cases"]))
     last = figures[-1] if figures else {}
     return {"schema": SCHEMA, **last, "end_reason": end_reason, "passes": figures}
 

@@ -65,12 +65,13 @@ import json
 import math
 import os
 import re
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
+
+from core.tomlfile import read_toml as core_read_toml
 
 from .catalogue import CATALOGUE, effect_class
 from .model import BASE_PARAMS, PlantModel
@@ -79,27 +80,14 @@ from .plugins import ORIGINS, load_installed, load_plugins
 from .rig import RigModel
 from .sensor import Dynamometer
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
-
 #: The emulator's default plant: the paper's model with its reversal effect and a small trend.
 DEFAULT_MODEL = "base+reversal"
 DEFAULT_VALUES = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 
 
 def read_toml(path: str | Path) -> dict[str, Any]:
-    path = Path(path)
-    try:
-        with path.open("rb") as fh:
-            return tomllib.load(fh)
-    except FileNotFoundError:
-        raise ModelError(f"file {path} does not exist") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ModelError(f"{path} is not valid TOML: {exc}") from None
-    except OSError as exc:
-        raise ModelError(f"cannot read {path}: {exc}") from None
+    """A model or emulator file, parsed; a :class:`ModelError` naming it when it cannot be."""
+    return core_read_toml(path, ModelError)
 
 
 def model_from_mapping(data: Mapping[str, Any], where: str = "model",

@@ -6,18 +6,21 @@ The plant behind them and the time (lockstep or real time) are :mod:`plant_emula
 from __future__ import annotations
 
 import time
+import zlib
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import can
 import canopen
 
-from dbc import DYNAMOMETER_EDS, VALVE_EDS
+from dbc import profile as P
+from devices import DeviceSet, default_devices
 from plant.sensor import Dynamometer
 from standbus import wire
 
 from .dynamometer import DynamometerNode
 from .heartbeats import PeriodicFrames
+from .lss import LSS_MASTER
 from .node import slave_frame_filter
 from .valve import ServoValveNode
 
@@ -32,6 +35,16 @@ class ChannelSetup:
     dynamometer_id: int
     sensor: Dynamometer            #: the dynamometer's noise, resolution and range
     initial_force_kgf: float = 0.0
+    #: which devices the two nodes are (their EDS and roles; default: the emulated pair)
+    devices: DeviceSet | None = None
+    #: both nodes start without a node id, answering LSS only, until LSS gives them one
+    unconfigured: bool = False
+
+
+def _serial(setup: ChannelSetup, role: str) -> int:
+    """A serial number of its own for each node started without a node id: its LSS address
+    (vendor, product, revision, serial) must be unique on the bus."""
+    return zlib.crc32(f"{setup.bus}/{setup.name}/{role}".encode())
 
 
 class _Network(canopen.Network):
@@ -70,6 +83,16 @@ class EmulatedBus:
         #: the counter of the last SYNC (None: SYNC without counter)
         self.counter: int | None = None
 
+    def register(self, node) -> None:
+        """Let ``node``'s frames through the filter: its SDO requests, its guard requests
+        (remote frames), LSS while it has no node id."""
+        if node.configured:
+            self.frame_filter.expect(P.SDO_RX_BASE + node.id, 8)
+            if node.guarding is not None:
+                self.frame_filter.accept_remote(P.HEARTBEAT_BASE + node.id, node.guarding.on_request)
+        if node.lss is not None:
+            self.frame_filter.expect(LSS_MASTER, 8)
+
     def send_frames(self, frames: list) -> None:
         """Raw frames (:mod:`standbus.wire`) sent at one instant (the answers to a SYNC): one
         datagram where the bus takes a batch, else one ``send`` each."""
@@ -94,10 +117,16 @@ class EmulatedChannel:
         self.name = setup.name
         self.on_bus = on_bus
         self.sensor = setup.sensor
-        self.valve = ServoValveNode(on_bus.network, setup.valve_id, VALVE_EDS, lockstep)
-        self.dynamometer = DynamometerNode(on_bus.network, setup.dynamometer_id, DYNAMOMETER_EDS)
+        devices = setup.devices or default_devices()
+        serials = ((_serial(setup, "valve"), _serial(setup, "dynamometer")) if setup.unconfigured
+                   else (None, None))
+        self.valve = ServoValveNode(on_bus.network, setup.valve_id, devices.valve, lockstep, serials[0])
+        self.dynamometer = DynamometerNode(on_bus.network, setup.dynamometer_id, devices.dynamometer,
+                                           serials[1])
         for node in self.nodes:
             node.cyclic_flags = on_bus.cyclic_flags
+            on_bus.register(node)
+            node.id_changed = on_bus.register
         #: the spool command the valve applies, % (updated after every change of the valve)
         self.command = 0.0
         on_bus.channels.append(self)

@@ -45,10 +45,12 @@ from typing import Mapping, Sequence
 import can
 import numpy as np
 
+from core.errors import ParameterError
 from dbc import profile as P
+from devices import DeviceSet
 from plant.rig import RigModel
 from plant.sensor import SensorBank
-from rig.config import RigConfig
+from rig.config import RigConfig, RigError
 from rig.emulated import channel_seed, emulated_plant
 from standbus import LOCKSTEP_BUSY_POLL_S, HandoverNotifier, prefer_busy_poll, wire
 from standbus.handover import handover_many
@@ -88,6 +90,10 @@ class EmulatorOptions:
     step_s: float = 0.0005
     watchdog_poll_s: float = 0.005
     faults: tuple[ScheduledFault, ...] = ()
+    #: the one-channel stand's devices (a rig's come from its file; None: the emulated pair)
+    devices: "DeviceSet | None" = None
+    #: the channels whose nodes start without a node id (LSS only: :mod:`plant_emulator.lss`)
+    unconfigured: tuple[str, ...] = ()
 
 
 def fd_flags(rig: RigConfig) -> dict[str, int]:
@@ -146,7 +152,13 @@ class EmulatedRig:
         #: lockstep: the buses whose SYNC a cycle waits for (a bus without channels has none)
         self._gated = [b for b in self.buses if b.channels]
         self._several_buses = len(self._gated) > 1
-        self._period_node = self.channels[0].valve
+        #: the node whose communication cycle period (0x1006, written by the master) is the
+        #: stand's period: the first that has the object
+        self._period_node = next((n for ch in self.channels for n in ch.nodes
+                                  if P.COMM_CYCLE_PERIOD in n.local.object_dictionary), None)
+        if self._period_node is None and options.lockstep:
+            raise ParameterError("lockstep needs the period the master writes to 0x1006, and no "
+                             "emulated device has that object: run the emulator in real time")
         self._plant_dt = options.step_s
         y0 = [c.initial_force_kgf for c in channels]
         # compile (or load) the models' compiled loops now, not at the first SYNC of a run
@@ -187,8 +199,13 @@ class EmulatedRig:
         (a channel without a plant, a structure no stiffness gives). Each channel's
         dynamometer draws its own noise stream from ``options.seed``."""
         plant = emulated_plant(rig)
+        unknown = set(options.unconfigured) - set(rig.names)
+        if unknown:
+            raise RigError(f"--unconfigured {', '.join(sorted(unknown))}: no such channel; the "
+                           f"rig has {', '.join(rig.names)}")
         setups = [ChannelSetup(c.name, c.bus, c.valve_id, c.dynamometer_id,
-                               p.dynamometer(channel_seed(options.seed, i)), p.initial_force_kgf)
+                               p.dynamometer(channel_seed(options.seed, i)), p.initial_force_kgf,
+                               c.devices, c.name in options.unconfigured)
                   for i, (c, p) in enumerate(zip(rig.channels, plant.plants))]
         return cls(buses, setups, plant.model, options, cyclic_flags=fd_flags(rig))
 
@@ -228,8 +245,13 @@ class EmulatedRig:
         for ch in self.channels:
             ch.valve.boot()
             ch.dynamometer.boot()
+        guarded = [n for ch in self.channels for n in ch.nodes if n.guarding is not None]
         if not self.options.lockstep:     # lockstep: checked at each cycle, on the stand's time
             self._watchdog = threading.Thread(target=self._watch, name="emulator-watchdog", daemon=True)
+            self._watchdog.start()
+        elif guarded:                     # life guarding counts the wall clock, as its master
+            self._watchdog = threading.Thread(target=self._watch_lives, args=(guarded,),
+                                              name="emulator-life-guarding", daemon=True)
             self._watchdog.start()
 
     def _read_buses(self, notifiers: list[HandoverNotifier], spin_s: float) -> None:
@@ -318,7 +340,9 @@ class EmulatedRig:
                 self._prefetch_s += 0.3 * (took - self._prefetch_s)
 
     def _cycle_period(self) -> float:
-        """The communication cycle period 0x1006 the master wrote, s."""
+        """The communication cycle period 0x1006 the master wrote, s (NaN: no device has it)."""
+        if self._period_node is None:
+            return math.nan
         return int(self._period_node.value(P.COMM_CYCLE_PERIOD)) * 1e-6
 
     def _lockstep_cycle(self) -> None:
@@ -471,6 +495,7 @@ class EmulatedRig:
         last = time.monotonic()
         deferred_since: float | None = None
         skipped = 0
+        guarded = [n for ch in self.channels for n in ch.nodes if n.guarding is not None]
         while not self._stop.wait(poll):
             now = time.monotonic()
             stalled = now - last > poll + _STALL_S
@@ -482,6 +507,7 @@ class EmulatedRig:
             with self.lock:
                 if self.rig_model.coupled:
                     self._catch_up()
+                self._check_lives(guarded, now)
                 due = [ch for ch in self.channels if ch.valve.rpdo_timeout_due(now)]
             if not due:
                 deferred_since = None
@@ -495,6 +521,23 @@ class EmulatedRig:
                 for ch in due:
                     if ch.valve.check_rpdo_timeout(time.monotonic()):
                         ch.valve.fault(P.EMCY_RPDO_TIMEOUT)
+
+    def _watch_lives(self, guarded) -> None:
+        """Lockstep with guarded nodes: their life guarding on the wall clock (the master guards
+        on it), polled every 20 ms."""
+        while not self._stop.wait(0.02):
+            with self.lock:
+                self._check_lives(guarded, time.monotonic())
+
+    @staticmethod
+    def _check_lives(guarded, now: float) -> None:
+        """Node guarding: each guarded node whose master stopped asking within its life time
+        reacts (:meth:`~plant_emulator.node.EmulatedNode.life_guard_lost`)."""
+        for node in guarded:
+            if node.guarding.life_expired(now):
+                log.warning("node %d: life guarding: no guard request within %g s", node.id,
+                            node.guarding.life_time_s() or 0)
+                node.life_guard_lost()
 
     @staticmethod
     def _frames_waiting(bus: can.BusABC) -> bool:

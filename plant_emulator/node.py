@@ -15,7 +15,12 @@ producers. This class adds, per CiA 301:
   stand's own time (advanced by SYNC) in lockstep;
 * an acceptance filter (:func:`slave_frame_filter`) in front of the stack: NMT commands must
   have 2 bytes, SYNC 0 or 1, SDO requests 8; error, remote, extended-id and FD frames never
-  reach it (counted and dropped, as a CAN controller's filter and a careful stack would).
+  reach it (counted and dropped, as a CAN controller's filter and a careful stack would), but
+  for node guarding's remote frames, which go to the node's guarding (:mod:`.guarding`);
+* the object dictionary of any device file's EDS (:class:`devices.Device`); error control as it
+  has it: a heartbeat producer (0x1017), or node guarding (0x100C/0x100D) with life guarding;
+* the SDO server as strict as CiA 301 asks of a PDO's configuration (:mod:`.pdo_rules`), on top
+  of canopen's own aborts (no such object or sub-index, read-only, write-only, wrong length).
 
 Device behaviour (valve, dynamometer) lives in subclasses.
 """
@@ -27,16 +32,23 @@ import struct
 import threading
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import canopen
 from canopen.network import MessageListener
 from canopen.nmt import NMT_STATES
 
+from canopen.nmt import NmtBase
+
 from dbc import profile as P
 from dbc.pdo_codec import PdoLayout, PdoLayoutError
+from devices import Device
+from devices.device import find_variable
 from standbus.faults import FrameFilter
+
+from .guarding import GUARD_TIME, LIFE_TIME_FACTOR, GuardedNode
+from .lss import LSS_MASTER, LssDevice
+from .pdo_rules import check_pdo_write
 
 log = logging.getLogger(__name__)
 
@@ -103,16 +115,32 @@ def slave_frame_filter(network: canopen.Network, node_ids, fd: bool = False) -> 
 
 
 class EmulatedNode:
-    """A CANopen slave on ``network`` with the object dictionary from ``eds``."""
+    """A CANopen slave on ``network``: the device ``device`` describes (its EDS's object
+    dictionary and error control)."""
 
-    def __init__(self, network: canopen.Network, node_id: int, eds: str | Path) -> None:
+    def __init__(self, network: canopen.Network, node_id: int, device: Device,
+                 unconfigured_serial: int | None = None) -> None:
         self.id = node_id
         self.network = network
-        self.local = canopen.LocalNode(node_id, str(eds))
-        network.add_node(self.local)
-        # We run the NMT state machine ourselves (LocalNode does not reboot on reset).
-        network.unsubscribe(0, self.local.nmt.on_command)
-        network.subscribe(0, self._on_nmt)
+        self.device = device
+        #: LSS (CiA 305): a node started without a node id answers only LSS until it is given
+        #: one (``unconfigured_serial``: its serial number, its LSS address's last part)
+        self.lss: LssDevice | None = None
+        #: called with the node after it took a new node id (the bus's filter then expects it)
+        self.id_changed = lambda node: None
+        self.local = self._make_local(node_id, unconfigured_serial)
+        od = self.local.object_dictionary
+        #: the device's error control: a heartbeat producer, else node guarding
+        self.has_heartbeat = 0x1017 in od
+        self.guarding = GuardedNode(self) if GUARD_TIME in od and LIFE_TIME_FACTOR in od else None
+        network.subscribe(0, self._on_nmt)      # we run the NMT state machine ourselves
+        if unconfigured_serial is None:
+            self._attach()
+        else:
+            identity = [int(find_variable(od, (0x1018, s)).default or 0) if find_variable(od, (0x1018, s))
+                        else 0 for s in (1, 2, 3, 4)]
+            self.lss = LssDevice(self, identity)
+            network.subscribe(LSS_MASTER, self.lss.on_request)
         #: live values of objects the device computes (status word, process value, ...)
         self.live: dict[tuple[int, int], Any] = {}
         #: stored values already decoded (the SYNC path reads a few objects every cycle; through
@@ -123,8 +151,6 @@ class EmulatedNode:
         #: read callback), until an SDO write or a reset replaces it. Kept decoded: encoding
         #: each into the object dictionary's store cost ~3 µs a value, 32 values a cycle
         self._rpdo_values: dict[tuple[int, int], Any] = {}
-        self.local.add_read_callback(self._read_live)
-        self.local.add_write_callback(self._on_sdo_write)
         #: called (no arguments) each time the node enters OPERATIONAL, after its own hook
         self.started_listeners: list = []
         self.tpdos: list[PdoConfig] = []
@@ -150,6 +176,52 @@ class EmulatedNode:
         #: the wire flags of the synchronous TPDOs (an FD frame on a CAN FD bus)
         self.cyclic_flags = 0
 
+    # -- the node id ---------------------------------------------------------------------------
+    def _make_local(self, node_id: int, serial: int | None = None) -> canopen.LocalNode:
+        """The device's canopen node at ``node_id`` (not yet on the network): its object
+        dictionary from the EDS (with the node id in its $NODEID defaults), the serial number
+        ``serial`` where given, the device's own objects (:meth:`prepare_od`)."""
+        local = canopen.LocalNode(node_id, str(self.device.eds))
+        od = local.object_dictionary
+        if serial is not None and find_variable(od, (0x1018, 4)) is not None:
+            od[0x1018][4].default = serial
+        self.prepare_od(od)
+        return local
+
+    def _attach(self) -> None:
+        """Put the canopen node on the network: its SDO server answers from now on."""
+        self.network.add_node(self.local)
+        # We run the NMT state machine ourselves (LocalNode does not reboot on reset).
+        self.network.unsubscribe(0, self.local.nmt.on_command)
+        self.local.add_read_callback(self._read_live)
+        self.local.add_write_callback(self._on_sdo_write)
+
+    @property
+    def configured(self) -> bool:
+        """It has a node id (a node started unconfigured has none until LSS gives it one)."""
+        return self.lss is None or self.lss.configured
+
+    def take_node_id(self, node_id: int) -> None:
+        """LSS gave this node ``node_id``: it becomes that node (its object dictionary's
+        $NODEID defaults with it) and boots."""
+        with self.lock:
+            if self.configured and self.local.id in self.network.nodes:
+                self.local.nmt.stop_heartbeat()
+                self.local.remove_network()
+                del self.network.nodes[self.local.id]
+            serial = int(self.value(0x1018, 4)) if find_variable(
+                self.local.object_dictionary, (0x1018, 4)) is not None else None
+            self.id = node_id
+            self.local = self._make_local(node_id, serial)
+            self._stored.clear()
+            self._rpdo_values.clear()
+            self._attach()
+            self.id_changed(self)
+            self.boot()
+
+    def prepare_od(self, od) -> None:
+        """A device's own changes to its object dictionary before the node uses it."""
+
     # -- NMT ----------------------------------------------------------------------------------
     @property
     def nmt_state(self) -> str:
@@ -160,18 +232,26 @@ class EmulatedNode:
         return self.local.nmt._state == 5       # canopen's code of OPERATIONAL (nmt.state)
 
     def boot(self) -> None:
-        """Power-on / reset: send the boot-up message and enter PRE-OPERATIONAL."""
+        """Power-on / reset: send the boot-up message and enter PRE-OPERATIONAL (a node
+        without a node id stays silent: it answers LSS only)."""
+        if not self.configured:
+            return
         with self.lock:
             self._stop_pdos()
             self.local.nmt.send_command(NMT_RESET_NODE)   # INITIALISING, sends boot-up
-            self.local.nmt.send_command(NMT_PREOP)        # PRE-OPERATIONAL, starts heartbeat
+            if self.has_heartbeat:
+                self.local.nmt.send_command(NMT_PREOP)    # PRE-OPERATIONAL, starts heartbeat
+            else:                                         # no producer to start (guarded)
+                NmtBase.send_command(self.local.nmt, NMT_PREOP)
+            if self.guarding is not None:
+                self.guarding.reset()
             self.on_boot()
 
     def _on_nmt(self, can_id: int, data: bytes, timestamp: float) -> None:
         if len(data) < 2:
             return
         command, node_id = data[0], data[1]
-        if node_id not in (0, self.id):
+        if node_id not in (0, self.id) or not self.configured:
             return
         with self.lock:
             if command in (NMT_RESET_NODE, NMT_RESET_COMM):
@@ -201,7 +281,7 @@ class EmulatedNode:
     def _heartbeat_now(self) -> None:
         """A heartbeat right at a state change (as CANopenNode devices send one), so the master
         sees the new state at once instead of up to one heartbeat period later."""
-        if int(self.value(0x1017)) > 0 and not self.heartbeat_silent:
+        if self.has_heartbeat and int(self.value(0x1017)) > 0 and not self.heartbeat_silent:
             state = NMT_STATE_CODES[self.nmt_state]
             self.network.send_message(P.HEARTBEAT_BASE + self.id, bytes((state,)))
 
@@ -215,7 +295,7 @@ class EmulatedNode:
         def again() -> None:
             with self.lock:
                 self.heartbeat_silent = False
-                period_ms = int(self.value(0x1017))
+                period_ms = int(self.value(0x1017)) if self.has_heartbeat else 0
                 if period_ms > 0:
                     self.local.nmt.start_heartbeat(period_ms)
         timer = threading.Timer(duration_s, again)
@@ -432,9 +512,12 @@ class EmulatedNode:
 
     def _on_sdo_write(self, index: int, subindex: int, od: Any, data: bytes) -> None:
         # canopen calls this before it stores ``data``; the cache takes the new value at once
-        # (under the lock), so no reader can cache the old one in between.
+        # (under the lock), so no reader can cache the old one in between. A write CiA 301
+        # forbids raises its abort here (canopen's server sends it; nothing is stored).
         with self.lock:
             value = od.decode_raw(data)
+            if 0x1400 <= index < 0x1C00:
+                check_pdo_write(self, index, subindex, int(value))
             self._rpdo_values.pop((index, subindex), None)
             if index >= 0x2000:
                 self.on_object_written(index, subindex, value)
@@ -448,6 +531,11 @@ class EmulatedNode:
 
     def on_boot(self) -> None:
         """After boot-up (power-on or reset)."""
+
+    def life_guard_lost(self) -> None:
+        """Node guarding: the master stopped asking within the life time (EMCY 0x8130, life
+        guard error; a device reacts more in its subclass)."""
+        self.local.emcy.send(P.EMCY_HEARTBEAT, 0x10)
 
     def on_operational(self) -> None:
         """After entering OPERATIONAL (PDOs are configured)."""

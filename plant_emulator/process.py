@@ -71,9 +71,11 @@ class EmulatorProcess:
 
     def __init__(self, bus: str, config: PlantConfig | None = None, lockstep: bool = True,
                  seed: int | None = 1, extra_args: list[str] | None = None,
-                 ready_timeout_s: float = 20.0) -> None:
+                 ready_timeout_s: float = 20.0, devices=None) -> None:
         self.bus = bus
         self.config = config
+        #: the devices to impersonate: a device file's path, or a DeviceSet (None: the default)
+        self.devices = getattr(devices, "path", devices)
         self.lockstep = lockstep
         self.seed = seed
         self.extra_args = list(extra_args or [])
@@ -93,6 +95,8 @@ class EmulatorProcess:
             path = Path(self._tmp.name) / "plant.toml"
             path.write_text(config_to_toml(self.config))
             cmd += ["--config", str(path)]
+        if self.devices is not None:
+            cmd += ["--devices", str(self.devices)]
         return cmd + self.extra_args
 
     def start(self) -> "EmulatorProcess":

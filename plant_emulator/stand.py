@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import can
 
+from core.errors import ParameterError
 from plant.config import PlantConfig
 from plant.rig import RigModel
 
@@ -47,8 +48,11 @@ class EmulatedStand(EmulatedRig):
         config.validate()
         if options.valve_id == options.dynamometer_id:
             raise ValueError("the valve and the dynamometer need different node ids")
+        if set(options.unconfigured) - {BUS_NAME}:
+            raise ParameterError(f"unconfigured: a stand's one channel is {BUS_NAME!r}")
         setup = ChannelSetup(BUS_NAME, BUS_NAME, options.valve_id, options.dynamometer_id,
-                             config.dynamometer(options.seed), config.initial_force_kgf)
+                             config.dynamometer(options.seed), config.initial_force_kgf,
+                             options.devices, BUS_NAME in options.unconfigured)
         super().__init__({BUS_NAME: bus}, [setup], RigModel([config.model]), options)
         self.bus = bus
         self.config = config

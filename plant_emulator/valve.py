@@ -24,7 +24,12 @@ from __future__ import annotations
 import logging
 from typing import Any
 
+from canopen.objectdictionary import ODVariable, UNSIGNED8
+
 from dbc import profile as P
+from devices import Device, DeviceError
+from devices.device import find_variable
+from devices.units import FULL_SCALE_DEFAULT, SetpointScale
 
 from .node import EmulatedNode
 
@@ -34,16 +39,46 @@ log = logging.getLogger(__name__)
 _STATE_BITS = {s: (int(s.value), bool(s.is_fault)) for s in P.ValveState}
 _DISABLE, _HOLD, _ACTIVE, _RESET_FAULT = (int(b) for b in (
     P.ControlBit.DISABLE, P.ControlBit.HOLD, P.ControlBit.ACTIVE, P.ControlBit.RESET_FAULT))
-_STATUS_KEY, _ERROR_KEY, _ACTUAL_VALUE = (P.STATUS_WORD, 0), (P.ERROR_REGISTER, 0), P.ACTUAL_VALUE
+_ERROR_KEY = (P.ERROR_REGISTER, 0)
 _LIMIT_REACHED = P.STATUS_LIMIT_REACHED
-percent_to_counts = P.percent_to_counts
-#: the command RPDO's objects, as the profile maps them
-_COMMAND_KEYS = ((P.CONTROL_WORD, 0), P.SETPOINT)
+
+
+def add_clock_object(od) -> None:
+    """The emulator's one object of its own, 0x2100 (0: real time, 1: lockstep; read-only), added
+    to whatever device it impersonates: how the master tells an emulated stand that advances
+    one period per SYNC from a real one (which has no such object)."""
+    if P.EMULATOR_CLOCK in od:
+        obj = od[P.EMULATOR_CLOCK]
+        if not (isinstance(obj, ODVariable) and obj.data_type == UNSIGNED8):
+            raise DeviceError(f"the EDS already has an object 0x{P.EMULATOR_CLOCK:04X} of its own: "
+                             "the emulator cannot impersonate it (it uses that index for its clock)")
+        return
+    var = ODVariable("hydrostand emulator clock", P.EMULATOR_CLOCK, 0)
+    var.data_type, var.access_type, var.default = UNSIGNED8, "ro", 0
+    od.add_object(var)
 
 
 class ServoValveNode(EmulatedNode):
-    def __init__(self, network, node_id: int, eds, lockstep: bool) -> None:
-        super().__init__(network, node_id, eds)
+    """A CiA 408 valve drive: its roles' objects from its device file (:mod:`devices.roles`)."""
+
+    def __init__(self, network, node_id: int, device: Device, lockstep: bool,
+                 unconfigured_serial: int | None = None) -> None:
+        super().__init__(network, node_id, device, unconfigured_serial)
+        od = self.local.object_dictionary
+        self._status_key = device.key("status_word")
+        self._spool_key = device.key("actual_spool")
+        self._mode_key = device.key("device_mode")
+        self._hold_key = device.key("hold_setpoint")
+        self._setpoint_key = device.key("setpoint")
+        #: the command RPDO's objects in the profile's order (its fast path)
+        self._command_keys = (device.key("control_word"), self._setpoint_key)
+        self._limits = all(i in od for i in (P.LOWER_LIMIT, P.UPPER_LIMIT))
+        full = device.setpoint_full_scale
+        reference = device.key("setpoint_reference")
+        if full is None and reference is not None:
+            full = int(find_variable(od, reference).default or 0) or None
+        #: counts at 100 % of the setpoint and the actual spool position
+        self.scale = SetpointScale(full or FULL_SCALE_DEFAULT, device.type_bits("setpoint"))
         self.lockstep = lockstep
         self.state = P.ValveState.INIT
         self.setpoint_counts = 0
@@ -60,23 +95,29 @@ class ServoValveNode(EmulatedNode):
         self._outputs_of: float | None = None
         self._refresh()
 
+    def prepare_od(self, od) -> None:
+        add_clock_object(od)
+
     # -- what the hydraulics see ----------------------------------------------------------------
     def spool_command_percent(self) -> float:
         """The command the valve applies now, in % (positive: force rising)."""
         S = P.ValveState
         objects = self._spool_objects
         if objects is None:
+            limit = self.scale.limit
             objects = self._spool_objects = (
-                int(self.value(P.DEVICE_MODE)) == 1, int(self.value(P.LOWER_LIMIT)),
-                int(self.value(P.UPPER_LIMIT)), int(self.value(P.HOLD_SETPOINT)))
+                self._mode_key is None or int(self.value(*self._mode_key)) == 1,
+                int(self.value(P.LOWER_LIMIT)) if self._limits else -limit,
+                int(self.value(P.UPPER_LIMIT)) if self._limits else limit,
+                int(self.value(*self._hold_key)) if self._hold_key is not None else 0)
         position, lower, upper, hold = objects
         if self.state is S.ACTIVE and position:
             counts = min(max(self.setpoint_counts, lower), upper)
             self.limit_reached = counts != self.setpoint_counts
-            return P.counts_to_percent(counts)
+            return self.scale.percent(counts)
         self.limit_reached = False
         if self.state in (S.HOLD, S.FAULT_HOLD):
-            return P.counts_to_percent(hold)
+            return self.scale.percent(hold)
         return 0.0
 
     def stored_changed(self) -> None:
@@ -105,10 +146,10 @@ class ServoValveNode(EmulatedNode):
     def rpdo_taker(self, cfg):
         """The command RPDO as the profile maps it (control word, setpoint): stored and applied
         as :meth:`on_objects_written` applies it, without the generic loop."""
-        if cfg.layout.keys != _COMMAND_KEYS or type(self).on_objects_written is not ServoValveNode.on_objects_written:
+        if cfg.layout.keys != self._command_keys or type(self).on_objects_written is not ServoValveNode.on_objects_written:
             return super().rpdo_taker(cfg)
         rpdo_values, stored = self._rpdo_values, self._stored
-        word_key, setpoint_key = _COMMAND_KEYS
+        word_key, setpoint_key = self._command_keys
         apply = self._apply_control_word
 
         def take(values) -> None:
@@ -125,10 +166,11 @@ class ServoValveNode(EmulatedNode):
     def on_objects_written(self, changes) -> None:
         """One command (an RPDO: control word and setpoint) changes the spool once."""
         self.before_change()
-        for (index, sub), value in changes:
-            if index == P.CONTROL_WORD:
+        word_key, setpoint_key = self._command_keys
+        for key, value in changes:
+            if key == word_key:
                 self._apply_control_word(int(value))
-            elif (index, sub) == P.SETPOINT:
+            elif key == setpoint_key:
                 self.setpoint_counts = int(value)
         self._refresh()
         self.after_change()
@@ -168,17 +210,21 @@ class ServoValveNode(EmulatedNode):
             self.after_change()
             self.local.emcy.send(emcy_code, 0x01)
 
+    def life_guard_lost(self) -> None:
+        """Node guarding: the master is gone; the valve goes to its own safe state."""
+        self.fault(P.EMCY_HEARTBEAT)
+
     def _refresh(self) -> None:
         status, fault = _STATE_BITS[self.state]
         if self.limit_reached:
             status |= _LIMIT_REACHED
         live = self.live
-        live[_STATUS_KEY] = status
+        live[self._status_key] = status
         live[_ERROR_KEY] = 0x01 if fault else 0
 
     def update_outputs(self, spool_percent: float) -> None:
         """Refresh the values the TPDO carries (status word, actual spool position)."""
         self._refresh()
-        if spool_percent != self._outputs_of:
+        if spool_percent != self._outputs_of and self._spool_key is not None:
             self._outputs_of = spool_percent
-            self.live[_ACTUAL_VALUE] = percent_to_counts(spool_percent)
+            self.live[self._spool_key] = self.scale.counts(spool_percent)

@@ -3,16 +3,21 @@ may (the rig's ``bus_load_limit``, 70 % by default), and what would fit when it 
 
 Per cycle on every bus: one SYNC (with its counter); per channel on it: the valve's command
 (RPDO), the valve's status (TPDO) and the force (TPDO); per heartbeat period: one heartbeat of
-each node. On a CAN FD bus the cyclic frames are FD frames (the gateway and the emulator send
-them so) and the heartbeats classic frames (the nodes' CANopen stack sends them so). Frame lengths come from the EDS files' PDO mappings (:mod:`dbc.sizes`), times from
-:mod:`standbus.budget` (worst-case bit stuffing; CAN FD counted as CAN FD).
+each node, or for a node guarded instead the master's remote frame and the node's answer. On a
+CAN FD bus the cyclic frames are FD frames (the gateway and the emulator send them so) and the
+heartbeats classic frames (the nodes' CANopen stack sends them so). Frame lengths come from the
+PDOs the gateway sets up on each channel's devices (:func:`devices.plan.plan_node`; the largest
+of a bus's channels), times from :mod:`standbus.budget` (worst-case bit stuffing; CAN FD
+counted as CAN FD).
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
-from dbc.sizes import channel_pdo_bytes
+from devices import DeviceSet, default_devices
+from devices.plan import channel_pdo_bytes, plan_node
 from standbus.budget import BusLoad, Traffic, bus_load
 
 from .config import BusConfig, RigConfig
@@ -21,16 +26,48 @@ SYNC_BYTES = 1          #: the SYNC with its counter
 HEARTBEAT_BYTES = 1
 
 
-def cycle_traffic(channels: int, period_s: float, heartbeat_s: float) -> list[Traffic]:
-    """The frames of ``channels`` loading channels on one bus."""
+@dataclass(frozen=True)
+class ChannelFrames:
+    """What one channel puts on its bus: its cyclic PDOs' data bytes, and its error-control
+    frames per heartbeat period (a heartbeat per node; two for a guarded one)."""
+
+    pdo_bytes: tuple[tuple[str, int], ...]
+    error_control_frames: int = 2
+
+    @classmethod
+    def of(cls, devices: DeviceSet) -> "ChannelFrames":
+        plans = [plan_node(d, nid, period_s=0.002, heartbeat_ms=100)
+                 for d, nid in ((devices.valve, 1), (devices.dynamometer, 2))]
+        frames = sum(2 if d.error_control == "guarding" else 1 for d in (devices.valve, devices.dynamometer))
+        return cls(tuple(channel_pdo_bytes(plans).items()), frames)
+
+    def larger(self, other: "ChannelFrames") -> "ChannelFrames":
+        """Each figure the larger of the two (the worst channel of a bus)."""
+        mine, theirs = dict(self.pdo_bytes), dict(other.pdo_bytes)
+        return ChannelFrames(tuple((k, max(v, theirs.get(k, 0))) for k, v in mine.items()),
+                             max(self.error_control_frames, other.error_control_frames))
+
+
+@functools.lru_cache(maxsize=1)
+def default_frames() -> ChannelFrames:
+    return ChannelFrames.of(default_devices())
+
+
+def cycle_traffic(channels: int, period_s: float, heartbeat_s: float,
+                  frames: ChannelFrames | None = None) -> list[Traffic]:
+    """The frames of ``channels`` loading channels on one bus, each as ``frames`` (default:
+    the emulated devices')."""
+    frames = frames or default_frames()
     out = [Traffic("SYNC", SYNC_BYTES, 1, period_s)]
-    out += [Traffic(what, n, channels, period_s) for what, n in channel_pdo_bytes().items()]
-    out.append(Traffic("heartbeats", HEARTBEAT_BYTES, 2 * channels, heartbeat_s, classic=True))
+    out += [Traffic(what, n, channels, period_s) for what, n in frames.pdo_bytes]
+    out.append(Traffic("heartbeats", HEARTBEAT_BYTES, frames.error_control_frames * channels,
+                       heartbeat_s, classic=True))
     return out
 
 
-def load_of(bus: BusConfig, channels: int, period_s: float, heartbeat_s: float) -> BusLoad:
-    return bus_load(cycle_traffic(channels, period_s, heartbeat_s), bus.bitrate, bus.fd,
+def load_of(bus: BusConfig, channels: int, period_s: float, heartbeat_s: float,
+            frames: ChannelFrames | None = None) -> BusLoad:
+    return bus_load(cycle_traffic(channels, period_s, heartbeat_s, frames), bus.bitrate, bus.fd,
                     bus.data_bitrate)
 
 
@@ -74,27 +111,36 @@ def bus_budgets(rig: RigConfig) -> list[BusBudget]:
     """Every bus of the rig at its period."""
     hb = rig.heartbeat_ms / 1e3
     out = []
+    of_set: dict[int, ChannelFrames] = {}
     for bus in rig.buses:
-        names = [c.name for c in rig.channels_on(bus.name)]
-        load = load_of(bus, len(names), rig.period_s, hb)
+        on_bus = rig.channels_on(bus.name)
+        names = [c.name for c in on_bus]
+        frames = None
+        for c in on_bus:                       # the bus's worst channel, each device set once
+            mine = of_set.get(id(c.devices)) or of_set.setdefault(id(c.devices), ChannelFrames.of(c.devices))
+            frames = mine if frames is None else frames.larger(mine)
+        frames = frames or default_frames()
+        load = load_of(bus, len(names), rig.period_s, hb, frames)
         out.append(BusBudget(bus, names, load, rig.bus_load_limit, rig.period_s,
-                             _max_channels(bus, rig.period_s, hb, rig.bus_load_limit),
-                             _min_period(bus, len(names), hb, rig.bus_load_limit)))
+                             _max_channels(bus, rig.period_s, hb, rig.bus_load_limit, frames),
+                             _min_period(bus, len(names), hb, rig.bus_load_limit, frames)))
     return out
 
 
-def _max_channels(bus: BusConfig, period_s: float, hb: float, limit: float) -> int:
+def _max_channels(bus: BusConfig, period_s: float, hb: float, limit: float,
+                  frames: ChannelFrames) -> int:
     n = 0
-    while n < 1000 and load_of(bus, n + 1, period_s, hb).busy_s_per_s <= limit:
+    while n < 1000 and load_of(bus, n + 1, period_s, hb, frames).busy_s_per_s <= limit:
         n += 1
     return n
 
 
-def _min_period(bus: BusConfig, channels: int, hb: float, limit: float) -> float:
+def _min_period(bus: BusConfig, channels: int, hb: float, limit: float,
+                frames: ChannelFrames) -> float:
     """The shortest period (s) at which ``channels`` fit: the per-cycle frames' time over what
     the limit leaves after the heartbeats."""
-    per_cycle = load_of(bus, channels, 1.0, math.inf).busy_s_per_s      # s of bus per cycle
-    heartbeats = load_of(bus, channels, math.inf, hb).busy_s_per_s      # s of bus per s
+    per_cycle = load_of(bus, channels, 1.0, math.inf, frames).busy_s_per_s      # s of bus per cycle
+    heartbeats = load_of(bus, channels, math.inf, hb, frames).busy_s_per_s      # s of bus per s
     room = limit - heartbeats
     return per_cycle / room if room > 0 else math.inf
 

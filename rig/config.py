@@ -18,6 +18,9 @@ gain ``c_i/A_i`` (mm/(%·s)), ``G = K·diag(c/A)`` (../shared/notes/rig.md)::
     bitrate = 1000000                # bit/s (default 1 Mbit/s)
     # fd = true                      # CAN FD, with data_bitrate = 2000000
 
+    devices = "devices/servotek.toml"  # the channels' devices (default: the emulated pair;
+                                     # docs/devices.md), a channel may name its own
+
     [[channel]]
     name = "root_left"
     bus = "can0"
@@ -57,6 +60,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from core.errors import ParameterError
+from devices import DeviceError, DeviceSet, default_devices, load_device_set
 from plant.config import PlantConfig, plant_config_from_mapping, read_toml
 from plant.params import ModelError
 from plant.rig import StructureChange, changed_structure
@@ -101,6 +105,8 @@ class ChannelConfig:
     plant: PlantConfig | None = None
     #: the g the plant's file gave, if it gave one (it must agree with the structure's G_ii)
     plant_g: float | None = None
+    #: the channel's valve drive and amplifier (:mod:`devices`; default: the emulated pair)
+    devices: DeviceSet = field(default_factory=default_devices)
 
     @property
     def limit_kgf(self) -> float:
@@ -191,7 +197,7 @@ def load_rig_file(path: str | Path) -> RigConfig:
 def rig_from_mapping(data: Mapping[str, Any], where: str = "rig", base_dir: Path | None = None,
                      path: Path | None = None) -> RigConfig:
     known = {"name", "period_ms", "bus_load_limit_pct", "heartbeat_ms", "bus", "channel",
-             "structure"}
+             "structure", "devices"}
     unknown = set(data) - known
     if unknown:
         raise RigError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}; a rig file has "
@@ -205,7 +211,9 @@ def rig_from_mapping(data: Mapping[str, Any], where: str = "rig", base_dir: Path
         raise RigError(f"{where}: no [[bus]]: a rig needs at least one bus (name, spec)")
     _unique([b.name for b in buses], f"{where}: bus name")
     bus_names = {b.name for b in buses}
-    channels = [_channel(c, f"{where}: [[channel]] #{i + 1}", bus_names, base_dir)
+    loaded: dict = {}
+    devices = _devices(data.get("devices"), where, base_dir, loaded)
+    channels = [_channel(c, f"{where}: [[channel]] #{i + 1}", bus_names, base_dir, devices, loaded)
                 for i, c in enumerate(_tables(data, "channel", where))]
     if not channels:
         raise RigError(f"{where}: no [[channel]]: a rig needs at least one channel (name, bus, "
@@ -290,10 +298,29 @@ def _keys(table: Mapping[str, Any], known: set[str], where: str) -> None:
                        f"{', '.join(sorted(known))}")
 
 
+def _devices(value: Any, where: str, base_dir: Path | None, loaded: dict) -> DeviceSet:
+    """The device set a rig file or a channel names (a path relative to the rig file); each
+    file read once."""
+    if value is None:
+        return default_devices()
+    if not isinstance(value, str):
+        raise RigError(f"{where}: devices = {value!r} must be the path of a device file "
+                       "(docs/devices.md)")
+    path = Path(value).expanduser()
+    if base_dir is not None and not path.is_absolute():
+        path = base_dir / path
+    if path not in loaded:
+        try:
+            loaded[path] = load_device_set(path)
+        except DeviceError as exc:
+            raise RigError(f"{where}: devices: {exc}") from None
+    return loaded[path]
+
+
 def _channel(table: Mapping[str, Any], where: str, buses: set[str],
-             base_dir: Path | None) -> ChannelConfig:
+             base_dir: Path | None, devices: DeviceSet, loaded: dict) -> ChannelConfig:
     _keys(table, {"name", "bus", "valve_id", "dynamometer_id", "range_kgf", "force_limit_kgf",
-                  "plant"}, where)
+                  "plant", "devices"}, where)
     name = _name(table, where)
     where = f"{where} ({name})"
     bus = table.get("bus")
@@ -313,7 +340,9 @@ def _channel(table: Mapping[str, Any], where: str, buses: set[str],
     if "force_limit_kgf" in table:
         limit = _number(table, "force_limit_kgf", where, None, 1.0, range_kgf)
     plant, g = _plant(table.get("plant"), where, base_dir)
-    return ChannelConfig(name, bus, ids[0], ids[1], range_kgf, limit, plant, g)
+    if "devices" in table:
+        devices = _devices(table["devices"], where, base_dir, loaded)
+    return ChannelConfig(name, bus, ids[0], ids[1], range_kgf, limit, plant, g, devices)
 
 
 def _plant(value: Any, where: str, base_dir: Path | None) -> tuple[PlantConfig | None, float | None]:

@@ -57,6 +57,8 @@ def rig_to_toml(rig: RigConfig, header: str = "", path: str | Path | None = None
                   f"range_kgf = {_num(c.range_kgf)}"]
         if c.force_limit_kgf is not None:
             lines.append(f"force_limit_kgf = {_num(c.force_limit_kgf)}")
+        if c.devices.path is not None:      # (the emulated pair is the default)
+            lines.append(f"devices = {json.dumps(str(c.devices.path.resolve()))}")
         if c.plant is not None:
             lines += _plant_lines(c.plant, path, with_g=not structure)
     if structure or rig.changes:

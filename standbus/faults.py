@@ -52,6 +52,9 @@ class FrameFilter(can.Listener):
         #: a CAN FD bus: FD data frames pass too (classic ones always do)
         self.fd = fd
         self.rules: dict[int, frozenset[int] | None] = {}
+        #: remote frames taken by a handler of their own, by id (a slave's node guarding: the
+        #: canopen stack ignores remote frames); any other remote frame is dropped
+        self.remote: dict[int, Callable[[can.Message], None]] = {}
         self.not_classic = 0
         self.unexpected_id = 0
         self.wrong_dlc = 0
@@ -63,6 +66,10 @@ class FrameFilter(can.Listener):
             lengths = (lengths,)
         self.rules[can_id] = None if lengths is None else frozenset(lengths)
 
+    def accept_remote(self, can_id: int, handler: Callable[[can.Message], None]) -> None:
+        """Hand classic remote frames on ``can_id`` (any DLC) to ``handler``."""
+        self.remote[can_id] = handler
+
     def counts(self) -> dict[str, int]:
         return {"not_classic": self.not_classic, "unexpected_id": self.unexpected_id,
                 "wrong_dlc": self.wrong_dlc, "errors": self.errors}
@@ -72,6 +79,15 @@ class FrameFilter(can.Listener):
         return self.not_classic + self.unexpected_id + self.wrong_dlc
 
     def on_message_received(self, msg: can.Message) -> None:
+        if msg.is_remote_frame and self.remote and not (msg.is_error_frame or msg.is_extended_id
+                                                        or msg.is_fd):
+            handler = self.remote.get(msg.arbitration_id)
+            if handler is not None:
+                try:
+                    handler(msg)
+                except Exception:  # a listener must never kill the Notifier thread
+                    self.errors += 1
+                return
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id or (msg.is_fd and not self.fd):
             self.not_classic += 1
             return

@@ -9,6 +9,8 @@ import pytest
 
 from plant.config import PlantConfig
 from plant_emulator.process import EmulatorProcess, RigEmulatorProcess
+# every capture an end-to-end test leaves is read by tshark's CANopen dissector after it
+from tests.support.wire_plugin import pytest_runtest_setup, pytest_runtest_teardown, wire_summary  # noqa: F401
 
 _counter = itertools.count()
 
@@ -77,13 +79,19 @@ def isolated_catalogue():
 
 
 def pytest_terminal_summary(terminalreporter):
-    """Each documentation block's outcome and time (tests/test_docs.py records them)."""
+    """Each documentation block's outcome and time (tests/test_docs.py records them), and what
+    the wire check read (tests/support/wire_plugin.py)."""
     rows = []
-    for reports in terminalreporter.stats.values():
-        for report in reports:
-            if getattr(report, "when", None) == "call":
-                rows += dict(getattr(report, "user_properties", ())).get("doc_blocks", [])
+    reports = [r for rs in terminalreporter.stats.values() for r in rs]
+    for report in reports:
+        if getattr(report, "when", None) == "call":
+            rows += dict(getattr(report, "user_properties", ())).get("doc_blocks", [])
     if rows:
         terminalreporter.write_sep("-", "documentation blocks (tests/test_docs.py)")
         for row in rows:
             terminalreporter.write_line(row)
+    wire = wire_summary(reports)
+    if wire:
+        terminalreporter.write_sep("-", "the wire, read by tshark's CANopen dissector")
+        for line in wire:
+            terminalreporter.write_line(line)

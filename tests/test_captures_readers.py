@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from captures import CaptureDamaged, FrameChunk, open_capture
 from captures.blf import BlfReader
 from captures.candump import CandumpReader
-from captures.frames import ERROR, EXTENDED, FD, REMOTE, TX
+from captures.frames import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, TX
 from captures.synthetic import stand_frames, synthetic_run
 from captures.writers import FastBlfWriter, to_messages, write_blf, write_candump
 
@@ -36,6 +36,8 @@ def assert_same_as_python_can(chunk: FrameChunk, path) -> None:
         assert bool(fl & REMOTE) == m.is_remote_frame, i
         assert bool(fl & FD) == m.is_fd, i
         assert bool(fl & TX) == (not m.is_rx), i
+        assert bool(fl & BRS) == (m.is_fd and m.bitrate_switch), i
+        assert bool(fl & ESI) == (m.is_fd and m.error_state_indicator), i
         if not m.is_remote_frame:
             assert chunk.payload(i) == bytes(m.data), i
         assert chunk.channels[chunk.channel[i]] == str(m.channel), i
@@ -60,7 +62,8 @@ def test_candump_lines_as_can_utils_and_python_can_write_them(tmp_path):
             "(1700000000.600000) vcan0 123##1AABBCCDDEEFF001122334455\n"
             "(1700000000.700000)  can1 701#05\n"          # candump pads names to the longest
             "\n"
-            "(0.002000) can0 181#0F000000\r\n")            # python-can, relative time, CRLF
+            "(0.002000) can0 181#0F000000\r\n"             # python-can, relative time, CRLF
+            "(0.003000) can0 124##2AABB\n")                 # CAN FD, ESI without BRS
     path = tmp_path / "mixed.log"
     path.write_text(text)
     chunk = read_all(CandumpReader(path))
@@ -72,7 +75,8 @@ def test_candump_lines_as_can_utils_and_python_can_write_them(tmp_path):
     assert chunk.flags[4] & REMOTE and chunk.dlc[5] == 4
     assert chunk.dlc[6] == 0
     assert chunk.flags[7] & ERROR
-    assert chunk.flags[8] & FD and chunk.dlc[8] == 12
+    assert chunk.flags[8] & FD and chunk.flags[8] & BRS and not chunk.flags[8] & ESI and chunk.dlc[8] == 12
+    assert chunk.flags[11] & ESI and not chunk.flags[11] & BRS
     assert sorted(set(chunk.channels)) == ["can0", "can1", "vcan0"]
 
 
@@ -161,6 +165,8 @@ def test_blf_reader_equals_python_can_for_every_frame_kind(tmp_path):
         can.Message(timestamp=1_700_000_000.7, arbitration_id=0x123, is_remote_frame=True, dlc=3, channel=0),
         can.Message(timestamp=1_700_000_000.8, arbitration_id=0x201, data=b"\x07\x00\x33\x03", is_rx=False, channel=0),
         can.Message(timestamp=1_700_000_000.9, arbitration_id=0x321, is_fd=True, data=bytes(range(24)), channel=0),
+        can.Message(timestamp=1_700_000_000.95, arbitration_id=0x322, is_fd=True, bitrate_switch=True,
+                    error_state_indicator=True, data=bytes(range(12)), channel=1),
         can.Message(timestamp=1_700_000_001.0, is_error_frame=True, channel=0),
     ]
     path = tmp_path / "kinds.blf"

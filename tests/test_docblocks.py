@@ -194,3 +194,18 @@ def test_an_xfail_block_that_fails_lets_the_page_go_on_and_one_that_passes_fails
     assert [o.status for o in outcomes] == ["xfailed", "passed"] and "bug 7" in outcomes[0].why
     with pytest.raises(BlockFailed, match="XPASS.*bug 7.*remove the marker"):
         run(tmp_path, "<!-- docs-test: xfail: bug 7 -->\n```sh\ntrue\n```\n", "run2")
+
+
+def test_a_block_that_needs_a_program_missing_here_is_skipped_saying_which(tmp_path):
+    outcomes = run(tmp_path, """\
+        <!-- docs-test: needs: sh no-such-program-4711 -->
+        ```sh
+        no-such-program-4711 --version
+        ```
+        <!-- docs-test: needs: sh -->
+        ```sh
+        true
+        ```
+        """)
+    assert [o.status for o in outcomes] == ["skipped", "passed"]
+    assert outcomes[0].why.startswith("no-such-program-4711 not installed")

@@ -194,6 +194,7 @@ FLOODED_S = 5.0
 
 
 @pytest.mark.slow
+@pytest.mark.wire(garbage=True, only="noisy/capture.log")   # random frames on every id, from start-up on
 def test_a_flood_of_garbage_changes_nothing(channel, start_emulator, tmp_path):
     """A separate process floods the bus with random frames (error/remote/extended/FD frames,
     random ids, and the stand's own ids with wrong lengths) at ~4,000 frames/s during a lockstep

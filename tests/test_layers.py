@@ -15,6 +15,7 @@ LEVELS = [
     {"core"},
     {"standbus"},
     {"dbc"},
+    {"devices"},
     {"plant"},
     {"rig"},
     {"plant_emulator", "loading"},

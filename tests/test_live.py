@@ -1,74 +1,123 @@
-"""The live page's parts without a bus (endurance.live): the ring the loop puts into, the feed a
-session publishes and a watcher reads, the inbox of events from outside a session, the
-operator's token, and the page's server on a stopped test: every refusal (no token configured,
-no header, a wrong token, a GET on an action, other paths, another Host), each logged in the
-journal and none moving anything; /status.json is stand test status --json's text; the page
-loads nothing from elsewhere."""
+"""The live page's parts without a bus (endurance.live): the ring the loop writes and the server
+reads, the feed that follows it from session to session, the inbox of events from outside a
+session, the operator's token and its file, where the page may listen, and the page's server on a
+stopped test: every refusal (no token configured, no header, a wrong token, any other method on an
+action, other paths, another Host) answered with the security headers, journalled (a flood as one
+summary) and moving nothing; /status.json is stand test status --json's text; the page loads
+nothing from elsewhere. The server's bounds: tests/test_live_limits.py."""
 from __future__ import annotations
 
+import argparse
 import json
+import os
 import re
 import socket
+import stat
+import threading
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from core.errors import ParameterError
 from endurance.inbox import INBOX_DIR, record_event, take_in
 from endurance.journal import Journal, MonitorStep
-from endurance.live.feed import LIVE_FILE, FeedClient, LiveFeed
-from endurance.live.operator import REFUSALS_PER_MINUTE, Operator, read_token_file, resume_command
-from endurance.live.ring import MARGIN, SampleRing
-from endurance.live.server import Address, LiveServer, serve_address
+from endurance.live.binding import Address, Binding, serve_address
+from endurance.live.feed import LIVE_FILE, RING_DIR, RING_PREFIX, FeedReader, LiveFeed
+from endurance.live.operator import Operator, read_token_file, resume_command, write_token_file
+from endurance.live.ring import MARGIN, RingFile
 from endurance.live.viewer import StreamViewer
 from endurance.monitors import detector_rows
 from endurance.report import status_json, status_of
 from endurance.trends import TrendDetector, TrendOptions
-from tests.support.live import TOKEN, journal_of_flights, request, stand, token_file, wait_for
+from tests.support.live import (TOKEN, events_of, journal_of_flights, refused_events, request, serve_page, stand,
+                                token_file, wait_for)
 
 
 # -- the ring and the feed ------------------------------------------------------------------------------------
-def test_a_ring_gives_each_reader_what_came_since_it_looked_and_the_newest_when_it_fell_behind():
-    ring = SampleRing(MARGIN + 36)
-    assert ring.since(0) == (0, [])
+def test_a_ring_gives_each_reader_what_came_since_it_looked_and_the_newest_when_it_fell_behind(tmp_path):
+    ring = RingFile.create(tmp_path / "r", 3, MARGIN + 36, {"pid": 1})
+    reader = RingFile.open(tmp_path / "r")
+    assert reader.hello == {"pid": 1} and reader.count == 0 and reader.since(0)[1].shape == (0, 3)
+    assert stat.S_IMODE((tmp_path / "r").stat().st_mode) == 0o600
     for i in range(10):
-        ring.put(i)
-    seq, rows = ring.since(0)
-    assert (seq, rows) == (10, list(range(10)))
+        ring.put(float(i), [i + 0.5], [-i])
+    seq, rows = reader.since(0)
+    assert seq == 10 and rows.tolist() == [[i, i + 0.5, -i] for i in range(10)]
     for i in range(10, 500):
-        ring.put(i)
-    seq2, rows = ring.since(seq)                       # lapped: the newest capacity - MARGIN
-    assert seq2 == 500 and rows == list(range(464, 500))
-    assert ring.since(seq2) == (500, [])
+        ring.put(float(i), [0.0], [0.0])
+    seq2, rows = reader.since(seq)                       # lapped: the newest capacity - MARGIN
+    assert seq2 == 500 and rows[:, 0].tolist() == list(range(464, 500))
+    assert len(reader.since(seq2)[1]) == 0
+    # a slot being written (its sequence 0) or reused since is left out, never a torn row
+    ring._seqs[499 % ring.capacity] = 0
+    assert reader.since(497)[1][:, 0].tolist() == [497.0, 498.0]
+    ring.close()
+    assert reader.closed and not (tmp_path / "r").exists()
     with pytest.raises(ValueError):
-        SampleRing(MARGIN)
+        RingFile.create(tmp_path / "q", 3, MARGIN, {})
+    big = RingFile.create(tmp_path / "big", 1 + 3 * 500, 100, {"channels": [f"channel-{i:04d}" for i in range(500)]})
+    assert RingFile.open(tmp_path / "big").hello == big.hello                 # a hello of 7 kB: two pages
+    (tmp_path / "junk").write_bytes(b"x" * 5000)
+    with pytest.raises(ValueError, match="not a ring"):
+        RingFile.open(tmp_path / "junk")
+    os.mkfifo(tmp_path / "fifo")                          # not a plain file: refused, never a wait
+    with pytest.raises(ValueError, match="not a ring"):
+        RingFile.open(tmp_path / "fifo")
 
 
-def test_a_session_feed_decimates_the_loop_and_serves_watchers_with_its_key_only(tmp_path):
+def test_a_session_feed_decimates_the_loop_and_the_reader_follows_it_from_session_to_session(tmp_path):
+    reader = FeedReader(tmp_path)
+    assert reader.hello is None and reader.count == 0
     feed = LiveFeed(sample_hz=50.0)
     feed.open(tmp_path, ["a", "b"], 0.002)
-    info = json.loads((tmp_path / LIVE_FILE).read_text())
-    assert (tmp_path / LIVE_FILE).stat().st_mode & 0o777 == 0o600
-    assert feed.hello == {"channels": ["a", "b"], "period_s": 0.002, "sample_hz": 50.0, "pid": info["pid"]}
-    client = FeedClient(tmp_path).start()
-    try:
-        wait_for(lambda: client.hello, 10, "the watcher connected")
-        for k in range(200):                           # 0.4 s of 2 ms cycles: a row every 20 ms
-            feed.cycle(1000.0 + k * 0.002, [k, -k], [k + 1, -k - 1], [0.5, -0.5])
-        for k in range(20):                            # slow lockstep cycles of 7 ms: every 3rd
-            feed.cycle(1000.4 + k * 0.007, [k, -k], [k + 1, -k - 1], [0.5, -0.5])
-        wait_for(lambda: client.ring.count >= 27, 10, "the rows at the watcher")
-        _, rows = client.ring.since(0)
-        assert rows[0] == (1000.0, 0, 0, 1, -1, 0.5, -0.5) and rows[1][1] == 10 and len(rows) == 20 + 7
-        assert [r[1] for r in rows[20:]] == [0, 3, 6, 9, 12, 15, 18]
-        # a connection without the key gets nothing and is closed
-        with socket.create_connection(("127.0.0.1", info["port"]), timeout=5) as sock:
-            sock.sendall(b"not-the-key\n")
-            assert sock.recv(100) == b""
-    finally:
-        client.close()
-        feed.close()
-    assert not (tmp_path / LIVE_FILE).exists() and feed.hello is None
+    assert feed.hello == {"channels": ["a", "b"], "period_s": 0.002, "sample_hz": 50.0, "pid": os.getpid()}
+    ring = Path(json.loads((tmp_path / LIVE_FILE).read_text())["ring"])
+    assert ring.parent == RING_DIR and stat.S_IMODE(ring.stat().st_mode) == 0o600    # in memory, not on disk
+    assert stat.S_IMODE((tmp_path / LIVE_FILE).stat().st_mode) == 0o600
+    for k in range(200):                           # 0.4 s of 2 ms cycles: a row every 20 ms
+        feed.cycle(1000.0 + k * 0.002, np.array([k, -k]), [k + 1, -k - 1], [0.5, -0.5])
+    for k in range(20):                            # slow lockstep cycles of 7 ms: every 3rd
+        feed.cycle(1000.4 + k * 0.007, [k, -k], [k + 1, -k - 1], [0.5, -0.5])
+    reader.poll(10.0)
+    assert reader.hello == feed.hello and reader.channels == ["a", "b"]
+    seq, rows = reader.since(0)
+    assert seq == 27 and rows[0].tolist() == [1000.0, 0, 0, 1, -1, 0.5, -0.5] and rows[1, 1] == 10
+    assert rows[20:, 1].tolist() == [0, 3, 6, 9, 12, 15, 18]
+    feed.close()                                   # the session ends: its ring goes
+    reader.poll(11.0)
+    assert reader.hello is None and reader.count == 27
+    assert not (tmp_path / LIVE_FILE).exists() and not ring.exists()
+    feed = LiveFeed()                              # the next session: numbering goes on
+    feed.open(tmp_path, ["a"], 0.002)
+    feed.cycle(2000.0, [1.0], [2.0], [3.0])
+    reader.poll(12.0)
+    seq2, rows = reader.since(seq)
+    assert seq2 == 28 and rows.tolist() == [[2000.0, 1.0, 2.0, 3.0]] and reader.channels == ["a"]
+    feed.close()
+    # a session killed leaves its ring: a reader passes it over (its process is gone), the next
+    # session of the test removes it
+    dead = 2 ** 22 + 12345
+    left = RING_DIR / f"{RING_PREFIX}{dead}-test.ring"
+    RingFile.create(left, 4, 100, {"channels": ["a"], "pid": dead, "sample_hz": 50.0})
+    (tmp_path / LIVE_FILE).write_text(json.dumps({"ring": str(left), "pid": dead}))
+    reader.poll(13.0)
+    assert reader.hello is None
+    feed.open(tmp_path, ["a"], 0.002)
+    assert not left.exists()
+    reader.poll(14.0)
+    assert reader.hello == feed.hello
+    feed.close()
+    reader.close()
+
+
+def test_a_feed_that_cannot_publish_leaves_the_session_running_without_signals(tmp_path, caplog):
+    feed = LiveFeed()
+    feed.open(tmp_path / "not-there", ["a"], 0.002)           # TESTDIR/live.json cannot be written
+    feed.cycle(1000.0, [1.0], [2.0], [3.0])                    # nothing to do, nothing raised
+    assert feed.hello is None and "this session publishes no signals (FileNotFoundError" in caplog.text
+    assert not list(RING_DIR.glob(f"{RING_PREFIX}{os.getpid()}-*"))         # its ring removed
+    feed.close()
 
 
 # -- events from outside a session ----------------------------------------------------------------------------
@@ -90,20 +139,38 @@ def test_an_event_from_outside_goes_into_the_journal_or_through_the_session_that
 
 # -- the token ---------------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("text, mode, message", [
-    (None, 0o600, "no such file"),
+    (None, 0o600, "no such file (make one with stand test token FILE)"),
     ("\n\n", 0o600, "it is empty"),
     (TOKEN, 0o644, "others may read it (mode 0644); chmod 600"),
     (TOKEN, 0o640, "others may read it"),
-    ("short", 0o600, "at least 16 characters"),
+    ("short", 0o600, "at least 16 printable ASCII characters"),
     (f"{TOKEN}\n{TOKEN}", 0o600, "give one line"),
+    (TOKEN + "é", 0o600, "printable ASCII"),                  # latin-1 in a header: it could never match
+    (TOKEN + "\x7f", 0o600, "printable ASCII"),
+    ("x" * 2000, 0o600, "is not a token file"),
 ])
-def test_a_token_file_that_is_missing_empty_short_or_readable_by_others_is_refused(tmp_path, text, mode, message):
+def test_a_token_file_that_is_missing_empty_short_not_ascii_or_readable_by_others_is_refused(tmp_path, text, mode,
+                                                                                             message):
     path = tmp_path / "token"
     if text is not None:
         path.write_text(text)
         path.chmod(mode)
     with pytest.raises(ParameterError, match=re.escape(message)):
         read_token_file(path)
+
+
+def test_a_token_file_that_is_not_a_plain_file_is_refused_before_it_is_read(tmp_path):
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo, 0o600)
+    done = []
+    reader = threading.Thread(target=lambda: done.append(pytest.raises(ParameterError, read_token_file, fifo)),
+                              daemon=True)
+    reader.start()
+    reader.join(5.0)                                    # a read of a FIFO with no writer would wait for ever
+    assert done and "not a plain file" in str(done[0].value)
+    (tmp_path / "dir").mkdir(mode=0o700)
+    with pytest.raises(ParameterError, match="not a plain file"):
+        read_token_file(tmp_path / "dir")
 
 
 def test_a_token_file_gives_its_one_line_and_the_token_is_compared_whole(tmp_path):
@@ -114,40 +181,65 @@ def test_a_token_file_gives_its_one_line_and_the_token_is_compared_whole(tmp_pat
     assert operator.refusal(f"Bearer {TOKEN}x") == "wrong token"
 
 
+def test_stand_test_token_makes_a_token_file_for_its_owner_alone_and_never_overwrites_one(tmp_path):
+    path = tmp_path / "token"
+    res = stand("test", "token", path)
+    assert res.returncode == 0 and f"--operator-token-file {path}" in res.stdout
+    token = read_token_file(path)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o600 and len(token) == 32 and token not in res.stdout
+    res = stand("test", "token", path)
+    assert res.returncode == 2 and "it exists" in res.stderr and read_token_file(path) == token
+    assert read_token_file(write_token_file(tmp_path / "other")) != token
+
+
+# -- where the page listens ------------------------------------------------------------------------------------
 def test_the_serve_address_binds_loopback_unless_a_host_is_named():
     assert serve_address("8080") == Address("127.0.0.1", 8080)
     assert serve_address(":0") == Address("127.0.0.1", 0)
     assert serve_address("0.0.0.0:81") == Address("0.0.0.0", 81) and not serve_address("0.0.0.0:81").loopback
     assert serve_address("[::1]:8080") == Address("::1", 8080) and serve_address("[::1]:8080").loopback
-    assert serve_address("localhost:1").loopback
+    assert serve_address("localhost:1").loopback and serve_address("127.0.0.2:1").loopback
     for bad in ("abc", "host:", "1:2:3", "127.0.0.1:70000", "[::1]8080"):
         with pytest.raises(ParameterError, match="--serve"):
             serve_address(bad)
+
+
+def test_beyond_loopback_a_page_needs_its_names_and_a_token_needs_https():
+    with pytest.raises(ParameterError, match="listens beyond this computer: name the host names .* --allow-host"):
+        Binding.check("0.0.0.0:8080")
+    with pytest.raises(ParameterError, match="token would cross the network in clear. Give the page a certificate "
+                                             "with --tls-cert CERT.pem --tls-key KEY.pem"):
+        Binding.check("0.0.0.0:8080", ["rig-pc"], token=True)
+    with pytest.raises(ParameterError, match="go together"):
+        Binding.check("0.0.0.0:8080", ["rig-pc"], tls_cert="c.pem")
+    with pytest.raises(ParameterError, match="--allow-host 'a b'"):
+        Binding.check("0.0.0.0:8080", ["a b"])
+    read_only = Binding.check("0.0.0.0:8080", ["Rig-PC.lab.", "10.0.0.5"])    # read-only, plain HTTP: allowed
+    assert read_only.url(8080) == "http://rig-pc.lab:8080/" and "plain HTTP" in read_only.exposure(8080)
+    # the Host check: loopback's names and addresses, the allowed names, the bound address; never off
+    for host in ("localhost", "127.0.0.1", "[::1]", "127.0.0.2", "rig-pc.lab", "RIG-PC.LAB.", "10.0.0.5"):
+        assert read_only.host_allowed(host), host
+    for host in ("evil.example", "rig-pc.lab.evil.example", "10.0.0.6", "", "0.0.0.0"):
+        assert not read_only.host_allowed(host), host
+    named = Binding.check("192.0.2.7:8080", ["rig-pc"])
+    assert named.host_allowed("192.0.2.7") and named.url(1) == "http://192.0.2.7:1/"
+    loopback = Binding.check("127.0.0.1:0", token=True)                      # loopback: plain HTTP is fine
+    assert loopback.exposure(1) == "" and not loopback.host_allowed("evil.example")
 
 
 # -- the server on a stopped test -----------------------------------------------------------------------------------
 @pytest.fixture
 def page(tmp_path):
     """A page served for a stopped test (watch's kind), with or without the operator's token."""
-    servers = []
-
-    def serve(token: str | None = TOKEN) -> tuple[str, Path]:
-        testdir = journal_of_flights(tmp_path / f"T{len(servers)}")
-        server = LiveServer(Address("127.0.0.1", 0), testdir, FeedClient(testdir), Operator(testdir, token), "watch")
-        servers.append(server)
-        return server.start(), testdir
-
-    yield serve
-    for server in servers:
-        server.stop()
+    with serve_page(tmp_path) as serve:
+        yield serve
 
 
-def events_of(testdir: Path, kind: str) -> list[dict]:
-    with Journal.open(testdir) as j:
-        return [e for e in j.events() if e["kind"] == kind]
+SECURITY = {"Content-Security-Policy": "default-src 'self'; frame-ancestors 'none'", "X-Content-Type-Options": "nosniff",
+            "Referrer-Policy": "no-referrer", "Cache-Control": "no-store"}
 
 
-def test_every_refusal_is_403_or_405_logged_in_the_journal_and_moves_nothing(page):
+def test_every_refusal_is_answered_with_its_reason_and_headers_journalled_and_moves_nothing(page):
     url, testdir = page(TOKEN)
     bearer = {"Authorization": f"Bearer {TOKEN}"}
     cases = [("POST", "pause", {}, 403, "no Authorization header"),
@@ -156,22 +248,38 @@ def test_every_refusal_is_403_or_405_logged_in_the_journal_and_moves_nothing(pag
              ("POST", "pause", {"Authorization": "Bearer "}, 403, "is not Bearer TOKEN"),
              ("GET", "pause", bearer, 405, "is an action: POST it"),
              ("PUT", "stop", bearer, 405, "is an action: POST it"),
-             ("DELETE", "resume", bearer, 405, "is an action: POST it")]
-    for method, action, headers, code, why in cases:
-        status, head, body = request(url + action, method, headers, b"" if method != "GET" else None)
-        assert status == code and why in json.loads(body)["refused"], (method, action, status, body)
-    logged = events_of(testdir, "refused")
-    assert len(logged) == len(cases)
-    assert "POST /pause from 127.0.0.1 refused: no Authorization header" in logged[0]["message"]
-    assert "GET /pause from 127.0.0.1 refused: an action is a POST" in logged[4]["message"]
-    # other paths and methods: nothing there
-    for method, path, code in (("GET", "nothing", 404), ("POST", "", 405), ("POST", "status.json", 405),
-                               ("POST", "pause/now", 404), ("POST", "live", 405), ("POST", "static/live.js", 405)):
-        assert request(url + path, method, bearer, b"")[0] == code, (method, path)
-    # a name that is not loopback's (a DNS name pointed at 127.0.0.1): refused
-    assert request(url + "status.json", headers={"Host": "evil.example:80"})[0] == 403
+             ("DELETE", "resume", bearer, 405, "is an action: POST it"),
+             ("HEAD", "pause", bearer, 405, None),
+             ("OPTIONS", "stop", bearer, 405, "is an action: POST it"),
+             ("TRACE", "resume", bearer, 405, None),
+             ("POST", "pause", bearer | {"Content-Length": "5000"}, 413, "a body of 5,000 bytes: at most 1,024"),
+             ("GET", "nothing", {}, 404, "no such page"),
+             ("GET", "static/x%00", {}, 404, "no such page"),
+             ("GET", "static/..%2F..%2Fpyproject.toml", {}, 404, "no such page"),
+             ("GET", "static/%ff%fe", {}, 400, None),
+             ("POST", "pause/now", bearer, 404, "no such page"),
+             ("POST", "", bearer, 405, None),
+             ("POST", "status.json", bearer, 405, None),
+             ("POST", "live", bearer, 405, None),
+             ("GET", "status.json", {"Host": "evil.example:80"}, 403, "this server answers only to its own names"),
+             ("GET", "live", {"Host": "127.0.0.1.evil.example"}, 403, "this server answers only to its own names")]
+    for method, path, headers, code, why in cases:
+        data = b"x" * 5000 if code == 413 else (b"" if method in ("POST", "PUT") else None)
+        status, head, body = request(url + path, method, headers, data)
+        assert status == code, (method, path, status, body)
+        assert {k: head.get(k) for k in SECURITY} == SECURITY, (method, path, head)
+        if why is not None:
+            assert why in json.loads(body)["refused"], (method, path, body)
     assert not (testdir / "stop.json").exists() and not (testdir / "sessions").exists()     # no resume
-    assert len(events_of(testdir, "refused")) == len(cases)
+    # journalled: the first two on their own (with their reasons), the rest as one summary
+    refused = wait_for(lambda: refused_events(testdir, 3), 20, "the summary of the refusals")
+    assert refused[0]["message"].startswith("POST /pause from 127.0.0.1 refused: no Authorization header")
+    assert refused[1]["message"] == "POST /stop from 127.0.0.1 refused: wrong token"
+    summary = refused[2]["message"]
+    assert summary.startswith(f"{len(cases) - 2} requests refused from 127.0.0.1 in the last "), summary
+    for counted in ("an action is a POST 6", "no such page 4", "method not allowed 3", "Host not allowed 2",
+                    "body too large 1", "the Authorization header is not Bearer TOKEN 2", "bad request 1"):
+        assert counted in summary, (counted, summary)
     assert events_of(testdir, "operator") == []
 
 
@@ -180,7 +288,8 @@ def test_a_read_only_page_refuses_every_action_even_with_a_token(page):
     for action in ("pause", "stop", "resume"):
         status, _, body = request(url + action, "POST", {"Authorization": f"Bearer {TOKEN}"}, b"")
         assert status == 403 and "read-only" in json.loads(body)["refused"]
-    assert len(events_of(testdir, "refused")) == 3
+    refused = wait_for(lambda: refused_events(testdir, 3), 20, "the refusals in the journal")
+    assert refused[2]["message"].startswith("1 request refused from 127.0.0.1 in the last ")
     assert json.loads(request(url + "page.json")[2])["read_only"] is True
 
 
@@ -205,14 +314,7 @@ def test_with_the_token_an_action_the_test_cannot_take_now_is_409_and_says_why(p
     status, _, body = request(url + "resume", "POST", bearer, b"")
     assert status == 409 and "the trend's alarm on inner stopped the test" in json.loads(body)["refused"]
     assert "--inspected" in json.loads(body)["refused"] and not (testdir / "sessions").exists()
-
-
-def test_refusals_are_logged_at_most_ten_a_minute(tmp_path):
-    testdir = journal_of_flights(tmp_path / "T")
-    operator = Operator(testdir, TOKEN)
-    for _ in range(REFUSALS_PER_MINUTE + 5):
-        operator.log_refusal("POST /stop", "wrong token", "127.0.0.1")
-    assert len(events_of(testdir, "refused")) == REFUSALS_PER_MINUTE
+    assert events_of(testdir, "refused") == []                 # the operator's, not a refusal
 
 
 def test_a_resume_from_the_page_runs_stand_test_resume_with_the_options_the_test_was_started_with(tmp_path):
@@ -281,7 +383,35 @@ def test_the_command_line_says_what_is_wrong_with_a_live_option(tmp_path):
         port = taken.getsockname()[1]
         res = stand("test", "watch", testdir, "--serve", f"127.0.0.1:{port}")
     assert res.returncode == 2 and f"--serve 127.0.0.1:{port}: cannot listen there" in res.stderr
+    # beyond loopback, HTTPS for a token: refused before anything listens or starts
+    good = token_file(tmp_path / "good")
+    res = stand("test", "start", "examples/test.toml", "--out", tmp_path / "X", "--serve", "0.0.0.0:0",
+                "--allow-host", "rig-pc", "--operator-token-file", good)
+    assert res.returncode == 2 and "the token would cross the network in clear" in res.stderr
+    assert "--tls-cert CERT.pem --tls-key KEY.pem" in res.stderr and "openssl req -x509" in res.stderr
     assert not (tmp_path / "X").exists()
+
+
+def test_the_live_options_are_checked_together(tmp_path):
+    from stand.commands.live_page import check_live_options
+
+    def check(serve=None, token=None, allow=None, cert=None, key=None):
+        return check_live_options(argparse.Namespace(serve=serve, operator_token_file=token, allow_host=allow,
+                                                     tls_cert=cert, tls_key=key))
+    good = token_file(tmp_path / "good")
+    assert check() == (None, None)
+    with pytest.raises(ParameterError, match="--allow-host: give --serve HOST:PORT too"):
+        check(allow=["rig-pc"])
+    with pytest.raises(ParameterError, match="--tls-cert: give --serve"):
+        check(cert="c.pem", key="k.pem")
+    with pytest.raises(ParameterError, match="--allow-host NAME"):
+        check("0.0.0.0:0")
+    with pytest.raises(ParameterError, match="--tls-cert c.pem: No such file"):
+        check("0", cert="c.pem", key="k.pem")
+    with pytest.raises(ParameterError, match="cannot use them"):
+        check("0", cert=str(good), key=str(good))
+    binding, token = check("127.0.0.1:0", str(good))
+    assert token == TOKEN and binding.address.loopback and not binding.tls
 
 
 def test_every_file_the_page_loads_ships_in_the_package():

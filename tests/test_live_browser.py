@@ -2,7 +2,8 @@
 test on the emulated example rig (4 channels, ``stand emulate --rig --lockstep`` in its own
 process on private loopback buses), flown by ``stand test start`` and watched by ``stand test
 watch --serve`` with an operator's token. The page shows the four channels' traces moving at
-10 updates a second or more and the flight counter advancing; an interlock injected on the bus
+10 updates a second or more and the flight counter advancing; with its server killed, it
+reconnects by itself to the one started again; an interlock injected on the bus
 (a foreign frame on inner's valve: its EMCY trips the gateway) is in the page's events within
 1 s of its own time; the pause works only with the token; a resume from the page flies again;
 and once stopped every figure of the page is what ``stand test status --json`` prints.
@@ -13,6 +14,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -21,12 +23,13 @@ import can
 import pytest
 
 from endurance.journal import Journal, lock_holder
+from endurance.live.feed import LIVE_FILE
 from endurance.report import _duration
 from standbus import open_bus
 from tests.support.browser import chromium, wait_until
 from tests.support.endurance_run import copy_short_test
-from tests.support.live import (GATEWAY, TOKEN, flights_done, request, serving, stand, stop_sessions, token_file,
-                                wait_for)
+from tests.support.live import (GATEWAY, TOKEN, flights_done, page_server, request, serving, stand, stop_sessions,
+                                token_file, wait_for)
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
@@ -74,7 +77,7 @@ def test_the_page_of_a_running_test_in_a_browser(tmp_path, start_rig_emulator, c
         session = subprocess.Popen([sys.executable, "-m", "stand", "test", "start", str(test_file), "--out",
                                     str(testdir), "--flights", "200", *GATEWAY],
                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        wait_for(lambda: (testdir / "live.json").exists(), 120, "the session's live feed")
+        wait_for(lambda: (testdir / LIVE_FILE).exists(), 120, "the session's live feed")
         watch, url = serving("test", "watch", testdir, "--serve", "127.0.0.1:0", "--operator-token-file", token)
         driver = chromium()
         driver.get(url)
@@ -97,6 +100,17 @@ def test_the_page_of_a_running_test_in_a_browser(tmp_path, start_rig_emulator, c
         recent = [t for t in arrivals if t >= arrivals[-1] - 3.0]
         figures["updates_per_s"] = round((len(recent) - 1) / (recent[-1] - recent[0]), 1)
         assert figures["updates_per_s"] >= 10.0, figures
+
+        # -- the page's server killed: the page reconnects by itself to the one started again ----------
+        server = page_server(watch.pid)
+        greeted = driver.execute_script("return window.live.counts.page_messages")
+        os.kill(server, signal.SIGKILL)
+        killed = time.time()
+        wait_until(driver, f"return window.live.counts.page_messages > {greeted}", 30, "the page greeted again")
+        samples = driver.execute_script("return window.live.counts.samples")
+        wait_until(driver, f"return window.live.counts.samples > {samples}", 30, "samples again")
+        figures["updates_again_after_kill_s"] = round(time.time() - killed, 1)
+        assert page_server(watch.pid) not in (None, server)
 
         # -- the flight counter advances ----------------------------------------------------------------------
         shown = lambda key: driver.execute_script(  # noqa: E731
@@ -140,6 +154,8 @@ def test_the_page_of_a_running_test_in_a_browser(tmp_path, start_rig_emulator, c
         answer = click(driver, "resume", TOKEN)
         assert answer["status"] == 200 and "resume started" in answer["body"]["message"], answer
         wait_for(lambda: flights_done(testdir) > before, 180, "the resumed session to count a flight")
+        with open(f"/proc/{lock_holder(testdir)['pid']}/oom_score_adj") as fh, open("/proc/self/oom_score_adj") as own:
+            assert fh.read() == own.read()            # not the page server's 1000
         wait_until(driver, "return document.getElementById('session').classList.contains('live')", 30,
                    "the page following the resumed session")
         assert click(driver, "resume", TOKEN)["status"] == 409          # it runs already

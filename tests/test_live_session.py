@@ -15,6 +15,7 @@ import pytest
 
 from endurance.journal import Journal, lock_holder
 from tests.support.endurance_run import copy_short_test
+from endurance.live.feed import LIVE_FILE
 from endurance.live.viewer import StreamViewer
 from tests.support.live import GATEWAY, TOKEN, flights_done, request, serving, stand, token_file, wait_for
 
@@ -72,7 +73,7 @@ def test_a_page_served_by_the_running_session(tmp_path, start_rig_emulator):
             assert j.state() == "stopped" and j.status()["reason"].startswith("operator: stopped at the end of flight")
         kinds = [e["kind"] for e in _events(testdir)]
         assert kinds.count("operator") == 1 and "stop_requested" in kinds
-        assert not (testdir / "live.json").exists()
+        assert not (testdir / LIVE_FILE).exists()
         print(json.dumps({"updates_per_s": round(rate, 1)}))
     finally:
         if reader is not None:

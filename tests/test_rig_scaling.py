@@ -291,6 +291,7 @@ def test_an_sdo_read_of_a_commanded_object_returns_the_last_rpdo_then_the_sdo_wr
         stand.stop(); bus.shutdown(); master.shutdown()
 
 
+@pytest.mark.e2e
 def test_a_can_fd_rig_runs_in_lockstep_with_fd_frames_and_fits_twice_the_channels(tmp_path):
     """8 chain channels on one CAN FD bus (1/5 Mbit/s; a classic bus carries 4): the budget
     lets them run, the cyclic frames on the wire are FD with the bit-rate switch on both sides,

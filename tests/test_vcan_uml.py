@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from analysis import estimate_meander, estimate_record, load_capture, read_run
+from captures.decode import run_dbc
 from gateway import load_run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -86,7 +87,25 @@ def test_relay_over_vcan_matches_the_emulator_truth(vcan_runs):
     assert est.tau == pytest.approx(0.05, rel=0.05) and est.g == pytest.approx(120.0, rel=0.05)
 
 
-@pytest.mark.parametrize("name", ["meander", "relay"])
+@pytest.mark.slow
+def test_another_makers_guarded_devices_over_vcan(vcan_runs):
+    """The Hydronix pair (examples/devices/hydronix) over real SocketCAN: node guarding's remote
+    frames and answers on the wire (candump sees both), the force as REAL32 in kN, and the run
+    estimates the plant as the emulated pair's does."""
+    info = vcan_runs["hydronix"]
+    assert info["status"] == "complete", info
+    est = estimate_meander(read_run(info["run"]))
+    assert est.g == pytest.approx(120.0, rel=0.03)
+    frames = list(can.LogReader(info["candump"]))
+    requests = [f for f in frames if f.arbitration_id == 0x701 and f.is_remote_frame]
+    answers = [f for f in frames if f.arbitration_id == 0x701 and not f.is_remote_frame]
+    assert requests and len(answers) >= len(requests) - 1
+    toggles = [f.data[0] >> 7 for f in answers]
+    assert all(a != b for a, b in zip(toggles, toggles[1:])), toggles    # the toggle alternates
+    assert not any(f.arbitration_id == 0x181 + 0x100 for f in frames)     # no TPDO2 of the valve
+
+
+@pytest.mark.parametrize("name", ["meander", "relay", "hydronix"])
 @pytest.mark.slow
 def test_candump_capture_decodes_to_the_recorded_signals(vcan_runs, name):
     """can-utils' candump -- a peer we did not write -- captured the same cycles the gateway
@@ -98,7 +117,7 @@ def test_candump_capture_decodes_to_the_recorded_signals(vcan_runs, name):
     # candump -L file → the stand's run signals. Inside UML a lockstep run goes at about real
     # speed, so only the gateway's read of the stand's clock (0x2100) at run start tells the
     # decoder that the SYNCs stand for stand time, not wall-clock time.
-    decoded = load_capture(info["candump"])
+    decoded = load_capture(info["candump"], dbc=run_dbc(Path(info["run"]) / "capture.log"))
     assert len(decoded) == len(run)
     assert np.array_equal(decoded.u, run.u) and np.array_equal(decoded.y, run.y)
     assert np.array_equal(decoded.t, run.t)

@@ -5,6 +5,7 @@ host-side test does the checking.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import signal
 import subprocess
@@ -15,11 +16,13 @@ from pathlib import Path
 from gateway import Gateway, GatewayConfig, SafetyLimits
 from gateway.experiments import EXPERIMENTS
 from core.durable import write_json
+from devices import load_device_set
 from gateway.runs import TRUTH_FILE
 from plant.config import load_plant_config
 from plant_emulator.process import EmulatorProcess
 
 BUS = "socketcan:vcan0"
+ROOT = Path(__file__).resolve().parents[1]
 TRUTH = {"g": 120.0, "tau": 0.05, "delta": 8.0}
 
 
@@ -38,19 +41,31 @@ def main(out: Path) -> int:
     with EmulatorProcess(BUS, config, lockstep=True, seed=4, ready_timeout_s=120):
         with Gateway(gw_config) as gw:
             for name, experiment in experiments().items():
-                capture = out / f"candump-{name}.log"
-                with capture.open("w") as fh:
-                    dump = subprocess.Popen(["candump", "-L", "vcan0"], stdout=fh)
-                    time.sleep(0.5)  # candump is listening
-                    result = gw.run(experiment, out / name, progress=False)
-                    time.sleep(0.5)
-                    dump.send_signal(signal.SIGINT)
-                    dump.wait(10)
-                write_json(result.path / TRUTH_FILE, config.to_dict())
-                done[name] = {"run": str(result.path), "candump": str(capture), "status": result.status,
-                              "reason": result.reason, "cycles": result.outcome.stats.cycles}
+                done[name] = run_with_candump(gw, name, experiment, out, config)
+    # another maker's devices: node guarding (remote frames on real SocketCAN), static PDOs,
+    # the force as REAL32 in kN (examples/devices/hydronix)
+    devices = load_device_set(ROOT / "examples" / "devices" / "hydronix" / "devices.toml")
+    with EmulatorProcess(BUS, config, lockstep=True, seed=4, ready_timeout_s=120, devices=devices):
+        with Gateway(dataclasses.replace(gw_config, devices=devices)) as gw:
+            meander = EXPERIMENTS["meander"](amplitude_pct=5.0, period_s=2.0, cycles=2)
+            done["hydronix"] = run_with_candump(gw, "hydronix", meander, out, config)
     (out / "result.json").write_text(json.dumps(done, indent=2))
     return 0
+
+
+def run_with_candump(gw: Gateway, name: str, experiment, out: Path, config) -> dict:
+    """One run while can-utils' candump captures the bus."""
+    capture = out / f"candump-{name}.log"
+    with capture.open("w") as fh:
+        dump = subprocess.Popen(["candump", "-L", "vcan0"], stdout=fh)
+        time.sleep(0.5)  # candump is listening
+        result = gw.run(experiment, out / name, progress=False)
+        time.sleep(0.5)
+        dump.send_signal(signal.SIGINT)
+        dump.wait(10)
+    write_json(result.path / TRUTH_FILE, config.to_dict())
+    return {"run": str(result.path), "candump": str(capture), "status": result.status,
+            "reason": result.reason, "cycles": result.outcome.stats.cycles}
 
 
 if __name__ == "__main__":

@@ -16,13 +16,13 @@ import numpy as np
 
 from gateway.errors import DataError
 
+from ..defaults import TABLE_SUFFIXES  # noqa: F401 (re-exported)
+
 from .columns import ColumnError, map_header, positional, written_unit
 from .record import Record, make_record
 
 #: a sampling interval (s) beyond which the time column is suspected to be in another unit
 SLOW_SAMPLING_S = 0.1
-#: suffixes read as a table of samples (optionally gzipped)
-TABLE_SUFFIXES = (".csv", ".tsv", ".txt", ".dat")
 _DELIMITERS = (",", ";", "\t")
 _DECIMAL_COMMA = re.compile(r"^[-+]?\d+,\d+(?:[eE][-+]?\d+)?$")
 #: Excel's first line naming the delimiter: ``sep=;`` (quoted by some exporters)

@@ -1,59 +1,49 @@
-r"""The live stream a running session publishes, and the watcher's end of it.
+r"""The live rows a running session publishes, and the page server's end of them.
 
-Test process::
+::
 
-    control loop ──cycle()──▶ LiveFeed: a cycle every 1/SAMPLE_HZ s a row into a SampleRing
-                                 │ (a store and a count: never a wait)
-                                 ├──▶ the page's server in this process (``--serve``) reads the ring
-                                 └──▶ feed thread: TCP on 127.0.0.1, port and key in TESTDIR/live.json
-                                          │ every SEND_EVERY_S the new rows, a JSON line
-    watch process                         ▼
-        FeedClient thread: reads TESTDIR/live.json, connects, sends the key, puts the rows into
-        its own SampleRing (the same reader code as in the test process)
+    test process                                      the page's server (a process of its own)
+    control loop ──cycle()──▶ LiveFeed                FeedReader (every tick of the server)
+      a row every 1/SAMPLE_HZ s of the wall clock       follows TESTDIR/live.json from session
+      into its ring (ring.py: a few stores into a       to session, copies the rows that are new
+      mapped file, never a wait)  ────────────────▶     (a read-only mapping of the ring)
 
 A row is ``(sync_time, forces..., references..., commands...)`` in the channels' order (kgf,
-kgf, %); ``sync_time`` is the cycle's SYNC on the wall clock (epoch s). Why a socket of its own:
-the rolling window reaches the disk in chunks (seconds late), the journal holds end points, not
-signals; a socket is read as the rows come, and its thread is the only one that waits on a
-viewer. Why TCP on loopback with a key rather than a Unix socket in TESTDIR: a socket path is
-limited to 107 bytes (a test directory's path may be longer); the key (random, in a file only
-the test's user can read, mode 0600) keeps the feed to those who may read TESTDIR. A viewer that
-does not keep up (a full send buffer of :data:`MAX_BACKLOG` bytes) is dropped; the feed never
-waits for one.
+kgf, %); ``sync_time`` is the cycle's SYNC on the wall clock (epoch s). The session holds no
+descriptor, thread or buffer for a reader: whatever the server does (or however many servers
+read), the loop's part is the same few stores. The ring lives in memory, not on the test's
+disk (:data:`RING_DIR`, a tmpfs: no page of it is ever written back, so a store never waits
+for the disk), named in ``TESTDIR/live.json``; both are mode 600 (the test's user). A ring a
+killed session left is removed by the next session of the test. Why a mapped file rather than
+a socket: docs/decisions.md (the live page in a process of its own).
 """
 from __future__ import annotations
 
-import hmac
 import json
+import logging
 import os
 import secrets
-import selectors
-import socket
-import threading
-import time
 from pathlib import Path
-from typing import Any
 
-from .ring import SampleRing
+import numpy as np
 
+from .ring import MARGIN, RingFile
+
+#: the file in TESTDIR that names the running session's ring
 LIVE_FILE = "live.json"
+#: where rings are made: memory (Linux's tmpfs), else the test's directory
+RING_DIR = Path("/dev/shm")
+RING_PREFIX = "hydrostand-live-"
 #: rows per second the live view gets (the loop's cycles decimated to it on the wall clock: in
 #: lockstep a cycle may take longer than its period)
 SAMPLE_HZ = 50.0
 #: a cycle this share of a row's interval after the last row makes the next (float round-off)
 _EARLY = 0.95
-#: seconds of rows the rings keep (the page shows 30)
+#: seconds of rows the ring keeps (the page shows 30)
 RING_S = 64.0
-#: how often the feed thread sends what came
-SEND_EVERY_S = 0.025
-#: a viewer with this much unsent is dropped, bytes
-MAX_BACKLOG = 1 << 20
-#: a connection that has not sent the key within this is closed, s
-AUTH_TIMEOUT_S = 2.0
-
-
-def ring_for(sample_hz: float = SAMPLE_HZ) -> SampleRing:
-    return SampleRing(int(RING_S * sample_hz))
+#: how often a reader looks whether the session it follows is still alive, s
+ALIVE_EVERY_S = 1.0
+log = logging.getLogger(__name__)
 
 
 class LiveFeed:
@@ -62,230 +52,167 @@ class LiveFeed:
 
     def __init__(self, sample_hz: float = SAMPLE_HZ) -> None:
         self.sample_hz = float(sample_hz)
-        self.ring = ring_for(sample_hz)
         self.channels: list[str] = []
         self.period_s: float | None = None
         self._next = -float("inf")
         self._interval_s = _EARLY / self.sample_hz
-        self._thread: _FeedThread | None = None
+        self._ring: RingFile | None = None
         #: the session's channels, sample rate and pid while it runs, else None
         self.hello: dict | None = None
 
     # -- the control loop's --------------------------------------------------------------------------
     def cycle(self, sync_time: float, forces, references, commands) -> None:
         """One cycle: a row into the ring if it is due (module docstring)."""
-        if sync_time < self._next:
+        if sync_time < self._next or self._ring is None:
             return
         self._next = sync_time + self._interval_s
-        self.ring.put((sync_time, *forces, *references, *commands))
+        self._ring.put(sync_time, forces, references, commands)
 
     # -- the session's --------------------------------------------------------------------------------
     def open(self, testdir: str | Path, channels: list[str], period_s: float) -> None:
-        """The session begins: its channels and period; the feed thread starts and
-        ``TESTDIR/live.json`` names its port and key."""
+        """The session begins: its channels and period; its ring is made and named in
+        ``TESTDIR/live.json`` (a killed session's left removed first)."""
+        testdir = Path(testdir)
         self.channels = list(channels)
         self.period_s = float(period_s)
         hello = {"channels": self.channels, "period_s": self.period_s, "sample_hz": self.sample_hz,
                  "pid": os.getpid()}
-        self._thread = _FeedThread(Path(testdir), self.ring, hello)
-        self._thread.start()
+        _remove_stale(testdir)
+        where = RING_DIR if RING_DIR.is_dir() and os.access(RING_DIR, os.W_OK) else testdir
+        path = where / f"{RING_PREFIX}{os.getpid()}-{secrets.token_hex(6)}.ring"
+        self._pointer = testdir / LIVE_FILE
+        try:
+            self._ring = RingFile.create(path, 1 + 3 * len(self.channels), int(RING_S * self.sample_hz) + MARGIN,
+                                         hello)
+            tmp = testdir / f".{LIVE_FILE}.{os.getpid()}.tmp"
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+            with os.fdopen(fd, "w") as fh:
+                json.dump({"ring": str(path), "pid": os.getpid()}, fh)
+            os.replace(tmp, self._pointer)
+        except (OSError, ValueError, MemoryError) as exc:      # the page shows no signals; the test runs
+            log.warning("live page: this session publishes no signals (%s: %s)", type(exc).__name__, exc)
+            self.close()
+            return
         self.hello = hello
 
     def close(self) -> None:
         self.hello = None
-        if self._thread is not None:
-            self._thread.stop()
-            self._thread = None
-
-
-def _encode(obj: Any) -> bytes:
-    return (json.dumps(obj, separators=(",", ":")) + "\n").encode()
-
-
-class _Viewer:
-    def __init__(self, sock: socket.socket) -> None:
-        self.sock = sock
-        self.since = time.monotonic()
-        self.inbox = b""
-        self.out = b""
-        self.authenticated = False
-
-
-class _FeedThread(threading.Thread):
-    """The feed's socket (module docstring): accepts viewers, checks their key, sends each the
-    last window and then every new row."""
-
-    def __init__(self, testdir: Path, ring: SampleRing, hello: dict) -> None:
-        super().__init__(name="live-feed", daemon=True)
-        self.testdir = testdir
-        self.ring = ring
-        self.hello = hello
-        self.key = secrets.token_hex(16)
-        self._halt = threading.Event()
-        self.listener = socket.create_server(("127.0.0.1", 0))
-        self.listener.setblocking(False)
-        self.port = self.listener.getsockname()[1]
-        self.path = testdir / LIVE_FILE
-        tmp = testdir / f".{LIVE_FILE}.{os.getpid()}.tmp"
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        with os.fdopen(fd, "w") as fh:
-            json.dump({**hello, "port": self.port, "key": self.key}, fh)
-        os.replace(tmp, self.path)
-        self.viewers: dict[socket.socket, _Viewer] = {}
-        self.sent = ring.count
-
-    def stop(self) -> None:
-        self._halt.set()
-        self.join(timeout=2.0)
+        ring, self._ring = self._ring, None
+        if ring is None:
+            return
+        ring.close()                                  # closed, and its file removed
         try:
-            if json.loads(self.path.read_text()).get("key") == self.key:
-                self.path.unlink()
-        except (OSError, ValueError):
+            if _pointer(self._pointer).get("ring") == str(ring.path):
+                self._pointer.unlink()
+        except OSError:
             pass
 
-    def run(self) -> None:
-        sel = selectors.DefaultSelector()
-        sel.register(self.listener, selectors.EVENT_READ)
-        try:
-            while not self._halt.is_set():
-                for key, _ in sel.select(timeout=SEND_EVERY_S):
-                    if key.fileobj is self.listener:
-                        self._accept(sel)
-                    else:
-                        self._read(sel, self.viewers.get(key.fileobj))
-                self._send_new(sel)
-        finally:
-            for v in list(self.viewers.values()):
-                self._drop(sel, v)
-            sel.close()
-            self.listener.close()
 
-    def _accept(self, sel) -> None:
-        try:
-            sock, _ = self.listener.accept()
-        except OSError:
-            return
-        sock.setblocking(False)
-        self.viewers[sock] = _Viewer(sock)
-        sel.register(sock, selectors.EVENT_READ)
-
-    def _read(self, sel, viewer: _Viewer | None) -> None:
-        if viewer is None:
-            return
-        try:
-            data = viewer.sock.recv(4096)
-        except (BlockingIOError, InterruptedError):
-            return
-        except OSError:
-            data = b""
-        if not data:
-            self._drop(sel, viewer)
-            return
-        if viewer.authenticated:
-            return                                  # a viewer has nothing more to say
-        viewer.inbox += data
-        if b"\n" not in viewer.inbox:
-            if len(viewer.inbox) > 256:
-                self._drop(sel, viewer)
-            return
-        given = viewer.inbox.split(b"\n", 1)[0].strip()
-        if not hmac.compare_digest(given, self.key.encode()):
-            self._drop(sel, viewer)
-            return
-        viewer.authenticated = True
-        _, rows = self.ring.since(self.ring.count - int(RING_S * self.hello["sample_hz"]))
-        viewer.out += _encode({"hello": self.hello}) + (_encode({"rows": rows}) if rows else b"")
-        self._flush(sel, viewer)
-
-    def _send_new(self, sel) -> None:
-        now = time.monotonic()
-        for v in [v for v in self.viewers.values() if not v.authenticated and now - v.since > AUTH_TIMEOUT_S]:
-            self._drop(sel, v)
-        self.sent, rows = self.ring.since(self.sent)
-        line = _encode({"rows": rows}) if rows else b""
-        for v in list(self.viewers.values()):
-            if v.authenticated:
-                v.out += line
-                self._flush(sel, v)
-
-    def _flush(self, sel, viewer: _Viewer) -> None:
-        if not viewer.out:
-            return
-        try:
-            n = viewer.sock.send(viewer.out)
-            viewer.out = viewer.out[n:]
-        except (BlockingIOError, InterruptedError):
-            pass
-        except OSError:
-            self._drop(sel, viewer)
-            return
-        if len(viewer.out) > MAX_BACKLOG:
-            self._drop(sel, viewer)
-
-    def _drop(self, sel, viewer: _Viewer) -> None:
-        self.viewers.pop(viewer.sock, None)
-        try:
-            sel.unregister(viewer.sock)
-        except (KeyError, ValueError):
-            pass
-        viewer.sock.close()
+def _pointer(path: Path) -> dict:
+    """``TESTDIR/live.json`` ({ring, pid}); OSError or ValueError if it is not there or not one."""
+    info = json.loads(path.read_text())
+    if not isinstance(info, dict) or not isinstance(info.get("ring"), str):
+        raise ValueError(f"{path}: not a live ring's name")
+    return info
 
 
-class FeedClient:
-    """The watcher's end (module docstring): a thread that follows whichever session runs the
-    test in ``testdir`` (``TESTDIR/live.json``), putting its rows into :attr:`ring`.
-    :attr:`hello` is the session's (channels, sample rate, pid) while connected, else None."""
+def _remove_stale(testdir: Path) -> None:
+    """The ring a killed session of this test left (its process gone), removed."""
+    try:
+        info = _pointer(testdir / LIVE_FILE)
+    except (OSError, ValueError):
+        return
+    ring = Path(info["ring"])
+    if not _alive(int(info.get("pid") or 0)) and ring.name.startswith(RING_PREFIX):
+        ring.unlink(missing_ok=True)
 
-    RETRY_S = 0.5
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
+
+
+class FeedReader:
+    """The page server's end (module docstring): the rows of whichever session runs the test in
+    ``testdir``. :meth:`poll` (the server's tick) follows the file; :attr:`hello` is the
+    session's (channels, sample rate, pid) while one runs, else None. Sequence numbers go on
+    from session to session (:meth:`since`), so a reader of this never sees them go back."""
 
     def __init__(self, testdir: str | Path) -> None:
-        self.testdir = Path(testdir)
-        self.ring = ring_for()
+        self.path = Path(testdir) / LIVE_FILE
+        self._named: int | None = None    # the inode of the live.json that named the ring taken
         self.hello: dict | None = None
         self.channels: list[str] = []
-        self._halt = threading.Event()
-        self._sock: socket.socket | None = None
-        self._thread = threading.Thread(target=self._run, name="live-feed-client", daemon=True)
+        self._ring: RingFile | None = None
+        self._offset = 0                 # this session's row 0 in the running numbering
+        self._end = 0                    # the running count at the last look
+        self._alive_at = 0.0
+        self._passed: int | None = None  # the inode of a ring not to take (closed, dead, not one)
+        self.poll()
 
-    def start(self) -> "FeedClient":
-        self._thread.start()
-        return self
+    @property
+    def count(self) -> int:
+        """The running count of rows (module docstring)."""
+        if self._ring is not None:
+            self._end = self._offset + self._ring.count
+        return self._end
+
+    def since(self, seq: int) -> tuple[int, np.ndarray]:
+        """``(count, rows)``: the rows from running sequence number ``seq`` on (as
+        :meth:`endurance.live.ring.RingFile.since`), none while no session runs."""
+        ring = self._ring
+        if ring is None:
+            return self._end, np.empty((0, 1 + 3 * len(self.channels)))
+        end, rows = ring.since(max(int(seq) - self._offset, 0))
+        self._end = self._offset + end
+        return self._end, rows
+
+    def poll(self, now: float = 0.0) -> None:
+        """Look at ``TESTDIR/live.json``: a new session's ring, the last one gone or closed, its
+        process dead (every :data:`ALIVE_EVERY_S` of ``now``, a monotonic time)."""
+        try:
+            inode = os.stat(self.path).st_ino
+        except OSError:
+            inode = None
+        ring = self._ring
+        if ring is not None and (inode != self._named or ring.closed):
+            self._drop()
+        if self._ring is None and inode is not None and inode != self._passed:
+            self._take(inode)
+        if self._ring is not None and now - self._alive_at >= ALIVE_EVERY_S:
+            self._alive_at = now
+            if not _alive(int(self._ring.hello.get("pid", 0) or 0)):
+                self._passed = self._named          # killed: its files stay until the next session
+                self._drop()
+
+    def _take(self, inode: int) -> None:
+        self._passed = inode                        # unless it is taken below
+        try:
+            ring = RingFile.open(_pointer(self.path)["ring"])
+        except (OSError, ValueError):
+            return
+        if ring.closed or not _alive(int(ring.hello.get("pid", 0) or 0)) \
+                or ring.width != 1 + 3 * len(ring.hello.get("channels", [])):
+            ring.close()
+            return
+        self._passed = None
+        self._named = inode
+        self._offset = self._end
+        self._ring = ring
+        self.hello = dict(ring.hello)
+        self.channels = list(ring.hello["channels"])
+
+    def _drop(self) -> None:
+        self._end = self.count
+        ring, self._ring = self._ring, None
+        self.hello = None
+        if ring is not None:
+            ring.close()
 
     def close(self) -> None:
-        self._halt.set()
-        sock = self._sock
-        if sock is not None:
-            try:
-                sock.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
-        self._thread.join(timeout=2.0)
-
-    def _run(self) -> None:
-        while not self._halt.is_set():
-            try:
-                info = json.loads((self.testdir / LIVE_FILE).read_text())
-                self._follow(int(info["port"]), str(info["key"]))
-            except (OSError, ValueError, KeyError, TypeError):
-                pass
-            self.hello = None
-            self._halt.wait(self.RETRY_S)
-
-    def _follow(self, port: int, key: str) -> None:
-        with socket.create_connection(("127.0.0.1", port), timeout=1.0) as sock:
-            self._sock = sock
-            try:
-                sock.sendall(key.encode() + b"\n")
-                sock.settimeout(None)
-                with sock.makefile("rb") as stream:
-                    for line in stream:
-                        if self._halt.is_set():
-                            return
-                        msg = json.loads(line)
-                        if "hello" in msg:
-                            self.hello = msg["hello"]
-                            self.channels = list(self.hello["channels"])
-                        for row in msg.get("rows", ()):
-                            self.ring.put(tuple(row))
-            finally:
-                self._sock = None
+        self._drop()

@@ -1,7 +1,8 @@
 """The operator's actions from the live page: who may act, and what an action does.
 
-* The **token**: ``--operator-token-file FILE`` (:func:`read_token_file`): one line of at least
-  :data:`MIN_TOKEN_CHARS` characters, in a file no one but its owner can read (as ssh asks of a
+* The **token**: ``--operator-token-file FILE`` (:func:`read_token_file`; ``stand test token
+  FILE`` makes one, :func:`write_token_file`): one line of at least :data:`MIN_TOKEN_CHARS`
+  printable ASCII characters, in a plain file no one but its owner can read (as ssh asks of a
   private key). Without it the server is read-only. A request acts only with
   ``Authorization: Bearer TOKEN`` (compared in constant time, :meth:`Operator.refusal`).
 * **pause**: stop at the end of the flight in progress, as ``stand test stop`` (it writes
@@ -15,61 +16,105 @@
   waits for what the inspection found (``--inspected`` or ``--repaired``, the command line's:
   :func:`endurance.monitors.after_inspection`).
 
-Every action taken and every one refused is an event in the journal (``operator``,
-``refused``; :func:`endurance.inbox.record_event`); refusals at most :data:`REFUSALS_PER_MINUTE`
-a minute (a flood of bad requests cannot fill the journal; the next one logged says how many
-were left out).
+Every action taken is an ``operator`` event in the journal (:func:`endurance.inbox.record_event`);
+refusals are counted by the server and journalled as ``refused`` events, a flood as one summary
+(:class:`endurance.live.limits.RefusalTally`).
 """
 from __future__ import annotations
 
 import hmac
 import json
+import os
+import secrets
 import stat
 import subprocess
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 from core.errors import ParameterError, StandError
 from endurance.inbox import record_event
 from endurance.journal import Journal, lock_holder
-from endurance.monitors import awaiting_inspection
-from endurance.run import TEST_RECORD, SESSIONS_DIR, request_stop
 
 MIN_TOKEN_CHARS = 16
+#: the random bytes of a token :func:`write_token_file` makes (32 characters)
+TOKEN_BYTES = 24
 ACTIONS = ("pause", "stop", "resume")
-REFUSALS_PER_MINUTE = 10
+
+
+#: how a token file is made (``stand test token FILE`` does it: :func:`write_token_file`)
+TOKEN_HINT = "make one with stand test token FILE"
+#: a token file longer than this is not a token file, bytes
+MAX_TOKEN_FILE_BYTES = 1024
+
+
+def _printable(token: str) -> bool:
+    """Printable ASCII without spaces: what an HTTP header carries as it was typed (a header is
+    latin-1; a token of other characters could never match)."""
+    return all(0x21 <= ord(c) <= 0x7E for c in token)
 
 
 def read_token_file(path: str | Path) -> str:
     """The operator's token from ``path`` (module docstring); a clear error for a file that
-    is missing, empty, too short or readable by others."""
+    is missing, not a plain file (checked before it is read: a FIFO would block), empty, too
+    short, not printable ASCII or readable by others."""
     path = Path(path)
-    hint = ("e.g. python3 -c 'import secrets; print(secrets.token_urlsafe(24))' > FILE; "
-            "chmod 600 FILE")
+    where = f"--operator-token-file {path}"
     try:
-        mode = path.stat().st_mode
-        text = path.read_text()
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY)
     except FileNotFoundError:
-        raise ParameterError(f"--operator-token-file {path}: no such file; write a token into it ({hint})") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ParameterError(f"--operator-token-file {path}: cannot read it ({exc})") from None
-    if not stat.S_ISREG(mode):
-        raise ParameterError(f"--operator-token-file {path}: not a file")
-    if mode & 0o077:
-        raise ParameterError(f"--operator-token-file {path}: others may read it (mode {stat.S_IMODE(mode):04o}); "
-                             f"chmod 600 {path}")
+        raise ParameterError(f"{where}: no such file ({TOKEN_HINT})") from None
+    except OSError as exc:
+        raise ParameterError(f"{where}: cannot open it ({exc.strerror or exc})") from None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise ParameterError(f"{where}: not a plain file ({TOKEN_HINT})")
+        if info.st_mode & 0o077:
+            raise ParameterError(f"{where}: others may read it (mode {stat.S_IMODE(info.st_mode):04o}); "
+                                 f"chmod 600 {path}")
+        if info.st_size > MAX_TOKEN_FILE_BYTES:
+            raise ParameterError(f"{where}: {info.st_size:,} bytes is not a token file (one line; {TOKEN_HINT})")
+        data = os.read(fd, MAX_TOKEN_FILE_BYTES + 1)
+    except OSError as exc:
+        raise ParameterError(f"{where}: cannot read it ({exc.strerror or exc})") from None
+    finally:
+        os.close(fd)
+    try:
+        text = data.decode("ascii")
+    except UnicodeDecodeError:
+        raise ParameterError(f"{where}: the token must be printable ASCII (a header carries nothing else; "
+                             f"{TOKEN_HINT})") from None
     lines = [line.strip() for line in text.splitlines() if line.strip()]
     if not lines:
-        raise ParameterError(f"--operator-token-file {path}: it is empty; write a token into it ({hint})")
+        raise ParameterError(f"{where}: it is empty ({TOKEN_HINT})")
     if len(lines) > 1:
-        raise ParameterError(f"--operator-token-file {path}: give one line (the token), not {len(lines)}")
+        raise ParameterError(f"{where}: give one line (the token), not {len(lines)}")
     token = lines[0]
-    if len(token) < MIN_TOKEN_CHARS or any(c.isspace() for c in token):
-        raise ParameterError(f"--operator-token-file {path}: the token must be at least {MIN_TOKEN_CHARS} "
-                             f"characters without spaces ({hint})")
+    if len(token) < MIN_TOKEN_CHARS or not _printable(token):
+        raise ParameterError(f"{where}: the token must be at least {MIN_TOKEN_CHARS} printable ASCII "
+                             f"characters without spaces ({TOKEN_HINT})")
     return token
+
+
+def write_token_file(path: str | Path) -> Path:
+    """A new operator's token (:data:`TOKEN_BYTES` random bytes, URL-safe text) in a new file
+    at ``path``, mode 600; an existing file is never overwritten."""
+    path = Path(path)
+    token = secrets.token_urlsafe(TOKEN_BYTES)
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
+    except FileExistsError:
+        raise ParameterError(f"{path}: it exists; give a new file's name (a token file is never "
+                             "overwritten: the pages that use it would stop working)") from None
+    except OSError as exc:
+        raise ParameterError(f"{path}: cannot make it ({exc.strerror or exc})") from None
+    with os.fdopen(fd, "w") as fh:
+        os.fchmod(fh.fileno(), 0o600)
+        fh.write(token + "\n")
+    return path
 
 
 class Refused(StandError):
@@ -88,17 +133,26 @@ class Done:
     message: str
 
 
+def warm_up() -> None:
+    """Import what the actions need (the session's modules, seconds on a busy host): the page's
+    server does it on a thread once it serves, so that its first action does not wait."""
+    import endurance.monitors  # noqa: F401
+    import endurance.run  # noqa: F401
+
+
 class Operator:
     """The actions on the test in ``testdir`` (module docstring); ``token`` None: read-only.
     ``can_resume``: False where the page is served by the running session itself (it ends with
     it: a resume is for ``stand test watch``)."""
 
-    def __init__(self, testdir: str | Path, token: str | None, can_resume: bool = True) -> None:
+    def __init__(self, testdir: str | Path, token: str | None, can_resume: bool = True,
+                 child_setup: Callable[[], None] | None = None) -> None:
         self.testdir = Path(testdir)
         self._token = token.encode() if token else None
         self.can_resume = can_resume
-        self._refusals: list[float] = []
-        self._left_out = 0
+        #: run in a resume's process before it starts (the page's server undoes what it set for
+        #: itself: the test's session is not the kernel's first choice when memory runs out)
+        self.child_setup = child_setup
 
     @property
     def read_only(self) -> bool:
@@ -118,18 +172,6 @@ class Operator:
             return "wrong token"
         return None
 
-    def log_refusal(self, what: str, why: str, client: str) -> None:
-        """A refused request as a ``refused`` event (rate-limited: module docstring)."""
-        now = time.monotonic()
-        self._refusals = [t for t in self._refusals if now - t < 60.0]
-        if len(self._refusals) >= REFUSALS_PER_MINUTE:
-            self._left_out += 1
-            return
-        self._refusals.append(now)
-        more = f" ({self._left_out} more refused before it not logged)" if self._left_out else ""
-        self._left_out = 0
-        record_event(self.testdir, "refused", f"{what} from {client} refused: {why}{more}")
-
     # -- the actions -----------------------------------------------------------------------------------
     def act(self, action: str, client: str) -> Done:
         """Take ``action`` (authorized already); :class:`Refused` when it cannot be taken now."""
@@ -137,6 +179,7 @@ class Operator:
             return self._resume(client)
         at_once = action == "stop"
         try:
+            from endurance.run import request_stop
             request_stop(self.testdir, at_once=at_once)
         except StandError as exc:
             raise Refused(409, str(exc)) from None
@@ -149,6 +192,8 @@ class Operator:
         if not self.can_resume:
             raise Refused(409, "this page is served by the running session; resume a stopped test from "
                                "stand test watch TESTDIR --serve HOST:PORT")
+        from endurance.monitors import awaiting_inspection
+        from endurance.run import SESSIONS_DIR
         holder = lock_holder(self.testdir)
         if holder is not None:
             raise Refused(409, f"a session runs the test (process {holder.get('pid')} on {holder.get('host')})")
@@ -168,13 +213,14 @@ class Operator:
                      f"{' '.join(command[2:])}; its output in {log.name}")
         with open(log, "ab") as out:
             proc = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
-                                    start_new_session=True)
+                                    start_new_session=True, preexec_fn=self.child_setup)
         return Done("resume", f"resume started (process {proc.pid}; its output in sessions/{log.name})")
 
 
 def resume_command(testdir: Path) -> list[str]:
     """``stand test resume TESTDIR`` with the gateway options the test was started with."""
     try:
+        from endurance.run import TEST_RECORD
         args = json.loads((testdir / TEST_RECORD).read_text()).get("gateway_args", [])
     except (OSError, ValueError):
         args = []

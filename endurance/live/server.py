@@ -1,4 +1,5 @@
-r"""The live page's server: tornado's HTTP server on an event loop of its own thread.
+r"""The live page's server: the page, its stream and the operator's actions (tornado, on an event
+loop of its own, in a process of its own: :mod:`endurance.live.process`).
 
 =================  ===================================================================
 ``GET /``          the page (``static/index.html``; every asset in the package, no CDN)
@@ -8,55 +9,57 @@ r"""The live page's server: tornado's HTTP server on an event loop of its own th
 ``GET /live``      the live stream, server-sent events (below)
 ``POST /pause``    stop at the end of the flight; ``/stop``: at once, unloading keeping the
 ``POST /stop``     ratios; ``/resume``: resume the test (:mod:`endurance.live.operator`).
-``POST /resume``   Each with ``Authorization: Bearer TOKEN``; refused (403) and logged
-                   otherwise; any other method on them 405 (logged too), other paths 404
+``POST /resume``   Each with ``Authorization: Bearer TOKEN``; refused (403) otherwise; any
+                   other method on them 405; other paths 404. Every refusal is counted
+                   (:class:`endurance.live.limits.RefusalTally`).
 =================  ===================================================================
 
-**The stream** (``text/event-stream``; a browser's ``EventSource`` reconnects by itself): on
-connect ``page`` (as ``/page.json``), ``samples`` (the last :data:`WINDOW_S` s), ``status``,
-``events`` (the latest 50), ``trend`` (the flights the page keeps); then every
-:data:`TICK_S` the new ``samples`` (columns: ``t`` epoch s, per channel ``y`` force and ``r``
-reference in kgf, ``u`` valve command in %), ``events`` as the journal records them (polled
-every :data:`EVENTS_EVERY` ticks), ``status`` when it changed (polled every
+**The stream** (``text/event-stream``; a browser's ``EventSource`` reconnects by itself, after
+:data:`RETRY_MS`): on connect ``page`` (as ``/page.json``), ``samples`` (the last
+:data:`WINDOW_S` s), ``status``, ``events`` (the latest 50), ``trend`` (the flights the page
+keeps); then every :data:`TICK_S` the new ``samples`` (columns: ``t`` epoch s, per channel ``y``
+force and ``r`` reference in kgf, ``u`` valve command in %), ``events`` as the journal records
+them (polled every :data:`EVENTS_EVERY` ticks), ``status`` when it changed (polled every
 :data:`STATUS_EVERY` ticks, and at once after an event), ``trend`` after each flight,
-``session`` when the feed's session comes or goes. One message is encoded once for every
-viewer; a viewer that falls :data:`VIEWER_BACKLOG` messages behind is dropped.
+``session`` when a session comes or goes. One message is encoded once for every viewer; a viewer
+that falls :data:`VIEWER_BACKLOG` messages behind is dropped.
 
-**It does not disturb the loop.** The server reads what the session publishes (the feed's ring
-buffer, :mod:`endurance.live.feed`) and the journal (a reader in WAL mode); its work is a few
-small JSON messages a tick, whatever the number of viewers. ``benchmarks/live.py`` measures the
-loop with and without three viewers.
+**What it reads.** The session's rows from ``TESTDIR/live.ring`` (:mod:`endurance.live.feed`,
+mapped read-only) and the journal (a reader in WAL mode): nothing it does reaches the session
+but the operator's actions and its events (``TESTDIR/stop.json``, ``TESTDIR/inbox/``).
 
-**Safety.** It binds 127.0.0.1 unless ``--serve`` names another host; bound to loopback it
-answers only requests whose ``Host`` is a loopback name (a web page elsewhere cannot reach it by
-a DNS name pointing at 127.0.0.1); its pages may load nothing from elsewhere
-(``Content-Security-Policy``); a cross-origin page cannot send the ``Authorization`` header
-(no CORS is answered).
+**Safety.** The Host check (:class:`endurance.live.binding.Binding`: never off), the security
+headers on every response (:data:`endurance.live.guard.SECURITY_HEADERS`: its pages load nothing
+from elsewhere), no CORS (a page elsewhere cannot send the ``Authorization`` header), the static
+files read once at start (no path reaches the file system), and every resource a client can
+take bounded (:mod:`endurance.live.guard`, :mod:`endurance.live.limits`).
 """
 from __future__ import annotations
 
 import asyncio
-import ipaddress
+import collections
 import json
 import logging
-import math
-import socket
+import mimetypes
+import sys
 import threading
-from dataclasses import dataclass
+import time
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Callable
 
-import tornado.httpserver
+import numpy as np
 import tornado.ioloop
 import tornado.iostream
-import tornado.netutil
 import tornado.web
 
-from core.errors import ParameterError
+from endurance.inbox import record_event
 from endurance.report import status_json
 
+from .binding import Binding
+from .feed import FeedReader
+from .guard import SECURITY_HEADERS, GuardedHTTPServer, TornadoRefusals, printable
+from .limits import Limits, RateLimitedHandler, RefusalTally
 from .operator import ACTIONS, Operator, Refused
-from .ring import SampleRing
 from .view import JournalView
 
 STATIC = Path(__file__).resolve().parent / "static"
@@ -68,67 +71,21 @@ EVENTS_EVERY = 2
 STATUS_EVERY = 10
 #: messages a viewer may fall behind before it is dropped
 VIEWER_BACKLOG = 400
-LOOPBACK_NAMES = {"localhost", "127.0.0.1", "::1"}
+#: how long a browser waits before it opens the stream again, ms
+RETRY_MS = 1000
+#: how often the connections are swept, the refusals summarised and the log rolled, s
+HOUSEKEEPING_S = 1.0
 log = logging.getLogger(__name__)
-
-
-# -- the address -----------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Address:
-    host: str
-    port: int
-
-    @property
-    def loopback(self) -> bool:
-        try:
-            return ipaddress.ip_address(self.host).is_loopback
-        except ValueError:
-            return self.host == "localhost"
-
-    def url(self, port: int | None = None) -> str:
-        host = f"[{self.host}]" if ":" in self.host else self.host
-        return f"http://{host}:{self.port if port is None else port}/"
-
-
-def serve_address(text: str) -> Address:
-    """``--serve``'s value: ``HOST:PORT``, ``[IPV6]:PORT``, ``:PORT`` or ``PORT`` (then
-    127.0.0.1); port 0: any free one."""
-    value = text.strip()
-    host, port = "127.0.0.1", value
-    if value.startswith("["):
-        inside, _, rest = value[1:].partition("]")
-        if not rest.startswith(":"):
-            raise ParameterError(f"--serve {text}: give [IPV6]:PORT, e.g. [::1]:8080")
-        host, port = inside, rest[1:]
-    elif ":" in value:
-        host, _, port = value.rpartition(":")
-        host = host or "127.0.0.1"
-        if ":" in host:
-            raise ParameterError(f"--serve {text}: an IPv6 address goes in brackets, e.g. [::1]:8080")
-    if not port.isdigit() or not 0 <= int(port) <= 65535:
-        raise ParameterError(f"--serve {text}: give HOST:PORT with a port 0-65535, e.g. 127.0.0.1:8080 "
-                             "(a port alone serves on 127.0.0.1)")
-    return Address(host, int(port))
-
-
-# -- where the signals come from --------------------------------------------------------------------------
-class SampleSource(Protocol):
-    """A session's live rows (:class:`~endurance.live.feed.LiveFeed` in the test process,
-    :class:`~endurance.live.feed.FeedClient` in a watcher)."""
-
-    ring: SampleRing
-    channels: list[str]
-    hello: dict | None
 
 
 def sse(event: str, data: Any) -> bytes:
     return f"event: {event}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n".encode()
 
 
-def sample_columns(rows: list, n: int) -> dict:
+def sample_columns(rows: np.ndarray, n: int) -> dict:
     """Rows ``(t, y…, r…, u…)`` of ``n`` channels as the stream's columns (NaN: null)."""
     def col(k: int, digits: int) -> list:
-        return [None if not math.isfinite(row[k]) else round(row[k], digits) for row in rows]
+        return [v if v == v else None for v in np.round(rows[:, k], digits).tolist()]
     return {"t": col(0, 3), "y": [col(1 + i, 1) for i in range(n)], "r": [col(1 + n + i, 1) for i in range(n)],
             "u": [col(1 + 2 * n + i, 3) for i in range(n)]}
 
@@ -137,13 +94,16 @@ class Hub:
     """The stream's viewers and what is sent to them (module docstring); its :meth:`tick`
     runs on the server's event loop."""
 
-    def __init__(self, view: JournalView, source: SampleSource, operator: Operator, kind: str) -> None:
+    def __init__(self, view: JournalView, source: FeedReader, operator: Operator, kind: str,
+                 limits: Limits = Limits()) -> None:
         self.view = view
         self.source = source
         self.operator = operator
         self.kind = kind
-        self.viewers: set[asyncio.Queue] = set()
-        self.seq = source.ring.count
+        self.limits = limits
+        self.viewers: dict[asyncio.Queue, str] = {}
+        self.by_address: collections.Counter[str] = collections.Counter()
+        self.seq = source.count
         self.ticks = 0
         self.status_text: str | None = None
         self.session: dict | None = None
@@ -155,10 +115,18 @@ class Hub:
                 "session": self.source.hello}
 
     def channels(self) -> list[str]:
-        if self.source.channels:
+        if self.source.channels and self.source.hello is not None:
             return list(self.source.channels)
         journal = self.view.journal
         return list(journal.channels) if journal is not None else []
+
+    def refusal(self, client: str) -> str | None:
+        """Why a new stream for ``client`` is refused (None: it may have one)."""
+        if len(self.viewers) >= self.limits.streams:
+            return f"the server has {self.limits.streams} live streams open; try again later"
+        if self.by_address[client] >= self.limits.streams_per_address:
+            return f"{client} has {self.limits.streams_per_address} live streams open; close a page"
+        return None
 
     def greeting(self) -> list[bytes]:
         """What a viewer gets first (module docstring); call it right before :meth:`join`."""
@@ -166,12 +134,10 @@ class Hub:
         if new:
             self.send(sse("trend", new))
         n = len(self.channels())
-        ring = self.source.ring
         window = int(WINDOW_S * (self.source.hello or {}).get("sample_hz", 50.0))
-        _, rows = ring.since(self.seq - window)
-        rows = [r for r in rows if len(r) == 1 + 3 * n]
-        out = [sse("page", self.page())]
-        if rows:
+        _, rows = self.source.since(self.seq - window)
+        out = [f"retry: {RETRY_MS}\n\n".encode(), sse("page", self.page())]
+        if len(rows) and rows.shape[1] == 1 + 3 * n:
             out.append(sse("samples", sample_columns(rows, n)))
         status = self.view.status()
         if status is not None:
@@ -180,20 +146,25 @@ class Hub:
         out.append(sse("trend", list(self.view.trends.rows)))
         return out
 
-    def join(self) -> asyncio.Queue:
+    def join(self, client: str) -> asyncio.Queue:
         q: asyncio.Queue = asyncio.Queue(VIEWER_BACKLOG)
-        self.viewers.add(q)
+        self.viewers[q] = client
+        self.by_address[client] += 1
         return q
 
     def leave(self, q: asyncio.Queue) -> None:
-        self.viewers.discard(q)
+        client = self.viewers.pop(q, None)
+        if client is not None:
+            self.by_address[client] -= 1
+            if self.by_address[client] <= 0:
+                del self.by_address[client]
 
     def send(self, message: bytes) -> None:
         for q in list(self.viewers):
             try:
                 q.put_nowait(message)
             except asyncio.QueueFull:          # it does not keep up: drop it (None ends it)
-                self.viewers.discard(q)
+                self.leave(q)
                 while not q.empty():
                     q.get_nowait()
                 q.put_nowait(None)
@@ -206,14 +177,14 @@ class Hub:
 
     def _tick(self) -> None:
         self.ticks += 1
+        self.source.poll(time.monotonic())
         hello = self.source.hello
         if hello != self.session:
             self.session = hello
             self.send(sse("session", {"session": hello, "channels": self.channels()}))
-        self.seq, rows = self.source.ring.since(self.seq)
+        self.seq, rows = self.source.since(self.seq)
         n = len(self.channels())
-        rows = [r for r in rows if len(r) == 1 + 3 * n]
-        if rows and self.viewers:
+        if len(rows) and self.viewers and rows.shape[1] == 1 + 3 * n:
             self.send(sse("samples", sample_columns(rows, n)))
         fresh = False
         if self.ticks % EVENTS_EVERY == 0:
@@ -233,39 +204,43 @@ class Hub:
 
     def close(self) -> None:
         for q in list(self.viewers):
+            while not q.empty():
+                q.get_nowait()
             q.put_nowait(None)
         self.viewers.clear()
+        self.by_address.clear()
 
 
 # -- the handlers -----------------------------------------------------------------------------------------
-class _Guarded:
-    """Every handler: the Host check (module docstring) and the security headers."""
+class _Handler(tornado.web.RequestHandler):
+    """Every handler: the Host check (module docstring), the security headers, JSON errors;
+    :attr:`refusal` says why a request was refused (counted when it ends)."""
 
-    def prepare(self) -> None:
-        settings = self.application.settings
-        if settings["loopback"]:
-            host = self.request.host_name.strip("[]").lower()
-            if host not in LOOPBACK_NAMES and not _is_loopback(host):
-                raise tornado.web.HTTPError(403, reason="Host not allowed")
+    refusal: str | None = None
 
-    def set_default_headers(self) -> None:
-        self.set_header("Content-Security-Policy", "default-src 'self'; frame-ancestors 'none'")
-        self.set_header("X-Content-Type-Options", "nosniff")
-        self.set_header("Referrer-Policy", "no-referrer")
-        self.set_header("Cache-Control", "no-store")
-
-
-def _is_loopback(host: str) -> bool:
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
-
-
-class _Handler(_Guarded, tornado.web.RequestHandler):
     @property
     def hub(self) -> Hub:
         return self.application.settings["hub"]
+
+    @property
+    def client(self) -> str:
+        return self.request.remote_ip or "?"
+
+    def prepare(self) -> None:
+        binding: Binding = self.application.settings["binding"]
+        if not binding.host_allowed(self.request.host_name):
+            self.refuse(403, "Host not allowed", f"this server answers only to its own names, not "
+                                                 f"{printable(self.request.host_name, 64)}")
+
+    def refuse(self, status: int, why: str, message: str | None = None) -> None:
+        """Answer ``status`` with ``{"refused": message}``; counted as refused for ``why``."""
+        self.refusal = why
+        self.reply(status, {"refused": message or why})
+
+    def set_default_headers(self) -> None:
+        self.clear_header("Server")                  # what it runs on is nobody's business
+        for name, value in SECURITY_HEADERS.items():
+            self.set_header(name, value)
 
     def reply(self, status: int, body: dict) -> None:
         self.set_status(status)
@@ -277,14 +252,33 @@ class _Handler(_Guarded, tornado.web.RequestHandler):
         self.finish(json.dumps({"error": self._reason}) + "\n")
 
 
-class _Static(_Guarded, tornado.web.StaticFileHandler):
-    pass
+class NotFoundHandler(_Handler):
+    """Any path the server does not have: 404 (every method), headers and all."""
+
+    def prepare(self) -> None:
+        super().prepare()
+        if not self._finished:
+            self.refuse(404, "no such page")
 
 
 class PageHandler(_Handler):
     def get(self) -> None:
-        self.set_header("Content-Type", "text/html; charset=utf-8")
-        self.finish((STATIC / "index.html").read_bytes())
+        body, kind = self.application.settings["files"]["index.html"]
+        self.set_header("Content-Type", kind)
+        self.finish(body)
+
+
+class StaticHandler(_Handler):
+    """The page's files, read once at start (:func:`static_files`): no path reaches the disk."""
+
+    def get(self, path: str) -> None:
+        found = self.application.settings["files"].get(path)
+        if found is None:
+            self.refuse(404, "no such page")
+            return
+        body, kind = found
+        self.set_header("Content-Type", kind)
+        self.finish(body)
 
 
 class StatusHandler(_Handler):
@@ -303,13 +297,20 @@ class PageInfoHandler(_Handler):
 
 
 class StreamHandler(_Handler):
+    _queue: asyncio.Queue | None = None
+
     async def get(self) -> None:
+        hub = self.hub
+        why = hub.refusal(self.client)
+        if why is not None:
+            self.set_header("Retry-After", "10")
+            self.refuse(503, "too many live streams", why)
+            return
         self.set_header("Content-Type", "text/event-stream")
         self.set_header("X-Accel-Buffering", "no")
-        hub = self.hub
         for message in hub.greeting():
             self.write(message)
-        q = self._queue = hub.join()
+        q = self._queue = hub.join(self.client)
         try:
             await self.flush()
             while True:
@@ -324,7 +325,7 @@ class StreamHandler(_Handler):
             hub.leave(q)
 
     def on_connection_close(self) -> None:
-        q = getattr(self, "_queue", None)
+        q = self._queue
         if q is not None:
             self.hub.leave(q)
             try:
@@ -338,33 +339,56 @@ class ActionHandler(_Handler):
 
     def post(self, action: str) -> None:
         operator = self.hub.operator
-        client = self.request.remote_ip or "?"
         why = operator.refusal(self.request.headers.get("Authorization"))
         if why is not None:
-            operator.log_refusal(f"POST /{action}", why, client)
-            self.reply(403, {"refused": why})
+            self.refuse(403, why)
             return
         try:
-            done = operator.act(action, client)
+            done = operator.act(action, self.client)
         except Refused as exc:
             self.reply(exc.status, {"refused": str(exc)})
             return
         self.reply(200, {"ok": True, "action": done.action, "message": done.message})
 
     def _not_post(self, action: str) -> None:
-        self.hub.operator.log_refusal(f"{self.request.method} /{action}", "an action is a POST",
-                                      self.request.remote_ip or "?")
         self.set_header("Allow", "POST")
-        self.reply(405, {"refused": f"/{action} is an action: POST it with Authorization: Bearer TOKEN"})
+        self.refuse(405, "an action is a POST", f"/{action} is an action: POST it with Authorization: Bearer TOKEN")
 
-    get = put = delete = patch = _not_post     # type: ignore[assignment]
-
-
-def _quiet(handler: tornado.web.RequestHandler) -> None:
-    log.debug("%s %s %s", handler.get_status(), handler.request.method, handler.request.uri)
+    get = head = options = put = delete = patch = _not_post     # type: ignore[assignment]
 
 
-def make_app(hub: Hub, loopback: bool) -> tornado.web.Application:
+def _log_request(tally: RefusalTally) -> Callable[[tornado.web.RequestHandler], None]:
+    """Every request at its end: a refused one counted for its client (a handler's
+    :attr:`_Handler.refusal`, tornado's own 400 and 405); not a 409 (the operator's action
+    that cannot be taken now) nor a server's error (tornado logs those)."""
+    def logged(handler: tornado.web.RequestHandler) -> None:
+        status = handler.get_status()
+        why = getattr(handler, "refusal", None)
+        if why is None:
+            if status == 405:
+                why = "an action is a POST" if isinstance(handler, ActionHandler) else "method not allowed"
+            elif status == 400:
+                why = "bad request"
+            else:
+                return
+        request = handler.request
+        tally.refuse(request.remote_ip or "?", f"{request.method} {printable(request.path)}", why)
+    return logged
+
+
+def static_files() -> dict[str, tuple[bytes, str]]:
+    """Every file of ``static/`` by its path there: its bytes and type."""
+    out = {}
+    for path in sorted(STATIC.rglob("*")):
+        if path.is_file():
+            kind = mimetypes.guess_type(path.name)[0] or "text/plain"
+            if kind.startswith("text/") or kind.endswith(("+xml", "javascript")):
+                kind += "; charset=utf-8"
+            out[path.relative_to(STATIC).as_posix()] = (path.read_bytes(), kind)
+    return out
+
+
+def make_app(hub: Hub, binding: Binding, tally: RefusalTally) -> tornado.web.Application:
     actions = "|".join(ACTIONS)
     return tornado.web.Application([
         (r"/", PageHandler),
@@ -372,65 +396,102 @@ def make_app(hub: Hub, loopback: bool) -> tornado.web.Application:
         (r"/page\.json", PageInfoHandler),
         (r"/live", StreamHandler),
         (rf"/({actions})", ActionHandler),
-        (r"/static/(.*)", _Static, {"path": str(STATIC)}),
-    ], hub=hub, loopback=loopback, log_function=_quiet, compress_response=False)
+        (r"/static/(.*)", StaticHandler),
+    ], hub=hub, binding=binding, files=static_files(), default_handler_class=NotFoundHandler,
+        log_function=_log_request(tally), compress_response=False)
 
 
 # -- the server -----------------------------------------------------------------------------------------------
 class LiveServer:
-    """The page's server for the test in ``testdir`` on ``address`` (module docstring):
-    :meth:`start` binds (a clear error if it cannot) and serves on a thread of its own;
-    ``kind`` "session" (served by the running session) or "watch"."""
+    """The page's server for the test in ``testdir`` (module docstring) on listening ``sockets``
+    (:func:`endurance.live.binding.bind_listeners`): :meth:`serve` in the calling thread until
+    :meth:`stop` (the server's process), or :meth:`start` on a thread of its own (the tests).
+    ``kind`` "session" (served for the running session) or "watch"; ``record`` journals a
+    refusal's message (default: a ``refused`` event in the test's journal)."""
 
-    def __init__(self, address: Address, testdir: str | Path, source: SampleSource, operator: Operator,
-                 kind: str) -> None:
-        self.address = address
+    def __init__(self, testdir: str | Path, operator: Operator, kind: str, binding: Binding,
+                 limits: Limits = Limits(), record: Callable[[str], None] | None = None) -> None:
         self.testdir = Path(testdir)
-        self.source = source
         self.operator = operator
         self.kind = kind
-        self.url: str | None = None
+        self.binding = binding
+        self.limits = limits
+        self.record = record or (lambda message: record_event(self.testdir, "refused", message))
+        self.hub: Hub | None = None
+        self.server: GuardedHTTPServer | None = None
+        self.tally: RefusalTally | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
-        self.hub: Hub | None = None
 
-    def start(self) -> str:
-        """Bind and serve; the page's URL."""
-        try:
-            sockets = tornado.netutil.bind_sockets(self.address.port, self.address.host,
-                                                   family=socket.AF_UNSPEC)
-        except (OSError, socket.gaierror) as exc:
-            raise ParameterError(f"--serve {self.address.host}:{self.address.port}: cannot listen there "
-                                 f"({exc.strerror or exc})") from None
-        port = sockets[0].getsockname()[1]
-        self.url = self.address.url(port)
-        self._thread = threading.Thread(target=self._serve, args=(sockets,), name="live-page", daemon=True)
-        self._thread.start()
-        self._ready.wait(10.0)
-        return self.url
-
-    def _serve(self, sockets) -> None:
+    def serve(self, sockets, on_ready: Callable[[], None] | None = None) -> None:
+        """Serve on ``sockets`` in this thread until :meth:`stop`; ``on_ready`` once it accepts."""
         loop = asyncio.new_event_loop()
         asyncio.set_event_loop(loop)
         self._loop = loop
-        self.hub = Hub(JournalView(self.testdir), self.source, self.operator, self.kind)
-        server = tornado.httpserver.HTTPServer(make_app(self.hub, self.address.loopback))
+        tally = self.tally = RefusalTally(self.limits, self.record, log)
+        refusals = TornadoRefusals(tally)
+        general = logging.getLogger("tornado.general")
+        general.addFilter(refusals)
+        level = general.level
+        general.setLevel(logging.INFO)
+        self.hub = Hub(JournalView(self.testdir), FeedReader(self.testdir), self.operator, self.kind, self.limits)
+        server = self.server = GuardedHTTPServer(make_app(self.hub, self.binding, tally), limits=self.limits,
+                                                 tally=tally, ssl_options=self.binding.tls_context())
         server.add_sockets(sockets)
+        handlers = [h for h in logging.getLogger().handlers if isinstance(h, RateLimitedHandler)]
+
+        def housekeeping() -> None:
+            server.sweep()
+            tally.tick()
+            for handler in handlers:
+                handler.roll()
         ticker = tornado.ioloop.PeriodicCallback(self.hub.tick, TICK_S * 1000)
+        keeper = tornado.ioloop.PeriodicCallback(housekeeping, HOUSEKEEPING_S * 1000)
         ticker.start()
+        keeper.start()
         self._ready.set()
+        if on_ready is not None:
+            on_ready()
         try:
             loop.run_forever()
         finally:
             ticker.stop()
+            keeper.stop()
             server.stop()
+            tally.flush()
             self.hub.close()
             self.hub.view.close()
+            self.hub.source.close()
+            general.removeFilter(refusals)
+            general.setLevel(level)
             loop.run_until_complete(asyncio.sleep(0.05))
             loop.close()
 
+    def start(self, sockets) -> None:
+        """:meth:`serve` on a thread of its own; returns once it accepts."""
+        self._thread = threading.Thread(target=self.serve, args=(sockets,), name="live-page", daemon=True)
+        self._thread.start()
+        if not self._ready.wait(30.0):
+            raise RuntimeError("the live page's server did not start")
+
     def stop(self) -> None:
-        if self._loop is not None and self._thread is not None:
-            self._loop.call_soon_threadsafe(self._loop.stop)
+        """End :meth:`serve` (from any thread)."""
+        if self._loop is not None and not self._loop.is_closed():
+            try:
+                self._loop.call_soon_threadsafe(self._loop.stop)
+            except RuntimeError:
+                pass
+        if self._thread is not None:
             self._thread.join(timeout=5.0)
+
+
+def log_to_stderr(limits: Limits) -> RateLimitedHandler:
+    """The server process's logging: warnings and worse to stderr, rate-limited."""
+    handler = RateLimitedHandler(sys.stderr, limits.log_lines_per_minute)
+    handler.setLevel(logging.WARNING)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", "%Y-%m-%d %H:%M:%S"))
+    root = logging.getLogger()
+    root.addHandler(handler)
+    root.setLevel(logging.WARNING)
+    return handler

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from gateway.errors import ParameterError
 
-from .common import add_effects, add_node_ids, parse_assignments
+from .common import add_effects, add_node_ids, device_set, id_args, parse_assignments
 
 #: one-channel options that mean nothing on a rig
 ONE_CHANNEL_ONLY = (("bus", "--bus"), ("config", "--config"), ("model", "--model"), ("set", "--set"),
@@ -136,14 +136,17 @@ def main(args: argparse.Namespace) -> int:
     period_s = args.period_ms / 1000.0
     limits = SafetyLimits(force_limit_kgf=FORCE_LIMIT_KGF if args.force_limit is None else args.force_limit)
     t0 = time.monotonic()
+    devices = device_set(args)
     if args.bus is None:
         config = load_plant_config(args.config, args.model, parse_assignments(args.set))
         bus = f"udp_loopback:campaign-{os.getpid()}-{uuid.uuid4().hex[:6]}"   # private channel
         print(f"emulator: {config.model.spec} on {bus} (lockstep, separate process, seed {args.seed})")
         print(f"campaign: {len(planned)} runs, about {plan.nominal_stand_s():.0f} s of stand time -> {out}/")
-        with EmulatorProcess(bus, config, lockstep=True, seed=args.seed):
+        with EmulatorProcess(bus, config, lockstep=True, seed=args.seed, devices=devices,
+                             extra_args=id_args(args)):
             with Gateway(GatewayConfig(bus=bus, lockstep=True, period_s=period_s, valve_id=args.valve_id,
-                                       dynamometer_id=args.dynamometer_id, limits=limits)) as gw:
+                                       dynamometer_id=args.dynamometer_id, limits=limits,
+                                       devices=devices)) as gw:
                 result = run_campaign(gw, plan, out, progress=progress, truth=config.to_dict())
     else:
         if args.config or args.model or args.set:
@@ -153,7 +156,7 @@ def main(args: argparse.Namespace) -> int:
         print(f"campaign: {len(planned)} runs, about {plan.nominal_stand_s():.0f} s of stand time -> {out}/")
         with Gateway(GatewayConfig(bus=args.bus, lockstep=args.lockstep, period_s=period_s,
                                    valve_id=args.valve_id, dynamometer_id=args.dynamometer_id,
-                                   limits=limits)) as gw:
+                                   limits=limits, devices=devices)) as gw:
             result = run_campaign(gw, plan, out, progress=progress)
     wall = time.monotonic() - t0
     stopped = [r for r in result.runs if r.status != "complete"]

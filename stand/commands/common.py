@@ -10,7 +10,7 @@ from typing import Iterator
 from dbc import profile as P
 from core.errors import ParameterError
 from gateway.config import GatewayConfig
-from gateway.limits import ACTIONS, SafetyLimits
+from gateway.limits import ACTIONS, ERROR_LIMIT_MIN_KGF, ERROR_LIMIT_SHARE, SafetyLimits
 from standbus.realtime import DEFAULT_PRIORITY
 from standbus.spec import DEFAULT_BUS
 
@@ -26,9 +26,36 @@ def add_node_ids(p: argparse.ArgumentParser) -> None:
     p.add_argument("--valve-id", type=int, default=P.VALVE_NODE_ID, metavar="ID", help="servo-valve node id (default %(default)s)")
     p.add_argument("--dynamometer-id", type=int, default=P.DYNAMOMETER_NODE_ID, metavar="ID",
                    help="dynamometer node id (default %(default)s)")
+    p.add_argument("--devices", metavar="DEVICES.toml",
+                   help="which valve drive and force amplifier the stand has: a device file naming "
+                        "each one's EDS and the objects it uses (docs/devices.md; examples in "
+                        "examples/devices/). Default: the emulated pair (dbc/)")
 
 
-def add_gateway(p: argparse.ArgumentParser) -> None:
+def id_args(args: argparse.Namespace) -> list[str]:
+    """The node ids of ``args`` as options for an emulator started with them (none where they
+    are the defaults)."""
+    out = []
+    if args.valve_id != P.VALVE_NODE_ID:
+        out += ["--valve-id", str(args.valve_id)]
+    if args.dynamometer_id != P.DYNAMOMETER_NODE_ID:
+        out += ["--dynamometer-id", str(args.dynamometer_id)]
+    return out
+
+
+def device_set(args: argparse.Namespace):
+    """The device set of ``--devices`` (None: the emulated pair); a clear error if it cannot
+    be used."""
+    path = getattr(args, "devices", None)
+    if path is None:
+        return None
+    from devices import load_device_set
+    return load_device_set(path)
+
+
+def add_gateway(p: argparse.ArgumentParser, error_limit: str = "off") -> None:
+    """The gateway's options; ``error_limit``: what the error detector is without --error-limit
+    (as the help says it)."""
     add_bus(p)
     add_node_ids(p)
     p.add_argument("--period-ms", type=float, default=None, metavar="MS",
@@ -41,7 +68,13 @@ def add_gateway(p: argparse.ArgumentParser) -> None:
                    help="how long to wait for a node's SDO answer while setting up, ms "
                         "(default %(default)g; raise it on a slow host)")
     add_rt_priority(p, "real time: run the control loop and bus reader threads")
-    add_safety(p)
+    add_safety(p, error_limit)
+
+
+def programme_error_limit(of: str) -> str:
+    """The error detector's default for a loading programme, as the help says it (``of``: whose
+    range: gateway.limits.programme_error_limit_kgf)."""
+    return f"{100 * ERROR_LIMIT_SHARE:g} %% of {of}, at least {ERROR_LIMIT_MIN_KGF:g} kgf"
 
 
 def add_rt_priority(p: argparse.ArgumentParser, what: str) -> None:
@@ -50,8 +83,9 @@ def add_rt_priority(p: argparse.ArgumentParser, what: str) -> None:
                         "root or CAP_SYS_NICE); 0: ordinary scheduling (default %(default)s)")
 
 
-def add_safety(p: argparse.ArgumentParser) -> None:
-    """The supervisor's limits and reactions (docs/safety.md)."""
+def add_safety(p: argparse.ArgumentParser, error_limit: str = "off") -> None:
+    """The supervisor's limits and reactions (docs/safety.md); ``error_limit``: the error
+    detector's default as the help says it."""
     d = SafetyLimits()
     g = p.add_argument_group("safety (see docs/safety.md)")
     g.add_argument("--force-limit", type=float, default=None, metavar="KGF",
@@ -67,7 +101,7 @@ def add_safety(p: argparse.ArgumentParser) -> None:
                    help="limit the command's rate of change, %%/s (default: none)")
     g.add_argument("--error-limit", type=float, default=d.error_limit_kgf, metavar="KGF",
                    help="error detector: |reference - force| beyond KGF for --error-time trips "
-                        "(closed-loop experiments; default: off)")
+                        f"(closed-loop experiments; default: {error_limit})")
     g.add_argument("--error-time", type=float, default=d.error_time_s, metavar="S",
                    help="how long the error must persist, s (default %(default)s)")
     g.add_argument("--error-action", choices=ACTIONS, default=d.error_action,
@@ -135,6 +169,9 @@ def gateway_config(args: argparse.Namespace) -> GatewayConfig:
             raise ParameterError(f"--period-ms {period_ms:g}: the rig {rig_path} runs at "
                                  f"{rig.period_s * 1e3:g} ms (period_ms in the file); leave "
                                  "--period-ms out or change the file")
+        if getattr(args, "devices", None) is not None:
+            raise ParameterError(f"--devices: a rig's devices are in its file (devices = \"FILE\" "
+                                 f"in {rig_path}, for the rig or per channel); leave --devices out")
         if getattr(args, "force_limit", None) is not None:
             raise ParameterError("--force-limit: a rig's force limits are per channel "
                                  f"(force_limit_kgf of each [[channel]] in {rig_path}, default 95 % "
@@ -149,7 +186,8 @@ def gateway_config(args: argparse.Namespace) -> GatewayConfig:
                          rt_priority=getattr(args, "rt_priority", DEFAULT_PRIORITY),
                          rpdo_timeout_ms=getattr(args, "rpdo_timeout", GatewayConfig.rpdo_timeout_ms),
                          limits=safety_limits(args), rig=rig,
-                         fault_action=getattr(args, "fault_action", "hold"))
+                         fault_action=getattr(args, "fault_action", "hold"),
+                         devices=None if rig is not None else device_set(args))
 
 
 def add_effects(p: argparse.ArgumentParser) -> None:

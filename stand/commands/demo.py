@@ -15,7 +15,7 @@ from pathlib import Path
 
 from gateway.experiments import Meander
 
-from .common import parse_assignments
+from .common import device_set, parse_assignments
 
 #: the example rig of a clone (docs/rig.md)
 EXAMPLE_RIG = Path(__file__).resolve().parents[2] / "examples" / "rig.toml"
@@ -40,6 +40,10 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=1, help="noise seed (default %(default)s)")
     p.add_argument("--bus", default=None, metavar="SPEC",
                    help="bus to use (default: a private udp_loopback channel for this demo)")
+    p.add_argument("--devices", metavar="DEVICES.toml",
+                   help="the valve drive and amplifier to emulate and drive: a device file "
+                        "(docs/devices.md; e.g. examples/devices/hydronix/devices.toml). Default: "
+                        "the emulated pair (dbc/)")
     g = p.add_argument_group("a rig of many channels (docs/rig.md)")
     g.add_argument("--rig", nargs="?", const="example", default=None, metavar="RIG.toml",
                    help="demonstrate a rig instead (default: examples/rig.toml, 4 channels on 2 "
@@ -68,13 +72,18 @@ def main(args: argparse.Namespace) -> int:
     from plant.config import load_plant_config
     from plant_emulator.process import EmulatorProcess
     config = load_plant_config(args.config, None, parse_assignments(args.set))
+    devices = device_set(args)
     experiment = Meander(args.amplitude_pct, args.period_s, args.cycles)
     bus = args.bus or f"udp_loopback:demo-{os.getpid()}"
     out = Path(args.out or f"runs/demo-{dt.datetime.now():%Y%m%d-%H%M%S}")
     print(f"emulator: {config.model.spec} on {bus} (lockstep, separate process)")
+    if devices is not None:
+        print(f"devices: {devices.name} ({devices.where})")
     t0 = time.monotonic()
-    with EmulatorProcess(bus, config, lockstep=True, seed=args.seed):
-        with Gateway(GatewayConfig(bus=bus, lockstep=True)) as gw:
+    with EmulatorProcess(bus, config, lockstep=True, seed=args.seed, devices=devices):
+        with Gateway(GatewayConfig(bus=bus, lockstep=True, devices=devices)) as gw:
+            for note in gw.master.notes():
+                print(f"note: {note}")
             result = gw.run(experiment, out, progress=None)
     write_json(result.path / TRUTH_FILE, config.to_dict())
     wall = time.monotonic() - t0
@@ -122,10 +131,12 @@ def demo_rig(args: argparse.Namespace):
     from rig.config import load_rig_file
     from rig.emulated import emulated_plant
     from rig.files import on_private_loopback
-    given = [opt for opt, on in (("--config", args.config), ("--set", args.set), ("--bus", args.bus)) if on]
+    given = [opt for opt, on in (("--config", args.config), ("--set", args.set), ("--bus", args.bus),
+                                 ("--devices", getattr(args, "devices", None))) if on]
     if given:
-        raise ParameterError(f"--rig takes the plants and the buses from the rig file (the demo "
-                             f"puts its buses on private loopback channels): leave out {', '.join(given)}")
+        raise ParameterError(f"--rig takes the plants, buses and devices from the rig file (the "
+                             f"demo puts its buses on private loopback channels): leave out "
+                             f"{', '.join(given)}")
     if args.rig == "example":
         if not EXAMPLE_RIG.exists():
             raise ParameterError(f"no example rig here ({EXAMPLE_RIG}): give a rig file, "

@@ -16,14 +16,14 @@ if TYPE_CHECKING:
 
 
 def register(sub) -> None:
-    from analysis.defaults import MAX_EFFECTS
+    from analysis.defaults import MAX_EFFECTS, VERDICTS
+    verdicts = "; ".join(f"{v} ({what})" for v, what in VERDICTS.items())
     p = sub.add_parser("diagnose", help="find the effect the model is missing (or say it is adequate)",
                        description="Fit the model (default: the paper's base model), then add every "
                                    "diagnosable catalogue effect in turn, refit, and rank them by how "
-                                   "much they lower the windowed error. Verdict: adequate, "
-                                   "missing_effect (the best one) or unexplained (structure no effect "
-                                   "removes, described), with the residual pattern in plain words and "
-                                   "warnings when the data cannot separate two explanations.")
+                                   f"much they lower the windowed error. Verdict: {verdicts}; with "
+                                   "the residual pattern in plain words and warnings when the data "
+                                   "cannot separate two explanations.")
     add_data_args(p, model_required=False, channel=False)
     p.add_argument("--candidates", metavar="A,B,...",
                    help="only try these effects (default: every diagnosable one not in the "
@@ -36,7 +36,8 @@ def register(sub) -> None:
     p.add_argument("--stepwise", action="store_true",
                    help="build the model up: add the best effect, diagnose again, until the model "
                         "is within the noise (for data that miss several effects at once); then "
-                        "check each added effect with the others in place")
+                        "check each added effect with the others in place. It ends adequate, "
+                        "varies_between_records, unexplained or at --max-effects")
     p.add_argument("--max-effects", type=int, default=MAX_EFFECTS, metavar="N",
                    help=f"with --stepwise: add at most N effects (default {MAX_EFFECTS})")
     p.add_argument("--save", metavar="FILE.toml",

@@ -11,12 +11,14 @@ from dbc import profile as P
 from standbus.realtime import make_realtime, short_gil_slices
 from standbus.spec import DEFAULT_BUS
 
-from .common import add_effects, add_bus, add_node_ids, add_rt_priority, parse_assignments
+from .common import (add_bus, add_effects, add_node_ids, add_rt_priority, device_set,
+                     parse_assignments)
 
 #: the one-channel options a rig file replaces (option, argparse name, default)
 _ONE_CHANNEL = (("--bus", "bus", DEFAULT_BUS), ("--valve-id", "valve_id", P.VALVE_NODE_ID),
                 ("--dynamometer-id", "dynamometer_id", P.DYNAMOMETER_NODE_ID),
-                ("--config", "config", None), ("--model", "model", None), ("--set", "set", None))
+                ("--config", "config", None), ("--model", "model", None), ("--set", "set", None),
+                ("--devices", "devices", None))
 
 
 def register(sub) -> None:
@@ -42,6 +44,10 @@ def register(sub) -> None:
                         "spike:CHANNEL:KGF@T, its dynamometer reads KGF more once; "
                         "heartbeat:CHANNEL@T+D, its valve sends no heartbeat for D s. A stand's "
                         "channel is 'stand'. Repeatable (plant_emulator/scheduled_faults.py)")
+    p.add_argument("--unconfigured", action="append", default=[], metavar="CHANNEL",
+                   help="CHANNEL's valve and dynamometer start as fresh devices without a node id: "
+                        "silent but for LSS (CiA 305) until a master gives them one, as `stand "
+                        "bench scan` does. A stand's channel is 'stand'. Repeatable")
     p.add_argument("--lockstep", action="store_true",
                    help="advance the plant one communication period (0x1006) per SYNC instead of "
                         "on the wall clock (a rig: per cycle, once every bus's SYNC came)")
@@ -63,7 +69,9 @@ def main(args: argparse.Namespace) -> int:
     if not (0.01 <= args.step_ms <= 100 and math.isfinite(args.step_ms)):
         raise ModelError(f"--step-ms {args.step_ms:g} is out of range: use 0.01 to 100 ms")
     options = EmulatorOptions(lockstep=args.lockstep, seed=args.seed, valve_id=args.valve_id,
-                              dynamometer_id=args.dynamometer_id, step_s=args.step_ms / 1000.0)
+                              dynamometer_id=args.dynamometer_id, step_s=args.step_ms / 1000.0,
+                              devices=None if args.rig else device_set(args),
+                              unconfigured=tuple(args.unconfigured))
     if args.rig:
         given = [opt for opt, name, default in _ONE_CHANNEL if getattr(args, name) != default]
         if given:
@@ -81,6 +89,9 @@ def main(args: argparse.Namespace) -> int:
         config = load_plant_config(args.config, args.model, parse_assignments(args.set))
         from plant_emulator.stand import BUS_NAME       # the stand's one channel
         options.faults = _faults(args, [BUS_NAME])
+        if set(args.unconfigured) - {BUS_NAME}:
+            raise ModelError(f"--unconfigured {', '.join(args.unconfigured)}: a stand's one channel "
+                             f"is '{BUS_NAME}' (a rig's channels are named in its file)")
         run = lambda clock: _serve_stand(args, config, options, clock)   # noqa: E731
     scheduling = "lockstep"
     if not args.lockstep:   # before any thread starts: they all inherit it
@@ -124,7 +135,12 @@ def _serve_stand(args: argparse.Namespace, config, options, clock: str):
         lambda bus: EmulatedStand(bus, config, options), args.bus,
         lambda stand: f"valve node {args.valve_id}, dynamometer node {args.dynamometer_id} on "
                       f"{args.bus} ({clock}); model {config.model.spec}"
+                      + _devices_text(options.devices)
                       + _fault_text(options, [stand.channel.name]))
+
+
+def _devices_text(devices) -> str:
+    return "" if devices is None else f"; devices {devices.name} ({devices.where})"
 
 
 def _serve_rig(rig, options, clock: str):

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .common import load_rig_records, rig_inputs
+from .fit import data_help
 
 if TYPE_CHECKING:
     from analysis.reports.campaign import ReportInput
@@ -25,7 +26,8 @@ def register(sub) -> None:
                     "metadata or recognised from the signals. --json prints one object per input "
                     "(schema hydrostand-estimate/1, see docs/experiments.md); --out writes the "
                     "tables, figures and summary a campaign gets.")
-    p.add_argument("data", nargs="+", metavar="DATA", help="run directory, campaign directory or CSV file")
+    p.add_argument("data", nargs="+", metavar="DATA",
+                   help=f"campaign directories (their runs/*), {data_help()}; each is estimated on its own")
     p.add_argument("--json", action="store_true", help="print a JSON array, one object per input")
     p.add_argument("--out", metavar="DIR", help="also write the report (tables, figures, summary) here")
     p.add_argument("--experiment", choices=EXPERIMENT_NAMES, help="do not detect: treat every input as this")

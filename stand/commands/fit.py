@@ -16,9 +16,7 @@ def add_data_args(p: argparse.ArgumentParser, model_required: bool = True,
     ``channel``: --channel NAME, the channel of a rig run to read (diagnose has its own)."""
     from analysis.defaults import WINDOW_S
     p.add_argument("data", nargs="+", metavar="DATA",
-                   help="tables of samples (.csv/.tsv/.txt: t,u,y[,r] in s, %%, kgf, or other "
-                        "names and units in the header, e.g. 'time [ms]', 'force_N'), run "
-                        "directories or bus captures; several together are one data set")
+                   help=f"{data_help()}; several together are one data set")
     p.add_argument("--model", required=model_required, default=None if model_required else "base",
                    metavar="SPEC|FILE.toml",
                    help="a model spec like base+reversal+deadzone, or a TOML model file"
@@ -28,6 +26,16 @@ def add_data_args(p: argparse.ArgumentParser, model_required: bool = True,
     if channel:
         add_rig_channel(p)
     add_effects(p)
+
+
+def data_help() -> str:
+    """What a DATA argument may be, as the help says it: the suffixes the readers take."""
+    from analysis.defaults import TABLE_SUFFIXES
+    from captures.formats import SUFFIXES
+    return (f"tables of samples ({', '.join(TABLE_SUFFIXES)}: t,u,y[,r] in s, %%, kgf, or other names "
+            "and units in the header, e.g. 'time [ms]', 'Усилие, кН'; docs/reference/tables.md), run "
+            f"directories or bus captures ({', '.join(s for s in SUFFIXES if s != '.csv')}); any "
+            "file may be gzipped (.gz)")
 
 
 def check_window(args: argparse.Namespace) -> None:

@@ -21,7 +21,7 @@ DEFAULT_ACCURACY_PCT = 0.5
 #: then given its durations
 PLACEHOLDER_RATE_KGF_S = 1000.0
 
-from .common import add_effects, add_gateway, gateway_config, sigterm_as_interrupt
+from .common import add_effects, add_gateway, gateway_config, programme_error_limit, sigterm_as_interrupt
 
 
 def register(sub) -> None:
@@ -98,7 +98,7 @@ def register(sub) -> None:
                    help="force to unload to at the end, kgf (default %(default)s)")
     p.add_argument("--json", action="store_true",
                    help="print the tracking summary as JSON (schema hydrostand-load/1)")
-    add_gateway(p)
+    add_gateway(p, programme_error_limit("each channel's programme range"))
     g = p.add_argument_group("a rig of many channels (docs/loading.md, \"Loading a rig\")")
     g.add_argument("--rig", metavar="RIG.toml",
                    help="load every channel of a rig at once: PROGRAM is a load-case CSV (a column "
@@ -269,7 +269,13 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _print_result(result, programme, scaling, repeat: int) -> None:
-    """Each pass in a line, the last pass's report, time scaling's outcome, the gain."""
+    """Each pass in a line, the last pass's report, time scaling's outcome, the gain; on a
+    station's load cases, what the feedforward covers, what each pass learnt and every load case
+    pass by pass."""
+    from gateway.load import feedforward_text, learned_text
+    from loading.report import cases_table, case_moves
+    if programme.n > 1 and result.feedforward is not None:
+        print(feedforward_text(result.feedforward))
     for i, (p, timing) in enumerate(zip(result.passes, result.timings), start=1):
         if programme.n == 1:
             r = p.channels[0]
@@ -277,13 +283,26 @@ def _print_result(result, programme, scaling, repeat: int) -> None:
             print(f"pass {i}: peak/valley error p95 {pv['p95']:.2f} %, max {pv['max']:.2f} %, RMS "
                   f"{r.rms_error_pct:.2f} %, extra cycles {r.extra_cycles:g}; {timing.text()}")
             continue
-        pv = p.figures()["peak_valley_error_pct"]
+        figures = p.figures()
+        pv = figures["peak_valley_error_pct"]
         ratio = p.ratio_error_pct
+        moves = ""
+        if i > 1 and "load_cases" in figures:
+            m = case_moves(result.passes[i - 2].figures()["load_cases"], figures["load_cases"])
+            moves = (f"; load cases closer {m['cases_closer']}, within the band {m['cases_within_band']}, worse "
+                     f"{len(m['cases_worse'])}" + (f" ({', '.join(m['cases_worse'])})" if m["cases_worse"] else ""))
         print(f"pass {i}: worst channel {p.worst_channel}: peak/valley error p95 {pv['p95']:.2f} %, "
               f"max {pv['max']:.2f} %; extra cycles (all channels) {sum(r.extra_cycles for r in p.channels):g}"
-              + (f"; ratio error {ratio:.2f} %" if ratio is not None else "") + f"; {timing.text()}")
+              + (f"; ratio error {ratio:.2f} %" if ratio is not None else "") + moves + f"; {timing.text()}")
+        learned = result.learned[i - 1] if i - 1 < len(result.learned) else None
+        if learned is not None and (learned["not_learning"] or learned.get("stretched_segments")):
+            print(learned_text(learned))
     if result.passes:
         print(result.passes[-1].text())
+        if programme.n > 1:
+            table = cases_table(result.passes)
+            if table:
+                print(table)
     if result.converged is not None:
         print(schedule_line(result, scaling, repeat, "" if programme.n == 1 else " on every channel"))
     if result.monitor is not None:

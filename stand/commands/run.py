@@ -12,8 +12,11 @@ from .common import add_gateway, add_rig, gateway_config, sigterm_as_interrupt
 
 def register(sub) -> None:
     p = sub.add_parser("run", help="run one experiment on the stand and record it",
-                       description="Connect to the stand (boot, identify, configure the nodes), run "
-                                   "one experiment and write a run directory.")
+                       description="Connect to the stand (boot the nodes, check each one's identity "
+                                   "object 0x1018 against its EDS, configure them), run one experiment "
+                                   "and write a run directory. The run is the data: stand estimate "
+                                   "RUN estimates g and τ from it, stand fit and stand diagnose fit "
+                                   "models to it.")
     exps = p.add_subparsers(dest="experiment", metavar="EXPERIMENT", required=True)
     for name, klass in EXPERIMENTS.items():
         doc = plain(inspect.getdoc(klass) or "")

@@ -1,4 +1,4 @@
-"""``stand test plan|start|status|stop|resume|report``: an endurance test, flight by flight, on a
+"""``stand test plan|start|status|stop|resume|report|watch|token``: an endurance test, flight by flight, on a
 station (endurance.run; docs/endurance.md)."""
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import time
 from core.errors import ParameterError
 from standbus.spec import DEFAULT_BUS
 
-from .common import add_gateway, gateway_config, sigterm_as_interrupt
+from .common import add_gateway, gateway_config, programme_error_limit, sigterm_as_interrupt
 from .live_page import add_live_options, check_live_options, gateway_args, live_page, register_watch
 
 
@@ -66,7 +66,14 @@ def register(sub) -> None:
     add_live_options(q)
     q.set_defaults(func=resume_main)
 
-    q = tsub.add_parser("status", help="the test's state, count, position, pace and latest events")
+    q = tsub.add_parser("status", help="the test's state, count, position, pace and latest events",
+                        description="Read TESTDIR's journal, while the test runs or after, and print its "
+                                    "state (running, stopped, interrupted: its process died, or "
+                                    "finished) and why, the flights done of the target, the flight and "
+                                    "load case in progress or next, the pace over the last hour and the "
+                                    "time to the target, and the latest events. --json prints the same "
+                                    "object the live page serves as /status.json "
+                                    "(docs/reference/test-status-json.md). Touches no bus.")
     q.add_argument("testdir", metavar="TESTDIR")
     q.add_argument("--events", type=int, default=10, metavar="N", help="the latest N events (default %(default)s)")
     q.add_argument("--json", action="store_true", help="print the status as JSON")
@@ -85,7 +92,12 @@ def register(sub) -> None:
                    help="how long to wait for the stop (default %(default)s)")
     q.set_defaults(func=stop_main)
 
-    q = tsub.add_parser("report", help="what the test has done: sessions, stops, end points' accuracy")
+    q = tsub.add_parser("report", help="what the test has done: sessions, stops, end points' accuracy",
+                        description="Summarise TESTDIR: every session (how it began and ended, the time "
+                                    "from a resume to loading again), the stops and interruptions, and "
+                                    "the end points' accuracy (every peak and valley of every channel, "
+                                    "% of its range) over the whole test and over the last complete "
+                                    "block. --json: schema hydrostand-test-report/1. Touches no bus.")
     q.add_argument("testdir", metavar="TESTDIR")
     q.add_argument("--json", action="store_true", help="print the report as JSON")
     q.set_defaults(func=report_main)
@@ -94,7 +106,7 @@ def register(sub) -> None:
 
 
 def _gateway_options(q: argparse.ArgumentParser) -> None:
-    add_gateway(q)
+    add_gateway(q, programme_error_limit("each channel's largest range over the flight types"))
     q.add_argument("--fault-action", choices=("hold", "unload"), default="hold",
                    help="a rig: what a channel's communication or valve fault does to the others: hold "
                         "every channel, or unload them keeping the load ratios (default %(default)s)")
@@ -170,7 +182,7 @@ def start_main(args: argparse.Namespace) -> int:
     test = load_test_file(args.test_file)
     config = _config(args, test)
     feed = LiveFeed()
-    with sigterm_as_interrupt(), live_page(args, args.out, feed, "session"):
+    with sigterm_as_interrupt(), live_page(args, args.out, "session"):
         result = start(test, args.out, config, flights, on_flight=_on_flight(args), started_at=started,
                        publisher=feed, gateway_args=gateway_args(args, _gateway_options))
     return _finish(result)
@@ -187,7 +199,7 @@ def resume_main(args: argparse.Namespace) -> int:
     test = load_test_file(args.test_file or test_file_of(Path(args.testdir)))
     config = _config(args, test)
     feed = LiveFeed()
-    with sigterm_as_interrupt(), live_page(args, args.testdir, feed, "session"):
+    with sigterm_as_interrupt(), live_page(args, args.testdir, "session"):
         result = resume(args.testdir, config, test, flights, on_flight=_on_flight(args), started_at=started,
                         publisher=feed, found=args.found)
     return _finish(result)

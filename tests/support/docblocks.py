@@ -75,6 +75,7 @@ class Marks:
     file: str | None = None
     run: list[str] = field(default_factory=list)
     keep_optional: bool = False
+    needs: list[str] = field(default_factory=list)     #: programs the block runs (skipped without them)
 
 
 @dataclass
@@ -157,9 +158,11 @@ def add_marker(marks: Marks, text: str, where: str) -> None:
             marks.run.append(_reason(value, key, where))
         elif key == "optional" and value == "keep":
             marks.keep_optional = True
+        elif key == "needs":
+            marks.needs += _reason(value, key, where).split()
         else:
             raise MarkerError(f"{where}: unknown docs-test key {key!r} (skip, skip N-M, slow, "
-                              "xfail, output, given, file, run, optional: keep: docs/testing.md)")
+                              "xfail, output, given, file, run, optional: keep, needs: docs/testing.md)")
 
 
 def _reason(value: str, key: str, where: str) -> str:

@@ -7,6 +7,7 @@ that passes fails the page (strict: the bug it names is fixed, the marker must g
 """
 from __future__ import annotations
 
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -61,6 +62,10 @@ def run_page(path: Path, name: str, directory: Path, outcomes: list[Outcome]) ->
 def _run_one(run: PageRun, block: Block, before: list[Outcome]) -> Outcome:
     if block.marks.skip and not block.marks.run:
         return Outcome(block.where, "skipped", why=block.marks.skip)
+    missing = [program for program in block.marks.needs if shutil.which(program) is None]
+    if missing:
+        return Outcome(block.where, "skipped", why=f"{', '.join(missing)} not installed "
+                                                    "(bash scripts/setup as root installs it)")
     start = time.monotonic()
     try:
         try:

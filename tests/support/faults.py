@@ -5,7 +5,7 @@ Reaction times are measured from the moment the test injects a fault to the firs
 the reaction on the bus (e.g. the gateway's safe-state RPDO in its capture, with the sender's
 wall-clock time stamp). Each test asserts the stated bound plus :data:`LOAD_ALLOWANCE_S` for
 scheduling on a loaded shared 2-core machine. With ``HYDROSTAND_REACTIONS=FILE`` set, every
-measurement is appended to FILE as one JSON line (for the table in docs/safety.md).
+measurement is appended to FILE as one JSON line (for the table in docs/benchmarks.md).
 """
 from __future__ import annotations
 

@@ -3,7 +3,9 @@ it, the operator's token file, and plain HTTP clients of the page (its stream re
 browser's EventSource reads it)."""
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import subprocess
 import sys
 import time
@@ -103,3 +105,66 @@ def journal_of_flights(testdir: Path, flights: int = 3, target: int = 10, channe
         journal.stop("operator: stopped at the end of flight %d" % flights)
     (testdir / "test.json").write_text(json.dumps({"test_file": str(EXAMPLE), "gateway_args": ["--lockstep"]}))
     return testdir
+
+
+def events_of(testdir: Path, kind: str) -> list[dict]:
+    with Journal.open(testdir) as j:
+        return [e for e in j.events() if e["kind"] == kind]
+
+
+def refused_events(testdir: Path, at_least: int) -> list[dict] | None:
+    """The journal's ``refused`` events once there are ``at_least`` (None before)."""
+    refused = events_of(testdir, "refused")
+    return refused if len(refused) >= at_least else None
+
+
+@contextlib.contextmanager
+def serve_page(tmp_path: Path, limits=None):
+    """A factory of pages served in this process (on a thread each) for stopped tests (watch's
+    kind), with or without the operator's token: ``serve(token) -> (url, testdir)``, the servers
+    in ``serve.servers``. Summaries of refusals 0.5 s after the last (instead of 5 s), unless
+    ``limits`` says otherwise."""
+    from endurance.live.binding import Binding, bind_listeners
+    from endurance.live.limits import Limits
+    from endurance.live.operator import Operator
+    from endurance.live.server import LiveServer
+    limits = limits or Limits(summary_quiet_s=0.5)
+    servers = []
+
+    def serve(token: str | None = TOKEN, testdir: Path | None = None) -> tuple[str, Path]:
+        testdir = testdir or journal_of_flights(tmp_path / f"T{len(servers)}")
+        binding = Binding.check("127.0.0.1:0")
+        sockets = bind_listeners(binding.address)
+        server = LiveServer(testdir, Operator(testdir, token), "watch", binding, limits)
+        servers.append(server)
+        server.sockets = sockets
+        server.start(sockets)
+        return binding.url(sockets[0].getsockname()[1]), testdir
+
+    serve.servers = servers
+    try:
+        yield serve
+    finally:
+        for server in servers:
+            server.stop()
+            for sock in server.sockets:
+                sock.close()
+
+
+def page_server(session: int) -> int | None:
+    """The pid of the page server ``session`` (a session or ``stand test watch``) started (a
+    child of one of its threads), or None."""
+    for task in os.listdir(f"/proc/{session}/task"):
+        try:
+            with open(f"/proc/{session}/task/{task}/children") as fh:
+                children = fh.read().split()
+        except OSError:
+            continue
+        for child in children:
+            try:
+                with open(f"/proc/{child}/cmdline", "rb") as fh:
+                    if b"endurance.live.process" in fh.read():
+                        return int(child)
+            except OSError:
+                continue
+    return None

@@ -89,11 +89,16 @@
     live.sampleArrivals.push(Date.now() / 1000);
     if (live.sampleArrivals.length > 400) live.sampleArrivals.splice(0, 200);
     if (!channels.length || d.y.length !== channels.length) return;
-    for (const t of d.t) T.push(t);
+    // after a reconnection the greeting's window repeats what the page has: only the newer rows
+    let first = 0;
+    const last = T.length ? T[T.length - 1] : -Infinity;
+    while (first < d.t.length && d.t[first] <= last) first++;
+    if (first === d.t.length) return;
+    for (const t of d.t.slice(first)) T.push(t);
     channels.forEach((_, i) => {
-      for (const v of d.y[i]) Y[i].push(v);
-      for (const v of d.r[i]) R[i].push(v);
-      for (const v of d.u[i]) U[i].push(v);
+      for (const v of d.y[i].slice(first)) Y[i].push(v);
+      for (const v of d.r[i].slice(first)) R[i].push(v);
+      for (const v of d.u[i].slice(first)) U[i].push(v);
     });
     const newest = T[T.length - 1];
     let cut = 0;
@@ -235,18 +240,30 @@
   document.querySelectorAll("#operator button").forEach((b) => b.addEventListener("click", () => act(b.dataset.action)));
 
   // -- the stream ----------------------------------------------------------------------------------------
-  const stream = new EventSource("/live");
-  const on = (name, fn) => stream.addEventListener(name, (e) => {
-    live.counts[name + "_messages"] = (live.counts[name + "_messages"] || 0) + 1;
-    fn(JSON.parse(e.data));
-  });
-  on("page", showPage);
-  on("session", (m) => { if (m.channels.join() !== channels.join()) makeChannels(m.channels); showSession(m.session); });
-  on("samples", addSamples);
-  on("status", showStatus);
-  on("events", addEvents);
-  on("trend", addTrend);
-  stream.onerror = () => { const b = $("session"); b.className = "badge down"; b.textContent = "server unreachable: retrying"; };
+  // EventSource opens the stream again by itself after a dropped connection (the server says
+  // after how long); after a refusal (a server at its limit of streams, 503) it gives up, so the
+  // page opens a new one itself a little later.
+  let stream = null;
+  function openStream() {
+    stream = new EventSource("/live");
+    const on = (name, fn) => stream.addEventListener(name, (e) => {
+      live.counts[name + "_messages"] = (live.counts[name + "_messages"] || 0) + 1;
+      fn(JSON.parse(e.data));
+    });
+    on("page", showPage);
+    on("session", (m) => { if (m.channels.join() !== channels.join()) makeChannels(m.channels); showSession(m.session); });
+    on("samples", addSamples);
+    on("status", showStatus);
+    on("events", addEvents);
+    on("trend", addTrend);
+    stream.onerror = () => {
+      const b = $("session");
+      b.className = "badge down";
+      b.textContent = "server unreachable: retrying";
+      if (stream.readyState === EventSource.CLOSED) setTimeout(openStream, 5000);
+    };
+  }
+  openStream();
   window.addEventListener("resize", () => {
     for (const c of Object.values(live.charts)) {
       if (c.panel) { const w = Math.max(c.panel.clientWidth - 16, 200); c.main.setSize({width: w, height: 170}); c.error.setSize({width: w, height: 80}); }
