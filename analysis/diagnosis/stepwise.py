@@ -18,6 +18,13 @@ selection with a backward check, like stepwise regression):
    if it no longer helps. What stays is reported with how much worse the error would be
    without it.
 
+After each effect added, the earlier effects it looks like are revised (:mod:`.revision`): each
+is tried in place of its look-alikes and left out, the others refitted, so a look-alike taken
+early (an overdamped resonance for a sensor lag) can be undone. Stuck above the noise, every
+added effect is revised and then every candidate fitted afresh before the build-up ends
+*unexplained*; at the end every added effect is tried in place of its look-alikes once more.
+The rules: docs/decisions.md, "The stepwise diagnosis that can undo its choices".
+
 The steps keep their whole diagnoses (observations, ambiguities, warnings of each).
 """
 from __future__ import annotations
