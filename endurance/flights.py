@@ -149,6 +149,9 @@ class FlightPiece:
     start_ways : a session's first piece (a glide-in): each valve's way at its start
     timing_final : its type's timing was final when it was prepared (no longer searched:
         :mod:`endurance.timing`)
+    compensation : its type's compensation as it was prepared, the corrections it runs with
+        (its type learns from them: the flight ahead may have taught it since); None: the
+        type's as it is when the flight is learnt from
     """
 
     slot: FlightSlot
@@ -160,6 +163,7 @@ class FlightPiece:
     handover_at: int = 0
     start_ways: np.ndarray | None = None
     timing_final: bool = True
+    compensation: Any = None
     #: global cycle at which its experiment began (local time 0) and its main phase's first
     #: cycle (the reference's sample 0); None until known
     c0: int | None = None

@@ -72,6 +72,7 @@ of each session. No run directory per flight, no bus capture.
 from __future__ import annotations
 
 import collections
+import copy
 import hashlib
 import json
 import math
@@ -221,6 +222,11 @@ class Planner:
         nominal = self.timing.programme(flight_type)
         return nominal, self.compensations[flight_type].commanded(nominal)
 
+    def _ran_with(self, flight_type: str) -> Compensation:
+        """A copy of the flight type's compensation as a piece is prepared: what the flight runs
+        with, which its learning starts from (the flight ahead may teach its type meanwhile)."""
+        return copy.deepcopy(self.compensations[flight_type])
+
     def start(self, number: int, load_case: int, begun: bool, y0: np.ndarray) -> None:
         self.futures[number] = self.pool.submit(self._first, number, load_case, begun, np.array(y0, float))
 
@@ -237,7 +243,8 @@ class Planner:
         lead_in = glide_in(y0, commanded.r_kgf[:, 0], self.T, delay)
         experiment = LoadProgramme(commanded, self.controller, lead_in=lead_in, unload=False, monitor=self.gain)
         piece = FlightPiece(slot, nominal, start, experiment, begun=begun, commit_from=load_case,
-                            start_ways=first_ways(experiment), timing_final=final)
+                            start_ways=first_ways(experiment), timing_final=final,
+                            compensation=self._ran_with(slot.flight_type))
         self.prepared[number] = piece
         return piece
 
@@ -280,7 +287,8 @@ class Planner:
                 self.cache.popitem(last=False)
             experiment = experiment.fresh()
             self.built += 1
-        piece = FlightPiece(slot, nominal, 0, experiment, timing_final=final)
+        piece = FlightPiece(slot, nominal, 0, experiment, timing_final=final,
+                            compensation=self._ran_with(slot.flight_type))
         self.prepared[number] = piece
         return piece
 
@@ -302,7 +310,7 @@ class Planner:
                 Y = filled_forces(record.Y)
                 report = tracking_report(nominal, t, Y)
                 comp = self.compensations[piece.slot.flight_type]
-                comp.learn(report.channels, nominal.ranges_kgf)
+                comp.learn(report.channels, nominal.ranges_kgf, ran=piece.compensation)
                 tables = compensation_tables(comp)
                 schedule = self.timing.learn(piece.slot.flight_type, nominal, report, t, Y,
                                              landing_error_pct(record))

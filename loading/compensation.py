@@ -20,10 +20,22 @@ Two guards, as commercial compensators have (a tolerance band, and never worse):
 * **never worse than the best seen**: each level remembers the smallest error it had and the
   correction it had then (the first pass's is the uncorrected one, or the one loaded). A pass
   whose error at a level is worse than that by more than the band goes back to that correction
-  and halves the level's learning gain. So a stand whose response to a correction is larger
+  and halves the level's learning gain, down to :data:`GAIN_FLOOR_SHARE` of it (months of
+  flights would otherwise halve it to nothing on noise alone). So a stand whose response to a correction is larger
   than one to one, or a correction that upsets the segments beside it, costs at most one pass
-  at that level. This memory lives with the object (across ``stand load --repeat`` passes);
-  a file loaded later starts it afresh.
+  at that level. A pass run with the best correction measures the best anew: the same
+  correction can miss by more another time (an endurance test's flights start from what the
+  flight before left; a session's first glides in), and a best that cannot be had again would
+  send every later pass back to it, its gain halved each time, learning nothing. This memory
+  lives with the object (across ``stand load --repeat`` passes); a file loaded later starts it
+  afresh.
+
+**The pass's own corrections.** Each step starts from the corrections the pass ran with.
+``stand load --repeat`` learns before it builds the next pass, so those are the object's. An
+endurance test prepares a flight while the one before flies: two flights of a type in a row
+run the same corrections, and the second's are handed to :meth:`Compensation.learn` (``ran``).
+Read from the object, its error would be counted twice and the secant read between
+corrections that did not make those errors.
 
 **By load case** (a station of several channels on load cases): every channel is judged at
 every load case (:mod:`loading.report`: its peaks and valleys, and where it passes or holds its
@@ -86,6 +98,8 @@ from .programme import SHAPE_MODES, STAND, shape_basis
 from .report import GATE_PCT
 
 LEARNING_GAIN = 0.8
+#: a learning gain halved by going back stops at this share of its start (module docstring)
+GAIN_FLOOR_SHARE = 1 / 8
 #: a correction is at most this share of the programme's range: compensation trims turning
 #: points, it does not rewrite the programme (a larger error is the controller's or the model's)
 MAX_CORRECTION_SHARE = 0.05
@@ -186,13 +200,17 @@ class ChannelCompensation:
             out[j] += case.correction_kgf
         return out
 
-    def learn(self, points, range_kgf: float, shapes: dict | None = None, retreats: dict | None = None) -> None:
+    def learn(self, points, range_kgf: float, shapes: dict | None = None, retreats: dict | None = None,
+              ran: "ChannelCompensation | None" = None) -> None:
         """Update from a pass's turning points (objects with kind, commanded_kgf, error_kgf and
         case: a station's load case, learnt by case; None: by kind and level) and, by load
-        case, the shapes between them (:attr:`loading.report.ChannelReport.shapes`)."""
+        case, the shapes between them (:attr:`loading.report.ChannelReport.shapes`). ``ran``:
+        the corrections the pass ran with, when they are not these as they are now (None:
+        these; module docstring, "The pass's own corrections")."""
+        ran_with = self if ran is None else ran
         if any(getattr(p, "case", None) is not None for p in points):
-            self._learn_cases(points, range_kgf)
-            self._learn_shapes(shapes or {}, retreats or {}, range_kgf)
+            self._learn_cases(points, range_kgf, ran_with)
+            self._learn_shapes(shapes or {}, retreats or {}, range_kgf, ran_with)
             return
         bound = MAX_CORRECTION_SHARE * range_kgf
         sums: dict = {}
@@ -203,24 +221,25 @@ class ChannelCompensation:
         # the corrections the pass ran with, all read before any is updated: a level first seen
         # in this pass ran with the interpolation of the levels known before it, not with what
         # this pass learns at its neighbours
-        applied = {k: self.correction(*k) for k in sums}
+        applied = {k: ran_with.correction(*k) for k in sums}
         for (kind, key), errs in sums.items():
             err = float(np.mean(errs))
             ran = applied[kind, key]
             best, best_c, gain = self.history.get((kind, key), (math.inf, ran, self.learning_gain))
-            if abs(err) < best:
+            if abs(err) < best or ran == best_c:       # better, or the best run again
                 best, best_c = abs(err), ran
             if abs(err) <= band:                       # within the tolerance band: keep it
                 new = ran
             elif abs(err) > best + band:               # worse than the best seen: go back
-                new, gain = best_c, gain / 2
+                new, gain = best_c, max(gain / 2, GAIN_FLOOR_SHARE * self.learning_gain)
             else:
                 new = ran - gain * err
             self.history[kind, key] = (best, best_c, gain)
             self.table.setdefault(kind, {})[key] = min(max(new, -bound), bound)
 
-    def _learn_cases(self, points, range_kgf: float) -> None:
-        """By load case (module docstring): each case's correction from its own error."""
+    def _learn_cases(self, points, range_kgf: float, ran_with: "ChannelCompensation") -> None:
+        """By load case (module docstring): each case's correction from its own error and the
+        correction it ran with (``ran_with``'s)."""
         bound = MAX_CORRECTION_SHARE * range_kgf
         band = TOLERANCE_SHARE * range_kgf
         self.last = {}
@@ -228,7 +247,8 @@ class ChannelCompensation:
             if p.case is None:
                 continue
             case = self.cases.setdefault(p.case, CaseLearning(float(p.commanded_kgf)))
-            ran, err = case.correction_kgf, float(p.error_kgf)
+            other = ran_with.cases.get(p.case)
+            ran, err = other.correction_kgf if other is not None else 0.0, float(p.error_kgf)
             status, trusted = "learning", False
             if case.before is not None:
                 c0, e0 = case.before
@@ -238,7 +258,7 @@ class ChannelCompensation:
                         case.unreached = True
                     else:
                         case.sensitivity, trusted = min(max(s, SENSITIVITY_MIN), SENSITIVITY_MAX), True
-            if abs(err) < case.best[0]:
+            if abs(err) < case.best[0] or ran == case.best[1]:     # better, or the best run again
                 case.best = (abs(err), ran)
             if abs(err) <= band:
                 new, status = ran, "band"
@@ -246,7 +266,7 @@ class ChannelCompensation:
                 new, status = case.best[1], "unreached"
             elif abs(err) > case.best[0] + band and not trusted:
                 new, status = case.best[1], "back"
-                case.gain /= 2
+                case.gain = max(case.gain / 2, GAIN_FLOOR_SHARE * self.learning_gain)
             else:
                 new = ran - case.gain * err / case.sensitivity
             if abs(new) > bound:
@@ -256,18 +276,19 @@ class ChannelCompensation:
             self.last[p.case] = {"error_kgf": err, "ran_kgf": ran, "next_kgf": new,
                                  "sensitivity": case.sensitivity, "status": status}
 
-    def _learn_shapes(self, shapes: dict, retreats: dict, range_kgf: float) -> None:
+    def _learn_shapes(self, shapes: dict, retreats: dict, range_kgf: float, ran_with: "ChannelCompensation") -> None:
         """By load case: the shape of each segment where the force went back against the
         reference's way (by more than :data:`RETREAT_SHARE` of the range: an extra cycle in the
         making) or that has one, ``a ← a − γ_s·d`` (``d`` the force's deviation there in the same
         modes), its largest offset at most :data:`MAX_CORRECTION_SHARE` of the range (module
-        docstring)."""
+        docstring; ``a`` the shape the pass ran with, ``ran_with``'s)."""
         bound = MAX_CORRECTION_SHARE * range_kgf
         for k, modes in shapes.items():
-            if k not in self.shapes and retreats.get(k, 0.0) <= RETREAT_SHARE * range_kgf:
+            if (k not in self.shapes and k not in ran_with.shapes
+                    and retreats.get(k, 0.0) <= RETREAT_SHARE * range_kgf):
                 continue
             d = np.asarray(modes, float)
-            a = self.shapes.get(k, np.zeros(len(d)))
+            a = ran_with.shapes.get(k, np.zeros(len(d)))
             a = np.r_[a, np.zeros(max(len(d) - len(a), 0))][:len(d)] - SHAPE_GAIN * d
             largest = np.max(np.abs(shape_basis(129, len(a)) @ a))
             self.shapes[k] = a * min(1.0, bound / largest) if largest > 0 else a
@@ -391,11 +412,14 @@ class Compensation:
                 raise ParameterError(f"channel {n}: {exc}") from None
         return out
 
-    def learn(self, reports: Sequence, ranges_kgf: Sequence[float]) -> None:
-        """Update each channel from its pass's tracking report (in the channels' order)."""
+    def learn(self, reports: Sequence, ranges_kgf: Sequence[float], ran: "Compensation | None" = None) -> None:
+        """Update each channel from its pass's tracking report (in the channels' order).
+        ``ran``: the compensation the pass ran with, when it is not this one as it is now (an
+        endurance test prepares a flight before the flight ahead of it has taught its type;
+        module docstring, "The pass's own corrections")."""
         for n, rep, rng in zip(self.names, reports, ranges_kgf):
             self.channels[n].learn(rep.turning_points, rng, getattr(rep, "shapes", None),
-                                   getattr(rep, "retreats", None))
+                                   getattr(rep, "retreats", None), None if ran is None else ran.channels[n])
         for k in sorted({j for c in self.channels.values() for j, v in c.last.items() if v["status"] == "unreached"}):
             self.stretch[k - 1] = min(self.stretch.get(k - 1, 1.0) * STRETCH_STEP, STRETCH_MAX)
 

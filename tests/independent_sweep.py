@@ -5,7 +5,7 @@ equivalent?
     .venv/bin/python -m tests.independent_sweep SEED N [--k 3]   # N random pairs (or triples)
 
 Not a test (too slow for CI, and the pairs are random): a probe to run after changing the
-diagnosis; docs/analysis.md keeps the latest figures."""
+diagnosis; docs/benchmarks.md keeps the latest figures."""
 from __future__ import annotations
 
 import argparse

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from core.errors import ParameterError
-from loading.compensation import (MAX_CORRECTION_SHARE, SENSITIVITY_MAX, SENSITIVITY_MIN, STRETCH_MAX,
-                                  STRETCH_STEP, ChannelCompensation, Compensation)
+from loading.compensation import (GAIN_FLOOR_SHARE, MAX_CORRECTION_SHARE, SENSITIVITY_MAX, SENSITIVITY_MIN,
+                                  STRETCH_MAX, STRETCH_STEP, TOLERANCE_SHARE, ChannelCompensation,
+                                  Compensation)
 from loading.controller import PIFeedforward
 from loading.programme import from_load_cases, shape_basis
 from loading.report import case_moves, cases_table, tracking_report
@@ -164,3 +165,32 @@ def test_on_a_rig_the_integral_goes_out_at_the_feedbacks_share():
         law.reset([-2.7])
     assert one.step([0.0], [0.0], [0.0], 0.2, -1.0)[0] == pytest.approx(-2.7)
     assert rig.step([0.0], [0.0], [0.0], 0.2, -1.0)[0] == pytest.approx(-0.54)
+
+
+def test_a_noisy_case_sent_back_again_and_again_keeps_learning_at_the_gain_floor():
+    """Months of flights: a case whose error is noise well above the band goes back to its best
+    many times; each halves its gain, but not below GAIN_FLOOR_SHARE of it, so once the noise
+    is gone the case still learns its way into the band."""
+    rng = np.random.default_rng(1)
+    comp = ChannelCompensation()
+    gains, errs = [], []
+    for i in range(300):
+        c = comp.cases[1].correction_kgf if 1 in comp.cases else 0.0
+        errs.append(20.0 + c + (rng.normal(0, 15.0) if i < 200 else 0.0))
+        comp.learn([Point("rising", 1100.0, errs[-1], 1)], RANGE)
+        gains.append(comp.cases[1].gain)
+    assert min(gains) == pytest.approx(GAIN_FLOOR_SHARE * comp.learning_gain)
+    assert abs(errs[-1]) <= TOLERANCE_SHARE * RANGE
+
+
+def test_a_best_that_does_not_come_back_is_measured_anew_and_learning_goes_on():
+    """The first pass happened to land 1 kgf off with no correction; every later pass misses by
+    30 kgf with that correction (an endurance test's first flight glides in from rest). Sent back
+    to the best once, the pass run there measures it anew and learning goes on into the band."""
+    comp = ChannelCompensation()
+    errs = []
+    for i in range(8):
+        c = comp.cases[1].correction_kgf if 1 in comp.cases else 0.0
+        errs.append((1.0 if i == 0 else 30.0) + c)
+        comp.learn([Point("rising", 1100.0, errs[-1], 1)], RANGE)
+    assert abs(errs[-1]) <= TOLERANCE_SHARE * RANGE, errs

@@ -146,7 +146,7 @@ def test_a_force_held_at_a_relief_valve_is_left_out_and_the_real_effects_found()
     load-pressure law and the build-up ended unexplained; then, with the long holds left out,
     the short ones still bent the fit (load_pressure first, unexplained at 7.7x the floor); now
     every hold is left out (said in the notes) and lag and asymmetry are found alone, with the
-    simulator's values (seeds 11 and 23 too: docs/validation.md)."""
+    simulator's values (seeds 11 and 23 too: docs/benchmarks.md)."""
     recs = independent("lag+asymmetry+forcelimit", 7)
     held = [n for r in recs for n in r.notes if "hydraulic limit" in n]
     assert all("1500 kgf" in n or "1499 kgf" in n or "1501 kgf" in n for n in held), held
