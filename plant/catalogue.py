@@ -13,7 +13,7 @@ from .effects import BUILTIN_MODULES
 from .loader import check_class, load_module
 from .params import ModelError
 
-__all__ = ["CATALOGUE", "BUILTINS", "effect_class", "order"]
+__all__ = ["CATALOGUE", "BUILTINS", "effect_class", "look_alikes", "order"]
 
 #: the built-in effects' names, in the catalogue's order
 BUILTINS: tuple[str, ...] = tuple(n for m in BUILTIN_MODULES for n in load_module(m, check_class, builtin=True))
@@ -38,3 +38,12 @@ def effect_class(name: str) -> type[Effect]:
         raise ModelError(
             f"unknown effect {name!r}; the catalogue has: {', '.join(names)} (see `stand "
             f"effects`); an effect of your own is loaded with --effects FILE.py") from None
+
+
+def look_alikes(name: str) -> list[str]:
+    """The diagnosable effects that look like ``name``: those it names in its
+    :attr:`~plant.Effect.look_alikes` and those that name it, in the catalogue's order (the
+    base model's gain, delay and trend are not effects: dropping ``name`` tries them)."""
+    own = CATALOGUE[name].look_alikes
+    return sorted((n for n, cls in CATALOGUE.items() if n != name and cls.diagnosable
+                   and (n in own or name in cls.look_alikes)), key=order)

@@ -134,6 +134,15 @@ class Effect:
                           f"looks exactly like {BASE_LOOK_ALIKES.get(other, '+' + other)}.",
                           separating_experiment(cls.name, other))]
 
+    @classmethod
+    def own_evidence(cls, values: Mapping[str, float]) -> tuple[bool, str]:
+        """Whether the fitted ``values`` (``{"name.param": value}``) show what only this effect
+        can do, and in words: ``(False, why)`` when they make it one of its simpler look-alikes
+        with a spare parameter (an overdamped resonance is a lag), which the diagnosis then
+        does not let in; ``(True, what)`` when they show its own evidence (``what`` says why
+        it is preferred over its look-alikes; may be empty). Default: ``(True, "")``."""
+        return True, ""
+
     def __init__(self, **values: float) -> None:
         known = {p.name: p for p in self.params}
         unknown = set(values) - set(known)

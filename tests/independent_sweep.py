@@ -19,13 +19,15 @@ from tests.support.records import EQUIVALENT, independent_records
 #: the simulator's reversal boosts (timed from the rod, the command, or over the force travelled):
 #: at most one per data set
 REVERSAL_LAWS = {"rev_flow", "rev_cmd", "rev_force"}
+#: laws added after the sweeps of docs/analysis.md, left out so a seed draws what it drew then
+LATER = {"lostmotion", "dirlatch"}
 
 
 def random_sets(seed: int, n: int, k: int = 2) -> list[tuple[str, ...]]:
     """``n`` different random sets of ``k`` simulator effects that no catalogue effect names
     twice (and at most one reversal law)."""
     rng = np.random.default_rng(seed)
-    names = sorted(EQUIVALENT)
+    names = sorted(set(EQUIVALENT) - LATER)
     sets: set[tuple[str, ...]] = set()
     while len(sets) < n:
         pick = tuple(sorted(str(x) for x in rng.choice(names, k, replace=False)))

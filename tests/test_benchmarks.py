@@ -31,6 +31,8 @@ FIGURES = {
     "decode": ("frames/s", "past start-up"),
     "diagnosis": ("stand diagnose",),
     "stepwise": ("one fit of",),
+    "confusion": ("confusion matrix of stepwise", "spurious effects in single-effect cells",
+                  "overdamped resonances reported"),
     "bus": ("frames/s", "round trips/s"),
     "bus_budget": ("% bus load",),
     "live": ("live page: loop cycle, no page", "viewers against none", "stream updates a viewer got"),
@@ -44,8 +46,9 @@ FIGURES = {
 
 #: the rows of each benchmark's quick table
 ROWS = {"control_loop": 6, "wakeup": 1, "rig": 9, "campaign": 1, "decode": 6, "loading": 8,
-        "faster": 9, "diagnosis": 2, "stepwise": 2, "rig_identify": 4, "rig_load": 11, "bus": 2,
-        "bus_budget": 2, "crack": 6, "live": 4, "rig_one_run": 11, "endurance": 2}
+        "faster": 9, "diagnosis": 2, "stepwise": 2, "confusion": 4, "rig_identify": 4,
+        "rig_load": 11, "bus": 2, "bus_budget": 2, "crack": 6, "live": 4, "rig_one_run": 11,
+        "endurance": 2}
 
 _NUMBER = r"[-+]?(?:\d{1,3}(?:,\d{3})+|\d+)(?:\.\d+)?(?:e[-+]?\d+)?"
 
@@ -173,6 +176,13 @@ def _stepwise(rows):
     assert right == total == 4, r
 
 
+def _confusion(rows):
+    right, cells = figures(row(rows, "confusion matrix of stepwise")[1], r"{n} of {n}")
+    assert right == cells == 3, rows[0]                  # the quick cells are named right
+    for label in ("confusion matrix: spurious", "confusion matrix: overdamped"):
+        assert figures(row(rows, label)[1], r"{n} of {n}")[0] == 0, label
+
+
 def _rig_identify(rows):
     for label in ("rig G, per-column", "rig G, one simultaneous"):
         assert figures(row(rows, label)[1], r"largest error {n} %")[0] < 5, label
@@ -243,8 +253,8 @@ def _endurance(rows):
 #: what each benchmark's quick table must say, beyond its figures being numbers
 PLAUSIBLE = {"control_loop": _control_loop, "wakeup": _wakeup, "rig": _rig, "campaign": _campaign,
              "decode": _decode, "loading": _loading, "faster": _faster, "diagnosis": _diagnosis,
-             "stepwise": _stepwise, "rig_identify": _rig_identify, "rig_load": _rig_load,
-             "bus": _bus, "bus_budget": _bus_budget, "crack": _crack, "live": _live,
+             "stepwise": _stepwise, "confusion": _confusion, "rig_identify": _rig_identify,
+             "rig_load": _rig_load, "bus": _bus, "bus_budget": _bus_budget, "crack": _crack, "live": _live,
              "rig_one_run": _rig_one_run, "endurance": _endurance}
 
 

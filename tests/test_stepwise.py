@@ -203,3 +203,51 @@ def test_a_lag_beside_an_asymmetry_held_at_a_relief_valve_is_named_not_a_resonan
     step = next(st for st in r.steps if st.added == "lag")
     assert step.diagnosis.best_candidate.equivalents == ["resonance"]
     assert "+resonance leaves as little error with more parameters" in step.why, step.why
+
+
+def test_look_alikes_go_both_ways():
+    from plant.catalogue import CATALOGUE, look_alikes
+    for name, cls in CATALOGUE.items():
+        if cls.diagnosable:
+            assert all(name in look_alikes(other) for other in look_alikes(name)), name
+    assert set(look_alikes("resonance")) == {"lag", "sensor_lag"}
+    assert "resonance" in look_alikes("sensor_lag")      # named by the resonance only
+
+
+def test_a_resonance_is_its_own_evidence_only_when_it_rings():
+    from plant.catalogue import CATALOGUE
+    own, why = CATALOGUE["resonance"].own_evidence({"resonance.frequency": 20.5,
+                                                    "resonance.damping": 3.0})
+    assert not own and "overdamped" in why and "46.6 ms" in why      # 2ζ/ω = 6/(2π·20.5)
+    own, why = CATALOGUE["resonance"].own_evidence({"resonance.frequency": 6.0,
+                                                    "resonance.damping": 0.2})
+    assert own and "it rings" in why and "53 % overshoot" in why
+    assert CATALOGUE["lag"].own_evidence({"lag.time_constant": 0.03}) == (True, "")
+
+
+def test_an_overdamped_resonance_is_swapped_for_the_sensor_lag_it_stands_in_for():
+    """The issue's first pair on our model: a dynamometer filter of 40 ms behind the reversal
+    boost, with an overdamped resonance fitted in its place (the greedy build-up's choice).
+    Revised, the resonance is tried in place of its look-alikes: the sensor lag explains more
+    with a parameter fewer and replaces it; a valve lag (before the boost) leaves more."""
+    from analysis import fit_model
+    from analysis.diagnosis.revision import revise
+    from analysis.diagnosis.verdict import Windows, objective_floor
+    from analysis.identification.metrics import evaluate
+    from analysis.records import synthetic as S
+    truth = PlantModel.from_spec("base+reversal+sensor_lag", {
+        **BASE, "reversal.boost": 2.0, "reversal.decay": 0.15, "sensor_lag.time_constant": 0.04})
+    recs = [S.meander(truth, (5.0, 20.0), period_s=4.0, cycles=2, seed=3)]
+    w = Windows.of(recs, 2.0, 150)
+    values = {k: v for k, v in truth.params().items() if not k.startswith("sensor_lag")}
+    wrong = fit_model(w.full, PlantModel.from_spec("base+reversal+resonance", {
+        **values, "resonance.frequency": 20.0, "resonance.damping": 3.0}))
+    assert wrong.model.params()["resonance.damping"] > 1          # the stand-in: overdamped
+    floor = objective_floor(w.full, evaluate(wrong.model, recs, 2.0).noise_sigma)
+    r = revise(wrong, ["resonance"], w.full, w.screen, floor, jobs=1)
+    assert r.fit.model.spec == "base+reversal+sensor_lag", r.text
+    assert [a.change for a in r.kept] == ["+sensor_lag in place of +resonance"]
+    assert "with 1 parameter fewer" in r.kept[0].why
+    assert r.fit.model.params()["sensor_lag.time_constant"] == pytest.approx(0.04, rel=0.05)
+    lag = next(a for a in r.rejected if a.added == "lag")
+    assert lag.objective_rmse > r.kept[0].objective_rmse, lag

@@ -53,6 +53,11 @@ class Candidate:
     fit: FitResult | None = field(default=None, repr=False)
     #: the objective's squared error per window on all windows (what ties are judged on)
     window_sse: np.ndarray | None = field(default=None, repr=False)
+    #: its fitted values show what only it can do (:meth:`plant.Effect.own_evidence`); if not,
+    #: it neither helps nor earns
+    own: bool = True
+    #: what they show, or why they do not
+    evidence: str = ""
 
     def to_dict(self) -> dict:
         d = {k: v for k, v in asdict(self).items() if k not in ("fit", "window_sse")}
@@ -69,15 +74,24 @@ def diagnosable_effects(model: PlantModel) -> list[str]:
 
 def judge(name: str, f: FitResult, w: np.ndarray, rmse: float, base_w: np.ndarray,
           base_rmse: float, floor: float, n: int, refit: str) -> Candidate:
-    """Judge one candidate against its reference fit of the starting model (same windows)."""
+    """Judge one candidate against its reference fit of the starting model (same windows). An
+    effect whose fitted values do not show its own evidence (:meth:`plant.Effect.own_evidence`:
+    an overdamped resonance is a lag with a spare parameter) neither helps nor earns."""
     c = error_cut(w, base_w, floor, n, len(f.free) - 3)
+    own, evidence = CATALOGUE[name].own_evidence(f.model.params())
+    warnings = list(f.warnings) + ([] if own else [f"+{name} is not let in: {evidence}"])
     return Candidate(effect=name, spec=f.model.spec, params=f.model.params(), rmse=rmse,
                      objective_rmse=c.objective_rmse, improvement=c.improvement,
                      rmse_reduction=1.0 - rmse / base_rmse if base_rmse > 0 else 0.0,
-                     excess_share=c.excess_share, z=c.z, lr=c.lr, earns=c.earns, helps=c.helps,
-                     bic=n * math.log(max(c.objective_rmse, 1e-300) ** 2) + len(f.free) * math.log(n),
-                     refit_on=refit, free_params=len(f.free), warnings=list(f.warnings), fit=f,
-                     window_sse=w)
+                     excess_share=c.excess_share, z=c.z, lr=c.lr, earns=c.earns and own,
+                     helps=c.helps and own, bic=bic(c.objective_rmse, len(f.free), n),
+                     refit_on=refit, free_params=len(f.free), warnings=warnings, fit=f,
+                     window_sse=w, own=own, evidence=evidence)
+
+
+def bic(objective_rmse: float, free_params: int, n: int) -> float:
+    """``N·ln(MSE) + k·ln(N)`` on the objective (``n`` samples, ``free_params`` parameters)."""
+    return n * math.log(max(objective_rmse, 1e-300) ** 2) + free_params * math.log(n)
 
 
 def tied(a: Candidate, b: Candidate, floor: float, n: int) -> bool:

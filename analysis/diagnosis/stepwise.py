@@ -18,6 +18,13 @@ selection with a backward check, like stepwise regression):
    if it no longer helps. What stays is reported with how much worse the error would be
    without it.
 
+After each effect added, the earlier effects it looks like are revised (:mod:`.revision`): each
+is tried in place of its look-alikes and left out, the others refitted, so a look-alike taken
+early (an overdamped resonance for a sensor lag) can be undone. Stuck above the noise, every
+added effect is revised and then every candidate fitted afresh before the build-up ends
+*unexplained*; at the end every added effect is tried in place of its look-alikes once more.
+The rules: docs/decisions.md, "The stepwise diagnosis that can undo its choices".
+
 The steps keep their whole diagnoses (observations, ambiguities, warnings of each).
 """
 from __future__ import annotations
@@ -28,13 +35,16 @@ from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
 from plant import PlantModel
+from plant.catalogue import look_alikes
 
 from ..identification.fit import REFIT_TOL, FitOptions, FitResult, fit_model
 from ..identification.windows import WINDOW_S, errors, pieces_from_records, residual
 from ..parallel import one_blas_thread, run_each, workers_for
 from ..records.record import Record
+from .ambiguity import Ambiguity
 from .candidates import Candidate, judge
-from .verdict import Diagnosis, diagnose
+from .revision import Alternative, Revision, revise
+from .verdict import Diagnosis, Windows, diagnose
 
 #: effects added at most (each step is one diagnosis: all candidates fitted)
 from ..defaults import MAX_EFFECTS  # noqa: E402  (re-exported)
@@ -50,10 +60,23 @@ class Step:
     diagnosis: Diagnosis = field(repr=False)
     added: str | None = None      #: the effect added after this diagnosis
     why: str = ""                 #: why it was added, or why the build-up stopped here
+    #: the earlier effects tried in place of their look-alikes and left out once it was added
+    #: (:func:`.revision.revise`; None: nothing to revise)
+    revision: Revision | None = field(default=None, repr=False)
+
+    @property
+    def line(self) -> str:
+        """What the step led to, in words (the effect added and why, the revision kept)."""
+        text = f"+{self.added}: {self.why}" if self.added else self.why
+        if self.revision is not None and self.revision.kept:
+            text += f"; then {self.revision.text}"
+        return text
 
     def to_dict(self) -> dict:
         return {"model": self.model, "rmse": self.rmse, "over_floor": self.over_floor,
-                "added": self.added, "why": self.why, "diagnosis": self.diagnosis.to_dict()}
+                "added": self.added, "why": self.why,
+                "revised": [a.to_dict() for a in self.revision.kept] if self.revision else [],
+                "diagnosis": self.diagnosis.to_dict()}
 
 
 @dataclass
@@ -82,6 +105,12 @@ class Stepwise:
     verdict: str
     needed: list[Needed]
     summary: str
+    #: the end's revision: every added effect tried in place of its look-alikes
+    revision: Revision | None = field(default=None, repr=False)
+    #: what these data cannot tell apart about the final model (:func:`said_apart`)
+    ambiguities: list[Ambiguity] = field(default_factory=list)
+    #: unexplained: the catalogue effects that came closest and were rejected, closest first
+    closest: list[str] = field(default_factory=list)
 
     @property
     def path(self) -> list[str]:
@@ -95,17 +124,20 @@ class Stepwise:
         return {"verdict": self.verdict, "model": self.model.spec, "params": self.model.params(),
                 "intervals": {k: e.to_dict() for k, e in self.fit.estimates.items()},
                 "summary": self.summary, "needed": [vars(n) for n in self.needed],
-                "steps": [s.to_dict() for s in self.steps]}
+                "revised": [a.to_dict() for a in self.revision.kept] if self.revision else [],
+                "ambiguities": [{**vars(a), "text": a.text()} for a in self.ambiguities],
+                "closest": self.closest, "steps": [s.to_dict() for s in self.steps]}
 
 
 def pick(d: Diagnosis) -> tuple[Candidate | None, str]:
     """The candidate to add after diagnosis ``d``, and why (or why none). Its equivalents (laws
-    with more parameters that leave as little error: ties go to the simpler law) are named."""
+    with more parameters that leave as little error: ties go to the simpler law) are named, and
+    what it shows that its look-alikes tried beside it cannot (a resonance's ringing)."""
     if d.best_candidate is not None:
         c = d.best_candidate
         return c, (f"earns its parameters: lowers the error by {100 * c.rmse_reduction:.0f} %, "
                    f"{100 * max(c.excess_share, 0):.0f} % of the excess over the noise"
-                   + equivalents_text(c))
+                   + equivalents_text(c) + preferred_text(c, d))
     if d.verdict == "adequate":
         return None, "adequate: the error is within the noise"
     if d.verdict == "varies_between_records":
@@ -117,7 +149,7 @@ def pick(d: Diagnosis) -> tuple[Candidate | None, str]:
     c = helping[0]
     return c, (f"part of the missing behaviour: lowers the error by {100 * c.rmse_reduction:.0f} % "
                f"({100 * max(c.excess_share, 0):.0f} % of the excess), significant and "
-               f"consistent over the windows" + equivalents_text(c))
+               f"consistent over the windows" + equivalents_text(c) + preferred_text(c, d))
 
 
 def equivalents_text(c: Candidate) -> str:
@@ -128,6 +160,19 @@ def equivalents_text(c: Candidate) -> str:
             f" as little error with more parameters (equivalent, ranked after it)")
 
 
+def preferred_text(c: Candidate, d: Diagnosis) -> str:
+    """Why ``c`` was preferred over its look-alikes tried beside it, when its values show
+    evidence of its own (:meth:`plant.Effect.own_evidence`: "it rings ..."); empty otherwise."""
+    if not c.evidence or not c.own:
+        return ""
+    alike = set(look_alikes(c.effect))
+    others = [o for o in d.candidates if o.effect in alike]
+    if not others:
+        return f"; {c.evidence}"
+    return (f"; preferred over {', '.join(f'+{o.effect} ({o.objective_rmse:.3g} kgf)' for o in others)}"
+            f" ({c.objective_rmse:.3g} kgf): {c.evidence}")
+
+
 #: evaluations of the model a refit without one effect takes, about (from fitted values)
 REFIT_EVALS = 60
 
@@ -135,6 +180,8 @@ REFIT_EVALS = 60
 #: "part of the missing behaviour" step is tried in its place when the build-up does not end
 #: adequate (greedy selection can take a look-alike first, then stall)
 ALTERNATIVE_RATIO = 0.8
+#: screening windows of a diagnosis, at most (:func:`.verdict.diagnose`'s default)
+MAX_SCREEN_WINDOWS = 150
 
 
 @one_blas_thread
@@ -151,7 +198,10 @@ def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
     ``jobs``: worker processes for each diagnosis (see :func:`.verdict.diagnose`)."""
     say = progress or (lambda msg: None)
     start = PlantModel.from_spec(model) if isinstance(model, str) else model
-    up = _forward(records, start, [], [], window_s, max_effects, effects, say, jobs)
+    own = [e.name for e in start.effects if e.name not in carried]
+    windows = Windows.of(records, window_s, MAX_SCREEN_WINDOWS)
+    run = _BuildUpRun(records, own, window_s, max_effects, effects, say, jobs, windows)
+    up = run.forward(start, [])
     tried = ""
     if up.verdict != "adequate":
         branch = _alternative(up.steps)
@@ -159,39 +209,52 @@ def stepwise(records: Sequence[Record], model: PlantModel | str = "base",
             i, alt = branch.step, branch.runner_up
             chosen = up.steps[i].added
             say(f"trying +{alt.effect} instead of +{chosen} at step {i + 1}")
-            first = replace(up.steps[i], added=alt.effect,
+            first = replace(up.steps[i], added=alt.effect, revision=None,
                             why=f"runner-up to +{chosen}, tried in its place: {100 * alt.rmse_reduction:.0f} % "
                                 f"lower error")
-            other = _forward(records, alt.fit.model, up.steps[:i] + [first],
-                             up.added[:i] + [alt.effect], window_s, max_effects, effects, say, jobs)
+            other = run.forward(alt.fit.model, up.steps[:i] + [first])
             better = (other.verdict == "adequate"
                       or other.steps[-1].over_floor < up.steps[-1].over_floor)
             tried = (f"; +{alt.effect} tried in place of +{chosen} at step {i + 1}: "
                      + ("kept, it ends closer to the noise" if better else "dropped, it ends no closer"))
             if better:
                 up = other
-    steps, added, verdict = up.steps, up.added, up.verdict
+    # the end: every added effect tried in place of its look-alikes (left out, each is refitted
+    # by the backward check below); a build-up stuck above the noise did it already
+    revision = None
+    final_fit = up.steps[-1].diagnosis.base_fit
+    checked = run.added(final_fit.model)
+    if checked and up.verdict != "unexplained":
+        say("trying each added effect in place of its look-alikes")
+        last = up.steps[-1].diagnosis
+        revision = revise(final_fit, checked, windows.full, windows.screen, last.objective_floor,
+                          jobs, say, drops=False, tried=run.tried,
+                          idle=[c.effect for c in last.candidates if not c.helps])
+        final_fit = revision.fit
+    steps, verdict = up.steps, up.verdict
     last = steps[-1].diagnosis
-    final_fit = last.base_fit
     needed: list[Needed] = []
     # with several effects, or with one when the build-up did not end adequate (what was added
     # on the way to "unexplained" must still earn its place, or it is not kept)
-    checked = [e for e in carried if e not in added] + list(added)
+    checked = run.added(final_fit.model)
     if len(checked) >= 2 or (checked and verdict != "adequate"):
         say("checking each added effect with the others in place")
         final_fit, needed = backward_check(records, final_fit, checked, last.objective_floor,
                                            window_s, jobs)
-    summary = _summary(steps, verdict, final_fit, needed, last) + tried
-    return Stepwise(steps=steps, model=final_fit.model, fit=final_fit, verdict=verdict,
-                    needed=needed, summary=summary)
+    result = Stepwise(steps=steps, model=final_fit.model, fit=final_fit, verdict=verdict,
+                      needed=needed, summary="", revision=revision)
+    result.ambiguities = said_apart(result)
+    if verdict == "unexplained":
+        result.closest = closest_rejected(result)
+    result.summary = _summary(result) + tried
+    return result
 
 
 @dataclass
 class BuildUp:
-    """A forward build-up: its diagnoses, the effects it added, and how it ended."""
+    """A forward build-up: its diagnoses, and how it ended."""
 
     steps: list[Step]
-    added: list[str]
     #: "adequate" | "varies_between_records" | "unexplained" | "max_effects"
     verdict: str
 
@@ -215,35 +278,99 @@ class Check:
     error_without: float          #: objective RMSE without it, kgf
 
 
-def _forward(records, current: PlantModel, steps: list[Step], added: list[str], window_s: float,
-             max_effects: int, effects, say, jobs: int | None = None) -> BuildUp:
-    """The build-up from ``current`` (reached by ``steps``, having ``added``) to its end."""
-    steps, added = list(steps), list(added)
-    verdict = "max_effects"
-    while True:
-        say(f"diagnosing {current.spec}")
-        todo = None if effects is None else [e for e in effects if current.effect(e) is None]
-        # after the first step the model is a candidate fitted to these records: polished
-        d = diagnose(records, current, window_s=window_s, effects=todo, progress=say, jobs=jobs,
-                     fitted=bool(steps))
-        floor = d.objective_floor
-        step = Step(model=d.base_fit.model.spec, rmse=d.base_eval.rmse,
-                    over_floor=d.base_fit.objective_rmse / floor if floor > 0 else math.inf,
-                    diagnosis=d)
-        steps.append(step)
-        c, why = pick(d)
-        if c is not None and len(added) >= max_effects:
-            step.why = f"stopped after {max_effects} added effects (--max-effects); next: {c.effect}"
-            break
-        step.why = why
-        if c is None:
-            verdict = d.verdict if d.verdict in ("adequate", "varies_between_records") \
-                else "unexplained"
-            break
-        step.added = c.effect
-        added.append(c.effect)
-        current = c.fit.model
-    return BuildUp(steps, added, verdict)
+@dataclass
+class _BuildUpRun:
+    """What every build-up of one ``stepwise`` call shares."""
+
+    records: Sequence[Record]
+    own: list[str]                #: the starting model's effects (the user's, never revised)
+    window_s: float
+    max_effects: int
+    effects: Sequence[str] | None
+    say: Callable[[str], None]
+    jobs: int | None
+    windows: Windows
+    #: the revisions' changes tried so far (:func:`.revision.revise`)
+    tried: set = field(default_factory=set)
+    #: the models a build-up was stuck at and tried to get past (revised, fitted afresh)
+    unstuck: set = field(default_factory=set)
+
+    def added(self, model: PlantModel) -> list[str]:
+        """The effects of ``model`` a build-up added (or carried from an earlier one)."""
+        return [e.name for e in model.effects if e.name not in self.own]
+
+    def forward(self, current: PlantModel, steps: list[Step]) -> BuildUp:
+        """The build-up from ``current`` (reached by ``steps``) to its end. After each effect
+        added, the effects added before it that it looks like are revised
+        (:func:`.revision.revise`): tried in place of their look-alikes and left out, with it
+        in place. Stuck above the noise (no candidate helps), every added effect is revised so,
+        and if that changes nothing, every candidate is fitted afresh (once per model)."""
+        steps = list(steps)
+        verdict = "max_effects"
+        while True:
+            self.say(f"diagnosing {current.spec}")
+            todo = None if self.effects is None else [e for e in self.effects
+                                                      if current.effect(e) is None]
+            # after the first step the model is a candidate fitted to these records: polished
+            d = diagnose(self.records, current, window_s=self.window_s, effects=todo,
+                         progress=self.say, jobs=self.jobs, fitted=bool(steps))
+            floor = d.objective_floor
+            step = Step(model=d.base_fit.model.spec, rmse=d.base_eval.rmse,
+                        over_floor=d.base_fit.objective_rmse / floor if floor > 0 else math.inf,
+                        diagnosis=d)
+            steps.append(step)
+            c, why = pick(d)
+            afresh = False
+            stuck = c is None and d.verdict == "unexplained" and self.added(current)
+            if stuck and current.spec not in self.unstuck:
+                self.unstuck.add(current.spec)
+                # stuck above the noise: first every added effect tried in place of its
+                # look-alikes and left out; if nothing changes, every candidate fitted afresh
+                # (the effects in may have settled where a missing one should be: a boost that
+                # took up a resonance's ringing with a longer delay)
+                self.say("stuck: trying each added effect in place of its look-alikes")
+                step.why = why
+                step.revision = revise(d.base_fit, self.added(current), self.windows.full,
+                                       self.windows.screen, floor, self.jobs, self.say,
+                                       tried=self.tried)
+                if step.revision.kept:
+                    current = step.revision.fit.model
+                    continue
+                self.say(f"fitting every candidate to {current.spec} afresh")
+                again = diagnose(self.records, d.base_fit.model, window_s=self.window_s,
+                                 effects=todo, progress=self.say, jobs=self.jobs, fitted=True,
+                                 afresh=True)
+                c, why = pick(again)
+                if c is not None:
+                    step.diagnosis, why = again, f"fitted afresh (every parameter searched): {why}"
+                    afresh = True
+            if c is not None and len(self.added(current)) >= self.max_effects:
+                step.why = (f"stopped after {self.max_effects} added effects (--max-effects); "
+                            f"next: {c.effect}")
+                break
+            step.why = why
+            if c is None:
+                verdict = d.verdict if d.verdict in ("adequate", "varies_between_records") \
+                    else "unexplained"
+                break
+            step.added = c.effect
+            # the diagnosis weighed +c against the other candidates and against the model
+            # without it: the revisions need not fit those changes again
+            have = frozenset(e.name for e in c.fit.model.effects)
+            self.tried.update((have, c.effect, x.effect) for x in step.diagnosis.candidates
+                              if x is not c)
+            self.tried.add((have, c.effect, None))
+            current = c.fit.model
+            # the earlier effects whose role the new one may have taken: its look-alikes (all
+            # of them after a candidate fitted afresh: the others may have settled for it)
+            earlier = [e for e in self.added(current) if e != c.effect
+                       and (afresh or c.effect in look_alikes(e))]
+            if earlier:
+                self.say(f"revising {', '.join('+' + e for e in earlier)} with +{c.effect} in place")
+                step.revision = revise(c.fit, earlier, self.windows.full, self.windows.screen,
+                                       floor, self.jobs, self.say, tried=self.tried)
+                current = step.revision.fit.model
+        return BuildUp(steps, verdict)
 
 
 def _alternative(steps: Sequence[Step]) -> Branch | None:
@@ -309,9 +436,71 @@ def backward_check(records: Sequence[Record], full: FitResult, added: Sequence[s
         full = weakest.reduced
 
 
-def _summary(steps: list[Step], verdict: str, fit: FitResult, needed: list[Needed],
-             last: Diagnosis) -> str:
-    path = " → ".join([steps[0].model] + [f"+{s.added}" for s in steps if s.added])
+def said_apart(r: Stepwise) -> list[Ambiguity]:
+    """What these data cannot tell apart about the final model: the last step's ambiguities,
+    then those of the earlier steps that name an effect of the final model (the step that added
+    it says what it could not be told from), then the revisions' ties; one per set of
+    explanations."""
+    final = {e.name for e in r.model.effects}
+    found = list(r.last.ambiguities)
+    for s in reversed(r.steps[:-1]):
+        found += [a for a in s.diagnosis.ambiguities if set(a.effects) & final]
+    for rev in [s.revision for s in r.steps] + [r.revision]:
+        if rev is not None:
+            found += [a for a in rev.ambiguities if a.effects[0] in final]
+    out, seen = [], set()
+    for a in found:
+        if frozenset(a.effects) not in seen:
+            seen.add(frozenset(a.effects))
+            out.append(a)
+    return out
+
+
+#: catalogue effects named as the closest rejected when the build-up ends unexplained
+CLOSEST = 3
+
+
+def closest_rejected(r: Stepwise) -> list[str]:
+    """The catalogue effects that came closest and were rejected, closest first: the last
+    diagnosis's candidates that lowered the error, and the end's revision's look-alikes tried
+    in place of an effect, each with the error it leaves and why it was not kept."""
+    d = r.last
+    floor = d.objective_floor
+    final = {e.name for e in r.model.effects}
+    near: list[tuple[float, str]] = []
+    for c in d.candidates:
+        if c.effect in final or c.improvement <= 0:
+            continue
+        why = (f"not let in: {c.evidence}" if not c.own else
+               f"removes {100 * max(c.excess_share, 0):.0f} % of the error above the noise"
+               if c.helps else f"lowers the error by {100 * c.improvement:.1f} %, not "
+               f"significantly or consistently")
+        near.append((c.objective_rmse, f"+{c.effect} ({c.objective_rmse / floor:.2f}× the "
+                                       f"floor: {why})"))
+    rejected = [a for rev in (r.steps[-1].revision, r.revision) if rev is not None
+                for a in rev.rejected if a.added is not None and a.removed in final]
+    for a in rejected:
+        near.append((a.objective_rmse, f"{a.change} ({a.objective_rmse / floor:.2f}× the "
+                                       f"floor: {a.why})"))
+    return [text for _, text in sorted(near)[:CLOSEST]]
+
+
+def _path(r: Stepwise) -> str:
+    """The build-up's path: the effects added, and what the revisions changed."""
+    def revised(rev: Revision | None) -> list[str]:
+        if rev is None:
+            return []
+        return [f"({a.change})" for a in rev.kept]
+    items = [r.steps[0].model]
+    for s in r.steps:
+        if s.added:
+            items.append(f"+{s.added}")
+        items += revised(s.revision)
+    return " → ".join(items + revised(r.revision))
+
+
+def _summary(r: Stepwise) -> str:
+    steps, verdict, fit, needed, last = r.steps, r.verdict, r.fit, r.needed, r.last
     first, end = steps[0], steps[-1]
     change = (f"error {first.rmse:.3g} → {end.rmse:.3g} kgf ({first.over_floor:.2f}× → "
               f"{end.over_floor:.2f}× the noise floor)")
@@ -324,6 +513,8 @@ def _summary(steps: list[Step], verdict: str, fit: FitResult, needed: list[Neede
     elif verdict == "unexplained":
         head = (f"{fit.model.spec} is the closest the effects tried get; the rest is unexplained"
                 + (f" ({last.unexplained.description})" if last.unexplained else ""))
+        if r.closest:
+            tail += f"; closest rejected: {'; '.join(r.closest)}"
     else:
         head = f"stopped at {fit.model.spec} (effect limit); the error is still above the noise"
-    return f"{head}: {path}, {change}{tail}"
+    return f"{head}: {_path(r)}, {change}{tail}"

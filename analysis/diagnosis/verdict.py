@@ -47,7 +47,7 @@ import numpy as np
 from plant import PlantModel
 from plant.catalogue import effect_class
 
-from ..identification.fit import FTOL, REFIT_TOL, FitOptions, FitResult, fit_model
+from ..identification.fit import FTOL, REFIT_TOL, SCREEN_TOL, FitOptions, FitResult, fit_model
 from ..identification.metrics import Evaluation, evaluate
 from ..identification.windows import (WINDOW_S, Piece, errors, pieces_from_records, residual,
                                       subset_pieces, window_sse)
@@ -220,13 +220,16 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
              window_s: float = WINDOW_S, effects: Sequence[str] | None = None,
              max_screen_windows: int = 150, refit_top: int = REFIT_TOP,
              progress: Callable[[str], None] | None = None, jobs: int | None = None,
-             fitted: bool = False) -> Diagnosis:
+             fitted: bool = False, afresh: bool = False) -> Diagnosis:
     """Diagnose what ``model`` misses in ``records`` (one data set). See the module docstring.
 
     ``jobs``: worker processes for the candidates' screening fits (1: none; default: one per
     CPU when the data are large enough to gain, :func:`analysis.parallel.workers_for`).
     ``fitted``: ``model``'s values were fitted to these records already (a candidate of the
-    step before, in a build-up): they are polished, not searched for again."""
+    step before, in a build-up): they are polished, not searched for again. ``afresh``: each
+    candidate is fitted afresh, every parameter searched from its start grid and the delay
+    too, not only the new effect's from the model's values (several times the work: for a
+    model whose effects may have settled where a missing one should be)."""
     say = progress or (lambda msg: None)
     start = PlantModel.from_spec(model) if isinstance(model, str) else model
     effects = list(effects) if effects is not None else diagnosable_effects(start)
@@ -236,10 +239,12 @@ def diagnose(records: Sequence[Record], model: PlantModel | str = "base",
     screening = {"subset": windows.subset, "windows_total": windows.n_full,
                  "windows_screened": windows.n_screen, "refit_on_all": ["base"]}
     base = fit_start(start, windows, records, window_s, say, fitted)
-    workers = workers_for(len(effects), screening_seconds(base.model, windows, len(effects)), jobs)
+    work = screening_seconds(base.model, windows, len(effects)) * (AFRESH_WORK if afresh else 1)
+    workers = workers_for(len(effects), work, jobs)
     screening["workers"] = workers
-    fitted = refit_best(screen_candidates(base.model, effects, windows, workers, say), windows,
-                        refit_top, say, base)
+    screening["afresh"] = afresh
+    fitted = refit_best(screen_candidates(base.model, effects, windows, workers, say, afresh),
+                        windows, refit_top, say, base)
     screening["refit_on_all"] += [c.effect for c in fitted if c.refit_on == "final"]
     cands = judge_all(fitted, base, base.floor)
     floor = judging_floor(cands, base, records, window_s)
@@ -309,24 +314,34 @@ def screening_seconds(model: PlantModel, windows: Windows, candidates: int) -> f
     return (time.perf_counter() - t0) * EVALS_PER_CANDIDATE * candidates
 
 
+#: a candidate fitted afresh (every start grid, the delay searched) costs about this many times
+#: a screening fit from the model's values
+AFRESH_WORK = 3
+
+
 def _screen_candidate(shared: tuple, name: str) -> FitResult | None:
     """``base + name`` fitted on the screening windows (a grid for the new effect, the rest
-    warm), or None if the effect cannot start from the base model's values."""
-    base_model, screen = shared
+    warm; or afresh: every effect's grid and the delay searched, the model's values one start
+    among them), or None if the effect cannot start from the base model's values."""
+    base_model, screen, afresh = shared
     try:
         m0 = PlantModel.from_spec(f"{base_model.spec}+{name}", base_model.params())
     except Exception:  # noqa: BLE001 - an effect that cannot start from here is skipped
         return None
-    return fit_model(screen, m0, options=FitOptions.add_effect(name))
+    return fit_model(screen, m0, options=FitOptions(covariance=False, tol=SCREEN_TOL) if afresh
+                     else FitOptions.add_effect(name))
 
 
 def screen_candidates(base_model: PlantModel, effects: Sequence[str], windows: Windows,
-                      workers: int, say: Callable[[str], None]) -> dict[str, FitResult]:
+                      workers: int, say: Callable[[str], None],
+                      afresh: bool = False) -> dict[str, FitResult]:
     """Step 2: ``base_model + effect`` fitted on the screening windows for every effect (in
     ``workers`` processes), in the order of ``effects`` whatever order the workers finished in;
-    effects that cannot start from the base model's values are left out."""
+    effects that cannot start from the base model's values are left out. ``afresh``: see
+    :func:`diagnose`."""
     done: dict[str, FitResult | None] = {}
-    for name, fit in run_each(_screen_candidate, effects, (base_model, windows.screen), workers):
+    for name, fit in run_each(_screen_candidate, effects, (base_model, windows.screen, afresh),
+                              workers):
         say(f"tried +{name}" if workers > 1 else f"trying +{name}")
         done[name] = fit
     return {n: done[n] for n in effects if done[n] is not None}
@@ -444,7 +459,9 @@ def partial_explanations(cands: Sequence[Candidate], verdict: str) -> list[str]:
     out = []
     for c in cands:
         if not c.earns and c.improvement >= 0.01 and c.z >= MIN_Z and verdict != "missing_effect":
-            if c.improvement < MIN_IMPROVEMENT:
+            if not c.own:
+                why = f"but it is not let in: {c.evidence}"
+            elif c.improvement < MIN_IMPROVEMENT:
                 why = f"but below the {100 * MIN_IMPROVEMENT:.0f} % worth reporting"
             elif c.excess_share < MIN_EXCESS_SHARE:
                 why = (f"but it removes only {pct(max(c.excess_share, 0.0))} of the error above "

@@ -66,10 +66,30 @@ class Resonance(Effect):
             "P-feedback at several reference frequencies, up to a third of the sample rate: far "
             "below f_n a resonance only adds the delay 2ζ/ω_n, near it the phase and gain change "
             "fast"),
+        "sensor_lag": (
+            "a meander (command steps) at a small amplitude: a filter in the dynamometer never "
+            "overshoots, a resonance rings after each step"),
     }
+    #: below this damping the response peaks (by 1/(2ζ√(1−ζ²))) and a step overshoots by
+    #: e^(−πζ/√(1−ζ²)) ≥ 4.3 %: what no lag does; above it the law is a lag's with a spare parameter
+    RINGS_BELOW = 1 / math.sqrt(2)
     params = (Param("frequency", 10.0, 0.3, 200.0, "Hz", "natural frequency f_n", log=True),
               Param("damping", 0.5, 0.05, 5.0, "1",
                     "damping ratio ζ (a hydraulic actuator 0.05-0.3, a servo-valve 0.5-1)", log=True))
+
+    @classmethod
+    def own_evidence(cls, values: Mapping[str, float]) -> tuple[bool, str]:
+        """Only an underdamped resonance (ζ < 1/√2) shows what a lag cannot: a peak and
+        ringing. Well damped it is two lags in series (ζ ≥ 1) or a lag with a spare parameter,
+        not a resonance in the data."""
+        f, z = values[f"{cls.name}.frequency"], values[f"{cls.name}.damping"]
+        if z >= cls.RINGS_BELOW:
+            return False, (f"overdamped (ζ {z:.2g} at {f:.3g} Hz): no peak and no ringing, a lag of "
+                           f"2ζ/ω = {1e3 * 2 * z / (2 * math.pi * f):.3g} ms with a spare parameter")
+        peak = 1 / (2 * z * math.sqrt(1 - z * z))
+        overshoot = math.exp(-math.pi * z / math.sqrt(1 - z * z))
+        return True, (f"it rings (ζ {z:.2g} at {f:.3g} Hz: a peak of {peak:.2g}× and "
+                      f"{100 * overshoot:.0f} % overshoot after a step), which a lag cannot make")
 
     def init_state(self, n, u0):
         past = np.repeat(np.array(u0, float)[:, None], 2, axis=1)

@@ -226,14 +226,17 @@ def progress_bar(args: argparse.Namespace, desc: str, total: int | None = None):
             bar.close()
 
 
-def print_tail(d, files: list, saved: Path | None, heading: str) -> None:
-    """What a diagnosis leaves unexplained or ambiguous, its notes, and the files written."""
+def print_tail(d, files: list, saved: Path | None, heading: str,
+               ambiguities: list | None = None) -> None:
+    """What a diagnosis leaves unexplained or ambiguous (``ambiguities``: these rather than
+    its own), its notes, and the files written."""
     if d.unexplained:
         print(f"  - unexplained: {d.unexplained.description}")
-    if d.ambiguities:
+    ambiguities = d.ambiguities if ambiguities is None else ambiguities
+    if ambiguities:
         print()
         print(heading)
-        for a in d.ambiguities:
+        for a in ambiguities:
             print(f"  - {a.text()}")
     for w in d.warnings:
         print(f"note: {w}")
@@ -282,10 +285,16 @@ def main_stepwise(args: argparse.Namespace, records, model, effects) -> int:
         return 0
     print(f"{'step':>4s}  {'model':40s} {'RMSE kgf':>9s} {'× floor':>8s}  next")
     for i, s in enumerate(r.steps):
-        nxt = f"+{s.added}: {s.why}" if s.added else s.why
-        print(f"{i:4d}  {s.model:40s} {s.rmse:9.4g} {s.over_floor:8.2f}  {nxt}")
+        print(f"{i:4d}  {s.model:40s} {s.rmse:9.4g} {s.over_floor:8.2f}  {s.line}")
     print(f"(× floor: the error with re-estimated window starts over the noise floor, "
           f"{r.last.objective_floor:.3g} kgf)")
+    if r.revision is not None and r.revision.kept:
+        print(f"at the end, each added effect tried in place of its look-alikes: {r.revision.text}")
+    if r.closest:
+        print()
+        print("the catalogue effects that came closest, rejected (what to try next):")
+        for c in r.closest:
+            print(f"  - {c}")
     if r.needed:
         print()
         print("each added effect, checked with the others in place:")
@@ -293,7 +302,8 @@ def main_stepwise(args: argparse.Namespace, records, model, effects) -> int:
             print(f"  - {n.text()}")
     print()
     print(f"fitted {r.model.spec}: " + ", ".join(f"{k} = {v:.4g}" for k, v in r.model.params().items()))
-    print_tail(r.last, files, saved, "what these data cannot tell (last step):")
+    print_tail(r.last, files, saved, "what these data cannot tell about this model:",
+               r.ambiguities)
     if report:
         print(f"report: {report}")
     return 0

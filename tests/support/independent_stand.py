@@ -38,6 +38,11 @@ One hidden effect per simulation (or "none"), or several joined by "+":
              zero force: rate x 0.85 when sign(q) = sign(y)
   dirdelay   the command reaches the valve 35 ms after it steps up and 70 ms after it steps down
              (each change of the held command is applied after its own delay, in order; replaces tau)
+  dirlatch   the valve follows a rising command 35 ms late and a falling one 70 ms late, the
+             earlier one first (no queue: a fall that reaches it before the rise before it ends
+             the rise): it sits at the highest command that reached it within the fall's
+             extra 35 ms (replaces tau). Under steps it is dirdelay; under a smooth command
+             dirdelay's queue holds a rise back behind the falls still in it
   slew       the spool moves at most 400 %/s (a rate limit after the delay, instead of a lag)
   res        second-order valve/actuator after the delay: 6 Hz, damping 0.2 (rings)
   supply     supply pressure sags with the flow drawn: dps/dt = (1 - ps)/T - c*|q|/100, flow x
@@ -50,6 +55,11 @@ One hidden effect per simulation (or "none"), or several joined by "+":
   stiction   rod seal friction: the specimen's force is a play of total width w = 200 kgf on the
              hydraulic force (the rod sticks after each reversal until the pressure has
              changed by w); the dynamometer measures the specimen's force
+  lostmotion lost motion in the rod's travel: a play of total width b = 1.5 %*s between the
+             piston and the rod, in the flow's travel (the flow passed, command % x s); after
+             each reversal the piston travels b before the rod (and the force) follows. The
+             trend and the leak act on the specimen's force, after the play (stiction's play
+             sits on the hydraulic force, before them)
   supripple  the supply pressure oscillates, and the flow with it: flow x (1 + a*sin(2*pi*f*t +
              phase)), a = 0.15, f = 3 Hz, t since the run began (phase as for osc); no
              catalogue effect has this law (docs/your-own-effect.md writes it as a plug-in)
@@ -87,6 +97,7 @@ EFFECT_PARAMS = {
     "stiction": dict(w=200.0),
     "softload": dict(soft=0.15),
     "dirdelay": dict(up=0.035, down=0.070),
+    "dirlatch": dict(up=0.035, down=0.070),
     "slew": dict(rate=400.0),
     "res": dict(f=6.0, zeta=0.2),
     "supply": dict(T=1.0, c=1.5),
@@ -95,6 +106,7 @@ EFFECT_PARAMS = {
     "rev_force": dict(boost=2.0, F=150.0),
     "forcelimit": dict(Fmax=1500.0),
     "supripple": dict(a=0.15, f=3.0),
+    "lostmotion": dict(b=1.5),
 }
 
 
@@ -118,11 +130,12 @@ class _Reversals:
 
 
 def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None,
-             plant: dict | None = None, osc_phase: float = 0.0):
+             plant: dict | None = None, osc_phase: float = 0.0, values: dict | None = None):
     """Simulate n samples. controller(k, t, y_meas) -> (u, r). Returns t, u, y_meas, r, y_true.
 
     ``effect``: one name of EFFECT_PARAMS, or several joined by "+" (applied together, each in
-    its place along the chain)."""
+    its place along the chain). ``values``: an effect's parameters other than EFFECT_PARAMS's
+    (``{"lag": {"T": 0.03}}``)."""
     p = dict(DEFAULTS)
     if plant:
         p.update(plant)
@@ -130,7 +143,7 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
     unknown = es - set(EFFECT_PARAMS)
     if unknown:
         raise ValueError(f"unknown effect(s) {sorted(unknown)}")
-    P = {name: EFFECT_PARAMS[name] for name in es}
+    P = {name: {**EFFECT_PARAMS[name], **(values or {}).get(name, {})} for name in es}
     rng = rng or np.random.default_rng(0)
     g, delta = p["g"], p["delta"]
     D = int(round(p["tau"] / H))           # delay in fine steps
@@ -147,6 +160,7 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
     last_apply = 0
     valve_in = 0.0
     xs = 0.0                               # slew: spool position
+    xp = xr = 0.0                          # lostmotion: the piston's and the rod's travel, %*s
     ps = 1.0                               # supply: relative supply pressure
     jit = rng.integers(0, int(round(P.get("jitter", {}).get("j", 0.0) / H)) + 1, n)
 
@@ -203,6 +217,12 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
                 while applied and applied[0][0] <= i:
                     valve_in = applied.pop(0)[1]
                 v = valve_in
+            if "dirlatch" in es:         # the extreme that reached the valve in the extra delay
+                dl = P["dirlatch"]
+                first = i - int(round(min(dl["up"], dl["down"]) / H))
+                spread = int(round(abs(dl["down"] - dl["up"]) / H))
+                held = ucmd[max(first - spread, 0) // SUB:first // SUB + 1] if first >= 0 else [0.0]
+                v = (max if dl["down"] > dl["up"] else min)(held)
             if "nulldrift" in es:
                 v += P["nulldrift"]["b"] * t
             # valve chain
@@ -255,6 +275,12 @@ def simulate(n: int, controller, effect: str = "none", y0: float = 0.0, rng=None
                 if y_rev is not None:
                     rp = P["rev_force"]
                     q *= 1.0 + rp["boost"] * math.exp(-abs(y - y_rev) / rp["F"])
+            if "lostmotion" in es:       # the rod follows the piston through the play
+                half = P["lostmotion"]["b"] / 2
+                xp += H * q
+                moved = min(max(xr, xp - half), xp + half) - xr
+                xr += moved
+                q = moved / H
             rate = g * q
             if "stiffening" in es:
                 rate *= 1.0 + P["stiffening"]["k"] * abs(y) / 1e4
@@ -329,15 +355,19 @@ PLAN = [
 ]
 
 
-def make_dataset(effect: str, seed: int, fixed_phase: float | None = None):
-    """All runs of one data set: list of (name, t, u, y_meas, r, y_true)."""
+def make_dataset(effect: str, seed: int, fixed_phase: float | None = None, plan=None,
+                 plant: dict | None = None, values: dict | None = None):
+    """All runs of one data set: list of (name, kind, t, u, y_meas, r, y_true). ``plan``: the
+    runs (default :data:`PLAN`); ``plant``, ``values``: as :func:`simulate` takes them. The
+    noise of a run depends only on ``seed`` and the runs before it, not on the effects."""
     rng = np.random.default_rng(seed)
     out = []
-    for name, kind, args, y0 in PLAN:
+    for name, kind, args, y0 in PLAN if plan is None else plan:
         n, ctl = {"meander": meander, "relay": relay, "pfeedback": pfeedback}[kind](**args)
         phase = float(rng.uniform(0, 2 * math.pi))
         if fixed_phase is not None:
             phase = fixed_phase
-        t, u, ym, r, yt = simulate(n, ctl, effect=effect, y0=y0, rng=rng, osc_phase=phase)
+        t, u, ym, r, yt = simulate(n, ctl, effect=effect, y0=y0, rng=rng, osc_phase=phase,
+                                   plant=plant, values=values)
         out.append((name, kind, t, u, ym, r, yt))
     return out

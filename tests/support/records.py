@@ -66,4 +66,5 @@ EQUIVALENT = {"rev_flow": {"reversal"}, "rev_cmd": {"command_reversal"},
               "dirdelay": {"direction_delay"}, "res": {"resonance"},
               "valve2nd": {"resonance"},        # the same law at 25 Hz, ζ = 0.5
               "slew": {"slew"}, "supply": {"supply"}, "gaindrift": {"gain_drift"},
-              "nulldrift": {"null_drift"}}
+              "nulldrift": {"null_drift"},
+              "lostmotion": {"stiction"}, "dirlatch": {"direction_delay"}}       # a play in the rod's travel: one in force
