@@ -43,7 +43,7 @@ from ..parallel import one_blas_thread, run_each, workers_for
 from ..records.record import Record
 from .ambiguity import Ambiguity
 from .candidates import Candidate, judge
-from .revision import Alternative, Revision, revise
+from .revision import Revision, revise
 from .verdict import Diagnosis, Windows, diagnose
 
 #: effects added at most (each step is one diagnosis: all candidates fitted)
