@@ -1,10 +1,7 @@
-"""The documented workflow with another maker's devices, emulated: the paper's campaign, a fit,
-the controller's design and a load, all through the devices' own PDOs, node guarding and static
-mappings, and the force in their own units. The estimates agree with the emulated pair's within
-their intervals, and the load tracks as well. One set runs it, the one furthest from the
-emulated pair (Hydronix: guarding, static PDOs, its force in its own unit); every set's PDOs,
-error control and scaling are checked by a meander each in tests/test_devices_e2e.py, and the
-steps after the campaign read only the recorded runs (about two minutes a set)."""
+"""The documented workflow with each example device set, emulated: the paper's campaign, a fit,
+the controller's design and a load, all through the devices' own PDOs, heartbeats or guarding,
+and the force in their own units. The estimates agree with the emulated pair's within their
+intervals, and the load tracks as well."""
 from __future__ import annotations
 
 import json
@@ -18,7 +15,7 @@ from plant_emulator.process import EmulatorProcess
 from tests.support.cli import stand
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "devices"
-SETS = ("hydronix",)
+SETS = ("servotek", "hydronix", "fluxa")
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
